@@ -1,0 +1,138 @@
+"""One RGB-D capture: colour, metric depth, the camera, and optional ground truth.
+
+Files on disk follow `shelfpick render`: `rgb.png`, `depth.png` (uint16, the
+camera's `depth_scale` metres per unit, 0 = no measurement), `camera.json`,
+and for rendered captures `masks.png` (uint16 instance labels) and
+`masks.json` (label -> box id). Loading checks what a user can get wrong and
+names the file: unreadable images, RGB and depth of different sizes, a camera
+whose size does not match, a depth map with no valid pixel.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from perception.errors import PerceptionError
+from perception.scene import Camera, read_json, write_json
+
+
+@dataclass(frozen=True, eq=False)
+class Capture:
+    rgb: np.ndarray                      # HxWx3 uint8
+    depth: np.ndarray | None             # HxW float32 metres, 0 = no data; None = no depth sensor
+    camera: Camera
+    masks: np.ndarray | None = None      # HxW uint16 ground-truth instance labels (rendered only)
+    labels: Mapping[int, str] = field(default_factory=dict)  # mask label -> box id
+
+    def __post_init__(self) -> None:
+        validate(self.rgb, self.depth, self.camera)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rgb.shape[:2]
+
+    def save(self, out_dir: str | Path) -> dict[str, Path]:
+        """Write rgb.png, depth.png, camera.json (+ masks.png, masks.json)."""
+        import cv2
+
+        d = Path(out_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        paths = {"rgb": d / "rgb.png", "camera": d / "camera.json"}
+        cv2.imwrite(str(paths["rgb"]), cv2.cvtColor(self.rgb, cv2.COLOR_RGB2BGR))
+        if self.depth is not None:
+            paths["depth"] = d / "depth.png"
+            units = np.round(np.nan_to_num(self.depth, nan=0.0) / self.camera.depth_scale)
+            cv2.imwrite(str(paths["depth"]), np.clip(units, 0, 65535).astype(np.uint16))
+        self.camera.save(paths["camera"])
+        if self.masks is not None:
+            paths["masks"] = d / "masks.png"
+            paths["masks_json"] = d / "masks.json"
+            cv2.imwrite(str(paths["masks"]), self.masks.astype(np.uint16))
+            write_json(paths["masks_json"], {str(k): v for k, v in sorted(self.labels.items())})
+        return paths
+
+
+def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: str = "") -> None:
+    where = f"{origin}: " if origin else ""
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise PerceptionError(f"{where}RGB image must be HxWx3 uint8, got shape {rgb.shape} {rgb.dtype}")
+    h, w = rgb.shape[:2]
+    if (camera.width, camera.height) != (w, h):
+        raise PerceptionError(f"{where}camera is {camera.width}x{camera.height} but the RGB image is {w}x{h}")
+    if depth is not None:
+        if depth.shape != (h, w):
+            raise PerceptionError(f"{where}depth image is {depth.shape[1]}x{depth.shape[0]} "
+                                  f"but the RGB image is {w}x{h}")
+        valid = np.isfinite(depth) & (depth > 0)
+        if not valid.any():
+            raise PerceptionError(f"{where}depth image has no valid pixel (all zero or NaN)")
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    import cv2
+
+    p = Path(path)
+    if not p.is_file():
+        raise PerceptionError(f"{p}: RGB image not found")
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None:
+        raise PerceptionError(f"{p}: not a readable image (PNG or JPEG expected)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
+    """Metric depth (float32 metres, 0 = no data) from a uint16 PNG or a .npy file."""
+    import cv2
+
+    p = Path(path)
+    if not p.is_file():
+        raise PerceptionError(f"{p}: depth image not found")
+    if p.suffix.lower() == ".npy":
+        try:
+            raw = np.load(p, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001 - any numpy load failure is the file's fault
+            raise PerceptionError(f"{p}: not a readable .npy depth array ({exc})") from None
+        if raw.ndim != 2:
+            raise PerceptionError(f"{p}: depth array must be 2-D, got shape {raw.shape}")
+        # float arrays are metres already; integer arrays are sensor units
+        depth = raw.astype(np.float32) if raw.dtype.kind == "f" else raw.astype(np.float32) * depth_scale
+    else:
+        raw = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if raw is None:
+            raise PerceptionError(f"{p}: not a readable depth image (uint16 PNG or .npy expected)")
+        if raw.ndim != 2:
+            raise PerceptionError(f"{p}: depth image must have one channel, got {raw.shape[2]}")
+        depth = raw.astype(np.float32) * depth_scale
+    depth[~np.isfinite(depth)] = 0.0
+    depth[depth < 0] = 0.0
+    return depth
+
+
+def load_capture(rgb: str | Path, depth: str | Path | None, camera: str | Path) -> Capture:
+    """Load the files of one capture; errors name the file that is wrong."""
+    cam = Camera.load(camera)
+    img = read_rgb(rgb)
+    dep = read_depth(depth, cam.depth_scale) if depth is not None else None
+    validate(img, dep, cam, origin=str(depth or rgb))
+    masks, labels = None, {}
+    mpath = Path(rgb).with_name("masks.png")
+    jpath = Path(rgb).with_name("masks.json")
+    if mpath.is_file() and jpath.is_file():
+        import cv2
+
+        masks = cv2.imread(str(mpath), cv2.IMREAD_UNCHANGED)
+        labels = {int(k): v for k, v in read_json(jpath).items()}
+    return Capture(img, dep, cam, masks, labels)
+
+
+def load_capture_dir(d: str | Path) -> Capture:
+    """A folder as written by `Capture.save` / `shelfpick render`."""
+    d = Path(d)
+    depth = d / "depth.png" if (d / "depth.png").is_file() else None
+    return load_capture(d / "rgb.png", depth, d / "camera.json")
+
+
+__all__ = ["Capture", "load_capture", "load_capture_dir", "read_rgb", "read_depth", "validate"]

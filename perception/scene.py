@@ -1,0 +1,384 @@
+"""Scene and camera documents (`shelfpick.scene/1`, `shelfpick.camera/1`).
+
+These frozen dataclasses are the contract between perception, planning and
+the console (see ../shared/FORMATS.md). Perception produces scenes, so they
+live here; planning and the console import them, never the reverse.
+Readers validate everything and raise `FormatError` naming origin, field and
+value; extra keys are kept in `extra` so a round trip loses nothing.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+from perception.errors import FormatError
+
+SCENE_FORMAT = "shelfpick.scene/1"
+CAMERA_FORMAT = "shelfpick.camera/1"
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]  # scalar first: w, x, y, z
+
+IDENTITY: Quat = (1.0, 0.0, 0.0, 0.0)
+
+
+# --------------------------------------------------------------------------
+# small validated readers
+def _num(value: Any, origin: str, fld: str, *, positive: bool = False,
+         nonneg: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise FormatError(origin, fld, f"expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise FormatError(origin, fld, f"must be finite, got {value!r}")
+    if positive and v <= 0:
+        raise FormatError(origin, fld, f"must be > 0, got {value!r}")
+    if nonneg and v < 0:
+        raise FormatError(origin, fld, f"must be >= 0, got {value!r}")
+    return v
+
+
+def _vec(value: Any, n: int, origin: str, fld: str, *, positive: bool = False) -> tuple:
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise FormatError(origin, fld, f"expected a list of {n} numbers, got {value!r}")
+    return tuple(_num(v, origin, f"{fld}[{i}]", positive=positive) for i, v in enumerate(value))
+
+
+def _quat(value: Any, origin: str, fld: str) -> Quat:
+    q = _vec(value, 4, origin, fld)
+    norm = math.sqrt(sum(c * c for c in q))
+    if abs(norm - 1.0) > 1e-3:
+        if norm < 1e-6:
+            raise FormatError(origin, fld, f"quaternion has zero length: {list(value)!r}")
+        raise FormatError(origin, fld, f"quaternion is not unit length (|q|={norm:.4f}): {list(value)!r}")
+    return tuple(c / norm for c in q)  # type: ignore[return-value]
+
+
+def _req(doc: Mapping, key: str, origin: str, prefix: str = "") -> Any:
+    if key not in doc:
+        raise FormatError(origin, f"{prefix}{key}", "missing required key")
+    return doc[key]
+
+
+def _obj(value: Any, origin: str, fld: str) -> Mapping:
+    if not isinstance(value, Mapping):
+        raise FormatError(origin, fld, f"expected an object, got {type(value).__name__}")
+    return value
+
+
+def read_json(path: str | Path) -> Any:
+    """Read a JSON file; missing, unreadable or malformed files raise FormatError."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FormatError(str(p), "", "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FormatError(str(p), "", f"cannot read file ({exc.__class__.__name__}: {exc})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FormatError(str(p), "", f"malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+
+
+def write_json(path: str | Path, doc: Any) -> None:
+    """Write atomically (temp file + rename) so a crash never leaves half a file."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    tmp.replace(p)
+
+
+# --------------------------------------------------------------------------
+# quaternion helpers (scalar first), kept here so every package agrees
+def quat_to_matrix(q: Sequence[float]) -> list[list[float]]:
+    w, x, y, z = q
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+
+
+def wxyz_to_xyzw(q: Sequence[float]) -> tuple[float, float, float, float]:
+    return (q[1], q[2], q[3], q[0])
+
+
+def xyzw_to_wxyz(q: Sequence[float]) -> Quat:
+    return (q[3], q[0], q[1], q[2])
+
+
+def yaw_quat(yaw: float) -> Quat:
+    """Rotation about +z (an in-plane turn of a box standing on the floor)."""
+    return (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+
+
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Shelf:
+    """Interior of the shelf, metres: x in [-w/2, w/2], y in [0, depth], z in [0, height]."""
+
+    width: float = 1.0
+    depth: float = 0.30
+    height: float = 1.60
+
+    def to_json(self) -> dict:
+        return {"width": self.width, "depth": self.depth, "height": self.height}
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "") -> "Shelf":
+        doc = _obj(doc, origin, "shelf")
+        return cls(*(_num(_req(doc, k, origin, "shelf."), origin, f"shelf.{k}", positive=True)
+                     for k in ("width", "depth", "height")))
+
+
+@dataclass(frozen=True)
+class Box:
+    """One rigid box: full extents `size` along its own x/y/z, centre `position`."""
+
+    id: str
+    size: Vec3
+    position: Vec3
+    orientation: Quat = IDENTITY
+    mass: float | None = None
+    depth_known: bool = True
+    mask_label: int | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
+
+    @property
+    def front_y(self) -> float:
+        """y of the front face centre, for an upright box turned about z only."""
+        return self.front_center[1]
+
+    @property
+    def front_center(self) -> Vec3:
+        """Centre of the face on the box's local -y side, in the shelf frame."""
+        r = quat_to_matrix(self.orientation)
+        h = self.size[1] / 2
+        return tuple(self.position[i] - r[i][1] * h for i in range(3))  # type: ignore[return-value]
+
+    @property
+    def top_z(self) -> float:
+        """Highest z of the box's corners."""
+        return max(c[2] for c in self.corners())
+
+    def corners(self) -> list[Vec3]:
+        r = quat_to_matrix(self.orientation)
+        out = []
+        for sx in (-0.5, 0.5):
+            for sy in (-0.5, 0.5):
+                for sz in (-0.5, 0.5):
+                    local = (sx * self.size[0], sy * self.size[1], sz * self.size[2])
+                    out.append(tuple(self.position[i] + sum(r[i][j] * local[j] for j in range(3))
+                                     for i in range(3)))
+        return out  # type: ignore[return-value]
+
+    def with_depth(self, depth: float) -> "Box":
+        """Same box with a new extent along its own y, front face kept in place."""
+        r = quat_to_matrix(self.orientation)
+        front = self.front_center
+        pos = tuple(front[i] + r[i][1] * depth / 2 for i in range(3))
+        return replace(self, size=(self.size[0], depth, self.size[2]), position=pos)  # type: ignore[arg-type]
+
+    def to_json(self) -> dict:
+        doc: dict[str, Any] = dict(self.extra)
+        doc.update({"id": self.id, "size": list(self.size), "position": list(self.position),
+                    "orientation": list(self.orientation)})
+        if self.mass is not None:
+            doc["mass"] = self.mass
+        if not self.depth_known:
+            doc["depth_known"] = False
+        if self.mask_label is not None:
+            doc["mask_label"] = self.mask_label
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "", where: str = "box") -> "Box":
+        doc = _obj(doc, origin, where)
+        bid = _req(doc, "id", origin, f"{where}.")
+        if not isinstance(bid, str) or not bid:
+            raise FormatError(origin, f"{where}.id", f"expected a non-empty string, got {bid!r}")
+        w = f"boxes[id={bid}]"
+        size = _vec(_req(doc, "size", origin, f"{w}."), 3, origin, f"{w}.size", positive=True)
+        pos = _vec(_req(doc, "position", origin, f"{w}."), 3, origin, f"{w}.position")
+        quat = _quat(doc.get("orientation", list(IDENTITY)), origin, f"{w}.orientation")
+        mass = doc.get("mass")
+        if mass is not None:
+            mass = _num(mass, origin, f"{w}.mass", positive=True)
+        dk = doc.get("depth_known", True)
+        if not isinstance(dk, bool):
+            raise FormatError(origin, f"{w}.depth_known", f"expected true or false, got {dk!r}")
+        label = doc.get("mask_label")
+        if label is not None and (isinstance(label, bool) or not isinstance(label, int) or label < 1):
+            raise FormatError(origin, f"{w}.mask_label", f"expected a positive integer, got {label!r}")
+        known = {"id", "size", "position", "orientation", "mass", "depth_known", "mask_label"}
+        extra = {k: v for k, v in doc.items() if k not in known}
+        return cls(bid, size, pos, quat, mass, dk, label, extra)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera (OpenCV frame) and its pose in the shelf frame (camera to shelf)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    depth_scale: float = 0.001
+    position: Vec3 = (0.0, -1.04, 0.80)
+    orientation: Quat = (0.7071067811865476, -0.7071067811865476, 0.0, 0.0)
+
+    def to_json(self) -> dict:
+        return {"format": CAMERA_FORMAT, "width": self.width, "height": self.height,
+                "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+                "depth_scale": self.depth_scale,
+                "pose": {"position": list(self.position), "orientation": list(self.orientation)}}
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "", where: str = "") -> "Camera":
+        doc = _obj(doc, origin, where or "camera")
+        p = f"{where}." if where else ""
+        fmt = doc.get("format", CAMERA_FORMAT)
+        if fmt != CAMERA_FORMAT:
+            raise FormatError(origin, f"{p}format", f"expected {CAMERA_FORMAT!r}, got {fmt!r}")
+        vals = {}
+        for k in ("width", "height"):
+            v = _req(doc, k, origin, p)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v) or v <= 0:
+                raise FormatError(origin, f"{p}{k}", f"expected a positive integer, got {v!r}")
+            vals[k] = int(v)
+        for k in ("fx", "fy"):
+            vals[k] = _num(_req(doc, k, origin, p), origin, f"{p}{k}", positive=True)
+        for k in ("cx", "cy"):
+            vals[k] = _num(_req(doc, k, origin, p), origin, f"{p}{k}")
+        scale = _num(doc.get("depth_scale", 0.001), origin, f"{p}depth_scale", positive=True)
+        pose = _obj(_req(doc, "pose", origin, p), origin, f"{p}pose")
+        pos = _vec(_req(pose, "position", origin, f"{p}pose."), 3, origin, f"{p}pose.position")
+        quat = _quat(_req(pose, "orientation", origin, f"{p}pose."), origin, f"{p}pose.orientation")
+        return cls(vals["width"], vals["height"], vals["fx"], vals["fy"], vals["cx"], vals["cy"],
+                   scale, pos, quat)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Camera":
+        return cls.from_json(read_json(path), str(path))
+
+    def save(self, path: str | Path) -> None:
+        write_json(path, self.to_json())
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A shelf and the boxes in it, in the shelf frame."""
+
+    shelf: Shelf
+    boxes: tuple[Box, ...]
+    camera: Camera | None = None
+    source: Any = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "boxes", tuple(self.boxes))
+
+    @property
+    def ids(self) -> tuple[str, ...]:
+        return tuple(b.id for b in self.boxes)
+
+    def box(self, box_id: str) -> Box:
+        for b in self.boxes:
+            if b.id == box_id:
+                return b
+        raise KeyError(box_id)
+
+    def require(self, box_id: str, origin: str = "") -> Box:
+        """The box with this id, or a FormatError listing the ids there are."""
+        try:
+            return self.box(box_id)
+        except KeyError:
+            raise FormatError(origin, "target", f"unknown box id {box_id!r}; the scene has "
+                              f"{', '.join(self.ids) or 'no boxes'}") from None
+
+    def without(self, ids: Iterable[str]) -> "Scene":
+        gone = set(ids)
+        return replace(self, boxes=tuple(b for b in self.boxes if b.id not in gone))
+
+    def with_boxes(self, boxes: Iterable[Box]) -> "Scene":
+        return replace(self, boxes=tuple(boxes))
+
+    @property
+    def depth_known(self) -> bool:
+        return all(b.depth_known for b in self.boxes)
+
+    def hide_depths(self, placeholder: float | None = None) -> "Scene":
+        """What a camera gives: front faces kept, depth unknown (placeholder depth)."""
+        out = []
+        for b in self.boxes:
+            d = placeholder if placeholder is not None else b.size[1]
+            out.append(replace(b.with_depth(d), depth_known=False))
+        return self.with_boxes(out)
+
+    def to_json(self) -> dict:
+        doc: dict[str, Any] = {"format": SCENE_FORMAT, "shelf": self.shelf.to_json(),
+                               "boxes": [b.to_json() for b in self.boxes]}
+        if self.camera is not None:
+            doc["camera"] = self.camera.to_json()
+        if self.source is not None:
+            doc["source"] = self.source
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "") -> "Scene":
+        doc = _obj(doc, origin, "scene")
+        fmt = _req(doc, "format", origin)
+        if fmt != SCENE_FORMAT:
+            raise FormatError(origin, "format", f"expected {SCENE_FORMAT!r}, got {fmt!r}")
+        shelf = Shelf.from_json(_req(doc, "shelf", origin), origin)
+        raw = _req(doc, "boxes", origin)
+        if not isinstance(raw, list):
+            raise FormatError(origin, "boxes", f"expected a list, got {type(raw).__name__}")
+        boxes = [Box.from_json(b, origin, f"boxes[{i}]") for i, b in enumerate(raw)]
+        seen: set[str] = set()
+        for b in boxes:
+            if b.id in seen:
+                raise FormatError(origin, f"boxes[id={b.id}].id", f"duplicated box id {b.id!r}")
+            seen.add(b.id)
+        camera = Camera.from_json(doc["camera"], origin, "camera") if doc.get("camera") is not None else None
+        scene = cls(shelf, tuple(boxes), camera, doc.get("source"))
+        scene.check_bounds(origin)
+        return scene
+
+    def check_bounds(self, origin: str = "", tol: float = 0.02) -> None:
+        """Refuse boxes that stand outside the shelf interior (beyond `tol`).
+
+        Boxes may stick out of the open front (y < 0): that is how shelves look.
+        """
+        s = self.shelf
+        for b in self.boxes:
+            cs = b.corners()
+            xs = [c[0] for c in cs]
+            ys = [c[1] for c in cs]
+            zs = [c[2] for c in cs]
+            fld = f"boxes[id={b.id}].position"
+            if min(xs) < -s.width / 2 - tol or max(xs) > s.width / 2 + tol:
+                raise FormatError(origin, fld, f"box {b.id!r} spans x {min(xs):.3f}..{max(xs):.3f} m, "
+                                  f"outside the shelf width [-{s.width/2:.3f}, {s.width/2:.3f}]")
+            if max(ys) > s.depth + tol:
+                raise FormatError(origin, fld, f"box {b.id!r} reaches y={max(ys):.3f} m, behind the "
+                                  f"back wall at y={s.depth:.3f}")
+            if max(ys) < 0:
+                raise FormatError(origin, fld, f"box {b.id!r} lies entirely in front of the shelf "
+                                  f"(y up to {max(ys):.3f} m)")
+            if min(zs) < -tol or max(zs) > s.height + tol:
+                raise FormatError(origin, fld, f"box {b.id!r} spans z {min(zs):.3f}..{max(zs):.3f} m, "
+                                  f"outside the shelf height [0, {s.height:.3f}]")
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Scene":
+        return cls.from_json(read_json(path), str(path))
+
+    def save(self, path: str | Path) -> None:
+        write_json(path, self.to_json())

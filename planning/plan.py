@@ -1,0 +1,152 @@
+"""Plan documents (`shelfpick.plan/1`) and the per-step prediction they carry."""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from perception.errors import FormatError
+from perception.scene import read_json, write_json
+
+PLAN_FORMAT = "shelfpick.plan/1"
+TASKS = ("extract", "clear")
+
+
+@dataclass(frozen=True)
+class StepPrediction:
+    """What the simulation predicts for removing `box` at this point of the plan.
+
+    `collapse_prob` is the fraction of depth samples in which another box
+    collapsed; `collision_prob` the fraction in which the pulled box (or the
+    gripper) disturbed a neighbour; `moved` every box that moved in any
+    sample, in the order they first started moving.
+    """
+
+    box: str
+    collapse_prob: float = 0.0
+    collision_prob: float = 0.0
+    moved: tuple[str, ...] = ()
+
+    @property
+    def risk(self) -> float:
+        return max(self.collapse_prob, self.collision_prob)
+
+    def to_json(self) -> dict:
+        return {"box": self.box, "collapse_prob": self.collapse_prob,
+                "collision_prob": self.collision_prob, "moved": list(self.moved)}
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "", where: str = "predicted") -> "StepPrediction":
+        if not isinstance(doc, Mapping) or not isinstance(doc.get("box"), str):
+            raise FormatError(origin, where, f"expected an object with a string 'box', got {doc!r}")
+        probs = []
+        for k in ("collapse_prob", "collision_prob"):
+            v = doc.get(k, 0.0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+                raise FormatError(origin, f"{where}.{k}", f"expected a probability in [0, 1], got {v!r}")
+            probs.append(float(v))
+        moved = doc.get("moved", [])
+        if not isinstance(moved, list) or not all(isinstance(m, str) for m in moved):
+            raise FormatError(origin, f"{where}.moved", f"expected a list of box ids, got {moved!r}")
+        return cls(doc["box"], probs[0], probs[1], tuple(moved))
+
+
+@dataclass(frozen=True)
+class Plan:
+    """An ordered removal sequence and what the planner predicted for it."""
+
+    task: str
+    target: str | None
+    planner: str
+    sequence: tuple[str, ...]
+    predicted: tuple[StepPrediction, ...] = ()
+    safe: bool = True
+    timing: Mapping[str, float] = field(default_factory=dict, compare=False, hash=False)
+    seed: int | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sequence", tuple(self.sequence))
+        object.__setattr__(self, "predicted", tuple(self.predicted))
+
+    @property
+    def risk(self) -> float:
+        """Largest predicted step risk (0 when nothing is predicted to move)."""
+        return max((p.risk for p in self.predicted), default=0.0)
+
+    def content_hash(self) -> str:
+        """Identity of what the robot would do: task, target and the exact sequence."""
+        key = json.dumps({"task": self.task, "target": self.target, "sequence": list(self.sequence)},
+                         sort_keys=True)
+        return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+    def to_json(self) -> dict:
+        doc: dict[str, Any] = dict(self.extra)
+        doc.update({"format": PLAN_FORMAT, "task": self.task, "target": self.target,
+                    "planner": self.planner, "sequence": list(self.sequence), "safe": self.safe})
+        if self.predicted:
+            doc["predicted"] = [p.to_json() for p in self.predicted]
+        if self.timing:
+            doc["timing"] = dict(self.timing)
+        if self.seed is not None:
+            doc["seed"] = self.seed
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "") -> "Plan":
+        if not isinstance(doc, Mapping):
+            raise FormatError(origin, "plan", f"expected an object, got {type(doc).__name__}")
+        for k in ("format", "task", "target", "planner", "sequence"):
+            if k not in doc:
+                raise FormatError(origin, k, "missing required key")
+        if doc["format"] != PLAN_FORMAT:
+            raise FormatError(origin, "format", f"expected {PLAN_FORMAT!r}, got {doc['format']!r}")
+        task = doc["task"]
+        if task not in TASKS:
+            raise FormatError(origin, "task", f"expected one of {', '.join(TASKS)}, got {task!r}")
+        target = doc["target"]
+        if task == "extract" and not isinstance(target, str):
+            raise FormatError(origin, "target", f"an extract plan needs a box id, got {target!r}")
+        if task == "clear" and target is not None:
+            raise FormatError(origin, "target", f"a clear plan has target null, got {target!r}")
+        seq = doc["sequence"]
+        if not isinstance(seq, list) or not all(isinstance(s, str) for s in seq):
+            raise FormatError(origin, "sequence", f"expected a list of box ids, got {seq!r}")
+        if len(set(seq)) != len(seq):
+            raise FormatError(origin, "sequence", f"a box appears twice: {seq!r}")
+        if task == "extract" and (not seq or seq[-1] != target):
+            raise FormatError(origin, "sequence", f"an extract plan must end with its target {target!r}, got {seq!r}")
+        planner = doc["planner"]
+        if not isinstance(planner, str):
+            raise FormatError(origin, "planner", f"expected a string, got {planner!r}")
+        raw_pred = doc.get("predicted", [])
+        if not isinstance(raw_pred, list):
+            raise FormatError(origin, "predicted", f"expected a list, got {raw_pred!r}")
+        predicted = tuple(StepPrediction.from_json(p, origin, f"predicted[{i}]") for i, p in enumerate(raw_pred))
+        safe = doc.get("safe", True)
+        if not isinstance(safe, bool):
+            raise FormatError(origin, "safe", f"expected true or false, got {safe!r}")
+        timing = doc.get("timing", {})
+        if not isinstance(timing, Mapping):
+            raise FormatError(origin, "timing", f"expected an object, got {timing!r}")
+        seed = doc.get("seed")
+        known = {"format", "task", "target", "planner", "sequence", "predicted", "safe", "timing", "seed"}
+        extra = {k: v for k, v in doc.items() if k not in known}
+        return cls(task, target, planner, tuple(seq), predicted, safe, dict(timing), seed, extra)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Plan":
+        return cls.from_json(read_json(path), str(path))
+
+    def save(self, path: str | Path) -> None:
+        write_json(path, self.to_json())
+
+    def check_against(self, ids: tuple[str, ...], origin: str = "") -> None:
+        """Every id in the plan must be a box of the scene it is run on."""
+        known = set(ids)
+        for i, b in enumerate(self.sequence):
+            if b not in known:
+                raise FormatError(origin, f"sequence[{i}]", f"unknown box id {b!r}; the scene has "
+                                  f"{', '.join(ids) or 'no boxes'}")
