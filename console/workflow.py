@@ -168,8 +168,11 @@ class Workflow:
             perception = perceive(frame.capture, self.segmenter) if self.segmenter is not None \
                 else perceive(frame.capture)
         except Exception as exc:  # noqa: BLE001
+            from perception.scene import Scene, Shelf
+
+            shelf = frame.truth.shelf if frame.truth is not None else Shelf()
             self._record("the failed capture", self.store.new_session, self._state.source,
-                         frame.capture, None, frame.truth, None, {"error": str(exc)})
+                         frame.capture, Scene(shelf, ()), frame.truth, None, {"error": str(exc)})
             return self._capture_failed(f"perception: {exc}", frame=frame)
         scene = perception.scene
         info = {"warnings": list(perception.warnings), "timing": dict(perception.timing),
@@ -305,8 +308,10 @@ class Workflow:
         if not ok:
             st = self.state
             if st.session_id is not None:
-                self._record("the refused attempt", self.store.add_decision, st.session_id, plan_hash,
-                             "refused", who or "?", f"{action} refused: wrong supervisor passphrase")
+                # the store's decisions are approve/reject only: a refused attempt is an event
+                self._record("the refused attempt", self.store.add_robot_event, st.session_id, plan_hash,
+                             "auth_refused", None, None,
+                             {"who": who or "?", "action": action, "reason": "wrong supervisor passphrase"})
             self._set(decisions=st.decisions + ({"decision": "refused", "plan": plan_hash, "who": who,
                                                  "reason": f"{action}: wrong passphrase",
                                                  "at": time.time()},))

@@ -1,0 +1,176 @@
+"""Drawing a shelf scene on a viser scene (server-wide or one client's) and animating previews.
+
+Pure helpers around `viser.SceneApi`: the app decides what to draw, these
+functions decide how (names, colours, translucency). The preview timeline is
+built from `Predictor.preview` step results, so the 3D view replays what the
+simulation recorded, not an interpolation.
+"""
+from __future__ import annotations
+
+import colorsys
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+SHELF_COLOR = (150, 130, 110)
+TARGET_COLOR = (255, 200, 0)
+RISK_COLOR = (230, 30, 30)
+PANEL = 0.02  # shelf board thickness drawn, m
+
+
+def box_color(index: int) -> tuple[int, int, int]:
+    """A distinct, stable colour per box (golden-angle hue walk)."""
+    h = (index * 0.618033988749895) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(h, 0.45, 0.85)
+    return int(r * 255), int(g * 255), int(b * 255)
+
+
+def colors_for(ids: Sequence[str]) -> dict[str, tuple[int, int, int]]:
+    return {bid: box_color(i) for i, bid in enumerate(ids)}
+
+
+def draw_shelf(scene_api: Any, shelf: Any, prefix: str = "/shelf") -> list:
+    """Floor, back wall, side walls and top as thin translucent boards."""
+    w, d, h, t = shelf.width, shelf.depth, shelf.height, PANEL
+    boards = {
+        "floor": ((w + 2 * t, d, t), (0.0, d / 2, -t / 2)),
+        "top": ((w + 2 * t, d, t), (0.0, d / 2, h + t / 2)),
+        "back": ((w + 2 * t, t, h + 2 * t), (0.0, d + t / 2, h / 2)),
+        "left": ((t, d, h), (-w / 2 - t / 2, d / 2, h / 2)),
+        "right": ((t, d, h), (w / 2 + t / 2, d / 2, h / 2)),
+    }
+    out = []
+    for name, (dims, pos) in boards.items():
+        out.append(scene_api.add_box(f"{prefix}/{name}", color=SHELF_COLOR, dimensions=dims,
+                                     position=pos, opacity=0.25, cast_shadow=False,
+                                     receive_shadow=False))
+    return out
+
+
+def draw_camera(scene_api: Any, camera: Any, image: np.ndarray | None = None,
+                name: str = "/camera") -> Any:
+    """The camera frustum at its pose in the shelf frame (OpenCV convention, like viser's)."""
+    fov = 2.0 * math.atan2(camera.height / 2.0, camera.fy)
+    return scene_api.add_camera_frustum(name, fov=fov, aspect=camera.width / camera.height,
+                                        scale=0.15, color=(40, 40, 40), image=image,
+                                        wxyz=tuple(camera.orientation),
+                                        position=tuple(camera.position))
+
+
+@dataclass
+class BoxNodes:
+    """The viser nodes of one box: the solid box, its id label, and highlight shells."""
+
+    box: Any
+    label: Any
+    target: Any
+    risk: Any
+
+
+def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, BoxNodes]:
+    """Each box coloured by id, labelled, with hidden target/risk shells that follow it."""
+    colors = colors_for(scene.ids)
+    out: dict[str, BoxNodes] = {}
+    for b in scene.boxes:
+        base = f"{prefix}/{b.id}"
+        handle = scene_api.add_box(base, color=colors[b.id], dimensions=tuple(b.size),
+                                   position=tuple(b.position), wxyz=tuple(b.orientation))
+        # children follow the parent's pose during the preview animation
+        label = scene_api.add_label(f"{base}/label", b.id, position=(0.0, 0.0, b.size[2] / 2 + 0.03),
+                                    anchor="bottom-center", font_screen_scale=1.1)
+        grow = (b.size[0] + 0.02, b.size[1] + 0.02, b.size[2] + 0.02)
+        target = scene_api.add_box(f"{base}/target", color=TARGET_COLOR, dimensions=grow,
+                                   wireframe=True, visible=False, cast_shadow=False)
+        grow2 = (b.size[0] + 0.035, b.size[1] + 0.035, b.size[2] + 0.035)
+        risk = scene_api.add_box(f"{base}/risk", color=RISK_COLOR, dimensions=grow2,
+                                 wireframe=True, visible=False, cast_shadow=False)
+        out[b.id] = BoxNodes(handle, label, target, risk)
+    return out
+
+
+def risky_boxes(plan: Any, threshold: float = 0.0) -> set[str]:
+    """Boxes a plan predicts may move (collapse or collision) in any step."""
+    out: set[str] = set()
+    for p in getattr(plan, "predicted", ()) or ():
+        if p.collapse_prob > threshold or p.collision_prob > threshold:
+            out.update(m for m in p.moved if m != p.box)
+    return out
+
+
+def _get(obj: Any, key: str, default: Any = None) -> Any:
+    if isinstance(obj, Mapping):
+        return obj.get(key, default)
+    return getattr(obj, key, default)
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    step: int                      # index in the plan's sequence
+    box: str                       # the box being pulled in this step
+    t: float                       # seconds since the start of the preview
+    poses: Mapping[str, tuple]     # id -> (position, wxyz) for boxes present
+    collapsed: tuple[str, ...]     # boxes this step's simulation judged collapsed
+
+
+def timeline(preview: Iterable[Any], max_frames_per_step: int = 40) -> list[Keyframe]:
+    """Flatten recorded step results (objects or their JSON) into evenly thinned keyframes."""
+    out: list[Keyframe] = []
+    t0 = 0.0
+    for i, step in enumerate(preview):
+        frames = list(_get(step, "frames", ()) or ())
+        if not frames:
+            continue
+        stride = max(1, math.ceil(len(frames) / max_frames_per_step))
+        keep = frames[::stride]
+        if keep[-1] is not frames[-1]:
+            keep.append(frames[-1])
+        collapsed = tuple(_get(step, "collapsed", ()) or ())
+        box = _get(step, "box", "")
+        last = 0.0
+        for fr in keep:
+            t, poses = (fr[0], fr[1]) if not isinstance(fr, Mapping) else (fr["t"], fr["poses"])
+            poses = {k: (tuple(v[0]), tuple(v[1])) for k, v in poses.items()}
+            out.append(Keyframe(i, box, t0 + float(t), poses, collapsed))
+            last = float(t)
+        t0 += last
+    return out
+
+
+def visible_pose(pose: tuple | None, shelf: Any) -> bool:
+    """A parked (taken-away) box is far outside the shelf: hide it."""
+    if pose is None:
+        return False
+    x, y, z = pose[0]
+    return (abs(x) < shelf.width + 1.0 and -1.5 < y < shelf.depth + 1.0 and -0.5 < z < shelf.height + 1.0)
+
+
+def apply_keyframe(server: Any, nodes: Mapping[str, BoxNodes], frame: Keyframe, shelf: Any,
+                   risk: set[str] | None = None) -> None:
+    """Move every box to the recorded pose in one atomic update; collapsing boxes turn red."""
+    with server.atomic():
+        for bid, n in nodes.items():
+            pose = frame.poses.get(bid)
+            show = visible_pose(pose, shelf)
+            if show:
+                n.box.position = np.asarray(pose[0], dtype=float)
+                n.box.wxyz = np.asarray(pose[1], dtype=float)
+            n.box.visible = show
+            n.risk.visible = show and (bid in frame.collapsed or bool(risk and bid in risk))
+
+
+def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any) -> None:
+    """Back to the perceived poses."""
+    with server.atomic():
+        for b in scene.boxes:
+            n = nodes.get(b.id)
+            if n is None:
+                continue
+            n.box.position = np.asarray(b.position, dtype=float)
+            n.box.wxyz = np.asarray(b.orientation, dtype=float)
+            n.box.visible = True
+
+
+__all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "BoxNodes",
+           "risky_boxes", "Keyframe", "timeline", "apply_keyframe", "reset_boxes", "visible_pose"]
