@@ -1,0 +1,145 @@
+"""Physics-aware extraction search (the method's Algorithm 1), physics-free.
+
+The search only sees an *oracle*: ``trial(removed, box) -> StepPrediction``
+says what happens when ``box`` is pulled from the shelf once the boxes in
+``removed`` are gone. The physics (``planning/predict.py``) provides the real
+one; tests provide fake oracles built from a support graph. Each oracle call is
+a batch of physics trials, so the search memoises calls and counts them.
+
+Algorithm 1 with the additions the product needs:
+
+* try the target; when its risk is above the threshold, recursively extract
+  the first box that moved (``prediction.moved[0]``), then retry the target;
+* cycle protection: a box already on the recursion stack is never recursed
+  into again; the next moved box is tried instead;
+* when the first collapser cannot itself be removed safely, the other moved
+  boxes are tried (cheap improvement over the plain method);
+* a depth bound and an optional deadline (``time.monotonic()`` instant);
+* when no safe plan exists, the least risky plan found is returned with
+  ``safe=False`` (greedy: at every dead end, either pull the box now or run
+  the least risky blocker sub-plan, whichever risks less).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+from planning.plan import StepPrediction
+
+Oracle = Callable[[frozenset[str], str], StepPrediction]
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """A removal sequence, the prediction for every step, and how the search went."""
+
+    sequence: tuple[str, ...]
+    predicted: tuple[StepPrediction, ...]
+    safe: bool
+    calls: int = 0            # distinct oracle calls (physics trial batches)
+    timed_out: bool = False   # the deadline cut the search short
+
+    @property
+    def risk(self) -> float:
+        """Largest step risk of the plan (0 when every step is predicted still)."""
+        return max((p.risk for p in self.predicted), default=0.0)
+
+
+class CountingOracle:
+    """Memoises an oracle by ``(removed, box)`` and counts the distinct calls."""
+
+    def __init__(self, trial: Oracle):
+        self._trial = trial
+        self._cache: dict[tuple[frozenset[str], str], StepPrediction] = {}
+
+    @property
+    def calls(self) -> int:
+        return len(self._cache)
+
+    def __call__(self, removed: frozenset[str], box: str) -> StepPrediction:
+        key = (frozenset(removed), box)
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = self._trial(key[0], box)
+            self._cache[key] = hit
+        return hit
+
+
+class _Deadline:
+    def __init__(self, deadline: float | None):
+        self.deadline = deadline
+        self.hit = False
+
+    def passed(self) -> bool:
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            self.hit = True
+        return self.hit
+
+
+@dataclass(frozen=True)
+class _Outcome:
+    sequence: tuple[str, ...]
+    predicted: tuple[StepPrediction, ...]
+
+    @property
+    def risk(self) -> float:
+        return max((p.risk for p in self.predicted), default=0.0)
+
+
+def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float = 0.0,
+                   max_depth: int | None = None, deadline: float | None = None) -> SearchResult:
+    """Plan the removals that get ``target`` out with every step's risk <= ``risk``.
+
+    ``ids`` are the boxes on the shelf; ``max_depth`` bounds the recursion
+    (default: the number of boxes); ``deadline`` is a ``time.monotonic()``
+    instant after which no further blocker is explored (the boxes still on
+    the stack are then pulled as they are, so a plan always comes back).
+    """
+    present = tuple(ids)
+    if target not in present:
+        raise ValueError(f"target {target!r} is not among the boxes {present!r}")
+    oracle = trial if isinstance(trial, CountingOracle) else CountingOracle(trial)
+    depth_bound = len(present) if max_depth is None else max(0, int(max_depth))
+    clock = _Deadline(deadline)
+    known = set(present)
+
+    def extract(box: str, removed: frozenset[str], stack: tuple[str, ...]) -> _Outcome:
+        seq: list[str] = []
+        preds: list[StepPrediction] = []
+        cur = removed
+        while True:
+            pred = oracle(cur, box)
+            if pred.risk <= risk:
+                return _Outcome((*seq, box), (*preds, pred))
+            on_stack = set(stack) | {box}
+            candidates = [m for m in dict.fromkeys(pred.moved)
+                          if m in known and m not in cur and m not in on_stack]
+            best: _Outcome | None = None
+            progressed = False
+            if len(stack) < depth_bound:
+                for m in candidates:
+                    if clock.passed():
+                        break
+                    sub = extract(m, cur, (*stack, box))
+                    if sub.risk <= risk:
+                        seq += sub.sequence
+                        preds += sub.predicted
+                        cur = cur | set(sub.sequence)
+                        progressed = True
+                        break
+                    if best is None or sub.risk < best.risk:
+                        best = sub
+            if progressed:
+                continue  # retry the box with its blocker gone
+            # Dead end: no blocker comes out safely. Pull the box now, or first
+            # run the least risky blocker plan when that risks less.
+            if best is not None and best.risk < pred.risk:
+                seq += best.sequence
+                preds += best.predicted
+                cur = cur | set(best.sequence)
+                continue
+            return _Outcome((*seq, box), (*preds, pred))
+
+    out = extract(target, frozenset(), ())
+    return SearchResult(out.sequence, out.predicted, out.risk <= risk, oracle.calls, clock.hit)

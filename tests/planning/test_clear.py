@@ -1,0 +1,82 @@
+"""Algorithm 2 (physics clear) against fake oracles, and its visiting order."""
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from fake_oracles import STILL, SupportGraph, risky, table_oracle
+from perception.scene import Box, Scene, Shelf
+from planning.clear import search_clear, visit_order
+
+
+def test_skipped_boxes_are_revisited_until_the_shelf_is_empty():
+    # a on b on c, visited bottom first (the worst order)
+    g = SupportGraph({"a": ["b"], "b": ["c"]}, ids=["c", "b", "a"])
+    res = search_clear(["c", "b", "a"], g)
+    assert res.sequence == ("a", "b", "c")
+    assert res.safe and res.risk == 0.0
+    assert [p.box for p in res.predicted] == ["a", "b", "c"]
+    # pass 1: c, b, a; pass 2: c, b; pass 3: c
+    assert res.calls == 6
+
+
+def test_safe_boxes_come_out_in_visiting_order():
+    g = SupportGraph({}, ids=["x", "y", "z"])
+    res = search_clear(["z", "x", "y"], g)
+    assert res.sequence == ("z", "x", "y") and res.calls == 3
+
+
+def test_terminates_when_everything_is_unsafe():
+    oracle = table_oracle(lambda removed, box: risky(1.0, "someone"))
+    ids = [f"b{i}" for i in range(7)]
+    res = search_clear(ids, oracle)
+    assert sorted(res.sequence) == sorted(ids)
+    assert not res.safe and res.risk == 1.0
+    assert res.calls <= len(ids) * (len(ids) + 1) // 2
+
+
+def test_forced_steps_take_the_least_risky_box():
+    risks = {"a": 0.5, "b": 0.2, "c": 0.9}
+    res = search_clear(["a", "b", "c"], table_oracle(lambda r, box: risky(risks[box], "x")))
+    assert res.sequence == ("b", "a", "c")
+    assert not res.safe and res.risk == pytest.approx(0.9)
+
+
+def test_one_forced_step_then_safe_again():
+    # a and b lean on each other: whichever goes first drops the other; then all is free
+    def rules(removed, box):
+        other = {"a": "b", "b": "a"}.get(box)
+        if other and other not in removed:
+            return risky(0.4 if box == "b" else 0.6, other)
+        return STILL
+    res = search_clear(["a", "b", "c"], table_oracle(rules))
+    assert res.sequence == ("c", "b", "a")
+    assert not res.safe and res.risk == pytest.approx(0.4)
+
+
+def test_risk_threshold():
+    g = SupportGraph({"a": ["b"]}, ids=["b", "a"], prob=0.1)
+    assert search_clear(["b", "a"], g, risk=0.1).sequence == ("b", "a")
+    assert search_clear(["b", "a"], g, risk=0.0).sequence == ("a", "b")
+
+
+def test_deadline_pulls_the_rest_in_order():
+    g = SupportGraph({"a": ["b"], "b": ["c"]}, ids=["c", "b", "a"])
+    res = search_clear(["c", "b", "a"], g, deadline=time.monotonic() - 1)
+    assert res.sequence == ("c", "b", "a") and res.timed_out and not res.safe
+
+
+def _box(bid, x, z, h, y=0.15, d=0.2):
+    return Box(bid, (0.2, d, h), (x, y, z), (1.0, 0.0, 0.0, 0.0))
+
+
+def test_visit_order_is_top_down_then_front_first():
+    scene = Scene(Shelf(), (
+        _box("low", -0.3, 0.1, 0.2),
+        _box("top", -0.3, 0.3, 0.2),
+        _box("back", 0.2, 0.15, 0.3, y=0.2, d=0.1),     # top at 0.3, front at y=0.15
+        _box("front", 0.0, 0.15, 0.3, y=0.1, d=0.1),    # top at 0.3, front at y=0.05
+        _box("floor", 0.35, 0.05, 0.1),
+    ))
+    assert visit_order(scene) == ("top", "front", "back", "low", "floor")
