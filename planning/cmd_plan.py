@@ -1,0 +1,72 @@
+"""`shelfpick plan`: plan an extraction or a clearing for a scene file."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+HELP = "plan the removals that extract a box (or clear the shelf) without a collapse"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", help="scene file (shelfpick.scene/1)")
+    parser.add_argument("--task", choices=("extract", "clear"), default="extract",
+                        help="extract one box (needs --target) or clear the shelf (default: extract)")
+    parser.add_argument("--target", default=None, help="id of the box to extract")
+    parser.add_argument("--planner", choices=("physics", "heuristic"), default="physics",
+                        help="physics-aware search (default) or the highest-first baseline")
+    parser.add_argument("--samples", type=int, default=10,
+                        help="depth samples per prediction for boxes of unknown depth (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the depth samples and pulls (default 0)")
+    parser.add_argument("--risk", type=float, default=0.0,
+                        help="highest acceptable collapse probability per step (default 0: no sample collapses)")
+    parser.add_argument("--budget", type=float, default=None, metavar="SECONDS",
+                        help="time budget of the physics search (default: none)")
+    parser.add_argument("--out", default=None, help="write the plan here (default: stdout)")
+
+
+def _warn(msg: str) -> None:
+    print(f"shelfpick plan: warning: {msg}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    import warnings
+
+    from perception.scene import Scene
+    from planning.planner import check_request, make_plan
+
+    from perception.errors import FormatError
+
+    if args.samples < 1:
+        raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
+    if not 0.0 <= args.risk <= 1.0:
+        raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
+    if args.budget is not None and not args.budget > 0:
+        raise FormatError("", "--budget", f"expected a positive number of seconds, got {args.budget}")
+    scene = Scene.load(args.scene)
+    # refuse a bad request (unknown target, target for clear...) before any physics is built
+    check_request(scene, args.task, args.target, args.planner, args.samples, args.risk, args.scene)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
+                         seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene)
+    for w in caught:
+        _warn(str(w.message))
+    search = plan.extra.get("search", {})
+    if search.get("timed_out"):
+        _warn(f"the planning budget of {args.budget:g} s ran out; the plan below is the best "
+              "found so far, not a complete search")
+    if not plan.safe:
+        worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
+        step = plan.predicted[worst]
+        moved = ", ".join(step.moved) or "nothing named"
+        _warn(f"no safe plan found (risk threshold {args.risk:g}); the least risky plan found has "
+              f"risk {plan.risk:.2f}: step {worst + 1} (pull {step.box}) may move {moved}")
+    if args.out:
+        plan.save(args.out)
+        print(f"shelfpick plan: {len(plan.sequence)} step(s) {' -> '.join(plan.sequence) or '(none)'}"
+              f"; safe={str(plan.safe).lower()}; wrote {args.out}", file=sys.stderr)
+    else:
+        json.dump(plan.to_json(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    return 0

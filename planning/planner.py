@@ -1,0 +1,110 @@
+"""The one entry point that turns a scene and a task into a `Plan`.
+
+The CLI, the benchmark and the console all call `make_plan`; it validates the
+request, builds (or reuses) the physics `Predictor`, runs the chosen search
+and records, for every step, what the physics predicts, so that plans of the
+two planners can be compared step by step.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING, Any, Callable
+
+from perception.errors import FormatError
+from perception.scene import Scene
+from planning.plan import TASKS, Plan, StepPrediction
+
+if TYPE_CHECKING:  # pragma: no cover
+    from planning.physics import PhysicsConfig
+    from planning.predict import Predictor
+
+PLANNERS = ("physics", "heuristic")
+
+
+def check_request(scene: Scene, task: str, target: str | None, planner: str, samples: int,
+                  risk: float, origin: str = "") -> None:
+    """Refuse a request the planners cannot serve, naming the argument and its value."""
+    if task not in TASKS:
+        raise FormatError(origin, "task", f"expected one of {', '.join(TASKS)}, got {task!r}")
+    if planner not in PLANNERS:
+        raise FormatError(origin, "planner", f"expected one of {', '.join(PLANNERS)}, got {planner!r}")
+    if task == "extract":
+        if target is None:
+            raise FormatError(origin, "target", "an extract task needs a target box id (--target ID)")
+        scene.require(target, origin)
+    elif target is not None:
+        raise FormatError(origin, "target", f"a clear task takes no target, got {target!r}")
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise FormatError(origin, "samples", f"expected a positive integer, got {samples!r}")
+    if isinstance(risk, bool) or not isinstance(risk, (int, float)) or not (0.0 <= risk <= 1.0):
+        raise FormatError(origin, "risk", f"expected a probability in [0, 1], got {risk!r}")
+
+
+def evaluate_sequence(sequence: tuple[str, ...],
+                      trial: Callable[[frozenset[str], str], StepPrediction]) -> tuple[StepPrediction, ...]:
+    """What the physics predicts for each step of a fixed sequence (the baseline's)."""
+    out = []
+    removed: frozenset[str] = frozenset()
+    for box in sequence:
+        out.append(trial(removed, box))
+        removed = removed | {box}
+    return tuple(out)
+
+
+def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
+              samples: int = 10, seed: int = 0, risk: float = 0.0,
+              config: "PhysicsConfig | None" = None, predictor: "Predictor | None" = None,
+              *, budget_s: float | None = None, origin: str = "") -> Plan:
+    """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
+
+    `predictor` (anything with ``trial(removed, box) -> StepPrediction``) is
+    reused when given (the console and the benchmark keep one per scene);
+    otherwise one is built from `scene` with `samples` depth samples and
+    `seed`, and closed afterwards. `budget_s` bounds the physics search; when
+    it runs out the plan says so (``extra["search"]["timed_out"]``).
+    """
+    check_request(scene, task, target, planner, samples, risk, origin)
+    if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
+        raise FormatError(origin, "budget", f"expected a positive number of seconds, got {budget_s!r}")
+    t0 = time.perf_counter()
+    search: dict[str, Any] = {"risk_threshold": float(risk), "samples": samples}
+    if not scene.boxes:  # clear of an empty shelf: nothing to do
+        return Plan(task, target, planner, (), (), True, {"planning_s": 0.0}, seed, {"search": search})
+
+    own = predictor is None
+    if own:
+        from planning.predict import Predictor
+        predictor = Predictor(scene, samples=samples, seed=seed, config=config)
+    try:
+        from planning.clear import search_clear, visit_order
+        from planning.extract import CountingOracle, search_extract
+        from planning.heuristic import heuristic_order
+
+        t_ready = time.perf_counter()
+        oracle = CountingOracle(predictor.trial)
+        if planner == "heuristic":
+            t1 = time.perf_counter()
+            sequence = heuristic_order(scene, target)
+            t_plan = time.perf_counter() - t1
+            predicted = evaluate_sequence(sequence, oracle)
+            timing = {"planning_s": t_plan, "prediction_s": time.perf_counter() - t1 - t_plan}
+            timed_out = False
+        else:
+            deadline = None if budget_s is None else time.monotonic() + budget_s
+            if task == "extract":
+                res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline)  # type: ignore[arg-type]
+            else:
+                res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline)
+            sequence, predicted, timed_out = res.sequence, res.predicted, res.timed_out
+            timing = {"planning_s": time.perf_counter() - t0}
+        timing["setup_s"] = t_ready - t0
+        search.update({"oracle_calls": oracle.calls, "timed_out": timed_out})
+        if budget_s is not None:
+            search["budget_s"] = budget_s
+    finally:
+        if own:
+            predictor.close()  # type: ignore[union-attr]
+    safe = all(p.risk <= risk for p in predicted)
+    return Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed,
+                {"search": search})

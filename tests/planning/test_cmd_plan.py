@@ -1,0 +1,110 @@
+"""`shelfpick plan` through the real dispatcher: documents out, one-line errors in."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from console.cli import main
+from perception.scene import Box, Scene, Shelf
+from planning.plan import Plan
+
+
+def _box(bid, x, z, h=0.2):
+    return Box(bid, (0.2, 0.2, h), (x, 0.15, z), (1.0, 0.0, 0.0, 0.0))
+
+
+def _stack(tmp_path):
+    """A box on a box (left) and a free box (right), resting exactly on each other."""
+    scene = Scene(Shelf(), (_box("bot", -0.3, 0.1), _box("top", -0.3, 0.3), _box("free", 0.3, 0.1)))
+    path = tmp_path / "scene.json"
+    scene.save(path)
+    return path
+
+
+def _doc(tmp_path, name="bad.json", text=None, boxes=None):
+    path = tmp_path / name
+    if text is None:
+        boxes = boxes if boxes is not None else [
+            {"id": "a", "size": [0.2, 0.2, 0.2], "position": [0.0, 0.15, 0.1]}]
+        text = json.dumps({"format": "shelfpick.scene/1",
+                           "shelf": {"width": 1.0, "depth": 0.3, "height": 1.6}, "boxes": boxes})
+    path.write_text(text)
+    return path
+
+
+def _err(capsys, argv):
+    code = main(argv)
+    out = capsys.readouterr()
+    assert code == 2, out
+    lines = [ln for ln in out.err.strip().splitlines() if ln]
+    assert len(lines) == 1, out.err
+    assert "Traceback" not in out.err
+    return lines[0]
+
+
+def test_missing_file(tmp_path, capsys):
+    line = _err(capsys, ["plan", str(tmp_path / "nope.json"), "--target", "a"])
+    assert "nope.json" in line and "file not found" in line
+
+
+def test_malformed_json(tmp_path, capsys):
+    path = _doc(tmp_path, text="{\"format\": ")
+    line = _err(capsys, ["plan", str(path), "--target", "a"])
+    assert "bad.json" in line and "malformed JSON" in line
+
+
+def test_unknown_target(tmp_path, capsys):
+    path = _stack(tmp_path)
+    line = _err(capsys, ["plan", str(path), "--target", "zz"])
+    assert "scene.json" in line and "target" in line and "'zz'" in line and "bot, top, free" in line
+
+
+def test_extract_without_target(tmp_path, capsys):
+    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--task", "extract"])
+    assert "scene.json" in line and "target" in line and "--target" in line
+
+
+def test_target_given_for_clear(tmp_path, capsys):
+    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--task", "clear", "--target", "top"])
+    assert "target" in line and "'top'" in line
+
+
+def test_duplicated_ids(tmp_path, capsys):
+    box = {"id": "a", "size": [0.2, 0.2, 0.2], "position": [-0.2, 0.15, 0.1]}
+    path = _doc(tmp_path, boxes=[box, dict(box, position=[0.2, 0.15, 0.1])])
+    line = _err(capsys, ["plan", str(path), "--target", "a"])
+    assert "bad.json" in line and "boxes[id=a].id" in line and "duplicated" in line
+
+
+def test_nan_size(tmp_path, capsys):
+    path = _doc(tmp_path, text='{"format": "shelfpick.scene/1", "shelf": {"width": 1, "depth": 0.3, '
+                               '"height": 1.6}, "boxes": [{"id": "a", "size": [0.2, NaN, 0.2], '
+                               '"position": [0, 0.15, 0.1]}]}')
+    line = _err(capsys, ["plan", str(path), "--target", "a"])
+    assert "bad.json" in line and "boxes[id=a].size[1]" in line and "nan" in line.lower()
+
+
+def test_zero_size(tmp_path, capsys):
+    path = _doc(tmp_path, boxes=[{"id": "a", "size": [0.2, 0.0, 0.2], "position": [0, 0.15, 0.1]}])
+    line = _err(capsys, ["plan", str(path), "--target", "a"])
+    assert "boxes[id=a].size[1]" in line and "> 0" in line
+
+
+def test_bad_samples(tmp_path, capsys):
+    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "top", "--samples", "0"])
+    assert "--samples" in line and "0" in line
+
+
+def test_unknown_planner_is_an_argparse_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["plan", str(_stack(tmp_path)), "--target", "top", "--planner", "magic"])
+    assert exc.value.code == 2
+    assert "magic" in capsys.readouterr().err
+
+
+def test_empty_clear_writes_an_empty_plan(tmp_path, capsys):
+    path = _doc(tmp_path, "empty.json", boxes=[])
+    assert main(["plan", str(path), "--task", "clear"]) == 0
+    plan = Plan.from_json(json.loads(capsys.readouterr().out))
+    assert plan.sequence == () and plan.task == "clear" and plan.safe

@@ -1,0 +1,90 @@
+"""make_plan: validation, both planners, predictions on every step (fake and real physics)."""
+from __future__ import annotations
+
+import pytest
+
+from fake_oracles import SupportGraph
+from perception.errors import FormatError
+from perception.scene import Box, Scene, Shelf
+from planning.plan import Plan
+from planning.planner import make_plan
+
+
+class FakePredictor:
+    """Stands in for planning.predict.Predictor: a support graph answers the trials."""
+
+    def __init__(self, graph: SupportGraph):
+        self.graph = graph
+        self.trial = graph
+        self.closed = False
+
+    def close(self):
+        self.closed = True
+
+
+def _box(bid, x, z, h=0.2, w=0.2, y=0.15, d=0.2):
+    return Box(bid, (w, d, h), (x, y, z), (1.0, 0.0, 0.0, 0.0))
+
+
+# left: "bot" on the floor carrying "top"; right: "free" alone
+STACK = Scene(Shelf(), (_box("bot", -0.3, 0.1), _box("top", -0.3, 0.3), _box("free", 0.3, 0.1)))
+GRAPH = {"top": ["bot"]}
+
+
+def test_physics_extract_removes_the_box_above_first():
+    fake = FakePredictor(SupportGraph(GRAPH, ids=STACK.ids))
+    plan = make_plan(STACK, "extract", "bot", predictor=fake)
+    assert isinstance(plan, Plan)
+    assert plan.sequence == ("top", "bot") and plan.safe
+    assert [p.box for p in plan.predicted] == ["top", "bot"]
+    assert plan.planner == "physics" and plan.seed == 0
+    assert plan.timing["planning_s"] >= 0
+    assert plan.extra["search"]["oracle_calls"] == 3
+    assert not fake.closed  # a predictor handed in belongs to the caller
+    Plan.from_json(plan.to_json())  # a valid document
+
+
+def test_heuristic_plan_carries_predictions_for_every_step():
+    # the heuristic takes the highest first: top (0.4), then bot and free tie at 0.2 -> left first
+    fake = FakePredictor(SupportGraph(GRAPH, ids=STACK.ids))
+    plan = make_plan(STACK, "extract", "free", planner="heuristic", predictor=fake)
+    assert plan.sequence == ("top", "bot", "free")
+    assert [p.box for p in plan.predicted] == list(plan.sequence)
+    assert plan.safe
+
+
+def test_heuristic_plan_that_drops_a_box_is_flagged_unsafe():
+    # "bot" carries "free" in this made-up graph, which the highest-first order ignores
+    fake = FakePredictor(SupportGraph({"free": ["bot"]}, ids=STACK.ids))
+    plan = make_plan(STACK, "clear", planner="heuristic", predictor=fake)
+    assert plan.sequence == ("top", "bot", "free")
+    assert not plan.safe
+    assert plan.predicted[1].moved == ("free",) and plan.risk == 1.0
+
+
+def test_physics_clear_visits_top_down():
+    fake = FakePredictor(SupportGraph(GRAPH, ids=STACK.ids))
+    plan = make_plan(STACK, "clear", predictor=fake)
+    assert plan.sequence == ("top", "bot", "free") and plan.safe and plan.target is None
+
+
+def test_empty_scene_clear_is_an_empty_plan():
+    plan = make_plan(Scene(Shelf(), ()), "clear")
+    assert plan.sequence == () and plan.safe and plan.task == "clear"
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"task": "extract", "target": "nope"}, "target"),
+    ({"task": "extract"}, "target"),
+    ({"task": "clear", "target": "bot"}, "target"),
+    ({"task": "juggle"}, "task"),
+    ({"task": "clear", "planner": "magic"}, "planner"),
+    ({"task": "clear", "samples": 0}, "samples"),
+    ({"task": "clear", "risk": 1.5}, "risk"),
+])
+def test_bad_requests_are_named(kwargs, field):
+    fake = FakePredictor(SupportGraph(GRAPH, ids=STACK.ids))
+    with pytest.raises(FormatError) as err:
+        make_plan(STACK, predictor=fake, origin="s.json", **kwargs)
+    assert f"s.json: {field}:" in str(err.value)
+    assert fake.graph.asked == []  # refused before any physics
