@@ -66,27 +66,37 @@ def min_removals(ids: Iterable[str], target: str, safe: SafeFn,
 def true_scene_oracle(scene: "Scene", seed: int = 0, config: "PhysicsConfig | None" = None):
     """``safe(removed, box)`` on the scene taken as ground truth (one PyBullet world).
 
-    The state "``removed`` gone" is rebuilt inside a rollback by taking those
-    boxes away without a pull (the search only reaches states whose every pull
-    was collapse-free, so nothing else moved on the way); then ``box`` is
-    pulled like the robot would. Results are cached. Call ``.close()`` when done.
+    Every state the search reaches was reached by real pulls: after a
+    collapse-free pull the world is snapshotted under its removed-set, and a
+    later question about that set restores it bit-exactly. So the sequence
+    `min_removals` returns is exactly a replay of pulls, like the robot's.
+    Asking about a set that was never reached raises ``KeyError``. Results are
+    cached; call ``.close()`` when done, ``.calls()`` counts the pulls.
     """
     from planning.sim import ShelfSim
 
     sim = ShelfSim(scene, config)
+    snaps = {frozenset(): sim.snapshot()}
     cache: dict[tuple[frozenset[str], str], bool] = {}
 
     def safe(removed: frozenset[str], box: str) -> bool:
         key = (frozenset(removed), box)
         if key not in cache:
-            with sim.rollback():
-                for other in sorted(removed):
-                    sim.delete(other)
-                res = sim.remove(box, seed=seed)
-            cache[key] = bool(res.extracted and not res.collapsed and not res.collided)
+            sim.restore(snaps[key[0]])
+            res = sim.remove(box, seed=seed, stop_on_collapse=True)
+            cache[key] = bool(res.ok)
+            after = key[0] | {box}
+            if res.ok and after not in snaps:
+                snaps[after] = sim.snapshot()
         return cache[key]
 
-    safe.close = sim.close  # type: ignore[attr-defined]
+    def close() -> None:
+        for snap in snaps.values():
+            sim.forget(snap)
+        snaps.clear()
+        sim.close()
+
+    safe.close = close  # type: ignore[attr-defined]
     safe.calls = lambda: len(cache)  # type: ignore[attr-defined]
     return safe
 
@@ -96,18 +106,12 @@ def exhaustive_minimum(scene: "Scene", target: str, seed: int = 0,
                        max_boxes: int = MAX_BOXES) -> tuple[str, ...] | None:
     """The shortest collapse-free extraction of ``target`` on the true scene, or None.
 
-    The candidate found with deleted boxes is replayed with real pulls
-    (``execute_plan``); the answer is returned only when that replay holds too.
+    "Collapse-free" is `StepResult.ok` for every pull (the box came out and no
+    other box passed the collapse thresholds), the benchmark's success test.
     """
     scene.require(target)
     safe = true_scene_oracle(scene, seed, config)
     try:
-        seq = min_removals(scene.ids, target, safe, max_boxes)
+        return min_removals(scene.ids, target, safe, max_boxes)
     finally:
         safe.close()  # type: ignore[attr-defined]
-    if seq is None:
-        return None
-    from planning.execute import execute_plan
-
-    ex = execute_plan(scene, seq, seed=seed, config=config)
-    return seq if ex.ok else None

@@ -42,3 +42,34 @@ def test_asks_each_state_at_most_once():
     seq = min_removals(g.ids, "t", lambda r, b: oracle(r, b).risk == 0.0)
     assert seq == ("c", "a", "b", "t")
     assert len(oracle.asked) == len(set(oracle.asked))
+
+
+def _stack_scene():
+    from perception.scene import Box, Scene, Shelf
+
+    def box(bid, x, z):
+        return Box(bid, (0.2, 0.2, 0.2), (x, 0.15, z), (1.0, 0.0, 0.0, 0.0))
+    # "top" rests on "bot"; "free" stands alone
+    return Scene(Shelf(), (box("bot", -0.3, 0.1), box("top", -0.3, 0.3), box("free", 0.3, 0.1)))
+
+
+def test_true_scene_minimum_with_real_physics():
+    from planning.exhaustive import exhaustive_minimum
+    scene = _stack_scene()
+    assert exhaustive_minimum(scene, "bot") == ("top", "bot")
+    assert exhaustive_minimum(scene, "free") == ("free",)
+    assert exhaustive_minimum(scene, "top") == ("top",)
+
+
+def test_true_scene_oracle_replays_real_pulls():
+    from planning.exhaustive import true_scene_oracle
+    safe = true_scene_oracle(_stack_scene())
+    try:
+        assert not safe(frozenset(), "bot")          # pulling the bottom drops the top
+        assert safe(frozenset(), "top")
+        assert safe(frozenset({"top"}), "bot")       # restored from the snapshot after "top"
+        with pytest.raises(KeyError):
+            safe(frozenset({"free"}), "bot")         # a state nobody reached
+        assert safe.calls() == 3
+    finally:
+        safe.close()
