@@ -211,8 +211,13 @@ def _build_shelf(b: _Builder, scene: Scene, rng: np.random.Generator) -> None:
           texture=plain_texture(rng, BACKGROUND_RGB[rng.integers(len(BACKGROUND_RGB))]))
 
 
-def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: bool = True) -> Capture:
+def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: bool = True,
+           front_only: bool = True) -> Capture:
     """Render `scene` into a Capture with ground-truth masks (labels 1..N, visible boxes only).
+
+    Masks hold each box's visible FRONT face (its local -y face), the part
+    perception measures; a camera above a box also sees its top, which
+    `front_only=False` includes. A box with no visible (front) pixel gets no label.
 
     `seed` draws the looks (cardboard, tape, labels, shelf paint, lighting) and
     the noise; `noise=False` gives the exact z-depth and the clean colour image.
@@ -256,19 +261,39 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
     z[z > MAX_RANGE] = 0.0
     seg = np.asarray(seg, np.int64).reshape(h, w)
 
-    masks = np.zeros((h, w), np.uint16)
-    labels: dict[int, str] = {}
-    for body, box_id in body_to_box.items():
-        hit = seg == body
-        if hit.any():
-            label = len(labels) + 1
-            masks[hit] = label
-            labels[label] = box_id
+    masks, labels = _instance_masks(scene, cam, seg, z, body_to_box, front_only)
 
     if noise:
         rgb = _camera_look(rgb, rng)
         z = DepthNoise().apply(z, rng)
     return Capture(rgb, z, cam, masks, labels)
+
+
+def _instance_masks(scene: Scene, cam: Camera, seg: np.ndarray, z: np.ndarray,
+                    body_to_box: dict[int, str], front_only: bool,
+                    tol: float = 0.003) -> tuple[np.ndarray, dict[int, str]]:
+    """Label image from the segmentation buffer; with `front_only`, pixels whose exact
+    back-projected point lies on the box's front face plane (within `tol` m)."""
+    h, w = seg.shape
+    masks = np.zeros((h, w), np.uint16)
+    labels: dict[int, str] = {}
+    r, t = camera_matrices(cam)
+    for body, box_id in body_to_box.items():
+        hit = seg == body
+        if front_only and hit.any():
+            box = scene.require(box_id)
+            vs, us = np.nonzero(hit)
+            zc = z[vs, us].astype(np.float64)
+            pc = np.stack([(us - cam.cx) / cam.fx * zc, (vs - cam.cy) / cam.fy * zc, zc], axis=1)
+            local = (pc @ r.T + t - np.asarray(box.position)) @ np.asarray(quat_to_matrix(box.orientation))
+            on_front = np.abs(local[:, 1] + box.size[1] / 2) < tol
+            hit = np.zeros_like(hit)
+            hit[vs[on_front], us[on_front]] = True
+        if hit.any():
+            label = len(labels) + 1
+            masks[hit] = label
+            labels[label] = box_id
+    return masks, labels
 
 
 def _camera_look(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
