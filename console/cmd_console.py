@@ -29,25 +29,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def build(args: argparse.Namespace):
     """Open source, store and robot factory, the workflow and the app (used by tests too)."""
     from console.app import ConsoleApp, check_host
+    from perception.errors import ShelfpickError
+
+    # refuse bad settings before opening anything
+    if args.samples < 1:
+        raise ShelfpickError(f"--samples: must be >= 1, got {args.samples}")
+    given = args.supervisor_passphrase or os.environ.get(ENV_PASSPHRASE) or ""
+    check_host(args.host, bool(given))
+    if not (args.robot == "sim" or args.robot.startswith("sim?") or args.robot.startswith("tcp://")):
+        raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {args.robot!r}")
+
     from console.robot import open_robot
     from console.sources import open_source
     from console.store import SessionStore
     from console.workflow import Workflow
 
-    if args.samples < 1:
-        from perception.errors import ShelfpickError
-        raise ShelfpickError(f"--samples: must be >= 1, got {args.samples}")
-    given = args.supervisor_passphrase or os.environ.get(ENV_PASSPHRASE) or ""
-    check_host(args.host, bool(given))
     passphrase = given or secrets.token_urlsafe(9)
     source = open_source(args.source, seed=args.seed)
     db = Path(args.db) if args.db else Path("data") / "sessions.sqlite"
     db.parent.mkdir(parents=True, exist_ok=True)
     store = SessionStore(db)
     spec = args.robot
-    if not (spec == "sim" or spec.startswith("tcp://")):
-        from perception.errors import ShelfpickError
-        raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {spec!r}")
+    open_robot(spec, truth=None, seed=args.seed) if spec.startswith("sim") else None  # validates options
 
     def robot_factory(truth, seed):
         return open_robot(spec, truth=truth, seed=seed)

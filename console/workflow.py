@@ -165,8 +165,8 @@ class Workflow:
         try:
             from perception.pipeline import perceive
 
-            perception = perceive(frame.capture, self.segmenter) if self.segmenter is not None \
-                else perceive(frame.capture)
+            shelf = frame.truth.shelf if frame.truth is not None else None  # installation geometry
+            perception = perceive(frame.capture, self.segmenter, shelf=shelf)
         except Exception as exc:  # noqa: BLE001
             from perception.scene import Scene, Shelf
 
@@ -175,8 +175,7 @@ class Workflow:
                          frame.capture, Scene(shelf, ()), frame.truth, None, {"error": str(exc)})
             return self._capture_failed(f"perception: {exc}", frame=frame)
         scene = perception.scene
-        info = {"warnings": list(perception.warnings), "timing": dict(perception.timing),
-                "frame": frame.name}
+        info = {"frame": frame.name, **_summary(perception)}
         sid = self._record("the session", self.store.new_session, self._state.source,
                            frame.capture, scene, frame.truth, perception.overlay, info)
         err = self.state.error if sid is None else None
@@ -259,7 +258,9 @@ class Workflow:
             from planning.predict import Predictor
 
             self._progress(gen, 0.05, f"building {self.samples} depth samples")
+            t_setup = time.perf_counter()
             predictor = Predictor(scene, samples=self.samples, seed=self.seed)
+            t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
             entries: dict[str, PlanEntry] = {}
             n = len(PLANNERS)
             for i, planner in enumerate(PLANNERS):
@@ -267,8 +268,11 @@ class Workflow:
                 t0 = time.perf_counter()
                 plan = make_plan(scene, task, target, planner=planner, samples=self.samples,
                                  seed=self.seed, predictor=predictor)
-                if "planning_s" not in plan.timing and "total" not in plan.timing:
-                    plan = replace(plan, timing={**dict(plan.timing), "planning_s": time.perf_counter() - t0})
+                timing = dict(plan.timing)
+                timing.setdefault("planning_s", time.perf_counter() - t0)
+                if planner == "physics":
+                    timing["setup_s"] = timing.get("setup_s", 0.0) + t_setup
+                plan = replace(plan, timing=timing)
                 self._progress(gen, 0.1 + 0.85 * (i + 0.6) / n, f"{planner} planner: recording preview")
                 preview = tuple(predictor.preview(plan.sequence, 0)) if plan.sequence else ()
                 entries[planner] = PlanEntry(plan, plan.content_hash(), preview)
@@ -277,7 +281,7 @@ class Workflow:
                     return  # a new capture arrived meanwhile: these plans are for the old shelf
             for e in entries.values():
                 self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid, e.plan,
-                             [r.to_json() for r in e.preview]) if sid is not None else None
+                             [_step_json(r) for r in e.preview]) if sid is not None else None
             phys = entries["physics"].plan
             err = self.state.error
             if not phys.safe:
@@ -447,6 +451,21 @@ class Workflow:
         msg += f"; completed steps: {done}. Capture and plan again before the next run."
         self._set(robot=status, outcome=outcome, needs_recapture=True, message=msg,
                   error=err if status != "stopped" else None)
+
+
+def _summary(perception: Any) -> dict:
+    try:
+        return dict(perception.summary())
+    except Exception:  # noqa: BLE001 - an older Perception without summary()
+        return {"warnings": list(perception.warnings), "timing": dict(perception.timing)}
+
+
+def _step_json(result: Any) -> dict:
+    """A preview step with its recorded frames, so a replay can animate it without the server."""
+    try:
+        return result.to_json(frames=True)
+    except TypeError:
+        return result.to_json()
 
 
 def _outcome_json(outcome: Any, err: str | None, entry: PlanEntry, stopped: bool) -> dict:

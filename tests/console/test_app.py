@@ -1,0 +1,105 @@
+"""The viser layer without a browser: host policy, the plan table, replay records, preview timelines."""
+from __future__ import annotations
+
+import urllib.request
+
+import numpy as np
+import pytest
+
+from perception.scene import Box, Scene, Shelf
+from planning.plan import Plan, StepPrediction
+
+
+def two_plans():
+    from console.workflow import PlanEntry
+
+    phys = Plan("extract", "b0", "physics", ("b1", "b0"),
+                (StepPrediction("b1", 0.0), StepPrediction("b0", 0.0)), True,
+                {"planning_s": 1.5, "setup_s": 0.5}, 0)
+    heur = Plan("extract", "b0", "heuristic", ("b2", "b1", "b0"),
+                (StepPrediction("b2", 0.0), StepPrediction("b1", 0.5, 0.0, ("b3",)), StepPrediction("b0", 0.0)),
+                False, {"planning_s": 0.01}, 0)
+    return {"physics": PlanEntry(phys, phys.content_hash()), "heuristic": PlanEntry(heur, heur.content_hash())}
+
+
+def test_non_local_host_needs_a_passphrase():
+    from console.app import ConsoleError, check_host
+    from console.cli import main
+
+    check_host("127.0.0.1", False)
+    check_host("0.0.0.0", True)
+    with pytest.raises(ConsoleError, match="0.0.0.0.*passphrase"):
+        check_host("0.0.0.0", False)
+    assert main(["console", "--host", "0.0.0.0", "--port", "0"]) == 2
+
+
+def test_results_table_side_by_side():
+    from console.app import results_markdown
+    from console.workflow import State
+
+    md = results_markdown(State(plans=two_plans()))
+    lines = md.splitlines()
+    assert lines[0] == "| | physics | heuristic |"
+    row = {ln.split("|")[1].strip(): [c.strip() for c in ln.split("|")[2:4]] for ln in lines[2:]}
+    assert row["sequence"] == ["b1 → b0", "b2 → b1 → b0"]
+    assert row["boxes removed"] == ["2", "3"]
+    assert row["collapse risk per step"] == ["b1 0%, b0 0%", "b2 0%, b1 50%, b0 0%"]
+    assert row["est. execution (12.5 s/box)"] == ["25.0 s", "37.5 s"]
+    assert row["planning time"] == ["2.00 s", "0.01 s"]
+    assert row["predicted safe"] == ["yes", "**NO**"]
+    assert "Planning" in results_markdown(State(planning=True, progress_text="physics"))
+
+
+def test_preview_timeline_from_results_and_json_hides_parked_boxes():
+    from console.scene_view import timeline, visible_pose
+
+    shelf = Shelf()
+    frames = [(0.0, {"a": ((0, 0.1, 0.1), (1, 0, 0, 0)), "b": ((0.3, 0.1, 0.1), (1, 0, 0, 0))}),
+              (0.5, {"a": ((0, -0.4, 0.1), (1, 0, 0, 0)), "b": ((0.3, 0.1, 0.1), (1, 0, 0, 0))}),
+              (1.0, {"a": ((0, -50.0, -5.0), (1, 0, 0, 0)), "b": ((0.3, 0.1, 0.05), (0.9, 0.1, 0, 0))})]
+    as_json = [{"box": "a", "collapsed": ["b"], "frames": [[t, {k: [list(p), list(q)] for k, (p, q) in f.items()}]
+                                                          for t, f in frames]},
+               {"box": "b", "collapsed": [], "frames": [[0.0, {"b": [[0.3, 0.1, 0.05], [1, 0, 0, 0]]}]]}]
+    tl = timeline(as_json)
+    assert [k.step for k in tl] == [0, 0, 0, 1]
+    assert tl[-1].t == pytest.approx(1.0) and tl[0].collapsed == ("b",)
+    assert visible_pose(tl[1].poses["a"], shelf) and not visible_pose(tl[2].poses["a"], shelf)
+    assert len(timeline(as_json * 50, max_frames_per_step=2)) <= 50 * 2 * 2
+
+
+def test_app_serves_and_replays_a_stored_session(tmp_path):
+    from console.app import ConsoleApp, record_view
+    from console.store import SessionStore
+    from console.workflow import Workflow
+    from perception.render import default_camera, render
+
+    scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),), default_camera())
+    store = SessionStore(tmp_path / "s.sqlite")
+    cap = render(scene, seed=0, noise=False)
+    sid = store.new_session("test", cap, scene, scene, np.zeros_like(cap.rgb), {})
+    plans = two_plans()
+    for e in plans.values():
+        store.add_plan(sid, e.plan, [{"box": "b0", "collapsed": [], "frames": [[0.0, {"b0": [[0, 0.1, 0.1], [1, 0, 0, 0]]}]]}])
+    h = plans["physics"].hash
+    store.add_decision(sid, h, "approve", "sue")
+    store.set_outcome(sid, {"plan": h, "planner": "physics", "sequence": ["b1", "b0"], "completed": ["b1"],
+                            "ok": False, "error": "step 2 (b0): boxes collapsed: b3",
+                            "steps": [{"step": 0, "box": "b1", "status": "done"},
+                                      {"step": 1, "box": "b0", "status": "error"}]})
+    view = record_view(store.load_session(sid))
+    assert view["rgb"].shape == cap.rgb.shape and view["scene"].ids == ("b0",)
+    assert set(view["plans"]) == {"physics", "heuristic"} and view["target"] == "b0"
+    md = view["summary_md"]
+    assert f"approve `{h}` by sue" in md and "completed: b1" in md and "collapsed: b3" in md
+    assert "| 2 | b0 | 0% |" in md
+
+    wf = Workflow(None, store, lambda truth, seed: None, "pw")
+    app = ConsoleApp(wf, port=0)
+    try:
+        assert app.port > 0 and app.url.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(app.url, timeout=10) as r:
+            assert r.status == 200 and b"<html" in r.read().lower()
+        assert app.load_replay(sid)["id"] == sid
+    finally:
+        app.stop()
+        store.close()

@@ -1,0 +1,215 @@
+"""The console workflow on a tiny shelf built in code: real rendering, perception,
+planners, PyBullet robot and SQLite file; no viser."""
+from __future__ import annotations
+
+import sqlite3
+import threading
+import time
+
+import pytest
+
+from perception.errors import PerceptionError
+from perception.scene import Box, Scene, Shelf
+
+PASS = "open sesame"
+
+
+def small_scene() -> Scene:
+    """Two boxes stacked on the left (the bottom one is the interesting target), one alone."""
+    from perception.render import default_camera
+
+    return Scene(Shelf(), (Box("b0", (0.31, 0.25, 0.23), (-0.25, 0.13, 0.115)),
+                           Box("b1", (0.20, 0.20, 0.20), (-0.25, 0.11, 0.33)),
+                           Box("b2", (0.20, 0.20, 0.20), (0.20, 0.10, 0.10))), default_camera())
+
+
+class CodeShelfSource:
+    """A camera in front of a shelf built in code (rendered like the demo source)."""
+
+    def __init__(self, scene: Scene, fail: bool = False) -> None:
+        self.name = "code-shelf"
+        self.scene = scene
+        self.fail = fail
+        self.n = 0
+
+    def capture(self):
+        from console.sources import Frame
+        from perception.render import render
+
+        if self.fail:
+            raise PerceptionError("camera: no device connected")
+        self.n += 1
+        return Frame(render(self.scene, seed=self.n), self.scene, f"code-shelf-{self.n}")
+
+
+def sim_factory(delay: float = 0.0):
+    from console.robot import open_robot
+
+    def make(truth, seed):
+        return open_robot(f"sim?delay={delay}" if delay else "sim", truth=truth, seed=seed)
+    return make
+
+
+@pytest.fixture
+def make_wf(tmp_path):
+    from console.store import SessionStore
+    from console.workflow import Workflow
+
+    made = []
+
+    def build(scene: Scene | None = None, robot=None, fail: bool = False, db=None, timeout: float = 5.0):
+        store = SessionStore(db or tmp_path / "s.sqlite", timeout=timeout)
+        wf = Workflow(CodeShelfSource(scene or small_scene(), fail), store, robot or sim_factory(),
+                      PASS, samples=2, seed=0)
+        made.append(store)
+        return wf
+
+    yield build
+    for s in made:
+        s.close()
+
+
+def bottom_left(scene: Scene) -> str:
+    return min((b for b in scene.boxes if b.position[0] < 0), key=lambda b: b.position[2]).id
+
+
+def planned(wf, task="extract"):
+    from console.workflow import WorkflowError  # noqa: F401
+
+    st = wf.capture()
+    assert st.error is None, st.error
+    if task == "extract":
+        wf.select_target(bottom_left(st.scene))
+    wf.plan(task, wait=True)
+    st = wf.state
+    assert st.error is None and set(st.plans) == {"physics", "heuristic"}, st.error
+    return st
+
+
+def test_full_cycle_records_everything(make_wf):
+    from console.workflow import WorkflowError
+
+    wf = make_wf()
+    seen: list = []
+    wf.add_listener(lambda s: seen.append(s.version))
+    st = planned(wf)
+    phys = st.plans["physics"]
+    target = st.target
+    # the bottom box is under another one: the physics planner takes the top one off first
+    assert phys.plan.sequence[-1] == target and len(phys.plan.sequence) >= 2
+    assert phys.plan.safe and len(phys.preview) == len(phys.plan.sequence)
+    assert any(r.frames for r in phys.preview)
+    with pytest.raises(WorkflowError, match="wrong supervisor passphrase"):
+        wf.approve(phys.hash, "guess", "mallory")
+    with pytest.raises(WorkflowError, match="not a plan for the current capture"):
+        wf.approve("0123456789abcdef", PASS, "sue")
+    with pytest.raises(WorkflowError, match="nothing approved"):
+        wf.execute()
+    wf.approve(phys.hash, PASS, "sue")
+    wf.execute(wait=True)
+    st = wf.state
+    assert st.robot == "done", (st.robot, st.error, st.outcome)
+    assert st.outcome.completed == phys.plan.sequence and st.needs_recapture
+    with pytest.raises(WorkflowError, match="capture"):
+        wf.plan("extract")
+    assert seen == sorted(seen) and len(seen) > 5          # listeners saw every change in order
+
+    rec = wf.store.load_session(st.session_id)
+    assert {p.plan.planner for p in rec.plans} == {"physics", "heuristic"}
+    assert [(d["decision"], d["who"], d["plan_hash"]) for d in rec.decisions] == [("approve", "sue", phys.hash)]
+    kinds = [e["kind"] for e in rec.robot_events]
+    assert "auth_refused" in kinds and kinds.count("done") == len(phys.plan.sequence)
+    assert rec.outcome["ok"] and rec.outcome["completed"] == list(phys.plan.sequence)
+    assert any(p.preview and p.preview[0].get("frames") for p in rec.plans)
+
+
+def test_new_capture_invalidates_approval(make_wf):
+    from console.workflow import WorkflowError
+
+    wf = make_wf()
+    st = planned(wf)
+    old = st.plans["physics"].hash
+    wf.approve(old, PASS, "sue")
+    assert wf.state.approved == old
+    wf.capture()
+    st = wf.state
+    assert st.approved is None and not st.plans
+    with pytest.raises(WorkflowError, match="nothing approved"):
+        wf.execute()
+    with pytest.raises(WorkflowError, match="not a plan for the current capture"):
+        wf.approve(old, PASS, "sue")
+
+
+def test_reject_needs_reason_and_is_recorded(make_wf):
+    from console.workflow import WorkflowError
+
+    wf = make_wf()
+    st = planned(wf, "clear")
+    h = st.plans["heuristic"].hash
+    with pytest.raises(WorkflowError, match="reason"):
+        wf.reject(h, PASS, "sue", "  ")
+    wf.reject(h, PASS, "sue", "too risky")
+    rec = wf.store.load_session(st.session_id)
+    assert [(d["decision"], d["reason"]) for d in rec.decisions] == [("reject", "too risky")]
+
+
+def test_stop_aborts_remaining_steps(make_wf):
+    wf = make_wf(robot=sim_factory(delay=1.5))
+    st = planned(wf, "clear")
+    seq = st.plans["physics"].plan.sequence
+    assert len(seq) == 3
+    acked = threading.Event()
+    wf.add_listener(lambda s: acked.set() if any(e.kind == "ack" for e in s.robot_events) else None)
+    wf.approve(st.plans["physics"].hash, PASS, "sue")
+    t0 = time.monotonic()
+    wf.execute()
+    assert acked.wait(30)
+    wf.stop("op")
+    st = wf.wait_robot(30)
+    assert time.monotonic() - t0 < 3 * 1.5 + 20
+    assert st.robot == "stopped" and st.needs_recapture
+    assert len(st.outcome.completed) < len(seq)
+    rec = wf.store.load_session(st.session_id)
+    assert rec.outcome is not None and rec.outcome["stopped"] and not rec.outcome["ok"]
+    assert "aborted" in [e["kind"] for e in rec.robot_events]
+
+
+def test_unknown_target_and_concurrent_planning_refused(make_wf):
+    from console.workflow import WorkflowError
+
+    wf = make_wf()
+    st = wf.capture()
+    with pytest.raises(WorkflowError, match="unknown box id 'nope'"):
+        wf.select_target("nope")
+    wf.plan("clear")
+    with pytest.raises(WorkflowError, match="already running"):
+        wf.plan("clear")
+    st = wf.wait_planning(120)
+    assert not st.planning and set(st.plans) == {"physics", "heuristic"}
+
+
+def test_faults_become_messages(make_wf, tmp_path):
+    wf = make_wf(fail=True)
+    st = wf.capture()
+    assert "camera" in st.error and st.scene is None
+    empty = Scene(Shelf(), (), small_scene().camera)
+    wf = make_wf(scene=empty)
+    st = wf.capture()
+    assert "no boxes" in st.error and st.session_id is not None
+    assert wf.store.load_session(st.session_id).n_boxes == 0
+
+
+def test_locked_database_is_a_message_not_a_crash(make_wf, tmp_path):
+    db = tmp_path / "locked.sqlite"
+    wf = make_wf(db=db, timeout=0.3)
+    other = sqlite3.connect(db, timeout=0.1)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        st = wf.capture()
+        assert st.scene is not None and st.scene.boxes      # the console keeps working
+        assert st.error and "database" in st.error
+    finally:
+        other.rollback()
+        other.close()
+    st = wf.capture()
+    assert st.error is None and st.session_id is not None
