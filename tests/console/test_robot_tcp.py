@@ -1,0 +1,210 @@
+"""The TCP robot driver against the reference robot-side controller, on real sockets."""
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from console.robot import HISTORY, RobotError, RobotEvent, open_robot
+from console.robot_controller import RobotController
+from console.robot_tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
+from perception.errors import FormatError
+from perception.scene import Box, Scene, Shelf, yaw_quat
+from planning.plan import Plan
+
+FAST = Timeouts(connect=2.0, ack=2.0, step=10.0, heartbeat_interval=0.1, heartbeat_timeout=0.6, abort=1.0)
+
+
+def row_scene() -> Scene:
+    """Four boxes side by side on the floor: any order is physically fine."""
+    return Scene(Shelf(1.0, 0.3, 1.6), tuple(
+        Box(f"b{i}", (0.2, 0.2, 0.2), (-0.36 + 0.24 * i, 0.12, 0.1)) for i in range(4)))
+
+
+def clear_plan(seq=("b0", "b1", "b2", "b3")) -> Plan:
+    return Plan("clear", None, "physics", tuple(seq))
+
+
+def run(robot: TcpRobot, plan: Plan, scene: Scene, stop: threading.Event | None = None):
+    events: list[RobotEvent] = []
+    out = robot.execute(plan, scene, events.append, stop or threading.Event())
+    return out, events
+
+
+@pytest.fixture(autouse=True)
+def _fresh_history():
+    HISTORY.forget()
+    yield
+    HISTORY.forget()
+
+
+def driver(ctl: RobotController, **kw) -> TcpRobot:
+    host, port = ctl.address
+    return TcpRobot(host, port, timeouts=kw.pop("timeouts", FAST), **kw)
+
+
+def test_full_plan_ok_and_messages_are_in_the_robot_frame() -> None:
+    # the shelf frame sits 0.6 m in front of the robot base, turned 90 deg about z
+    tf = Transform.from_pose((0.6, 0.0, -0.2), yaw_quat(math.pi / 2))
+    with RobotController(transform=tf) as ctl:
+        out, events = run(driver(ctl, transform=tf), clear_plan(), row_scene())
+    assert out.ok and out.error is None and not out.needs_replan
+    assert out.completed == ("b0", "b1", "b2", "b3")
+    assert [e.kind for e in events] == ["ack", "done"] * 4
+    assert [s["status"] for s in out.steps] == ["done"] * 4
+    steps = ctl.received("step")
+    assert [m["step"] for m in steps] == [0, 1, 2, 3] and [m["box"] for m in steps] == list(out.completed)
+    m = steps[0]
+    assert m["plan"] == clear_plan().content_hash() and m["frame"] == "robot_base"
+    # b0 front face centre in the shelf frame is (-0.36, 0.02, 0.1): rotated +90 deg about z -> (-0.02, -0.36, 0.1)
+    assert m["grasp"]["point"] == pytest.approx([0.6 - 0.02, -0.36, -0.2 + 0.1], abs=1e-6)
+    assert m["grasp"]["approach"] == pytest.approx([-1.0, 0.0, 0.0], abs=1e-6)  # shelf +y in the robot frame
+    assert m["grasp"]["normal"] == pytest.approx([1.0, 0.0, 0.0], abs=1e-6)
+    assert m["pull_distance"] == pytest.approx(0.22 + 0.05)  # back face y=0.22 out past the front edge
+    assert ctl.received("hello")[0]["protocol"] == "shelfpick.robot/1"
+
+
+def test_disconnect_mid_plan_records_completed_and_never_resends() -> None:
+    plan, scene = clear_plan(), row_scene()
+    with RobotController(drop_after=2) as ctl:
+        out, events = run(driver(ctl), plan, scene)
+        assert not out.ok and out.needs_replan
+        assert out.completed == ("b0", "b1")
+        assert "new capture and plan" in out.error and "lost" in out.error
+        # step 2 may have gone out before the drop was noticed, but it was never acknowledged
+        assert [s["status"] for s in out.steps][:2] == ["done", "done"]
+        assert out.steps[2]["status"] in ("not_sent", "unacknowledged") and out.steps[3]["status"] == "not_sent"
+        assert events[-1].kind == "disconnected"
+        # retry the same plan on a fresh driver object (as the console does): only steps 2 and 3 go out
+        ctl.drop_after = None
+        out2, events2 = run(driver(ctl), plan, scene)
+    assert out2.ok and out2.completed == ("b0", "b1", "b2", "b3")
+    assert [s["status"] for s in out2.steps] == ["skipped", "skipped", "done", "done"]
+    sent = [m["step"] for m in ctl.received("step")]
+    assert sent in ([0, 1, 2, 3], [0, 1, 2, 2, 3])  # completed steps never again; an unacknowledged one may be
+    assert sent.count(0) == 1 and sent.count(1) == 1
+    assert [e[1] for e in ctl.executed] == [0, 1, 2, 3]
+
+
+def test_step_in_flight_when_link_drops_is_unknown_and_blocks_the_plan() -> None:
+    plan, scene = clear_plan(), row_scene()
+    with RobotController(drop_during=1) as ctl:
+        out, _ = run(driver(ctl), plan, scene)
+        assert out.completed == ("b0",)
+        assert [s["status"] for s in out.steps][:2] == ["done", "unknown"]
+        assert "in flight" in out.error
+        ctl.drop_during = None
+        out2, events2 = run(driver(ctl), plan, scene)
+    assert not out2.ok and "not sent again" in out2.error and events2 == []
+    assert [m["step"] for m in ctl.received("step")] == [0, 1]  # step 1 was executed once, never re-sent
+
+
+def test_refused_step_stops_the_sequence() -> None:
+    with RobotController(refuse_steps={1}) as ctl:
+        out, events = run(driver(ctl), clear_plan(), row_scene())
+    assert not out.ok and out.completed == ("b0",)
+    assert "REFUSED" in out.error and out.needs_replan
+    assert [e.kind for e in events] == ["ack", "done", "error"]
+    assert events[-1].detail["code"] == "REFUSED" and events[-1].step == 1
+    assert [s["status"] for s in out.steps] == ["done", "error", "not_sent", "not_sent"]
+    assert [m["step"] for m in ctl.received("step")] == [0, 1]
+
+
+def test_heartbeat_timeout_when_the_robot_goes_silent() -> None:
+    with RobotController(hang_on_step=2) as ctl:
+        t0 = time.monotonic()
+        out, events = run(driver(ctl), clear_plan(), row_scene())
+        elapsed = time.monotonic() - t0
+        pings = ctl.received("ping")
+    assert not out.ok and out.completed == ("b0", "b1")
+    assert events[-1].kind == "disconnected" and events[-1].detail["code"] in ("HEARTBEAT", "TIMEOUT")
+    assert "silent" in out.error or "no ack" in out.error
+    assert elapsed < 5.0
+    assert pings, "the driver pings while it waits"
+
+
+def test_heartbeat_keeps_a_slow_step_alive_and_step_timeout_fires() -> None:
+    with RobotController(step_time=1.0) as ctl:
+        out, _ = run(driver(ctl), clear_plan(("b0",)), row_scene())
+        assert out.ok  # 1 s step with a 0.6 s silence limit: pongs keep the link alive
+        assert len(ctl.received("ping")) >= 3
+        slow = Timeouts(connect=2, ack=2, step=0.4, heartbeat_interval=0.1, heartbeat_timeout=0.6, abort=0.5)
+        out2, events2 = run(driver(ctl, timeouts=slow), clear_plan(("b1",)), row_scene())
+    assert not out2.ok and events2[-1].detail["code"] == "TIMEOUT"
+    assert "completion of step 1" in out2.error
+
+
+def test_stop_aborts_the_running_step() -> None:
+    stop = threading.Event()
+    with RobotController(step_time=0.6) as ctl:
+        events: list[RobotEvent] = []
+
+        def on_event(ev: RobotEvent) -> None:
+            events.append(ev)
+            if ev.kind == "ack" and ev.step == 1:
+                stop.set()
+
+        out = driver(ctl).execute(clear_plan(), row_scene(), on_event, stop)
+        aborts = ctl.received("abort")
+    assert out.completed == ("b0",) and not out.ok
+    assert "stopped" in out.error
+    assert aborts and aborts[0]["step"] == 1
+    assert events[-1].kind == "aborted" and events[-1].step == 1
+    assert [s["status"] for s in out.steps] == ["done", "aborted", "not_sent", "not_sent"]
+
+
+def test_connect_refused_and_bad_specs(tmp_path: Path) -> None:
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    out, events = run(TcpRobot("127.0.0.1", port, timeouts=FAST), clear_plan(), row_scene())
+    assert not out.ok and "cannot connect" in out.error and events[0].kind == "disconnected"
+    with pytest.raises(RobotError, match="expected 'sim' or 'tcp://HOST:PORT'"):
+        open_robot("udp://x:1")
+    with pytest.raises(RobotError, match="unknown option 'bogus'"):
+        open_robot("tcp://127.0.0.1:9?bogus=1")
+    with pytest.raises(RobotError, match="position: expected 3"):
+        open_robot("tcp://127.0.0.1:9?position=1,2")
+    bad = tmp_path / "t.json"
+    bad.write_text(json.dumps({"matrix": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}))
+    with pytest.raises(FormatError, match="t.json: matrix: rotation part is not orthonormal"):
+        open_robot(f"tcp://127.0.0.1:9?transform={bad}")
+    good = tmp_path / "g.json"
+    good.write_text(json.dumps({"position": [0.5, 0, 0], "orientation": [1, 0, 0, 0]}))
+    r = open_robot(f"tcp://127.0.0.1:9?transform={good}&ack_timeout=0.5")
+    assert isinstance(r, TcpRobot) and r.transform.translation == (0.5, 0.0, 0.0) and r.timeouts.ack == 0.5
+    r2 = open_robot("tcp://localhost:9?position=1,2,3&orientation=0.7071068,0,0,0.7071068")
+    assert r2.transform.point((1, 0, 0)) == pytest.approx((1, 3, 3), abs=1e-6)
+
+
+def test_transform_inverse_and_grasp_of_a_turned_box() -> None:
+    tf = Transform.from_pose((0.3, -0.1, 0.5), (0.9238795, 0.0, 0.0, 0.3826834))
+    p = (0.1, 0.2, 0.3)
+    assert tf.inverse().point(tf.point(p)) == pytest.approx(p, abs=1e-9)
+    box = Box("t", (0.2, 0.2, 0.2), (0.0, 0.15, 0.1), yaw_quat(math.radians(30)))
+    scene = Scene(Shelf(), (box,))
+    g = grasp_for(box, scene, Transform.identity())
+    assert g["grasp"]["point"] == pytest.approx(box.front_center, abs=1e-6)
+    assert g["grasp"]["normal"] == pytest.approx((math.sin(math.radians(30)), -math.cos(math.radians(30)), 0), abs=1e-6)
+    unseen = Box("u", (0.2, 0.05, 0.2), (0.0, 0.05, 0.1), depth_known=False)
+    assert grasp_for(unseen, scene, Transform.identity())["pull_distance"] == pytest.approx(0.30 + 0.05)
+
+
+def test_controller_answers_pings_and_rejects_bad_requests() -> None:
+    with RobotController() as ctl:
+        sock = socket.create_connection(ctl.address, timeout=2)
+        conn = LineConn(sock)
+        conn.send({"type": "ping", "seq": 7})
+        assert conn.recv(2) == {"type": "pong", "seq": 7}
+        conn.send({"type": "step", "plan": "p", "step": 0, "box": "b0", "grasp": {}, "pull_distance": 0.3})
+        err = conn.recv(2)
+        assert err["type"] == "error" and err["code"] == "BAD_REQUEST"
+        sock.sendall(b"not json\n")
+        assert conn.recv(2)["code"] == "BAD_REQUEST"
+        conn.close()
