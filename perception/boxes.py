@@ -1,0 +1,357 @@
+"""From instance masks to boxes in the shelf frame, and a scene that can stand.
+
+Per mask the front face is measured in metres: a plane fitted to the depth
+inside the eroded mask (median-robust, holes ignored), the mask outline cast
+onto that plane, and a minimum-area rectangle in the plane. Width, height and
+the in-plane angle (a turn about the viewing axis, shelf y) come from the
+rectangle's long edge, never from OpenCV's angle convention. The camera sees
+no depth, so boxes get `depth_known: false` and a placeholder depth behind the
+measured front. `make_valid` then rests every box on the floor or on a box
+below (closing small gaps, resolving small overlaps), keeps boxes inside the
+shelf, and says what it moved.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from perception.errors import PerceptionError
+from perception.geometry import backproject, matrix_to_quat, ray_plane
+from perception.scene import Box, Camera, Shelf, quat_to_matrix
+
+
+@dataclass(frozen=True)
+class FrontFace:
+    """A measured box front face in the shelf frame."""
+
+    center: tuple[float, float, float]
+    width: float                 # along the face's in-plane x axis (m)
+    height: float                # along the face's in-plane z axis (m)
+    angle: float                 # in-plane turn about shelf y, degrees in (-45, 45]
+    yaw: float                   # turn of the face normal about shelf z, degrees
+    distance: float              # median camera depth over the eroded mask (m)
+    pixels: int
+    rect_px: tuple               # cv2 rotated rect in the image, for the overlay
+
+    def to_json(self) -> dict:
+        return {"center": list(self.center), "width": self.width, "height": self.height,
+                "angle": self.angle, "yaw": self.yaw, "distance": self.distance, "pixels": self.pixels}
+
+
+def _rect_long_edge(pts: np.ndarray) -> tuple[tuple[float, float], float, float, float]:
+    """Centre, width, height and angle (deg, (-45, 45]) of the min-area rectangle of 2-D points.
+
+    The angle is that of the rectangle edge closest to the x axis; width is the
+    extent along it. OpenCV's own (w, h, angle) convention is not used.
+    """
+    import cv2
+
+    rect = cv2.minAreaRect(pts.astype(np.float32))
+    corners = cv2.boxPoints(rect).astype(np.float64)
+    e1 = corners[1] - corners[0]
+    e2 = corners[2] - corners[1]
+    l1, l2 = float(np.hypot(*e1)), float(np.hypot(*e2))
+    long_e, long_l, short_l = (e1, l1, l2) if l1 >= l2 else (e2, l2, l1)
+    a = math.degrees(math.atan2(long_e[1], long_e[0]))
+    a = (a + 90.0) % 180.0 - 90.0          # [-90, 90)
+    if -45.0 < a <= 45.0:
+        width, height, angle = long_l, short_l, a
+    else:
+        width, height = short_l, long_l
+        angle = a - 90.0 if a > 45.0 else a + 90.0
+    centre = tuple(corners.mean(axis=0))
+    return centre, width, height, angle  # type: ignore[return-value]
+
+
+def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px: int = 3,
+                  angle_snap: float = 1.0) -> FrontFace | None:
+    """Measure one mask's front face; None when the mask has too little valid depth."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    if m.sum() < 20:
+        return None
+    k = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)
+    inner = cv2.erode(m, k) > 0
+    if inner.sum() < 20:
+        inner = m > 0
+    d = depth
+    sel = inner & np.isfinite(d) & (d > 0)
+    if sel.sum() < 10:
+        return None
+    vs, us = np.nonzero(sel)
+    z = d[vs, us].astype(np.float64)
+    dmed = float(np.median(z))
+    keep = np.abs(z - dmed) < max(0.04, 0.05 * dmed)
+    vs, us, z = vs[keep], us[keep], z[keep]
+    if len(z) > 6000:
+        step = len(z) // 6000 + 1
+        vs, us, z = vs[::step], us[::step], z[::step]
+    pts = backproject(camera, us, vs, z)
+    # plane: vertical (normal in the shelf x-y plane); robust fit of its direction
+    centre = np.median(pts, axis=0)
+    normal = np.array([0.0, 1.0, 0.0])
+    for _ in range(2):
+        q = pts - centre
+        cov = q[:, :2].T @ q[:, :2]
+        w, v = np.linalg.eigh(cov)
+        n2 = v[:, 0]                          # smallest spread in x-y = normal direction
+        if n2[1] < 0:
+            n2 = -n2
+        normal = np.array([n2[0], n2[1], 0.0])
+        res = np.abs(q @ normal)
+        cut = max(0.006, 3.0 * float(np.median(res)))
+        inl = res < cut
+        if inl.sum() >= 10:
+            centre = np.median(pts[inl], axis=0)
+            pts = pts[inl]
+    yaw = math.degrees(math.atan2(-normal[0], normal[1]))
+    if abs(yaw) < 2.0:
+        yaw = 0.0
+    normal = np.array([-math.sin(math.radians(yaw)), math.cos(math.radians(yaw)), 0.0])
+    # outline of the full mask cast onto the plane
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    outline = np.concatenate([c.reshape(-1, 2) for c in contours], axis=0).astype(np.float64)
+    hit = ray_plane(camera, outline[:, 0], outline[:, 1], centre, normal)
+    hit = hit[np.all(np.isfinite(hit), axis=1)]
+    if len(hit) < 4:
+        return None
+    u_ax = np.cross(normal, [0.0, 0.0, 1.0])
+    u_ax /= np.linalg.norm(u_ax)
+    v_ax = np.cross(u_ax, normal)
+    ab = np.stack([(hit - centre) @ u_ax, (hit - centre) @ v_ax], axis=1)
+    _, _, _, angle = _rect_long_edge(ab * 1000.0)   # orientation from the outline (mm precision)
+    if abs(angle) < angle_snap:
+        angle = 0.0
+    # extents from weighted quantiles of every mask pixel cast onto the plane: a few stray
+    # pixels cannot inflate the rectangle, and pixel footprints (~z^3) weight the far side fairly
+    ys_all, xs_all = np.nonzero(m)
+    if len(xs_all) > 20000:
+        st = len(xs_all) // 20000 + 1
+        ys_all, xs_all = ys_all[::st], xs_all[::st]
+    allp = ray_plane(camera, xs_all.astype(np.float64), ys_all.astype(np.float64), centre, normal)
+    okp = np.all(np.isfinite(allp), axis=1)
+    allp = allp[okp]
+    rel = allp - centre
+    a = math.radians(angle)
+    ex = math.cos(a) * u_ax + math.sin(a) * v_ax
+    ez = -math.sin(a) * u_ax + math.cos(a) * v_ax
+    cam_t = np.asarray(camera.position, dtype=np.float64)
+    wts = np.linalg.norm(allp - cam_t, axis=1) ** 3
+    q = 0.02
+    (x_lo, x_hi), (z_lo, z_hi) = (_wquant(rel @ ax, wts, (q, 1 - q)) for ax in (ex, ez))
+    width = (x_hi - x_lo) / (1 - 2 * q)
+    height = (z_hi - z_lo) / (1 - 2 * q)
+    c3 = centre + ex * (x_lo + x_hi) / 2 + ez * (z_lo + z_hi) / 2
+    rect_px = cv2.minAreaRect(outline.astype(np.float32))
+    return FrontFace(tuple(float(x) for x in c3), float(width), float(height), float(angle),  # type: ignore[arg-type]
+                     float(yaw), dmed, int(m.sum()), rect_px)
+
+
+def _wquant(x: np.ndarray, w: np.ndarray, qs: tuple[float, float]) -> tuple[float, float]:
+    order = np.argsort(x)
+    cw = np.cumsum(w[order])
+    cw /= cw[-1]
+    return tuple(float(x[order][min(np.searchsorted(cw, q), len(x) - 1)]) for q in qs)  # type: ignore[return-value]
+
+
+def face_axes(face: FrontFace) -> np.ndarray:
+    """Box rotation matrix (columns: box x, y, z in the shelf frame) of a measured face."""
+    yaw = math.radians(face.yaw)
+    n = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    u = np.cross(n, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(u, n)
+    a = math.radians(face.angle)
+    ex = math.cos(a) * u + math.sin(a) * v
+    ez = -math.sin(a) * u + math.cos(a) * v
+    return np.stack([ex, n, ez], axis=1)
+
+
+def box_from_face(face: FrontFace, box_id: str, label: int, shelf: Shelf,
+                  placeholder: float = 0.25) -> Box:
+    """A box whose front face is the measured one and whose depth is a placeholder."""
+    rot = face_axes(face)
+    front_y = face.center[1]
+    depth = min(placeholder, shelf.depth - front_y)
+    depth = max(depth, 0.02)
+    pos = np.asarray(face.center) + rot[:, 1] * depth / 2
+    return Box(box_id, (face.width, depth, face.height), tuple(float(x) for x in pos),  # type: ignore[arg-type]
+               matrix_to_quat(rot), None, False, label,
+               {"perceived": {"angle_deg": round(face.angle, 3), "distance": round(face.distance, 4)}})
+
+
+# --------------------------------------------------------------------------
+# physically valid scene
+def _aabb(b: Box) -> np.ndarray:
+    c = np.asarray(b.corners())
+    return np.stack([c.min(axis=0), c.max(axis=0)])
+
+
+def _moved(b: Box, delta: np.ndarray) -> Box:
+    return replace(b, position=tuple(float(p + d) for p, d in zip(b.position, delta)))  # type: ignore[arg-type]
+
+
+def _overlap(a: np.ndarray, b: np.ndarray, axis: int) -> float:
+    return float(min(a[1, axis], b[1, axis]) - max(a[0, axis], b[0, axis]))
+
+
+def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
+               min_contact: float = 0.01) -> tuple[list[Box], list[str]]:
+    """Boxes resting on the floor or on each other, inside the shelf; and what was changed.
+
+    Geometric, no physics: small gaps (<= `snap`) under a box are closed, small
+    overlaps pushed apart (up, or sideways for neighbours), a box with nothing
+    under it is dropped onto the nearest support below, and boxes are clamped
+    into the shelf. Placeholder depths shrink to fit before the back wall.
+    """
+    notes: list[str] = []
+    out: list[Box] = []
+    for b in boxes:
+        b = _clamp(b, shelf, notes)
+        out.append(b)
+    # sideways: neighbours at the same height overlapping a little
+    order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 0])
+    for ii, i in enumerate(order):
+        for j in order[ii + 1:]:
+            a, c = _aabb(out[i]), _aabb(out[j])
+            ox = _overlap(a, c, 0)
+            if ox <= 0 or _overlap(a, c, 2) < min_contact or _overlap(a, c, 1) <= 0:
+                continue
+            # only neighbours side by side (their centres apart more in x than z)
+            dxc = abs((a[0, 0] + a[1, 0]) - (c[0, 0] + c[1, 0])) / 2
+            dzc = abs((a[0, 2] + a[1, 2]) - (c[0, 2] + c[1, 2])) / 2
+            if ox > snap or dzc > dxc:
+                continue
+            left, right = (i, j) if a[0, 0] <= c[0, 0] else (j, i)
+            half = ox / 2 + 1e-4
+            out[left] = _moved(out[left], np.array([-half, 0, 0]))
+            out[right] = _moved(out[right], np.array([half, 0, 0]))
+            notes.append(f"{out[left].id}/{out[right].id}: pushed apart sideways by {ox * 100:.1f} cm overlap")
+    for i in range(len(out)):
+        out[i] = _clamp(out[i], shelf, notes)
+    # vertical: rest every box on what is under it, lowest first
+    order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 2])
+    placed: list[int] = []
+    for i in order:
+        a = _aabb(out[i])
+        bottom = a[0, 2]
+        support, under = 0.0, "the floor"
+        for j in placed:
+            c = _aabb(out[j])
+            if _overlap(a, c, 0) < min_contact or _overlap(a, c, 1) <= 0:
+                continue
+            if c[1, 2] <= bottom + snap and c[1, 2] > support:
+                support, under = float(c[1, 2]), out[j].id
+        delta = support - bottom
+        if abs(delta) > 1e-3:
+            if delta > 0:
+                notes.append(f"{out[i].id}: pushed up {delta * 100:.1f} cm out of {under}")
+            elif -delta <= snap:
+                notes.append(f"{out[i].id}: lowered {-delta * 100:.1f} cm onto {under} (gap closed)")
+            else:
+                notes.append(f"{out[i].id}: hung {-delta * 100:.1f} cm in the air; dropped onto {under}")
+            out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
+        elif delta != 0:
+            out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
+        placed.append(i)
+    for i in range(len(out)):
+        top = _aabb(out[i])[1, 2]
+        if top > shelf.height + 1e-6:
+            notes.append(f"{out[i].id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m")
+    return out, notes
+
+
+def _clamp(b: Box, shelf: Shelf, notes: list[str]) -> Box:
+    a = _aabb(b)
+    half = shelf.width / 2
+    dx = 0.0
+    if a[1, 0] - a[0, 0] > shelf.width:
+        dx = -(a[0, 0] + a[1, 0]) / 2
+    elif a[0, 0] < -half:
+        dx = -half - a[0, 0]
+    elif a[1, 0] > half:
+        dx = half - a[1, 0]
+    if abs(dx) > 1e-6:
+        b = _moved(b, np.array([dx, 0.0, 0.0]))
+        if abs(dx) > 1e-3:
+            notes.append(f"{b.id}: moved {abs(dx) * 100:.1f} cm {'right' if dx > 0 else 'left'} into the shelf")
+    a = _aabb(b)
+    if a[1, 1] > shelf.depth + 1e-6:
+        excess = a[1, 1] - shelf.depth
+        if not b.depth_known and b.size[1] - excess >= 0.01:
+            b = b.with_depth(b.size[1] - excess)
+        else:
+            b = _moved(b, np.array([0.0, -excess, 0.0]))
+            if excess > 1e-3:
+                notes.append(f"{b.id}: moved {excess * 100:.1f} cm forward off the back wall")
+    a = _aabb(b)
+    if a[0, 2] < 0:
+        b = _moved(b, np.array([0.0, 0.0, -a[0, 2]]))
+    return b
+
+
+# --------------------------------------------------------------------------
+def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
+                     placeholder: float = 0.25) -> tuple[list[Box], list[np.ndarray], list[FrontFace], list[str]]:
+    """Measure every mask; boxes get ids b0.. ordered bottom-up then left to right.
+
+    Returns boxes, the masks in the same order (mask_label = index + 1), the faces
+    and warnings about masks that could not be measured.
+    """
+    warnings: list[str] = []
+    faces: list[tuple[FrontFace, np.ndarray]] = []
+    for i, m in enumerate(masks):
+        f = measure_front(m, depth, camera)
+        if f is None:
+            warnings.append(f"mask {i + 1}: too little valid depth to measure; dropped")
+            continue
+        if f.center[1] > shelf.depth + 0.05 or f.width < 0.02 or f.height < 0.02:
+            warnings.append(f"mask {i + 1}: face at y={f.center[1]:.2f} m, {f.width:.3f}x{f.height:.3f} m "
+                            "is not a box front; dropped")
+            continue
+        faces.append((f, m))
+    faces.sort(key=lambda fm: (round((fm[0].center[2] - fm[0].height / 2) / 0.05), fm[0].center[0]))
+    boxes = [box_from_face(f, f"b{k}", k + 1, shelf, placeholder) for k, (f, _) in enumerate(faces)]
+    return boxes, [m for _, m in faces], [f for f, _ in faces], warnings
+
+
+def planar_depth(camera: Camera, distance: float) -> np.ndarray:
+    """A depth image of a flat front at `distance` m in front of the camera (no depth sensor)."""
+    if not (distance > 0 and math.isfinite(distance)):
+        raise PerceptionError(f"front distance must be a positive number of metres, got {distance!r}")
+    return np.full((camera.height, camera.width), float(distance), np.float32)
+
+
+def distance_from_box_size(masks: list[np.ndarray], camera: Camera, box_size: tuple[float, float]) -> float:
+    """The distance at which the median mask's pixel size matches a known front-face size (W, H in m)."""
+    import cv2
+
+    if len(box_size) != 2 or min(box_size) <= 0:
+        raise PerceptionError(f"--box-size needs two positive sizes in metres (W H), got {box_size!r}")
+    long_m, short_m = max(box_size), min(box_size)
+    f = math.sqrt(camera.fx * camera.fy)
+    est = []
+    for m in masks:
+        pts = cv2.findNonZero(m.astype(np.uint8))
+        if pts is None or len(pts) < 20:
+            continue
+        (_, _), (w, h), _ = cv2.minAreaRect(pts)
+        lp, sp = max(w, h) + 1, min(w, h) + 1
+        est.append(0.5 * (f * long_m / lp + f * short_m / sp))
+    if not est:
+        raise PerceptionError("cannot derive a distance from --box-size: no box was found in the image")
+    return float(np.median(est))
+
+
+def default_front_distance(camera: Camera) -> float:
+    """Distance along the optical axis from the camera to the shelf's front plane (y = 0)."""
+    rot = np.asarray(quat_to_matrix(camera.orientation))
+    fwd = rot[:, 2]
+    if fwd[1] <= 1e-3 or camera.position[1] >= 0:
+        return 1.0
+    return float(-camera.position[1] / fwd[1])   # camera z of the plane along the optical axis

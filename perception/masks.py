@@ -1,0 +1,234 @@
+"""Instance masks: cleaning, splitting at depth jumps, de-duplication, label images.
+
+Whatever segmenter produced them, masks are made usable the same way: small
+blobs dropped, holes (labels, tape, depth holes) filled, a mask that covers
+two boxes at different distances split in two, and overlaps resolved so each
+pixel belongs to at most one box.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """The mask with every hole that does not touch the image border filled."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    h, w = m.shape
+    pad = np.zeros((h + 2, w + 2), np.uint8)
+    pad[1:-1, 1:-1] = m
+    flood = pad.copy()
+    ff = np.zeros((h + 4, w + 4), np.uint8)
+    cv2.floodFill(flood, ff, (0, 0), 1)
+    holes = flood[1:-1, 1:-1] == 0
+    return mask.astype(bool) | holes
+
+
+def drop_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
+    """Keep the connected pieces of at least `min_pixels` (8-connected)."""
+    import cv2
+
+    n, lbl, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_pixels
+    return keep[lbl]
+
+
+def largest_component(mask: np.ndarray) -> np.ndarray:
+    import cv2
+
+    n, lbl, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return np.zeros(mask.shape, bool)
+    return lbl == (1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])))
+
+
+def clean_mask(mask: np.ndarray, min_pixels: int = 200, open_px: int = 1) -> np.ndarray:
+    """Small blobs dropped, holes filled, ragged one-pixel spurs opened away."""
+    import cv2
+
+    m = mask.astype(bool)
+    if open_px > 0 and m.any():
+        k = np.ones((2 * open_px + 1, 2 * open_px + 1), np.uint8)
+        m = cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN, k) > 0
+    m = drop_small(m, min_pixels)
+    return fill_holes(m) if m.any() else m
+
+
+def split_by_depth(mask: np.ndarray, depth: np.ndarray | None, min_gap: float = 0.03,
+                   min_fraction: float = 0.12, min_pixels: int = 200) -> list[np.ndarray]:
+    """Split a mask whose valid depths form separate clusters (two boxes at different distances).
+
+    The sorted depths are cut at their widest gap when that gap exceeds `min_gap`
+    and both sides hold at least `min_fraction` of the pixels; each side is split
+    again until no such gap is left. Pixels without depth go to the nearest part.
+    """
+    import cv2
+
+    m = mask.astype(bool)
+    if depth is None or not m.any():
+        return [m]
+    vals = depth[m]
+    ok = np.isfinite(vals) & (vals > 0)
+    if ok.sum() < 2 * min_pixels:
+        return [m]
+    z = np.sort(vals[ok])
+    # ignore the outer 1% (flying pixels at edges)
+    lo, hi = int(0.01 * len(z)), int(0.99 * len(z))
+    zz = z[lo:hi]
+    if len(zz) < 2:
+        return [m]
+    gaps = np.diff(zz)
+    i = int(np.argmax(gaps))
+    frac = (i + 1) / len(zz)
+    if gaps[i] < min_gap or not (min_fraction <= frac <= 1 - min_fraction):
+        return [m]
+    cut = 0.5 * (zz[i] + zz[i + 1])
+    valid = m & np.isfinite(depth) & (depth > 0)
+    near = valid & (depth < cut)
+    far = valid & (depth >= cut)
+    # pixels without depth: nearest side
+    rest = m & ~valid
+    if rest.any():
+        dn = cv2.distanceTransform((~near).astype(np.uint8), cv2.DIST_L2, 3)
+        df = cv2.distanceTransform((~far).astype(np.uint8), cv2.DIST_L2, 3)
+        near |= rest & (dn <= df)
+        far |= rest & (dn > df)
+    out: list[np.ndarray] = []
+    for part in (near, far):
+        n, lbl, stats, _ = cv2.connectedComponentsWithStats(part.astype(np.uint8), connectivity=8)
+        for k in range(1, n):
+            if stats[k, cv2.CC_STAT_AREA] >= min_pixels:
+                piece = fill_holes(lbl == k)
+                out.extend(split_by_depth(piece, depth, min_gap, min_fraction, min_pixels))
+    return out or [m]
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    inter = np.logical_and(a, b).sum()
+    union = np.logical_or(a, b).sum()
+    return float(inter) / float(union) if union else 0.0
+
+
+def dedupe(masks: list[np.ndarray], max_iou: float = 0.5, min_pixels: int = 200) -> list[np.ndarray]:
+    """Drop masks that repeat a larger one (IoU or containment above `max_iou`); then
+    give each overlapping pixel to the larger mask so masks are disjoint."""
+    order = sorted(range(len(masks)), key=lambda i: -int(masks[i].sum()))
+    kept: list[np.ndarray] = []
+    taken = None
+    for i in order:
+        m = masks[i].astype(bool)
+        area = m.sum()
+        if area < min_pixels:
+            continue
+        if any(iou(m, k) > max_iou or np.logical_and(m, k).sum() > max_iou * area for k in kept):
+            continue
+        if taken is not None:
+            m = m & ~taken
+            if m.sum() < min_pixels:
+                continue
+        kept.append(m)
+        taken = m.copy() if taken is None else (taken | m)
+    return kept
+
+
+def to_label_image(masks: list[np.ndarray], shape: tuple[int, int] | None = None) -> np.ndarray:
+    """uint16 label image: mask i gets label i + 1; later masks never overwrite earlier ones."""
+    if shape is None:
+        if not masks:
+            raise ValueError("shape is needed when there are no masks")
+        shape = masks[0].shape
+    out = np.zeros(shape, np.uint16)
+    for i, m in enumerate(masks, start=1):
+        out[(out == 0) & m.astype(bool)] = i
+    return out
+
+
+def from_label_image(labels: np.ndarray) -> list[np.ndarray]:
+    return [labels == k for k in np.unique(labels) if k > 0]
+
+
+def refine(masks: list[np.ndarray], depth: np.ndarray | None, min_pixels: int = 200,
+           min_gap: float = 0.03) -> list[np.ndarray]:
+    """The full clean-up every segmenter's output goes through."""
+    out: list[np.ndarray] = []
+    for m in masks:
+        c = clean_mask(m, min_pixels)
+        if not c.any():
+            continue
+        out.extend(split_by_depth(c, depth, min_gap=min_gap, min_pixels=min_pixels))
+    out = [clean_mask(m, min_pixels, open_px=0) for m in out]
+    return dedupe([m for m in out if m.any()], min_pixels=min_pixels)
+
+
+def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, steps: int = 6,
+                  tol: float = 0.005, rgb: np.ndarray | None = None,
+                  allowed: np.ndarray | None = None) -> list[np.ndarray]:
+    """Grow each mask pixel by pixel onto neighbours that lie on its face plane.
+
+    Depth-jump and normal boundaries leave a band of a few pixels around each
+    face unclaimed (smoothing, holes at edges); this gives back the pixels that
+    belong to the face, so sizes and IoU are not biased low. No pixel is taken
+    from another mask.
+    """
+    import cv2
+
+    if depth is None or not masks:
+        return masks
+    h, w = depth.shape
+    valid = np.isfinite(depth) & (depth > 0)
+    if allowed is not None:
+        valid = valid & allowed
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    if rgb is not None:
+        gray = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), (3, 3), 0)
+        edge = cv2.Canny(gray, 40, 110) > 0
+    else:
+        edge = np.zeros((h, w), bool)
+    taken = np.zeros((h, w), bool)
+    for m in masks:
+        taken |= m
+    out = []
+    k = np.ones((3, 3), np.uint8)
+    for m in masks:
+        m = m.astype(bool)
+        ys, xs = np.nonzero(m & valid)
+        if len(xs) < 30:
+            out.append(m)
+            continue
+        step = max(1, len(xs) // 3000)
+        ys, xs = ys[::step], xs[::step]
+        z = depth[ys, xs].astype(np.float64)
+        p = np.stack([(xs - cx) / fx * z, (ys - cy) / fy * z, z], axis=1)
+        c = np.median(p, axis=0)
+        _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+        n = vt[2]
+        res = np.abs((p - c) @ n)
+        inl = res < max(tol, 3 * float(np.median(res)))
+        if inl.sum() > 20:
+            c = p[inl].mean(axis=0)
+            _, _, vt = np.linalg.svd(p[inl] - c, full_matrices=False)
+            n = vt[2]
+        y0, y1 = max(0, ys.min() - steps - 1), min(h, ys.max() + steps + 2)
+        x0, x1 = max(0, xs.min() - steps - 1), min(w, xs.max() + steps + 2)
+        sub = m[y0:y1, x0:x1].copy()
+        zz = depth[y0:y1, x0:x1].astype(np.float64)
+        uu = (np.arange(x0, x1) - cx) / fx
+        vv = (np.arange(y0, y1) - cy) / fy
+        dist = np.abs(n[0] * (uu[None, :] * zz - c[0]) + n[1] * (vv[:, None] * zz - c[1]) + n[2] * (zz - c[2]))
+        ok = valid[y0:y1, x0:x1] & (dist < tol) & ~taken[y0:y1, x0:x1]
+        stop = edge[y0:y1, x0:x1]
+        for _ in range(steps):
+            # growth may enter a colour-edge pixel (the true outline) but not pass it
+            grown = (cv2.dilate((sub & ~stop).astype(np.uint8), k) > 0) & ok
+            new = grown & ~sub
+            if not new.any():
+                break
+            sub |= new
+        full = m.copy()
+        full[y0:y1, x0:x1] = sub
+        out.append(fill_holes(full))
+    # pixels claimed by two grown masks go to neither (they were a boundary)
+    count = np.sum([o.astype(np.uint8) for o in out], axis=0)
+    return [o & ((count == 1) | m) for o, m in zip(out, masks)]

@@ -1,0 +1,44 @@
+"""The picture a person checks perception by: masks, rectangles and box ids over the RGB."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def palette(n: int) -> np.ndarray:
+    """n distinct saturated RGB colours (golden-ratio hues), deterministic."""
+    import colorsys
+
+    return np.array([[int(255 * c) for c in colorsys.hsv_to_rgb((i * 0.618034) % 1.0, 0.85, 0.95)]
+                     for i in range(max(n, 1))], np.uint8)
+
+
+def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | None = None,
+                 alpha: float = 0.45) -> np.ndarray:
+    """RGB uint8 image: each label tinted, its min-area rectangle outlined and its box id written."""
+    import cv2
+
+    out = rgb.copy()
+    ids = [int(k) for k in np.unique(labels) if k > 0]
+    if not ids:
+        return out
+    cols = palette(max(ids) + 1)
+    tint = cols[labels]
+    sel = labels > 0
+    out[sel] = (out[sel] * (1 - alpha) + tint[sel] * alpha).astype(np.uint8)
+    for k in ids:
+        m = (labels == k).astype(np.uint8)
+        pts = cv2.findNonZero(m)
+        if pts is None:
+            continue
+        rect = cv2.minAreaRect(pts)
+        corners = cv2.boxPoints(rect).astype(np.int32)
+        col = tuple(int(c) for c in cols[k])
+        cv2.polylines(out, [corners], True, col, 2, cv2.LINE_AA)
+        text = (names or {}).get(k, str(k))
+        cx, cy = (int(v) for v in rect[0])
+        scale = 0.5 if out.shape[1] <= 800 else 1.0
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 2)
+        org = (cx - tw // 2, cy + th // 2)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 4, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 2, cv2.LINE_AA)
+    return out

@@ -1,0 +1,111 @@
+"""One capture in, one scene out: segment, clean masks, measure boxes, make the scene stand.
+
+`perceive` is what the CLI, the console and the benchmark call. It never
+raises for an image without boxes (an empty scene and a warning instead);
+it raises `PerceptionError` for inputs it cannot use (intrinsics that do not
+belong to the image, a distance that is not a distance).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
+                              distance_from_box_size, make_valid, planar_depth)
+from perception.capture import Capture
+from perception.geometry import check_intrinsics, point_map
+from perception.masks import grow_on_plane, refine, to_label_image
+from perception.overlay import draw_overlay
+from perception.scene import Scene, Shelf
+from perception.segment import Segmenter, load_segmenter, segmenter_name
+
+
+@dataclass(frozen=True, eq=False)
+class Perception:
+    scene: Scene                       # depth_known false, mask_label k <-> masks == k
+    masks: np.ndarray                  # HxW uint16 instance labels
+    overlay: np.ndarray                # HxWx3 uint8
+    warnings: tuple[str, ...]
+    timing: dict[str, float]           # seconds per stage and "total"
+    adjustments: tuple[str, ...] = ()  # what make_valid moved
+    faces: tuple[FrontFace, ...] = ()
+    segmenter: str = ""
+    front_distance: float | None = None  # used when the capture had no depth
+    extra: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        return {"boxes": len(self.scene.boxes), "segmenter": self.segmenter,
+                "warnings": list(self.warnings), "adjustments": list(self.adjustments),
+                "timing": {k: round(v, 4) for k, v in self.timing.items()},
+                "front_distance": self.front_distance,
+                "faces": {b.id: f.to_json() for b, f in zip(self.scene.boxes, self.faces)}}
+
+
+def _min_pixels(shape: tuple[int, int]) -> int:
+    return max(40, int(150 * shape[0] * shape[1] / (640 * 480)))
+
+
+def _inside_shelf(depth: np.ndarray | None, camera, shelf: Shelf, margin: float = 0.004) -> np.ndarray | None:
+    """Pixels whose point lies inside the shelf volume (the shelf's own boards are not boxes)."""
+    if depth is None:
+        return None
+    p = point_map(camera, depth)
+    return ((p[..., 2] > margin) & (np.abs(p[..., 0]) < shelf.width / 2 - margin)
+            & (p[..., 1] < shelf.depth - margin) & (p[..., 2] < shelf.height - margin))
+
+
+def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf | None = None, *,
+             front_distance: float | None = None, box_size: tuple[float, float] | None = None,
+             placeholder: float = 0.25, origin: str = "camera") -> Perception:
+    """The scene seen in `capture` (see module docstring)."""
+    t0 = time.perf_counter()
+    timing: dict[str, float] = {}
+    warnings: list[str] = []
+    shelf = shelf or Shelf()
+    camera = capture.camera
+    check_intrinsics(camera, capture.shape, origin)
+    seg = segmenter if segmenter is not None else load_segmenter(None, "auto")
+    if hasattr(seg, "bind"):
+        seg = seg.bind(camera, shelf)  # type: ignore[union-attr]
+    depth = capture.depth
+    used_distance = None
+    if depth is None:
+        if front_distance is None and box_size is None:
+            front_distance = default_front_distance(camera)
+            warnings.append(f"no depth image: assuming a flat front {front_distance:.2f} m from the camera "
+                            "(give --front-distance or --box-size)")
+        used_distance = front_distance if front_distance is not None else default_front_distance(camera)
+        depth = planar_depth(camera, used_distance)
+    t = time.perf_counter()
+    raw = seg.segment(capture.rgb, depth)
+    timing["segment"] = time.perf_counter() - t
+    t = time.perf_counter()
+    minpx = _min_pixels(capture.shape)
+    masks = refine(raw, capture.depth, min_pixels=minpx)
+    masks = grow_on_plane(masks, capture.depth, camera, rgb=capture.rgb,
+                          allowed=_inside_shelf(capture.depth, camera, shelf))
+    timing["masks"] = time.perf_counter() - t
+    if capture.depth is None and box_size is not None and front_distance is None and masks:
+        used_distance = distance_from_box_size(masks, camera, box_size)
+        depth = planar_depth(camera, used_distance)
+        warnings.append(f"no depth image: front at {used_distance:.3f} m derived from the box size "
+                        f"{box_size[0]:g} x {box_size[1]:g} m")
+    t = time.perf_counter()
+    boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder)
+    warnings.extend(w)
+    boxes, notes = make_valid(boxes, shelf)
+    timing["boxes"] = time.perf_counter() - t
+    t = time.perf_counter()
+    labels = to_label_image(masks, capture.shape)
+    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in boxes if b.mask_label})
+    timing["overlay"] = time.perf_counter() - t
+    if not boxes:
+        warnings.append("no boxes found in the image; the scene is empty")
+    name = segmenter_name(seg)
+    scene = Scene(shelf, tuple(boxes), camera,
+                  {"kind": "perception", "segmenter": name, "adjustments": notes})
+    timing["total"] = time.perf_counter() - t0
+    return Perception(scene, labels, overlay, tuple(warnings), timing, tuple(notes), tuple(faces),
+                      name, used_distance)

@@ -1,0 +1,258 @@
+"""Box front faces without learned weights: depth discontinuities, surface normals, colour edges.
+
+A box front face seen by the camera is a near-planar patch facing the camera,
+bounded by depth jumps (boxes at different distances), normal creases (the top
+face of a box below the camera) and colour edges (boxes side by side with
+flush fronts). The segmenter
+1. drops the shelf itself (points outside the shelf volume or on the back wall),
+2. cuts the image at depth jumps and keeps camera-facing pixels: geometric patches,
+3. cuts patches further at Canny edges of the RGB image,
+4. gives thin and small pieces (tape, edge bands, labels) to their nearest big piece,
+5. merges neighbouring pieces of one patch whose colours match and whose union
+   is still a rectangle (a box whose face was cut by a print or tape).
+Everything is vectorised; a 640x480 frame takes well under 0.2 s.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from perception.scene import Camera, Shelf
+
+
+@dataclass(frozen=True)
+class DepthEdgeConfig:
+    jump_abs: float = 0.012          # m: depth step between neighbours that separates surfaces
+    jump_rel: float = 0.012          # m per m^2 of depth: grows with the sensor's noise
+    facing_cos: float = 0.80         # cos of the largest angle between face normal and shelf +y
+    normal_step: int = 3             # px: finite-difference half step for normals
+    canny_low: int = 40
+    canny_high: int = 110
+    min_face_m2: float = 0.0025      # smallest front face kept (5 x 5 cm)
+    min_side_m: float = 0.04         # thinner pieces are tape/edges, not faces
+    colour_merge: float = 14.0       # Lab distance under which two pieces are one box
+    rect_fill: float = 0.86          # a merged piece must fill its min-area rectangle this well
+    wall_margin: float = 0.012       # m: points this close to the back wall are the shelf
+
+
+class DepthEdgeSegmenter:
+    """`segment(rgb, depth) -> list[bool mask]`; bind a camera and shelf to drop the shelf."""
+
+    name = "depth"
+
+    def __init__(self, camera: Camera | None = None, shelf: Shelf | None = None,
+                 config: DepthEdgeConfig | None = None):
+        self.camera = camera
+        self.shelf = shelf
+        self.config = config or DepthEdgeConfig()
+
+    def bind(self, camera: Camera | None, shelf: Shelf | None) -> "DepthEdgeSegmenter":
+        return DepthEdgeSegmenter(camera, shelf, self.config)
+
+    # ------------------------------------------------------------------
+    def segment(self, rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
+        labels = self.segment_labels(rgb, depth)
+        n = int(labels.max())
+        return [labels == k for k in range(1, n + 1)]
+
+    def segment_labels(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        import cv2
+
+        cfg = self.config
+        h, w = depth.shape
+        camera = self.camera or _guess_camera(w, h)
+        d = np.nan_to_num(depth.astype(np.float32), nan=0.0)
+        valid = d > 0
+        ds = cv2.medianBlur(d, 5)
+        ds[~valid] = 0.0
+        # ---- depth jumps (both sides of the step are boundary)
+        thr = cfg.jump_abs + cfg.jump_rel * ds * ds
+        jump = np.zeros((h, w), bool)
+        dx = np.abs(np.diff(ds, axis=1)) > np.minimum(thr[:, 1:], thr[:, :-1])
+        dy = np.abs(np.diff(ds, axis=0)) > np.minimum(thr[1:, :], thr[:-1, :])
+        jump[:, 1:] |= dx
+        jump[:, :-1] |= dx
+        jump[1:, :] |= dy
+        jump[:-1, :] |= dy
+        vs = ds > 0
+        jump |= ~vs
+        # ---- camera-frame points and normals from smoothed depth
+        fx, fy = camera.fx, camera.fy
+        uu = ((np.arange(w, dtype=np.float32) - camera.cx) / fx)[None, :]
+        vv = ((np.arange(h, dtype=np.float32) - camera.cy) / fy)[:, None]
+        wgt = cv2.blur(vs.astype(np.float32), (5, 5))
+        dsm = cv2.blur(ds, (5, 5)) / np.maximum(wgt, 1e-6)
+        px, py, pz = uu * dsm, vv * dsm, dsm
+        k = cfg.normal_step
+        du = [np.zeros_like(dsm) for _ in range(3)]
+        dv = [np.zeros_like(dsm) for _ in range(3)]
+        for i, p in enumerate((px, py, pz)):
+            du[i][:, k:-k] = p[:, 2 * k:] - p[:, :-2 * k]
+            dv[i][k:-k, :] = p[2 * k:, :] - p[:-2 * k, :]
+        nx = du[1] * dv[2] - du[2] * dv[1]
+        ny = du[2] * dv[0] - du[0] * dv[2]
+        nz = du[0] * dv[1] - du[1] * dv[0]
+        nn = np.sqrt(nx * nx + ny * ny + nz * nz) + 1e-12
+        if self.camera is not None:
+            rot = np.asarray(_rot(camera))
+            fwd = rot.T @ np.array([0.0, 1.0, 0.0])   # shelf +y in the camera frame
+        else:
+            fwd = np.array([0.0, 0.0, 1.0])
+        facing = (nx * fwd[0] + ny * fwd[1] + nz * fwd[2]) / nn > cfg.facing_cos
+        fg = vs & facing & ~jump
+        # ---- the shelf itself
+        if self.camera is not None and self.shelf is not None:
+            rot = np.asarray(_rot(camera), dtype=np.float32)
+            t = np.asarray(camera.position, dtype=np.float32)
+            sx = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + t[0]
+            sy = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + t[1]
+            sz = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + t[2]
+            s = self.shelf
+            m = cfg.wall_margin
+            inside = (sy < s.depth - m) & (np.abs(sx) < s.width / 2 - 0.003) & (sz > 0.005) \
+                & (sz < s.height - 0.003)
+            fg &= inside
+        # ---- geometric patches
+        npatch, patch = cv2.connectedComponents(fg.astype(np.uint8), connectivity=4)
+        if npatch <= 1:
+            return np.zeros((h, w), np.uint16)
+        # ---- colour edges cut patches further
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        gray = cv2.GaussianBlur(gray, (3, 3), 0)
+        edges = cv2.Canny(gray, cfg.canny_low, cfg.canny_high) > 0
+        edges = cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        core = fg & ~edges
+        npiece, piece = cv2.connectedComponents(core.astype(np.uint8), connectivity=4)
+        # pixel scale (m per px) for metric sizes
+        mpp = np.where(vs, ds / np.sqrt(fx * fy), 0.0).astype(np.float32)
+        dist = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 3)
+        idx = np.arange(1, npiece)
+        from scipy import ndimage
+
+        area_m2 = ndimage.sum(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
+        thick_m = 2 * ndimage.maximum(dist * mpp, piece, idx) if npiece > 1 else np.zeros(0)
+        big = (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.min_side_m)
+        keep = np.zeros(npiece, bool)
+        keep[1:] = big
+        assigned = np.where(keep[piece], piece, 0)
+        # ---- pixels of a patch not in a big piece go to the nearest big piece of that patch
+        assigned = _grow_within(assigned, patch, fg)
+        # ---- merge pieces of one patch with matching colour and a rectangular union
+        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+        merged = _merge_pieces(assigned, core & keep[piece], patch, lab, cfg)
+        return _finish(merged, mpp, cfg)
+
+
+def _rot(camera: Camera):
+    from perception.scene import quat_to_matrix
+
+    return quat_to_matrix(camera.orientation)
+
+
+def _guess_camera(w: int, h: int) -> Camera:
+    f = 0.95 * w
+    return Camera(w, h, f, f, w / 2, h / 2)
+
+
+def _grow_within(assigned: np.ndarray, patch: np.ndarray, fg: np.ndarray) -> np.ndarray:
+    """Give every foreground pixel without a piece the label of its nearest piece in the same patch."""
+    import cv2
+
+    if assigned.max() == 0:
+        return assigned
+    todo = fg & (assigned == 0)
+    if not todo.any():
+        return assigned
+    src = (assigned == 0).astype(np.uint8)
+    _, lbl = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_PIXEL)
+    # map the zero-pixel index back to its label: build a lookup from seed index -> piece label
+    seeds = assigned != 0
+    lut = np.zeros(int(lbl.max()) + 1, np.int32)
+    lut[lbl[seeds]] = assigned[seeds]
+    nearest = lut[lbl]
+    patch_of = np.zeros(int(assigned.max()) + 1, np.int32)
+    patch_of[assigned[seeds]] = patch[seeds]
+    ok = todo & (patch_of[nearest] == patch) & (nearest > 0)
+    out = assigned.copy()
+    out[ok] = nearest[ok]
+    return out
+
+
+def _merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
+                  cfg: DepthEdgeConfig) -> np.ndarray:
+    import cv2
+    from scipy import ndimage
+
+    n = int(assigned.max())
+    if n <= 1:
+        return assigned
+    idx = np.arange(1, n + 1)
+    src = np.where(core, assigned, 0)
+    cnt = np.maximum(ndimage.sum(np.ones_like(src), src, idx), 1)
+    mean = np.stack([ndimage.sum(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
+    # neighbouring pieces (one pixel apart after growing)
+    pairs = set()
+    for a, b in ((assigned[:, :-1], assigned[:, 1:]), (assigned[:-1, :], assigned[1:, :])):
+        sel = (a != b) & (a > 0) & (b > 0)
+        if sel.any():
+            code = np.unique(np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1)
+                             + np.maximum(a[sel], b[sel]))
+            pairs.update((int(c // (n + 1)), int(c % (n + 1))) for c in code)
+    parent = list(range(n + 1))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    cand = []
+    for a, b in pairs:
+        de = float(np.linalg.norm(mean[a - 1] - mean[b - 1]))
+        if de < cfg.colour_merge:
+            cand.append((de, a, b))
+    cand.sort()
+    members: dict[int, list[int]] = {i: [i] for i in range(1, n + 1)}
+    for _, a, b in cand:
+        ra, rb = find(a), find(b)
+        if ra == rb:
+            continue
+        union = np.isin(assigned, members[ra] + members[rb])
+        if _rect_fill(union) < cfg.rect_fill:
+            continue
+        parent[rb] = ra
+        members[ra] = members[ra] + members.pop(rb)
+    lut = np.zeros(n + 1, np.int32)
+    for i in range(1, n + 1):
+        lut[i] = find(i)
+    return lut[assigned]
+
+
+def _rect_fill(mask: np.ndarray) -> float:
+    import cv2
+
+    pts = cv2.findNonZero(mask.astype(np.uint8))
+    if pts is None:
+        return 0.0
+    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
+    return float(mask.sum()) / max((rw + 1) * (rh + 1), 1.0)
+
+
+def _finish(merged: np.ndarray, mpp: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
+    """Relabel 1..n, dropping faces too small to be a box."""
+    from scipy import ndimage
+
+    labels = np.unique(merged)
+    labels = labels[labels > 0]
+    if len(labels) == 0:
+        return np.zeros(merged.shape, np.uint16)
+    area = ndimage.sum(mpp * mpp, merged, labels)
+    out = np.zeros(merged.shape, np.uint16)
+    k = 0
+    for lbl, a in zip(labels, area):
+        if a < cfg.min_face_m2:
+            continue
+        k += 1
+        out[merged == lbl] = k
+    return out
