@@ -208,3 +208,22 @@ def test_controller_answers_pings_and_rejects_bad_requests() -> None:
         sock.sendall(b"not json\n")
         assert conn.recv(2)["code"] == "BAD_REQUEST"
         conn.close()
+
+
+def test_controller_executes_on_a_truth_scene_through_the_transform() -> None:
+    """The robot finds boxes by grasp point (robot frame -> shelf frame), not by id; a collapse stops the plan."""
+    truth = Scene(Shelf(1.0, 0.3, 1.6), (
+        Box("b0", (0.2, 0.2, 0.2), (0.0, 0.12, 0.1)),
+        Box("b1", (0.2, 0.2, 0.2), (0.0, 0.12, 0.3)),
+        Box("b2", (0.2, 0.2, 0.2), (0.3, 0.12, 0.1))))
+    perceived = Scene(truth.shelf, tuple(Box(n, b.size, b.position) for n, b in zip(("x", "y", "z"), truth.boxes)))
+    tf = Transform.from_pose((0.8, 0.1, -0.3), yaw_quat(-math.pi / 2))
+    with RobotController(truth=truth, transform=tf) as ctl:
+        out, events = run(driver(ctl, transform=tf), Plan("extract", "x", "heuristic", ("z", "x", "y")), perceived)
+        world = ctl.world()
+    assert out.completed == ("z", "x") and not out.ok
+    done = [e for e in events if e.kind == "done"]
+    assert [e.detail["true_box"] for e in done] == ["b2", "b0"]
+    assert done[1].detail["collapsed"] == ["b1"] and "collapsed boxes: b1" in out.error
+    assert out.steps[2]["status"] == "not_sent"
+    assert "b0" not in world.ids and "b2" not in world.ids
