@@ -286,6 +286,7 @@ class SimRobot:
                 reverse = {t: p for p, t in match_boxes(scene, self._world_scene, {
                     b.id: b for b in self._world_scene.boxes}, self.match_tol).items()}
                 detail = res.to_json()
+                detail.pop("box", None)
                 detail["true_box"] = tid
                 detail["collapsed_ids"] = [reverse.get(b, b) for b in res.collapsed]
                 detail["collided_ids"] = [reverse.get(b, b) for b in res.collided]

@@ -291,6 +291,7 @@ class RobotController:
                                           f"{[round(c, 3) for c in point]} (shelf frame)"}
             res = sim.remove(best, seed=self.seed * 1000 + int(msg["step"]))
         detail = res.to_json()
+        detail.pop("box", None)  # the robot's own name for the box; the console's id is in the step
         detail["true_box"] = best
         if not res.extracted:
             return False, {"code": "PICK_FAILED", "message": f"box did not come out ({res.note or 'stuck'})",

@@ -219,7 +219,10 @@ def test_controller_executes_on_a_truth_scene_through_the_transform() -> None:
     perceived = Scene(truth.shelf, tuple(Box(n, b.size, b.position) for n, b in zip(("x", "y", "z"), truth.boxes)))
     tf = Transform.from_pose((0.8, 0.1, -0.3), yaw_quat(-math.pi / 2))
     with RobotController(truth=truth, transform=tf) as ctl:
-        out, events = run(driver(ctl, transform=tf), Plan("extract", "x", "heuristic", ("z", "x", "y")), perceived)
+        # PyBullet holds the GIL while it steps: give the in-process controller room to answer pings
+        patient = Timeouts(connect=2, ack=5, step=60, heartbeat_interval=0.2, heartbeat_timeout=10, abort=2)
+        out, events = run(driver(ctl, transform=tf, timeouts=patient),
+                          Plan("extract", "x", "heuristic", ("z", "x", "y")), perceived)
         world = ctl.world()
     assert out.completed == ("z", "x") and not out.ok
     done = [e for e in events if e.kind == "done"]
