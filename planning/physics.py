@@ -1,0 +1,97 @@
+"""Physics parameters of the shelf simulation, in one frozen dataclass.
+
+The defaults are the method's (gravity, friction, a box density of 1 kg/m^3)
+plus the numbers this implementation chose for speed and robustness; each
+choice and its measurement is written up in docs/physics.md.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any, Mapping
+
+from perception.errors import FormatError
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Everything the simulation needs to know besides the scene."""
+
+    # the method's world
+    gravity: float = 9.81               # m/s^2
+    lateral_friction: float = 0.75
+    spinning_friction: float = 0.01
+    density: float = 1.0                # kg/m^3 (the method's); a box's `mass` overrides
+    # integration
+    time_step: float = 1.0 / 120.0      # s; see docs/physics.md for the fine-step comparison
+    solver_iterations: int = 50
+    # suction pull along -y
+    pull_speed: float = 0.5             # m/s, reached after `pull_ramp`
+    pull_ramp: float = 0.05             # s of linear speed ramp (no infinite jerk)
+    pull_force: float = 50.0            # N, force limit of the suction drive
+    pull_margin: float = 0.02           # m past the shelf front before the box counts as out
+    pull_timeout: float = 3.0           # s; a box that does not come out by then is stuck
+    disturbance: float = 0.002          # m, amplitude of the seeded lateral/vertical vibration
+    disturbance_period: float = 0.05    # s between vibration set points
+    early_clear: bool = True            # park the box once nothing leans on it any more
+    gripper_size: tuple[float, float, float] = (0.06, 0.04, 0.06)  # suction cup body, m
+    # settling
+    settle_time: float = 1.0            # s, most time the rest gets to settle after a step
+    initial_settle_time: float = 3.0    # s, most time a fresh scene gets to come to rest
+    rest_velocity: float = 0.02         # m/s, below this a box is at rest
+    rest_angular_velocity: float = 0.3  # rad/s
+    rest_window: float = 0.1            # s a scene must stay at rest to count as settled
+    # verdicts
+    collapse_displacement: float = 0.02     # m since the step began
+    collapse_rotation: float = 10.0         # degrees since the step began
+    collapse_velocity: float = 0.6          # m/s
+    collapse_angular_velocity: float = 6.0  # rad/s
+    onset_displacement: float = 0.003       # m: "started moving" (orders the collapsed boxes)
+    onset_velocity: float = 0.1             # m/s: also "started moving"
+    collision_threshold: float = 0.005      # m a touched neighbour must move to count
+    # scene repair
+    repair_tolerance: float = 0.02      # m of overlap repaired; more is refused
+    # shelf model
+    shelf_top: bool = True
+    wall_thickness: float = 0.05
+    ground_drop: float = 0.8            # m from the shelf floor down to the room floor
+    min_sample_depth: float = 0.15      # m, lower bound of a drawn box depth (docs/physics.md)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or f.name == "gripper_size":
+                continue
+            if not isinstance(v, (int, float)) or v != v or (v < 0) or (v == 0 and f.name in _POSITIVE):
+                raise FormatError("physics config", f.name, f"expected a positive number, got {v!r}")
+
+    @property
+    def steps_per_second(self) -> float:
+        return 1.0 / self.time_step
+
+    def replace(self, **changes: Any) -> "PhysicsConfig":
+        return replace(self, **changes)
+
+    def to_json(self) -> dict:
+        doc = asdict(self)
+        doc["gripper_size"] = list(self.gripper_size)
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any], origin: str = "") -> "PhysicsConfig":
+        known = {f.name for f in fields(cls)}
+        if not isinstance(doc, Mapping):
+            raise FormatError(origin, "physics", f"expected an object, got {type(doc).__name__}")
+        for k in doc:
+            if k not in known:
+                raise FormatError(origin, f"physics.{k}", "unknown parameter")
+        kw = dict(doc)
+        if "gripper_size" in kw:
+            kw["gripper_size"] = tuple(kw["gripper_size"])
+        return cls(**kw)
+
+
+_POSITIVE = {"gravity", "density", "time_step", "solver_iterations", "pull_speed", "pull_force",
+             "pull_timeout", "settle_time", "initial_settle_time", "rest_velocity",
+             "rest_angular_velocity", "collapse_displacement", "collapse_rotation",
+             "collapse_velocity", "collapse_angular_velocity", "repair_tolerance",
+             "wall_thickness", "min_sample_depth"}

@@ -1,0 +1,48 @@
+"""Tiny scenes built in code for the simulation tests (shared by the sim/predict/execute tests)."""
+from __future__ import annotations
+
+from perception.scene import Box, Scene, Shelf
+
+CUBE = (0.2, 0.2, 0.2)
+A = (0.31, 0.23, 0.25)   # the method's box types, as (width, depth, height)
+C = (0.5, 0.17, 0.17)
+
+
+def cube(bid: str, x: float, z: float, y: float = 0.12, size=CUBE) -> Box:
+    return Box(bid, size, (x, y, z))
+
+
+def stacked() -> Scene:
+    """`b` stands on `a`; `c` stands alone."""
+    return Scene(Shelf(), (cube("a", 0.0, 0.1), cube("b", 0.0, 0.3), cube("c", 0.4, 0.1)))
+
+
+def column(n: int = 6) -> Scene:
+    """A column of n cubes and one free-standing cube `f`."""
+    return Scene(Shelf(), tuple(cube(f"c{i}", 0.0, 0.1 + 0.2 * i) for i in range(n)) + (cube("f", 0.35, 0.1),))
+
+
+def grid(nx: int = 4, nz: int = 3) -> Scene:
+    """nx columns of nz cubes, touching side by side, fronts staggered by up to 2 cm."""
+    boxes = []
+    for i in range(nx):
+        for j in range(nz):
+            boxes.append(cube(f"b{len(boxes)}", -0.3 + 0.2 * i, 0.1 + 0.2 * j, 0.12 + 0.01 * ((i + j) % 3)))
+    return Scene(Shelf(), tuple(boxes))
+
+
+def twelve() -> Scene:
+    """A 12-box shelf like the synthetic structured ones: columns, a bridging long box, fronts staggered."""
+    boxes: list[Box] = []
+
+    def add(size, x, z, dy=0.0):
+        boxes.append(Box(f"b{len(boxes)}", size, (x, dy + size[1] / 2, z)))
+
+    add(A, -0.34, 0.125, 0.0); add(A, -0.34, 0.375, 0.02); add(CUBE, -0.34, 0.6, -0.02)
+    add(CUBE, -0.08, 0.1, 0.01); add(CUBE, -0.08, 0.3, 0.0)
+    add(CUBE, 0.13, 0.1, -0.01); add(CUBE, 0.13, 0.3, 0.03)
+    add(C, 0.07, 0.4 + 0.085, 0.0)
+    add(CUBE, 0.36, 0.1, 0.0); add(CUBE, 0.36, 0.3, 0.02)
+    add(CUBE, -0.34, 0.8, 0.0)
+    add(CUBE, 0.05, 0.57 + 0.1, 0.01)
+    return Scene(Shelf(), tuple(boxes))
