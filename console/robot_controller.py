@@ -140,7 +140,7 @@ class RobotController:
         with self._lock:
             self._conns.add(sock)
         conn = LineConn(sock)
-        state = {"hung": False, "worker": None, "abort": None, "step": None, "closed": False}
+        state = {"hung": False, "busy": False, "abort": None, "step": None, "closed": False}
         try:
             while not state["closed"]:
                 try:
@@ -188,10 +188,13 @@ class RobotController:
         elif kind == "step":
             self._on_step(conn, state, msg)
         elif kind == "abort":
-            if state["abort"] is not None and state["worker"] is not None and state["worker"].is_alive():
+            if state["busy"] and state["abort"] is not None:
                 state["abort"].set()  # the worker answers `aborted` (or `done` if it already finished)
-            else:
-                self._send(conn, state, {"type": "aborted", "plan": msg.get("plan"), "step": msg.get("step")})
+            else:  # nothing running; say whether that step had already finished
+                with self._lock:
+                    finished = (msg.get("plan"), msg.get("step")) in self._done_keys
+                self._send(conn, state, {"type": "aborted", "plan": msg.get("plan"), "step": msg.get("step"),
+                                         "completed": finished})
         elif kind == "bye":
             state["closed"] = True
         else:
@@ -212,7 +215,7 @@ class RobotController:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step, "code": "BAD_REQUEST",
                                      "message": problem})
             return
-        if state["worker"] is not None and state["worker"].is_alive():
+        if state["busy"]:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step, "code": "BUSY",
                                      "message": f"step {state['step']} is still running"})
             return
@@ -231,15 +234,14 @@ class RobotController:
             return
         self._send(conn, state, {"type": "ack", "plan": plan, "step": step, "box": box})
         abort = threading.Event()
-        state["abort"], state["step"] = abort, step
-        worker = threading.Thread(target=self._run_step, args=(conn, state, msg, abort),
-                                  name=f"robot-step-{step}", daemon=True)
-        state["worker"] = worker
-        worker.start()
+        state["abort"], state["step"], state["busy"] = abort, step, True
+        threading.Thread(target=self._run_step, args=(conn, state, msg, abort),
+                         name=f"robot-step-{step}", daemon=True).start()
 
     def _run_step(self, conn: LineConn, state: dict, msg: dict, abort: threading.Event) -> None:
         plan, step, box = msg["plan"], msg["step"], msg["box"]
         if abort.wait(self.step_time) if self.step_time > 0 else abort.is_set():
+            state["busy"] = False
             self._send(conn, state, {"type": "aborted", "plan": plan, "step": step})
             return
         try:
@@ -247,6 +249,7 @@ class RobotController:
         except Exception as exc:  # noqa: BLE001 - reported to the console, the server keeps running
             log.exception("step failed")
             ok, detail = False, {"code": "INTERNAL", "message": f"{exc.__class__.__name__}: {exc}"}
+        state["busy"] = False  # before the reply: the console may send the next step at once
         if not ok:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step,
                                      "code": detail.pop("code", "PICK_FAILED"),

@@ -470,7 +470,8 @@ class TcpRobot:
                                time.monotonic() + self.timeouts.abort, None, "abort confirmation")
         except (_Lost, OSError) as exc:
             reply = {"type": "aborted", "detail": {"unconfirmed": str(exc)}}
-        if isinstance(reply, dict) and reply["type"] == "done" and step is not None:
+        if isinstance(reply, dict) and step is not None and (
+                reply["type"] == "done" or (reply["type"] == "aborted" and reply.get("completed") is True)):
             detail = dict(reply.get("detail") or {})
             self.history.mark_done(self.name, h, step, box)
             emit(on_event, RobotEvent("done", step, box, detail))

@@ -224,7 +224,7 @@ def test_controller_executes_on_a_truth_scene_through_the_transform() -> None:
         out, events = run(driver(ctl, transform=tf, timeouts=patient),
                           Plan("extract", "x", "heuristic", ("z", "x", "y")), perceived)
         world = ctl.world()
-    assert out.completed == ("z", "x") and not out.ok
+    assert out.completed == ("z", "x") and not out.ok, (out, events)
     done = [e for e in events if e.kind == "done"]
     assert [e.detail["true_box"] for e in done] == ["b2", "b0"]
     assert done[1].detail["collapsed"] == ["b1"] and "collapsed boxes: b1" in out.error
