@@ -1,0 +1,101 @@
+"""Front faces measured in metres, boxes from them, and a scene that can stand."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from perception.boxes import (_rect_long_edge, boxes_from_masks, distance_from_box_size, make_valid,
+                              measure_front)
+from perception.bench_truth import front_face_masks
+from perception.scene import Box, Scene, Shelf
+from synth_frames import SMALL_CAMERA, box, cast
+
+
+def test_long_edge_angle_not_opencv_convention():
+    for angle in (-30.0, -10.0, 0.0, 12.0, 40.0):
+        a = math.radians(angle)
+        ex, ez = np.array([math.cos(a), math.sin(a)]), np.array([-math.sin(a), math.cos(a)])
+        pts = np.array([s * 150 * ex + t * 60 * ez for s in (-1, 1) for t in (-1, 1)])
+        _, w, h, got = _rect_long_edge(pts)
+        assert abs(got - angle) < 0.5 and abs(w - 300) < 1 and abs(h - 120) < 1
+    # a tall face: width is the short horizontal edge, angle stays near 0
+    pts = np.array([[-40, -200], [40, -200], [40, 200], [-40, 200]], float)
+    _, w, h, got = _rect_long_edge(pts)
+    assert abs(got) < 1e-6 and abs(w - 80) < 1 and abs(h - 400) < 1
+
+
+def test_front_face_is_measured_within_a_centimetre():
+    b = box("a", 0.05, 0.0, 0.30, 0.22, front=0.04)
+    scene = Scene(Shelf(), (b,))
+    cap = cast(scene, noise=0.001)
+    face = measure_front(front_face_masks(scene, cap)["a"], cap.depth, cap.camera)
+    assert face is not None
+    fc = np.asarray(b.front_center)
+    assert np.linalg.norm(np.asarray(face.center) - fc) < 0.01
+    assert abs(face.width - 0.30) < 0.01 and abs(face.height - 0.22) < 0.01
+    assert face.angle == 0.0
+
+
+def test_tilted_box_angle_about_shelf_y():
+    a = math.radians(15.0)
+    q = (math.cos(-a / 2), 0.0, math.sin(-a / 2), 0.0)   # rotation about y by -15 deg: x toward +z
+    b = Box("t", (0.30, 0.2, 0.12), (0.0, 0.12, 0.20), q)
+    scene = Scene(Shelf(), (b,))
+    cap = cast(scene, camera=SMALL_CAMERA)
+    face = measure_front(front_face_masks(scene, cap)["t"], cap.depth, cap.camera)
+    assert abs(face.angle - 15.0) < 1.5
+    assert abs(face.width - 0.30) < 0.012 and abs(face.height - 0.12) < 0.012
+
+
+def test_boxes_carry_unknown_depth_placeholder_and_labels():
+    scene = Scene(Shelf(), (box("a", -0.2, 0, 0.3, 0.25, front=0.0), box("b", 0.2, 0, 0.25, 0.2, front=0.12)))
+    cap = cast(scene)
+    masks = [cap.masks == 1, cap.masks == 2]
+    boxes, ordered, faces, warns = boxes_from_masks(masks, cap.depth, cap.camera, scene.shelf)
+    assert [b.id for b in boxes] == ["b0", "b1"] and [b.mask_label for b in boxes] == [1, 2]
+    assert all(not b.depth_known for b in boxes)
+    assert boxes[0].size[1] == pytest.approx(0.25)
+    assert boxes[1].size[1] == pytest.approx(0.30 - boxes[1].front_y, abs=1e-6)   # up to the back wall
+    assert abs(boxes[1].front_y - 0.12) < 0.01
+
+
+def _b(bid, x, z, w=0.2, h=0.2, y=0.0, d=0.25):
+    return Box(bid, (w, d, h), (x, y + d / 2, z + h / 2), depth_known=False)
+
+
+def test_make_valid_snaps_gaps_pushes_overlaps_and_drops_hanging_boxes():
+    shelf = Shelf()
+    boxes = [_b("floor", 0.0, 0.012),            # 1.2 cm above the floor: snapped down
+             _b("on", 0.0, 0.19),                # 1 cm into the box below: pushed up
+             _b("hang", -0.3, 0.30),             # nothing below: dropped to the floor
+             _b("wall", 0.45, 0.0)]              # sticks out of the right wall
+    out, notes = make_valid(boxes, shelf)
+    by = {b.id: b for b in out}
+    assert min(c[2] for c in by["floor"].corners()) == pytest.approx(0.0, abs=1e-6)
+    assert min(c[2] for c in by["on"].corners()) == pytest.approx(by["floor"].top_z, abs=1e-3)
+    assert min(c[2] for c in by["hang"].corners()) == pytest.approx(0.0, abs=1e-6)
+    assert max(c[0] for c in by["wall"].corners()) <= shelf.width / 2 + 1e-6
+    text = " ".join(notes)
+    assert "floor: lowered" in text and "on: pushed up" in text and "hang: hung" in text
+    assert "wall: moved" in text
+    Scene(shelf, tuple(out)).check_bounds(tol=1e-9)
+
+
+def test_make_valid_pushes_side_by_side_overlap_apart_and_shrinks_placeholder():
+    out, notes = make_valid([_b("l", -0.1, 0.0), _b("r", 0.095, 0.0), _b("deep", -0.35, 0.0, y=0.15, d=0.25)],
+                            Shelf())
+    by = {b.id: b for b in out}
+    assert max(c[0] for c in by["l"].corners()) <= min(c[0] for c in by["r"].corners()) + 1e-6
+    assert max(c[1] for c in by["deep"].corners()) == pytest.approx(0.30, abs=1e-6)
+    assert by["deep"].front_y == pytest.approx(0.15)
+    assert any("pushed apart" in n for n in notes)
+
+
+def test_distance_from_known_box_size():
+    b = box("a", 0.0, 0.15, 0.30, 0.20, front=0.0)
+    cap = cast(Scene(Shelf(), (b,)))
+    d = distance_from_box_size([cap.masks == 1], cap.camera, (0.30, 0.20))
+    true = 0.0 - cap.camera.position[1]
+    assert abs(d - true) < 0.04
