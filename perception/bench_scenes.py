@@ -26,7 +26,7 @@ def _orientations(size: tuple[float, float, float], shelf: Shelf) -> list[tuple[
 
 
 def sample_scene(seed: int, kind: str = "structured", n_boxes: int = 10, shelf: Shelf | None = None,
-                 max_height: float = 0.75) -> Scene:
+                 max_height: float = 0.80) -> Scene:
     """A seeded scene of up to `n_boxes` boxes; same seed, same scene."""
     shelf = shelf or Shelf()
     rng = np.random.default_rng(seed)
@@ -45,9 +45,9 @@ def sample_scene(seed: int, kind: str = "structured", n_boxes: int = 10, shelf: 
         base_w = w
         z = h
         # stack on top: narrower or equal boxes, centred over the support
-        while len(boxes) < n_boxes and rng.random() < 0.75:
-            t2 = BOX_TYPES[int(rng.integers(len(BOX_TYPES)))]
-            cand = [o for o in _orientations(t2, shelf) if o[0] <= w + 1e-9 and z + o[2] <= max_height]
+        while len(boxes) < n_boxes and rng.random() < 0.9:
+            cand = [o for t2 in BOX_TYPES for o in _orientations(t2, shelf)
+                    if o[0] <= w + 1e-9 and z + o[2] <= max_height]
             if not cand:
                 break
             w2, d2, h2 = cand[int(rng.integers(len(cand)))]

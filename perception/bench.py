@@ -1,0 +1,316 @@
+"""Perception accuracy: rendered scenes against their ground truth, and real captures.
+
+Rendered: each scene is rendered (`perception.render`, noise on), perceived,
+and every true box whose visible front face covers enough pixels is matched to
+the predicted mask of highest IoU (>= 0.5 counts). Reported: recall,
+precision, front-face centre error, width/height error, in-plane angle error
+(medians) and seconds per frame.
+Real (../shared/realdata, never copied into the repo):
+- RCAN_scd_samples: photos without depth (RGB path); recall at IoU 0.5 over the
+  labelled cartons (LabelMe polygons) and the mean IoU of the matched ones;
+- neura_smart_palletizer: a real RGB-D frame looking down at a pallet ("a shelf
+  on its back"): recall against its masks and front-face size error against the
+  known box sizes.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from perception.scene import Scene, Shelf
+
+MIN_GT_PIXELS = 400
+
+
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    u = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum()) / float(u) if u else 0.0
+
+
+def match(pred: list[np.ndarray], truth: list[np.ndarray], thr: float = 0.5) -> list[tuple[int, int, float]]:
+    """Greedy one-to-one matching by IoU: (truth index, pred index, IoU) for IoU >= thr."""
+    cands = []
+    for i, g in enumerate(truth):
+        for j, p in enumerate(pred):
+            if np.logical_and(g, p).any():
+                v = mask_iou(g, p)
+                if v >= thr:
+                    cands.append((v, i, j))
+    cands.sort(reverse=True)
+    used_t, used_p, out = set(), set(), []
+    for v, i, j in cands:
+        if i in used_t or j in used_p:
+            continue
+        used_t.add(i)
+        used_p.add(j)
+        out.append((i, j, v))
+    return out
+
+
+@dataclass
+class FrameResult:
+    name: str
+    n_true: int
+    n_pred: int
+    matched: int
+    centre_err: list[float]
+    width_err: list[float]
+    height_err: list[float]
+    angle_err: list[float]
+    seconds: float
+    ious: list[float]
+
+
+def _angle_of(box) -> float:
+    from perception.scene import quat_to_matrix
+
+    r = np.asarray(quat_to_matrix(box.orientation))
+    ex = r[:, 0]
+    return math.degrees(math.atan2(ex[2], math.hypot(ex[0], ex[1])))
+
+
+def eval_rendered(scene: Scene, name: str, seed: int, segmenter=None) -> FrameResult:
+    from perception.bench_truth import front_face_masks
+    from perception.pipeline import perceive
+    from perception.render import render
+
+    cap = render(scene, seed=seed)
+    gt = {k: m for k, m in front_face_masks(scene, cap).items() if m.sum() >= MIN_GT_PIXELS}
+    t = time.perf_counter()
+    res = perceive(cap, segmenter, scene.shelf)
+    sec = time.perf_counter() - t
+    ids = list(gt)
+    preds = [res.masks == b.mask_label for b in res.scene.boxes]
+    pairs = match(preds, [gt[k] for k in ids])
+    fr = FrameResult(name, len(ids), len(preds), len(pairs), [], [], [], [], sec, [])
+    for i, j, v in pairs:
+        tb, pb = scene.box(ids[i]), res.scene.boxes[j]
+        fr.ious.append(v)
+        fr.centre_err.append(float(np.linalg.norm(np.subtract(tb.front_center, pb.front_center))))
+        fr.width_err.append(abs(pb.size[0] - tb.size[0]))
+        fr.height_err.append(abs(pb.size[2] - tb.size[2]))
+        fr.angle_err.append(abs(_angle_of(pb) - _angle_of(tb)))
+    return fr
+
+
+def summarise(frames: list[FrameResult]) -> dict:
+    def med(key: str) -> float | None:
+        vals = [v for f in frames for v in getattr(f, key)]
+        return float(np.median(vals)) if vals else None
+
+    nt = sum(f.n_true for f in frames)
+    npd = sum(f.n_pred for f in frames)
+    nm = sum(f.matched for f in frames)
+    secs = [f.seconds for f in frames]
+    return {"frames": len(frames), "true_boxes": nt, "predicted": npd, "matched": nm,
+            "recall": nm / nt if nt else None, "precision": nm / npd if npd else None,
+            "mean_iou": med("ious"), "centre_err_median_m": med("centre_err"),
+            "width_err_median_m": med("width_err"), "height_err_median_m": med("height_err"),
+            "angle_err_median_deg": med("angle_err"),
+            "seconds_per_frame_median": float(np.median(secs)) if secs else None,
+            "seconds_per_frame_max": float(np.max(secs)) if secs else None}
+
+
+def scenes_from(dir_: str | Path | None, count: int, seed: int) -> list[tuple[str, Scene]]:
+    """Scenes from JSON files in a folder, or `count` sampled ones (half structured)."""
+    from perception.bench_scenes import sample_scene
+
+    if dir_:
+        files = sorted(Path(dir_).glob("*.json"))
+        out = []
+        for f in files:
+            try:
+                out.append((f.stem, Scene.load(f)))
+            except Exception:  # noqa: BLE001 - skip non-scene JSON (plans, reports) in the folder
+                continue
+        return out
+    out = []
+    for i in range(count):
+        kind = "structured" if i % 2 == 0 else "unstructured"
+        out.append((f"{kind}-{seed + i}", sample_scene(seed + i, kind, 10)))
+    return out
+
+
+def bench_rendered(scenes: list[tuple[str, Scene]], seed: int = 0, segmenter=None,
+                   progress: bool = True) -> tuple[dict, list[FrameResult]]:
+    from tqdm import tqdm
+
+    frames = []
+    for i, (name, sc) in enumerate(tqdm(scenes, desc="rendered", disable=not progress)):
+        frames.append(eval_rendered(sc, name, seed + i, segmenter))
+    by_kind: dict[str, list[FrameResult]] = {}
+    for f in frames:
+        by_kind.setdefault(f.name.split("-")[0], []).append(f)
+    summary = {"all": summarise(frames)}
+    if len(by_kind) > 1:
+        summary.update({k: summarise(v) for k, v in by_kind.items()})
+    return summary, frames
+
+
+# --------------------------------------------------------------------------
+# real captures
+def labelme_masks(path: str | Path, shape: tuple[int, int]) -> list[np.ndarray]:
+    """One bool mask per LabelMe polygon labelled as a carton."""
+    import cv2
+
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    out = []
+    for s in doc.get("shapes", []):
+        if "carton" not in str(s.get("label", "")) and "face" not in str(s.get("label", "")):
+            continue
+        pts = np.asarray(s.get("points", []), np.float64)
+        if len(pts) < 3:
+            continue
+        m = np.zeros(shape, np.uint8)
+        cv2.fillPoly(m, [np.round(pts).astype(np.int32)], 1)
+        if s.get("shape_type") == "rectangle" and len(pts) == 2:
+            continue
+        out.append(m.astype(bool))
+    return out
+
+
+def bench_rcan(root: Path, segmenter, progress: bool = True, max_side: int = 960) -> dict:
+    """Photos without depth: the RGB path of the segmenter; recall at IoU 0.5 and matched IoU."""
+    import cv2
+    from tqdm import tqdm
+
+    from perception.capture import read_rgb
+    from perception.masks import refine
+
+    imgs = sorted((root / "img").glob("*.jpg"))
+    rows, nt, nm, ious, secs = [], 0, 0, [], []
+    for img in tqdm(imgs, desc="RCAN", disable=not progress):
+        anno = root / "anno" / (img.stem + ".json")
+        if not anno.is_file():
+            continue
+        rgb = read_rgb(img)
+        h, w = rgb.shape[:2]
+        s = min(1.0, max_side / max(h, w))
+        if s < 1.0:
+            rgb = cv2.resize(rgb, (int(w * s), int(h * s)), interpolation=cv2.INTER_AREA)
+        gt = labelme_masks(anno, (h, w))
+        if s < 1.0:
+            gt = [cv2.resize(g.astype(np.uint8), rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0
+                  for g in gt]
+        depth = np.ones(rgb.shape[:2], np.float32)
+        t = time.perf_counter()
+        raw = segmenter.segment(rgb, depth)
+        pred = refine(raw, None, min_pixels=max(40, int(150 * rgb.shape[0] * rgb.shape[1] / 307200)))
+        secs.append(time.perf_counter() - t)
+        pairs = match(pred, gt)
+        nt += len(gt)
+        nm += len(pairs)
+        ious.extend(v for _, _, v in pairs)
+        rows.append({"image": img.name, "cartons": len(gt), "predicted": len(pred), "matched": len(pairs)})
+    return {"images": len(rows), "cartons": nt, "matched": nm, "recall": nm / nt if nt else None,
+            "mean_iou_matched": float(np.mean(ious)) if ious else None,
+            "seconds_per_frame_median": float(np.median(secs)) if secs else None, "rows": rows}
+
+
+# world (z up) -> a shelf frame for a camera looking down: +y into the "shelf" = down
+WORLD_TO_SHELF_DOWN = np.array([[1.0, 0, 0, 0], [0, 0, -1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
+
+
+def neura_capture(root: Path):
+    """The pallet RGB-D frame as a Capture with its true masks, and the shelf it sits in."""
+    import cv2
+
+    from perception.capture import Capture, read_depth, read_rgb
+    from perception.geometry import camera_from_matrix
+
+    d = root / "data" / "small_box"
+    intr = json.loads((d / "intrinsics.json").read_text())
+    cam2root = np.asarray(json.loads((d / "cam2root.json").read_text())["cam2root"])
+    rgb = read_rgb(d / "color_image.png")
+    depth = read_depth(d / "raw_depth.png", 0.001)
+    lbl_path = root / "derived" / "instance_labels_small_box_scene.png"
+    labels = cv2.imread(str(lbl_path), cv2.IMREAD_UNCHANGED)
+    meta = json.loads((root / "derived" / "instances_small_box_scene.json").read_text())
+    sizes = {int(i["label"]): tuple(i["dims_m"]) for i in meta["instances"]}
+    # shelf frame: x = world x, y = -world z (down, into the pallet), z = world y; origin moved
+    # so that the pallet lies inside a generous "shelf"
+    cam = camera_from_matrix(intr, cam2root, WORLD_TO_SHELF_DOWN)
+    # shift the origin: shelf y = 0 a little above the highest box, the floor far below
+    valid = depth > 0
+    from perception.geometry import point_map
+
+    pts = point_map(cam, depth)[valid]
+    top = float(np.percentile(pts[:, 1], 1))
+    zmin, xmid = float(np.percentile(pts[:, 2], 1)), float(np.median(pts[:, 0]))
+    shift = np.array([-xmid, -(top - 0.05), -(zmin - 0.5)])
+    from dataclasses import replace
+
+    cam = replace(cam, position=tuple(float(p + s) for p, s in zip(cam.position, shift)))
+    shelf = Shelf(width=4.0, depth=float(np.percentile(pts[:, 1], 99) - top + 0.02), height=4.0)
+    return Capture(rgb, depth, cam, labels.astype(np.uint16), {}), shelf, sizes
+
+
+def bench_neura(root: Path, segmenter=None) -> dict:
+    from perception.pipeline import perceive
+
+    cap, shelf, sizes = neura_capture(root)
+    t = time.perf_counter()
+    res = perceive(cap, segmenter, shelf)
+    sec = time.perf_counter() - t
+    labels = [k for k in sorted(sizes) if (cap.masks == k).sum() >= 200]
+    gt = [cap.masks == k for k in labels]
+    preds = [res.masks == b.mask_label for b in res.scene.boxes]
+    pairs = match(preds, gt)
+    size_err = []
+    for i, j, _ in pairs:
+        true = sorted(sizes[labels[i]][:2])          # seen from above: the two largest dims
+        b = res.scene.boxes[j]
+        got = sorted((b.size[0], b.size[2]))
+        size_err.extend(abs(g - t_) for g, t_ in zip(got, true))
+    return {"boxes": len(gt), "predicted": len(preds), "matched": len(pairs),
+            "recall": len(pairs) / len(gt) if gt else None,
+            "precision": len(pairs) / len(preds) if preds else None,
+            "mean_iou_matched": float(np.mean([v for _, _, v in pairs])) if pairs else None,
+            "size_err_median_m": float(np.median(size_err)) if size_err else None,
+            "seconds": sec, "warnings": list(res.warnings)}
+
+
+def markdown(report: dict) -> str:
+    def f(v, pct=False, unit=""):
+        if v is None:
+            return "-"
+        if pct:
+            return f"{100 * v:.1f}%"
+        return f"{v:.4g}{unit}"
+
+    lines = ["# Perception benchmark", "", f"segmenter: `{report.get('segmenter')}`", ""]
+    if "rendered" in report:
+        lines += ["## Rendered scenes", "",
+                  "| set | frames | boxes | recall | precision | mean IoU | centre err | width err | "
+                  "height err | angle err | s/frame (median, max) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for k, s in report["rendered"].items():
+            lines.append(f"| {k} | {s['frames']} | {s['true_boxes']} | {f(s['recall'], True)} | "
+                         f"{f(s['precision'], True)} | {f(s['mean_iou'])} | "
+                         f"{f(None if s['centre_err_median_m'] is None else 100 * s['centre_err_median_m'], unit=' cm')} | "
+                         f"{f(None if s['width_err_median_m'] is None else 100 * s['width_err_median_m'], unit=' cm')} | "
+                         f"{f(None if s['height_err_median_m'] is None else 100 * s['height_err_median_m'], unit=' cm')} | "
+                         f"{f(s['angle_err_median_deg'], unit=' deg')} | "
+                         f"{f(s['seconds_per_frame_median'])}, {f(s['seconds_per_frame_max'])} |")
+        lines.append("")
+    if "rcan" in report:
+        r = report["rcan"]
+        lines += ["## Real photos (RCAN_scd_samples, no depth: RGB path)", "",
+                  f"recall at IoU 0.5: **{f(r['recall'], True)}** ({r['matched']}/{r['cartons']} cartons, "
+                  f"{r['images']} images); mean IoU of matched: {f(r['mean_iou_matched'])}", ""]
+    if "neura" in report:
+        r = report["neura"]
+        lines += ["## Real RGB-D pallet (neura_smart_palletizer)", "",
+                  f"recall: **{f(r['recall'], True)}** ({r['matched']}/{r['boxes']}), precision "
+                  f"{f(r['precision'], True)}, mean IoU {f(r['mean_iou_matched'])}, size error median "
+                  f"{f(None if r['size_err_median_m'] is None else 100 * r['size_err_median_m'], unit=' cm')}, "
+                  f"{f(r['seconds'])} s", ""]
+    for k, v in report.get("skipped", {}).items():
+        lines.append(f"- {k}: skipped ({v})")
+    return "\n".join(lines) + "\n"
