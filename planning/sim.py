@@ -165,6 +165,9 @@ class ShelfSim:
         for msg in repairs:
             warnings.warn(f"scene repaired: {msg}", stacklevel=2)
         self.repairs: tuple[str, ...] = tuple(repairs)
+        snap = self.snapshot()   # start every world from a canonical state (see `restore`)
+        self.restore(snap)
+        self.forget(snap)
         self.scene: Scene = scene.with_boxes(
             replace(b, position=after[b.id][0], orientation=after[b.id][1]) for b in scene.boxes)
 
@@ -205,8 +208,11 @@ class ShelfSim:
             if self._gui else -1
         mass = b.mass if b.mass is not None else cfg.density * b.size[0] * b.size[1] * b.size[2]
         body = p.createMultiBody(mass, col, vis, list(b.position), list(wxyz_to_xyzw(b.orientation)))
+        # no sleeping: a body's sleep timer is not part of saveState, so it would make a
+        # restored trial depend on what ran before it (same seed must give the same result)
         p.changeDynamics(body, -1, lateralFriction=cfg.lateral_friction,
-                         spinningFriction=cfg.spinning_friction, restitution=0.0)
+                         spinningFriction=cfg.spinning_friction, restitution=0.0,
+                         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING)
         return body
 
     def _add_gripper(self) -> int:
@@ -393,9 +399,25 @@ class ShelfSim:
         return (self._p.saveState(), frozenset(self._parked))
 
     def restore(self, snap: tuple[int, frozenset[str]]) -> None:
-        self._p.restoreState(snap[0])
+        """Back to a snapshot, bit-exact whatever ran in between.
+
+        restoreState puts back poses and velocities but keeps contact manifolds
+        of pairs that touch *now* (say, boxes still falling when a trial stopped at
+        its first collapse); their warm-start impulses would leak into the next
+        trial. Filtering every box out of the broadphase for one collision pass
+        drops all manifolds, so a restored world depends on the snapshot only.
+        """
+        p = self._p
+        p.restoreState(snap[0])
         self._parked = set(snap[1])
-        self._p.resetBasePositionAndOrientation(self._gripper, list(_GRIPPER_PARK), [0, 0, 0, 1])
+        p.resetBasePositionAndOrientation(self._gripper, list(_GRIPPER_PARK), [0, 0, 0, 1])
+        bodies = list(self._body.values()) + [self._gripper]
+        for b in bodies:
+            p.setCollisionFilterGroupMask(b, -1, 0, 0)
+        p.performCollisionDetection()
+        for b in self._body.values():
+            p.setCollisionFilterGroupMask(b, -1, 1, -1)      # Bullet's default for dynamic bodies
+        p.setCollisionFilterGroupMask(self._gripper, -1, 2, -1 ^ 2)  # ... and for static ones
 
     def forget(self, snap: tuple[int, frozenset[str]]) -> None:
         self._p.removeState(snap[0])

@@ -1,0 +1,243 @@
+"""Predictions under depth uncertainty: one settled world per depth sample.
+
+A camera sees front faces only, so a perceived box's depth is unknown. The
+method draws N depths per unknown box (front face kept, never past the back
+wall) and judges every removal in all N worlds; a prediction is the
+aggregate. Each world is built and settled once; the state after taking a
+set of boxes away is cached with saveState, and every trial starts from a
+restoreState, so a trial costs one pull, not a rebuild.
+"""
+from __future__ import annotations
+
+import random
+import time
+import warnings
+import zlib
+from collections import Counter
+from typing import Sequence
+
+from perception.errors import SceneError
+from perception.scene import Box, Scene, quat_to_matrix
+from planning.physics import PhysicsConfig
+from planning.plan import StepPrediction
+from planning.sim import ShelfSim, StepResult
+
+
+def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> tuple[float, float]:
+    """(lowest, highest) depth a box with unknown depth may have.
+
+    The highest keeps every back corner in front of the back wall and in front
+    of any box whose front face lies behind this one's (a hidden box cannot
+    pass through a visible one). The lowest is `min_sample_depth` (0.15 m, the
+    shallowest of the method's box types is 0.17 m), never above the highest.
+    """
+    cfg = config or PhysicsConfig()
+    r = quat_to_matrix(box.orientation)
+    f = box.front_center
+    hx, hz = box.size[0] / 2, box.size[2] / 2
+    face = [tuple(f[i] + sx * r[i][0] * hx + sz * r[i][2] * hz for i in range(3))
+            for sx in (-1, 1) for sz in (-1, 1)]
+    face_max_y = max(c[1] for c in face)
+    dy = r[1][1]  # how much of the box's depth axis points into the shelf
+    if dy < 0.2:
+        return (box.size[1], box.size[1])  # lying sideways: the depth is not along y; keep it
+    hi = (scene.shelf.depth - face_max_y) / dy
+    x0, x1 = min(c[0] for c in face), max(c[0] for c in face)
+    z0, z1 = min(c[2] for c in face), max(c[2] for c in face)
+    for other in scene.boxes:
+        if other.id == box.id:
+            continue
+        cs = other.corners() if other.depth_known else _face(other)
+        ox0, ox1 = min(c[0] for c in cs), max(c[0] for c in cs)
+        oz0, oz1 = min(c[2] for c in cs), max(c[2] for c in cs)
+        oy0 = min(c[1] for c in cs)
+        if ox0 < x1 - 0.01 and x0 + 0.01 < ox1 and oz0 < z1 - 0.01 and z0 + 0.01 < oz1 and oy0 > face_max_y - 0.005:
+            hi = min(hi, (oy0 - face_max_y) / dy)
+    hi = max(hi, 0.01)
+    lo = min(cfg.min_sample_depth, hi)
+    return (lo, hi)
+
+
+def _face(b: Box) -> list:
+    r = quat_to_matrix(b.orientation)
+    f = b.front_center
+    hx, hz = b.size[0] / 2, b.size[2] / 2
+    return [tuple(f[i] + sx * r[i][0] * hx + sz * r[i][2] * hz for i in range(3))
+            for sx in (-1, 1) for sz in (-1, 1)]
+
+
+def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | None = None) -> Scene:
+    """One depth sample of the scene: unknown depths drawn uniformly in `depth_range`.
+
+    Ranges are computed on the scene as perceived (placeholder depths for the
+    others are not used as obstacles: only front faces and known boxes are).
+    """
+    rng = random.Random(f"shelfpick-depth:{int(seed)}:{int(sample)}")
+    out = []
+    for b in scene.boxes:
+        if b.depth_known:
+            out.append(b)
+            continue
+        lo, hi = depth_range(scene, b, config)
+        d = rng.uniform(lo, hi)
+        out.append(b.with_depth(d))
+    return scene.with_boxes(out)
+
+
+def _stable_seed(*parts: object) -> int:
+    return zlib.crc32(":".join(str(p) for p in parts).encode())
+
+
+class Predictor:
+    """The planners' oracle: `trial(removed, box) -> StepPrediction` over N depth samples.
+
+    With every depth known, the N samples would be the same world, so one
+    world is built and its verdict is the prediction (probabilities 0 or 1).
+    `early_stop_risk` (opt-in): stop sampling a candidate once more than that
+    fraction of samples collapsed, because it can no longer be safe; the
+    reported collapse_prob is then a lower bound that is already over it.
+    """
+
+    def __init__(self, scene: Scene, samples: int = 10, seed: int = 0,
+                 config: PhysicsConfig | None = None, *, early_stop_risk: float | None = None):
+        if samples < 1:
+            raise ValueError(f"samples must be >= 1, got {samples}")
+        self.config = cfg = config or PhysicsConfig()
+        self.scene = scene
+        self.seed = int(seed)
+        self.samples = samples
+        self.early_stop_risk = early_stop_risk
+        n_worlds = samples if not scene.depth_known else 1
+        self._order = {b: i for i, b in enumerate(scene.ids)}
+        self.sample_scenes: list[Scene] = []
+        self.sims: list[ShelfSim] = []
+        t0 = time.perf_counter()
+        try:
+            for i in range(n_worlds):
+                sim = None
+                last: Exception | None = None
+                for attempt in range(5):
+                    sc = sample_depths(scene, self.seed, i + 1000 * attempt, cfg) \
+                        if not scene.depth_known else scene
+                    try:
+                        with warnings.catch_warnings():
+                            warnings.simplefilter("ignore")
+                            sim = ShelfSim(sc, cfg)
+                        break
+                    except SceneError as exc:  # this draw does not stand; draw again
+                        last = exc
+                        if scene.depth_known:
+                            raise
+                if sim is None:
+                    raise SceneError(f"no stable depth sample {i} after 5 draws: {last}")
+                self.sample_scenes.append(sc)
+                self.sims.append(sim)
+        except BaseException:
+            self.close()
+            raise
+        self._states = [{frozenset(): sim.snapshot()} for sim in self.sims]
+        self._cache: dict[tuple[frozenset[str], str], StepPrediction] = {}
+        self._results: dict[tuple[frozenset[str], str], list[StepResult]] = {}
+        self.stats = {"build_s": time.perf_counter() - t0, "trials": 0, "cache_hits": 0,
+                      "pulls": 0, "trial_s": 0.0, "states": 0}
+
+    @property
+    def worlds(self) -> int:
+        return len(self.sims)
+
+    def _state(self, i: int, removed: frozenset[str]):
+        st = self._states[i]
+        snap = st.get(removed)
+        if snap is None:
+            sim = self.sims[i]
+            sim.restore(st[frozenset()])
+            sim.delete_many(sorted(removed, key=self._order.__getitem__))
+            snap = sim.snapshot()
+            st[removed] = snap
+            self.stats["states"] += 1
+        return snap
+
+    def trial(self, removed: frozenset[str], box: str) -> StepPrediction:
+        """Pull `box` from the scene with `removed` taken away, in every depth sample."""
+        removed = frozenset(removed)
+        key = (removed, box)
+        hit = self._cache.get(key)
+        if hit is not None:
+            self.stats["cache_hits"] += 1
+            return hit
+        if box not in self._order:
+            raise SceneError(f"unknown box id {box!r}; the scene has {', '.join(self.scene.ids)}")
+        if box in removed:
+            raise ValueError(f"box {box!r} is already removed")
+        t0 = time.perf_counter()
+        results: list[StepResult] = []
+        n = len(self.sims)
+        limit = None if self.early_stop_risk is None else self.early_stop_risk * n
+        bad = 0
+        for i, sim in enumerate(self.sims):
+            sim.restore(self._state(i, removed))
+            r = sim.remove(box, seed=self._trial_seed(i, removed, box), stop_on_collapse=True)
+            results.append(r)
+            self.stats["pulls"] += 1
+            bad += bool(r.collapsed)
+            if limit is not None and bad > limit:
+                break
+        pred = self._aggregate(box, results, n)
+        self._cache[key] = pred
+        self._results[key] = results
+        self.stats["trials"] += 1
+        self.stats["trial_s"] += time.perf_counter() - t0
+        return pred
+
+    __call__ = trial
+
+    def results(self, removed: frozenset[str], box: str) -> list[StepResult]:
+        """The per-sample StepResults behind a cached trial (runs it if needed)."""
+        self.trial(removed, box)
+        return self._results[(frozenset(removed), box)]
+
+    def _trial_seed(self, sample: int, removed: frozenset[str], box: str) -> int:
+        return _stable_seed(self.seed, sample, ",".join(sorted(removed)), box)
+
+    def _aggregate(self, box: str, results: list[StepResult], n: int) -> StepPrediction:
+        order = self._order
+        collapse = sum(1 for r in results if r.collapsed)
+        collision = sum(1 for r in results if r.collided or r.note.startswith("stuck"))
+        first = Counter(r.collapsed[0] for r in results if r.collapsed)
+        first_seen: dict[str, int] = {}
+        seen: dict[str, int] = {}
+        freq: Counter = Counter()
+        for i, r in enumerate(results):
+            if r.collapsed:
+                first_seen.setdefault(r.collapsed[0], i)
+            for b in dict.fromkeys(r.collapsed + r.collided):
+                freq[b] += 1
+                seen.setdefault(b, i)
+        lead = sorted(first, key=lambda b: (-first[b], first_seen[b], order[b]))
+        rest = sorted((b for b in freq if b not in first), key=lambda b: (-freq[b], seen[b], order[b]))
+        return StepPrediction(box, collapse / n, collision / n, tuple(lead + rest))
+
+    def preview(self, sequence: Sequence[str], sample: int = 0) -> list[StepResult]:
+        """Run a whole sequence in one sample world, recording frames (~30 fps of sim time)."""
+        sim = self.sims[sample]
+        removed: frozenset[str] = frozenset()
+        out = []
+        sim.restore(self._states[sample][frozenset()])
+        try:
+            for box in sequence:
+                out.append(sim.remove(box, seed=self._trial_seed(sample, removed, box), record=True))
+                removed = removed | {box}
+        finally:
+            sim.restore(self._states[sample][frozenset()])
+        return out
+
+    def close(self) -> None:
+        for sim in getattr(self, "sims", []):
+            sim.close()
+        self.sims = []
+
+    def __enter__(self) -> "Predictor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

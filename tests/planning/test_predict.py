@@ -1,0 +1,103 @@
+"""Predictor: depth samples, aggregation, caching and determinism (real physics)."""
+from __future__ import annotations
+
+import pytest
+
+from perception.scene import Box, Scene, Shelf, yaw_quat
+from planning.physics import PhysicsConfig
+from planning.predict import Predictor, depth_range, sample_depths
+from tests.planning.sim_scenes import column, stacked, twelve
+
+
+def test_depth_samples_keep_the_front_face_and_stay_inside_the_back_wall():
+    base = twelve()
+    turned = Box("t", (0.2, 0.2, 0.2), (0.38, 0.1, 0.7), yaw_quat(0.2))
+    scene = base.with_boxes(base.boxes + (turned,)).hide_depths()
+    depth = scene.shelf.depth
+    lows = []
+    for i in range(20):
+        s = sample_depths(scene, seed=3, sample=i)
+        for orig, new in zip(scene.boxes, s.boxes):
+            assert new.front_center == pytest.approx(orig.front_center, abs=1e-9)
+            assert max(c[1] for c in new.corners()) <= depth + 1e-9
+            lo, hi = depth_range(scene, orig)
+            assert lo - 1e-9 <= new.size[1] <= hi + 1e-9
+            lows.append(new.size[1])
+    assert min(lows) >= min(PhysicsConfig().min_sample_depth, 0.15) - 1e-9
+    assert len({round(d, 6) for d in lows}) > 100  # really drawn, not fixed
+
+
+def test_hidden_depth_never_passes_through_a_box_behind():
+    scene = Scene(Shelf(), (Box("front", (0.2, 0.1, 0.2), (0.0, 0.05, 0.1), depth_known=False),
+                            Box("behind", (0.2, 0.1, 0.2), (0.0, 0.25, 0.1))))
+    for i in range(10):
+        s = sample_depths(scene, 0, i)
+        assert max(c[1] for c in s.box("front").corners()) <= 0.2 + 1e-9
+
+
+def test_same_seed_same_samples_other_seed_other_samples():
+    scene = twelve().hide_depths()
+    assert sample_depths(scene, 1, 0) == sample_depths(scene, 1, 0)
+    assert sample_depths(scene, 1, 0) != sample_depths(scene, 2, 0)
+
+
+def test_top_box_collapse_is_predicted_and_named_first():
+    with Predictor(stacked().hide_depths(), samples=4, seed=0) as pred:
+        assert pred.worlds == 4
+        under = pred.trial(frozenset(), "a")
+        assert under.collapse_prob == 1.0 and under.moved[0] == "b"
+        free = pred.trial(frozenset(), "c")
+        assert free.collapse_prob == 0.0 and free.moved == ()
+        top = pred.trial(frozenset(), "b")
+        assert top.collapse_prob == 0.0
+        after = pred.trial(frozenset({"b"}), "a")
+        assert after.collapse_prob == 0.0 and after.collision_prob == 0.0
+        assert pred.trial(frozenset(), "a") is under  # cached
+        assert pred.stats["cache_hits"] == 1
+
+
+def test_known_depths_use_one_world():
+    with Predictor(stacked(), samples=10) as pred:
+        assert pred.worlds == 1
+        assert pred.trial(frozenset(), "a").collapse_prob == 1.0
+
+
+def test_same_seed_same_predictions_whatever_the_call_order():
+    scene = column(5).hide_depths()
+    calls = [(frozenset(), "c4"), (frozenset(), "c2"), (frozenset({"c4"}), "c3"), (frozenset(), "f")]
+    with Predictor(scene, samples=3, seed=5) as p1, Predictor(scene, samples=3, seed=5) as p2:
+        a = [p1.trial(r, b) for r, b in calls]
+        b = [p2.trial(r, b) for r, b in reversed(calls)][::-1]
+        assert a == b
+        assert [x.to_json() for x in p1.results(*calls[2])] == [x.to_json() for x in p2.results(*calls[2])]
+    assert a[1].collapse_prob == 1.0 and a[1].moved[0] == "c3"
+    assert a[0].collapse_prob == 0.0 and a[3].collapse_prob == 0.0
+
+
+def test_early_stop_stops_sampling_an_unsafe_candidate():
+    with Predictor(stacked().hide_depths(), samples=5, early_stop_risk=0.0) as pred:
+        p = pred.trial(frozenset(), "a")
+        assert p.collapse_prob > 0.0 and p.moved[0] == "b"
+        assert pred.stats["pulls"] == 1
+        assert pred.trial(frozenset(), "c").collapse_prob == 0.0
+        assert pred.stats["pulls"] == 6
+
+
+def test_preview_records_frames_and_leaves_the_world_as_it_was():
+    with Predictor(stacked().hide_depths(), samples=2) as pred:
+        before = pred.trial(frozenset(), "a")
+        steps = pred.preview(["b", "a"], sample=1)
+        assert [s.box for s in steps] == ["b", "a"] and all(s.ok for s in steps)
+        assert all(len(s.frames) >= 3 for s in steps)
+        pred._cache.clear()
+        assert pred.trial(frozenset(), "a") == before
+
+
+def test_bad_calls():
+    with Predictor(stacked(), samples=1) as pred:
+        with pytest.raises(Exception, match="'zz'"):
+            pred.trial(frozenset(), "zz")
+        with pytest.raises(ValueError):
+            pred.trial(frozenset({"a"}), "a")
+    with pytest.raises(ValueError):
+        Predictor(stacked(), samples=0)
