@@ -1,0 +1,33 @@
+"""`shelfpick replay ID --html OUT.html`: export one session as a self-contained web page."""
+from __future__ import annotations
+
+import argparse
+
+HELP = "export a stored session as a self-contained HTML replay (opens without the server)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("id", type=int, help="session id (see `shelfpick sessions`)")
+    p.add_argument("--html", required=True, metavar="OUT.html", help="file to write")
+    p.add_argument("--db", default=None, help="session database (default ./data/shelfpick.db)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from console.replay import export_html
+    from console.store import DEFAULT_DB, SessionStore, StoreError
+
+    db = Path(args.db) if args.db else DEFAULT_DB
+    if not db.is_file():
+        raise StoreError(f"{db}: no session database here (pass --db PATH)")
+    with SessionStore(db) as store:
+        rec = store.load_session(args.id)
+    try:
+        out = export_html(rec, args.html)
+    except OSError as exc:
+        raise StoreError(f"{args.html}: cannot write the replay ({exc})") from None
+    size = out.stat().st_size
+    print(f"session {rec.id}: replay written to {out} ({size / 1024:.0f} KiB, {len(rec.plans)} plans, "
+          f"{len(rec.decisions)} decisions)")
+    return 0

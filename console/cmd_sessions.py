@@ -1,0 +1,39 @@
+"""`shelfpick sessions`: list the console's stored sessions as a table."""
+from __future__ import annotations
+
+import argparse
+import json
+
+HELP = "list stored console sessions (id, start, source, boxes, task, status)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--db", default=None, help="session database (default ./data/shelfpick.db)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def format_table(rows: list[dict]) -> str:
+    cols = [("id", "ID"), ("started", "STARTED (UTC)"), ("source", "SOURCE"), ("n_boxes", "BOXES"),
+            ("task", "TASK"), ("n_plans", "PLANS"), ("status", "STATUS")]
+    cells = [[h for _, h in cols]] + [["" if r.get(k) is None else str(r.get(k)) for k, _ in cols] for r in rows]
+    widths = [max(len(c[i]) for c in cells) for i in range(len(cols))]
+    return "\n".join("  ".join(c[i].ljust(widths[i]) for i in range(len(cols))).rstrip() for c in cells)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from console.store import DEFAULT_DB, SessionStore, StoreError
+
+    db = Path(args.db) if args.db else DEFAULT_DB
+    if not db.is_file():
+        raise StoreError(f"{db}: no session database here (start `shelfpick console`, or pass --db PATH)")
+    with SessionStore(db) as store:
+        rows = store.list_sessions()
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    elif not rows:
+        print(f"{db}: no sessions yet")
+    else:
+        print(format_table(rows))
+    return 0
