@@ -230,3 +230,26 @@ def test_controller_executes_on_a_truth_scene_through_the_transform() -> None:
     assert done[1].detail["collapsed"] == ["b1"] and "collapsed boxes: b1" in out.error
     assert out.steps[2]["status"] == "not_sent"
     assert "b0" not in world.ids and "b2" not in world.ids
+
+
+def test_controller_as_a_separate_process(tmp_path: Path) -> None:
+    """`python -m console.robot_controller` in its own process, driven through open_robot's spec."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    tf = tmp_path / "cell.json"
+    tf.write_text(json.dumps({"position": [0.6, 0.0, -0.2], "orientation": [1, 0, 0, 0]}))
+    proc = subprocess.Popen([sys.executable, "-m", "console.robot_controller", "--port", "0", "--step-time", "0.05",
+                             "--transform", str(tf), "--refuse", "3"],
+                            cwd=root, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        line = proc.stdout.readline()
+        url = line.split("listening on ")[1].split()[0]
+        robot = open_robot(f"{url}?transform={tf}&heartbeat=0.1")
+        out, events = run(robot, clear_plan(), row_scene())
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert out.completed == ("b0", "b1", "b2") and "REFUSED" in out.error
+    assert [e.kind for e in events][-1] == "error"
