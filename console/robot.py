@@ -113,6 +113,11 @@ class StepHistory:
         with self._lock:
             self._unknown.setdefault((endpoint, plan_hash), {})[step] = box
 
+    def settle(self, endpoint: str, plan_hash: str, step: int) -> None:
+        """The robot reported how an in-flight step ended (failed or aborted): no longer unknown."""
+        with self._lock:
+            self._unknown.get((endpoint, plan_hash), {}).pop(step, None)
+
     def forget(self, endpoint: str | None = None) -> None:
         """Drop the history (tests; or a robot whose shelf was reset by hand)."""
         with self._lock:

@@ -31,7 +31,7 @@ import time
 from dataclasses import replace
 from typing import Any, Iterable
 
-from perception.scene import Box, Scene
+from perception.scene import Scene
 from console.robot_tcp import PROTOCOL, LineConn, ProtocolError, Transform
 
 log = logging.getLogger(__name__)

@@ -19,7 +19,7 @@ import math
 import socket
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 from urllib.parse import parse_qs, urlsplit
@@ -449,8 +449,7 @@ class TcpRobot:
         return finish(plan, h, statuses, error, self.history, ep)
 
     def _settle_unknown(self, ep: str, h: str, i: int) -> None:
-        with self.history._lock:
-            self.history._unknown.get((ep, h), {}).pop(i, None)
+        self.history.settle(ep, h, i)
 
     def _step_error(self, reply: dict, i: int, box: str, on_event: Callable[[RobotEvent], None],
                     statuses: dict[int, dict]) -> str:
