@@ -27,12 +27,15 @@ class PhysicsConfig:
     # suction pull along -y
     pull_speed: float = 0.5             # m/s, reached after `pull_ramp`
     pull_ramp: float = 0.05             # s of linear speed ramp (no infinite jerk)
-    pull_force: float = 50.0            # N, force limit of the suction drive
+    pull_force: float = 200.0           # N, absolute force limit of the suction drive ...
+    pull_force_weights: float = 20.0    # ... and at most this many times the pulled box's weight
     pull_margin: float = 0.02           # m past the shelf front before the box counts as out
     pull_timeout: float = 3.0           # s; a box that does not come out by then is stuck
-    disturbance: float = 0.002          # m, amplitude of the seeded lateral/vertical vibration
+    disturbance: float = 0.002          # m, amplitude of the seeded lateral vibration (x)
+    disturbance_force: float = 0.1      # vertical vibration force, in weights of the pulled box
     disturbance_period: float = 0.05    # s between vibration set points
-    early_clear: bool = True            # park the box once nothing leans on it any more
+    early_clear: bool = True            # park the box once nothing leans on it any more ...
+    clear_time: float = 0.02            # ... for this long (s)
     gripper_size: tuple[float, float, float] = (0.06, 0.04, 0.06)  # suction cup body, m
     # settling
     settle_time: float = 1.0            # s, most time the rest gets to settle after a step
@@ -41,8 +44,10 @@ class PhysicsConfig:
     rest_angular_velocity: float = 0.3  # rad/s
     rest_window: float = 0.1            # s a scene must stay at rest to count as settled
     # verdicts
-    collapse_displacement: float = 0.02     # m since the step began
-    collapse_rotation: float = 10.0         # degrees since the step began
+    collapse_displacement: float = 0.02     # m from the step's start to its end
+    collapse_rotation: float = 10.0         # degrees from the step's start to its end
+    collapse_peak_displacement: float = 0.05  # m at any moment (no coming back from that)
+    collapse_peak_rotation: float = 20.0      # degrees at any moment
     collapse_velocity: float = 0.6          # m/s
     collapse_angular_velocity: float = 6.0  # rad/s
     onset_displacement: float = 0.003       # m: "started moving" (orders the collapsed boxes)
@@ -91,7 +96,8 @@ class PhysicsConfig:
 
 
 _POSITIVE = {"gravity", "density", "time_step", "solver_iterations", "pull_speed", "pull_force",
-             "pull_timeout", "settle_time", "initial_settle_time", "rest_velocity",
+             "pull_force_weights", "pull_timeout", "settle_time", "initial_settle_time", "rest_velocity",
              "rest_angular_velocity", "collapse_displacement", "collapse_rotation",
-             "collapse_velocity", "collapse_angular_velocity", "repair_tolerance",
+             "collapse_velocity", "collapse_angular_velocity", "collapse_peak_displacement",
+             "collapse_peak_rotation", "repair_tolerance",
              "wall_thickness", "min_sample_depth"}

@@ -475,11 +475,20 @@ class ShelfSim:
         grip_local = (0.0, -hy - gh - 1e-3, 0.0)
         weight = p.getDynamicsInfo(body, -1)[0] * cfg.gravity
         force_eps = 0.05 * weight
+        # a drive far stronger than the boxes' weights turns Bullet's edge contacts into
+        # catapults (a 50 N drive on an 8 g box flings the box below it); a suction
+        # gripper's pull is bounded anyway
+        max_force = min(cfg.pull_force, cfg.pull_force_weights * weight)
+        clear_need = max(1, int(round(cfg.clear_time / dt)))
 
-        cid = p.createConstraint(body, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], list(front_local),
+        # the drive holds x, y and the orientation (a stiff arm) but leaves z free: the
+        # box rides on its support with its own weight, as a dragged box does. A drive
+        # that also held z would press the box into the one below it with up to the
+        # force limit at every vertical jitter, and tip that box over (see docs/physics.md).
+        cid = p.createConstraint(body, -1, -1, -1, p.JOINT_PRISMATIC, [0, 0, 1], list(front_local),
                                  list(front0), [0, 0, 0, 1], list(orn0))
         p.changeConstraint(cid, list(front0), jointChildFrameOrientation=list(orn0),
-                           maxForce=cfg.pull_force)
+                           maxForce=max_force)
         p.setCollisionFilterPair(self._gripper, body, -1, -1, 0)
 
         def place_gripper() -> tuple:
@@ -508,9 +517,14 @@ class ShelfSim:
                 d = _dist(pos, start[k][0])
                 if bid not in onset and (d > cfg.onset_displacement or v > cfg.onset_velocity):
                     onset[bid] = step
-                if (d > cfg.collapse_displacement or v > cfg.collapse_velocity
-                        or w > cfg.collapse_angular_velocity
-                        or _rot_angle_deg(orn, start[k][1]) > cfg.collapse_rotation):
+                # certain collapses only: a tall column may rock a couple of cm and come
+                # back, so the end-of-step displacement is judged after the step; and
+                # back; a velocity spike counts once the box has also really moved (a jolt
+                # from a contact that leaves the box where it was is not a collapse)
+                a = _rot_angle_deg(orn, start[k][1])
+                fast = v > cfg.collapse_velocity or w > cfg.collapse_angular_velocity
+                if (d > cfg.collapse_peak_displacement or a > cfg.collapse_peak_rotation
+                        or (fast and (d > cfg.collapse_displacement / 2 or a > cfg.collapse_rotation / 2))):
                     collapse_at[bid] = step
                     onset.setdefault(bid, step)
             return moving
@@ -533,19 +547,22 @@ class ShelfSim:
             jx = jz = 0.0
             tx = tz = 0.0
             free_steps = 0
+            pos = pos0
             max_steps = int(math.ceil(cfg.pull_timeout / dt))
             while True:
                 t = step * dt
                 speed = cfg.pull_speed * min(1.0, (t + dt) / ramp)
                 dist = min(travel_needed + 0.01, dist + speed * dt)
-                if step % period == 0 and cfg.disturbance > 0:
+                if step % period == 0:
                     tx = rng.uniform(-cfg.disturbance, cfg.disturbance)
-                    tz = rng.uniform(-cfg.disturbance, cfg.disturbance)
+                    tz = rng.uniform(-cfg.disturbance_force, cfg.disturbance_force) * weight
                 jx += (tx - jx) * 0.3
                 jz += (tz - jz) * 0.3
-                target = [front0[0] + jx, front0[1] - dist, front0[2] + jz]
+                target = [front0[0] + jx, front0[1] - dist, front0[2]]
                 p.changeConstraint(cid, target, jointChildFrameOrientation=list(orn0),
-                                   maxForce=cfg.pull_force)
+                                   maxForce=max_force)
+                if jz:
+                    p.applyExternalForce(body, -1, [0.0, 0.0, jz], list(pos), p.WORLD_FRAME)
                 self._step()
                 step += 1
                 pos = place_gripper()
@@ -573,7 +590,7 @@ class ShelfSim:
                 travelled = pos0[1] - pos[1]
                 out = pos[1] + ext_y < -cfg.pull_margin
                 free_steps = 0 if engaged else free_steps + 1
-                if out or (cfg.early_clear and travelled > 0.01 and free_steps >= 3):
+                if out or (cfg.early_clear and travelled > 0.01 and free_steps >= clear_need):
                     extracted = True
                     break
                 if step >= max_steps:
@@ -605,6 +622,11 @@ class ShelfSim:
         end = {b: p.getBasePositionAndOrientation(self._body[b]) for b in others}
         disp = {b: _dist(end[b][0], start[k][0]) for k, b in enumerate(others)}
         rot = {b: _rot_angle_deg(end[b][1], start[k][1]) for k, b in enumerate(others)}
+        for b in others:
+            if b not in collapse_at and (disp[b] > cfg.collapse_displacement
+                                         or rot[b] > cfg.collapse_rotation):
+                collapse_at[b] = step
+                onset.setdefault(b, step)
         order = {b: i for i, b in enumerate(self._ids)}
         moved = tuple(sorted(onset, key=lambda b: (onset[b], order[b])))
         collapsed = tuple(b for b in moved if b in collapse_at)

@@ -48,8 +48,6 @@ def test_top_box_collapse_is_predicted_and_named_first():
         assert under.collapse_prob == 1.0 and under.moved[0] == "b"
         free = pred.trial(frozenset(), "c")
         assert free.collapse_prob == 0.0 and free.moved == ()
-        top = pred.trial(frozenset(), "b")
-        assert top.collapse_prob == 0.0
         after = pred.trial(frozenset({"b"}), "a")
         assert after.collapse_prob == 0.0 and after.collision_prob == 0.0
         assert pred.trial(frozenset(), "a") is under  # cached
@@ -60,6 +58,8 @@ def test_known_depths_use_one_world():
     with Predictor(stacked(), samples=10) as pred:
         assert pred.worlds == 1
         assert pred.trial(frozenset(), "a").collapse_prob == 1.0
+        # with known depths the wide, heavy-enough lower box does not tip when the top one slides off
+        assert pred.trial(frozenset(), "b").collapse_prob == 0.0
 
 
 def test_same_seed_same_predictions_whatever_the_call_order():
@@ -71,7 +71,7 @@ def test_same_seed_same_predictions_whatever_the_call_order():
         assert a == b
         assert [x.to_json() for x in p1.results(*calls[2])] == [x.to_json() for x in p2.results(*calls[2])]
     assert a[1].collapse_prob == 1.0 and a[1].moved[0] == "c3"
-    assert a[0].collapse_prob == 0.0 and a[3].collapse_prob == 0.0
+    assert a[3].collapse_prob == 0.0
 
 
 def test_early_stop_stops_sampling_an_unsafe_candidate():
