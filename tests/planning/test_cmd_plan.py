@@ -108,3 +108,62 @@ def test_empty_clear_writes_an_empty_plan(tmp_path, capsys):
     assert main(["plan", str(path), "--task", "clear"]) == 0
     plan = Plan.from_json(json.loads(capsys.readouterr().out))
     assert plan.sequence == () and plan.task == "clear" and plan.safe
+
+
+# ---------------------------------------------------------------- real runs
+def test_plan_to_stdout_removes_the_box_above_first(tmp_path, capsys):
+    assert main(["plan", str(_stack(tmp_path)), "--task", "extract", "--target", "bot"]) == 0
+    out = capsys.readouterr()
+    plan = Plan.from_json(json.loads(out.out))
+    assert plan.sequence == ("top", "bot") and plan.safe and plan.planner == "physics"
+    assert plan.seed == 0 and plan.timing["planning_s"] > 0
+    assert "warning" not in out.err
+
+
+def test_plan_to_file_heuristic_clear(tmp_path, capsys):
+    out_path = tmp_path / "out" / "plan.json"
+    argv = ["plan", str(_stack(tmp_path)), "--task", "clear", "--planner", "heuristic",
+            "--samples", "2", "--seed", "5", "--out", str(out_path)]
+    assert main(argv) == 0
+    out = capsys.readouterr()
+    assert out.out == ""
+    assert "wrote" in out.err and "top -> bot -> free" in out.err
+    plan = Plan.load(out_path)
+    assert plan.sequence == ("top", "bot", "free") and plan.task == "clear" and plan.target is None
+    assert plan.seed == 5 and len(plan.predicted) == 3
+
+
+class _AlwaysCollapses:
+    """Stands in for the physics: every pull drops some other box."""
+
+    def __init__(self, scene, samples=10, seed=0, config=None):
+        self.ids = scene.ids
+
+    def trial(self, removed, box):
+        from planning.plan import StepPrediction
+        others = [b for b in self.ids if b != box and b not in removed]
+        return StepPrediction(box, 0.5 if others else 0.0, 0.0, tuple(others[:1]))
+
+    def close(self):
+        pass
+
+
+def test_no_safe_plan_warns_and_exits_zero(tmp_path, capsys, monkeypatch):
+    import planning.predict
+    monkeypatch.setattr(planning.predict, "Predictor", _AlwaysCollapses)
+    assert main(["plan", str(_stack(tmp_path)), "--task", "clear"]) == 0
+    out = capsys.readouterr()
+    plan = Plan.from_json(json.loads(out.out))
+    assert not plan.safe and len(plan.sequence) == 3 and plan.risk == 0.5
+    warn = [ln for ln in out.err.splitlines() if "warning" in ln]
+    assert len(warn) == 1 and "no safe plan" in warn[0] and "risk 0.50" in warn[0]
+
+
+def test_budget_that_runs_out_says_so(tmp_path, capsys):
+    argv = ["plan", str(_stack(tmp_path)), "--target", "bot", "--budget", "1e-9"]
+    assert main(argv) == 0
+    out = capsys.readouterr()
+    plan = Plan.from_json(json.loads(out.out))
+    assert plan.sequence[-1] == "bot"
+    assert plan.extra["search"]["timed_out"] is True
+    assert "budget of 1e-09 s ran out" in out.err

@@ -88,3 +88,47 @@ def test_bad_requests_are_named(kwargs, field):
         make_plan(STACK, predictor=fake, origin="s.json", **kwargs)
     assert f"s.json: {field}:" in str(err.value)
     assert fake.graph.asked == []  # refused before any physics
+
+
+# ---------------------------------------------------------------- real physics
+def test_real_physics_removes_the_box_above_the_target_first():
+    plan = make_plan(STACK, "extract", "bot")
+    assert plan.sequence == ("top", "bot")
+    assert plan.safe and plan.risk == 0.0
+    assert plan.extra["search"]["oracle_calls"] == 3  # bot (collapse), top, bot again
+
+
+def test_real_physics_free_target_is_pulled_alone():
+    plan = make_plan(STACK, "extract", "free")
+    assert plan.sequence == ("free",) and plan.safe
+    assert plan.extra["search"]["oracle_calls"] == 1
+
+
+def test_real_physics_with_hidden_depths_still_unstacks():
+    plan = make_plan(STACK.hide_depths(), "extract", "bot", samples=4, seed=3)
+    assert plan.sequence == ("top", "bot") and plan.safe
+
+
+def test_real_physics_clear_and_heuristic():
+    clear = make_plan(STACK, "clear")
+    assert clear.sequence == ("top", "bot", "free") and clear.safe
+    base = make_plan(STACK, "extract", "free", planner="heuristic")
+    assert base.sequence == ("top", "bot", "free")
+    assert [p.box for p in base.predicted] == ["top", "bot", "free"] and base.safe
+
+
+def _bridge_scene():
+    """A board bridging two boxes; depths hidden so the samples disagree."""
+    return Scene(Shelf(), (
+        _box("left", -0.15, 0.1), _box("right", 0.15, 0.1),
+        Box("bridge", (0.5, 0.2, 0.1), (0.0, 0.15, 0.25), (1.0, 0.0, 0.0, 0.0)),
+        _box("far", 0.38, 0.1))).hide_depths()
+
+
+def test_same_seed_same_plan():
+    scene = _bridge_scene()
+    a = make_plan(scene, "extract", "left", samples=6, seed=0)
+    b = make_plan(scene, "extract", "left", samples=6, seed=0)
+    assert a.sequence[0] == "bridge" and a.sequence[-1] == "left"  # the board comes off first
+    assert a == b  # sequence, per-step probabilities and moved boxes, safe, seed
+    assert a.to_json()["predicted"] == b.to_json()["predicted"]
