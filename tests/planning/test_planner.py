@@ -132,3 +132,38 @@ def test_same_seed_same_plan():
     assert a.sequence[0] == "bridge" and a.sequence[-1] == "left"  # the board comes off first
     assert a == b  # sequence, per-step probabilities and moved boxes, safe, seed
     assert a.to_json()["predicted"] == b.to_json()["predicted"]
+
+
+def _grid_scene():
+    """Three columns of three 20 cm cubes, a board bridging the middle and right columns."""
+    boxes = [_box(f"c{c}r{r}", x, 0.1 + 0.2 * r) for c, x in enumerate((-0.3, 0.0, 0.3)) for r in range(3)]
+    boxes.append(Box("bridge", (0.5, 0.2, 0.1), (0.15, 0.15, 0.65), (1.0, 0.0, 0.0, 0.0)))
+    return Scene(Shelf(), tuple(boxes))
+
+
+def test_physics_plan_removes_far_fewer_boxes_than_the_baseline_and_holds():
+    from planning.execute import execute_plan
+    from planning.predict import Predictor
+
+    scene = _grid_scene()
+    with Predictor(scene) as pred:
+        plan = make_plan(scene, "extract", "c1r0", predictor=pred)
+        base = make_plan(scene, "extract", "c1r0", planner="heuristic", predictor=pred)
+    # the board first (it rests on the column), then the column top-down
+    assert plan.sequence == ("bridge", "c1r2", "c1r1", "c1r0") and plan.safe
+    assert len(base.sequence) == 9  # highest first: everything but two bottom boxes
+    assert execute_plan(scene, plan.sequence).ok
+
+
+@pytest.mark.slow
+def test_physics_plan_meets_the_exhaustive_minimum_on_the_grid():
+    from planning.exhaustive import exhaustive_minimum
+    from planning.predict import Predictor
+
+    scene = _grid_scene()
+    with Predictor(scene) as pred:
+        for target in ("c1r0", "c2r1", "c0r0", "bridge"):
+            plan = make_plan(scene, "extract", target, predictor=pred)
+            best = exhaustive_minimum(scene, target)
+            assert best is not None and plan.safe
+            assert len(plan.sequence) == len(best), (target, plan.sequence, best)
