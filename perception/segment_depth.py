@@ -33,6 +33,10 @@ class DepthEdgeConfig:
     min_side_m: float = 0.04         # thinner pieces are tape/edges, not faces
     colour_merge: float = 14.0       # Lab distance under which two pieces are one box
     rect_fill: float = 0.86          # a merged piece must fill its min-area rectangle this well
+    tape_max_m: float = 0.12         # a tape band is at most this thick ...
+    tape_rel: float = 1.25           # ... and at most this fraction of the pieces it joins
+    tape_span: float = 0.85          # ... and runs across at least this fraction of the face
+    tape_colour: float = 20.0        # Lab distance between the pieces on both sides of a tape
     wall_margin: float = 0.012       # m: points this close to the back wall are the shelf
 
 
@@ -140,7 +144,9 @@ class DepthEdgeSegmenter:
         assigned = _grow_within(assigned, patch, fg)
         # ---- merge pieces of one patch with matching colour and a rectangular union
         lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
-        merged = _merge_pieces(assigned, core & keep[piece], patch, lab, cfg)
+        # ---- tape: a band (or cross) of another colour between pieces of one colour
+        merged = _merge_tape(assigned, core & keep[piece], lab, mpp, cfg)
+        merged = _merge_pieces(merged, core & keep[piece], patch, lab, cfg)
         return _finish(merged, mpp, cfg)
 
 
@@ -227,6 +233,120 @@ def _merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab
     for i in range(1, n + 1):
         lut[i] = find(i)
     return lut[assigned]
+
+
+def _contacts(labels: np.ndarray) -> dict[tuple[int, int], int]:
+    """(a, b) with a < b -> number of 4-neighbour pixel pairs where label a touches label b."""
+    n = int(labels.max())
+    out: dict[tuple[int, int], int] = {}
+    for a, b in ((labels[:, :-1], labels[:, 1:]), (labels[:-1, :], labels[1:, :])):
+        sel = (a != b) & (a > 0) & (b > 0)
+        if not sel.any():
+            continue
+        code = np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1) + np.maximum(a[sel], b[sel])
+        u, c = np.unique(code, return_counts=True)
+        for k, v in zip(u, c):
+            key = (int(k // (n + 1)), int(k % (n + 1)))
+            out[key] = out.get(key, 0) + int(v)
+    return out
+
+
+_DEBUG = False
+
+
+def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.ndarray,
+                cfg: DepthEdgeConfig) -> np.ndarray:
+    """Join a tape piece with the pieces it separates.
+
+    Tape across a face (a band, or a cross of two) is a piece of another colour
+    that cuts the face into parts of one colour. A piece P is taken for tape when
+    it is thin (<= `tape_max_m`, and clearly thinner than its neighbours), at least
+    two of its neighbours share a colour, and P with those neighbours fills a
+    rectangle. Two stacked boxes flush with a thin third one between them would
+    fool this rule only if the outer two have the same colour and width.
+    """
+    import cv2
+    from scipy import ndimage
+
+    n = int(labels.max())
+    if n < 3:
+        return labels
+    idx = np.arange(1, n + 1)
+    # thickness: twice the largest distance to another label or the background, in metres
+    border = np.zeros(labels.shape, bool)
+    border[:, 1:] |= labels[:, 1:] != labels[:, :-1]
+    border[:, :-1] |= labels[:, 1:] != labels[:, :-1]
+    border[1:, :] |= labels[1:, :] != labels[:-1, :]
+    border[:-1, :] |= labels[1:, :] != labels[:-1, :]
+    inner = (labels > 0) & ~border
+    dist = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
+    # 90th percentile, not the maximum: the centre of a tape cross is wider than its arms
+    thick = 2 * np.asarray(ndimage.labeled_comprehension(
+        dist * mpp, labels, idx, lambda v: np.percentile(v, 90), float, 0.0), float)
+    src = np.where(core, labels, 0)
+    cnt = np.maximum(np.asarray(ndimage.sum(np.ones(labels.shape), src, idx)), 1)
+    mean = np.stack([np.asarray(ndimage.sum(lab[..., c], src, idx)) / cnt for c in range(3)], axis=1)
+    contacts = _contacts(labels)
+    nbrs: dict[int, set[int]] = {i: set() for i in idx}
+    for (a, b), c in contacts.items():
+        if c >= 3:
+            nbrs[a].add(b)
+            nbrs[b].add(a)
+    lut = np.arange(n + 1)
+    done: set[int] = set()
+    for p in sorted(idx, key=lambda i: thick[i - 1]):
+        p = int(p)
+        if _DEBUG:
+            print('P', p, round(thick[p-1], 3), int(cnt[p-1]), [(q, round(thick[q-1], 3), round(float(np.linalg.norm(mean[q-1]-mean[p-1])), 1)) for q in nbrs[p]])
+        if p in done or thick[p - 1] > cfg.tape_max_m:
+            continue
+        cand = [q for q in nbrs[p] if q not in done
+                and thick[p - 1] <= cfg.tape_rel * thick[q - 1]]
+        if len(cand) < 2:
+            continue
+        if _DEBUG:
+            print('  pairwise', [(a, b, round(float(np.linalg.norm(mean[a-1]-mean[b-1])), 1)) for a in cand for b in cand if a < b])
+        best = None
+        # the neighbours that share a colour with the largest one of them
+        for seed in sorted(cand, key=lambda q: -cnt[q - 1]):
+            group = [q for q in cand
+                     if np.linalg.norm(mean[q - 1] - mean[seed - 1]) < cfg.tape_colour]
+            if len(group) >= 2:
+                best = group
+                break
+        if best is None:
+            continue
+        union = np.isin(labels, [p] + best)
+        if _DEBUG:
+            print('  try', best, round(_rect_fill(union), 3))
+        if _rect_fill(union) < cfg.rect_fill or not _spans(labels == p, union, cfg.tape_span):
+            continue
+        for q in best:
+            lut[q] = p
+            done.add(q)
+        done.add(p)
+    return lut[labels]
+
+
+def _spans(piece: np.ndarray, union: np.ndarray, frac: float) -> bool:
+    """Whether `piece` reaches across `union` along one of the piece's rectangle axes
+    (a tape runs from one edge of the face to the other; a strip of another box does not)."""
+    import cv2
+
+    pts = cv2.findNonZero(piece.astype(np.uint8))
+    upts = cv2.findNonZero(union.astype(np.uint8))
+    if pts is None or upts is None:
+        return False
+    (_, _), (_, _), ang = cv2.minAreaRect(pts)
+    a = np.deg2rad(ang)
+    for ax in (np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])):
+        pp = pts.reshape(-1, 2) @ ax
+        uu = upts.reshape(-1, 2) @ ax
+        pe = np.percentile(pp, 99) - np.percentile(pp, 1)
+        ue = np.percentile(uu, 99) - np.percentile(uu, 1)
+        if ue > 0 and pe >= frac * ue:
+            return True
+    return False
 
 
 def _rect_fill(mask: np.ndarray) -> float:
