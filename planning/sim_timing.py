@@ -1,0 +1,141 @@
+"""Measure the simulation's cost and its accuracy against a fine-step reference.
+
+    python -m planning.sim_timing timing             # single trial, Predictor.trial (10 samples)
+    python -m planning.sim_timing accuracy [--quick] # verdicts of coarse settings vs 1/480 s
+
+The figures are written up in docs/physics.md. The scenes are built here so
+the measurement does not depend on the synthetic-shelf generator.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+import warnings
+
+from perception.scene import Box, Scene, Shelf
+from planning.physics import PhysicsConfig
+
+A = (0.31, 0.23, 0.25)   # the method's box types as (width, depth, height)
+B = (0.2, 0.2, 0.2)
+C = (0.5, 0.17, 0.17)
+
+
+def twelve_box_scene() -> Scene:
+    """12 boxes: four columns, a long box bridging two of them, fronts staggered by up to 3 cm."""
+    boxes: list[Box] = []
+
+    def add(size, x, z, dy=0.0):
+        boxes.append(Box(f"b{len(boxes)}", size, (x, dy + size[1] / 2, z)))
+
+    add(A, -0.34, 0.125, 0.0); add(A, -0.34, 0.375, 0.02); add(B, -0.34, 0.6, -0.02)
+    add(B, -0.08, 0.1, 0.01); add(B, -0.08, 0.3, 0.0)
+    add(B, 0.13, 0.1, -0.01); add(B, 0.13, 0.3, 0.03)
+    add(C, 0.07, 0.4 + 0.085, 0.0)
+    add(B, 0.36, 0.1, 0.0); add(B, 0.36, 0.3, 0.02)
+    add(B, -0.34, 0.8, 0.0)
+    add(B, 0.05, 0.57 + 0.1, 0.01)
+    return Scene(Shelf(), tuple(boxes))
+
+
+def column_scene(n: int = 6) -> Scene:
+    return Scene(Shelf(), tuple(Box(f"c{i}", B, (0.0, 0.12, 0.1 + 0.2 * i)) for i in range(n))
+                 + (Box("f", B, (0.35, 0.12, 0.1)),))
+
+
+def timing(config: PhysicsConfig, repeat: int = 3) -> dict:
+    from planning.predict import Predictor
+    from planning.sim import ShelfSim
+
+    scene = twelve_box_scene()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim = ShelfSim(scene, config)
+    snap = sim.snapshot()
+    single, steps = [], []
+    for _ in range(repeat):
+        for b in scene.ids:
+            sim.restore(snap)
+            t = time.perf_counter()
+            r = sim.remove(b, stop_on_collapse=True)
+            single.append(time.perf_counter() - t)
+            steps.append(r.sim_time / config.time_step)
+    sim.close()
+    t = time.perf_counter()
+    pred = Predictor(scene.hide_depths(), samples=10, seed=0, config=config)
+    build = time.perf_counter() - t
+    trials = []
+    for b in scene.ids:
+        t = time.perf_counter()
+        pred.trial(frozenset(), b)
+        trials.append(time.perf_counter() - t)
+    pred.close()
+    return {"single_trial_ms_p50": 1000 * statistics.median(single),
+            "single_trial_ms_mean": 1000 * statistics.mean(single),
+            "steps_per_trial_mean": statistics.mean(steps),
+            "predictor_build_s": build,
+            "predictor_trial_ms_p50": 1000 * statistics.median(trials),
+            "predictor_trial_ms_mean": 1000 * statistics.mean(trials)}
+
+
+def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, samples: int = 4) -> dict:
+    """Collapse verdict and first collapsing box of every single-box removal, vs the reference."""
+    from planning.predict import sample_depths
+    from planning.sim import ShelfSim
+
+    base = twelve_box_scene().hide_depths()
+    scenes = [sample_depths(base, 0, i) for i in range(samples)] + [column_scene()]
+    out: dict[str, dict] = {}
+    for name, cfg in [("reference", reference)] + list(configs.items()):
+        verdicts, spent, n = [], 0.0, 0
+        for sc in scenes:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sim = ShelfSim(sc, cfg)
+            snap = sim.snapshot()
+            for b in sc.ids:
+                sim.restore(snap)
+                t = time.perf_counter()
+                r = sim.remove(b, stop_on_collapse=name != "reference")
+                spent += time.perf_counter() - t
+                n += 1
+                verdicts.append((bool(r.collapsed), r.collapsed[0] if r.collapsed else None))
+            sim.close()
+        out[name] = {"verdicts": verdicts, "trial_ms": 1000 * spent / n}
+        print(f"{name}: {out[name]['trial_ms']:.1f} ms per trial", file=sys.stderr, flush=True)
+    ref = out["reference"]["verdicts"]
+    for name, o in out.items():
+        v = o["verdicts"]
+        o["collapse_agree"] = sum(a[0] == b[0] for a, b in zip(v, ref)) / len(ref)
+        o["first_agree"] = sum(a == b for a, b in zip(v, ref)) / len(ref)
+        o["n"] = len(ref)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("what", choices=["timing", "accuracy"])
+    ap.add_argument("--quick", action="store_true", help="accuracy on 2 depth samples only")
+    args = ap.parse_args(argv)
+    cfg = PhysicsConfig()
+    if args.what == "timing":
+        print(json.dumps(timing(cfg), indent=2))
+        return 0
+    ref = PhysicsConfig(time_step=1 / 480, solver_iterations=100, early_clear=False)
+    configs = {
+        "1/240 s, 50 it": cfg.replace(time_step=1 / 240, solver_iterations=50),
+        "1/120 s, 50 it": cfg.replace(time_step=1 / 120, solver_iterations=50),
+        "1/60 s, 50 it": cfg.replace(time_step=1 / 60, solver_iterations=50),
+        "1/60 s, 30 it": cfg.replace(time_step=1 / 60, solver_iterations=30),
+        "default": cfg,
+    }
+    res = accuracy(configs, ref, samples=2 if args.quick else 4)
+    for name, o in res.items():
+        print(f"| {name} | {o['collapse_agree']:.3f} | {o['first_agree']:.3f} | {o['trial_ms']:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
