@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from perception.scene import Scene
     from planning.planner import check_request, make_plan
 
-    from perception.errors import FormatError
+    from perception.errors import FormatError, SceneError
 
     if args.samples < 1:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
@@ -48,8 +48,11 @@ def run(args: argparse.Namespace) -> int:
     check_request(scene, args.task, args.target, args.planner, args.samples, args.risk, args.scene)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
-                         seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene)
+        try:
+            plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
+                             seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene)
+        except SceneError as exc:  # the physics refused the scene: say which file
+            raise SceneError(f"{args.scene}: {exc}") from None
     for w in caught:
         _warn(str(w.message))
     search = plan.extra.get("search", {})

@@ -167,3 +167,11 @@ def test_budget_that_runs_out_says_so(tmp_path, capsys):
     assert plan.sequence[-1] == "bot"
     assert plan.extra["search"]["timed_out"] is True
     assert "budget of 1e-09 s ran out" in out.err
+
+
+def test_boxes_inside_each_other_are_refused(tmp_path, capsys):
+    boxes = [{"id": "a", "size": [0.2, 0.2, 0.2], "position": [0.0, 0.15, 0.1]},
+             {"id": "b", "size": [0.2, 0.2, 0.2], "position": [0.1, 0.15, 0.1]}]
+    path = _doc(tmp_path, "overlap.json", boxes=boxes)
+    line = _err(capsys, ["plan", str(path), "--target", "a"])
+    assert "overlap.json" in line and "'a'" in line and "'b'" in line and "overlap" in line
