@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         step = plan.predicted[worst]
         moved = ", ".join(step.moved) or "nothing named"
         _warn(f"no safe plan found (risk threshold {args.risk:g}); the least risky plan found has "
-              f"risk {plan.risk:.2f}: step {worst + 1} (pull {step.box}) may move {moved}")
+              f"risk {plan.risk:.2f} (chance that nothing collapses {search.get('success_prob', 0):.2f}): "
+              f"step {worst + 1} (pull {step.box}) may move {moved}")
     if args.out:
         plan.save(args.out)
         print(f"shelfpick plan: {len(plan.sequence)} step(s) {' -> '.join(plan.sequence) or '(none)'}"

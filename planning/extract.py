@@ -16,8 +16,11 @@ Algorithm 1 with the additions the product needs:
   boxes are tried (cheap improvement over the plain method);
 * a depth bound and an optional deadline (``time.monotonic()`` instant);
 * when no safe plan exists, the least risky plan found is returned with
-  ``safe=False`` (greedy: at every dead end, either pull the box now or run
-  the least risky blocker sub-plan, whichever risks less).
+  ``safe=False``. "Least risky" is judged by the chance that no step
+  collapses, prod(1 - risk_i): at every dead end the search either pulls the
+  box now or first runs the blocker sub-plan most likely to go well, looking
+  one trial ahead (the box's risk once that blocker is gone), whichever is
+  more likely to succeed. Greedy, not a global optimum.
 """
 from __future__ import annotations
 
@@ -44,6 +47,19 @@ class SearchResult:
     def risk(self) -> float:
         """Largest step risk of the plan (0 when every step is predicted still)."""
         return max((p.risk for p in self.predicted), default=0.0)
+
+    @property
+    def success_prob(self) -> float:
+        """Predicted chance that no step collapses (steps taken as independent)."""
+        return success_prob(self.predicted)
+
+
+def success_prob(predicted: Iterable[StepPrediction]) -> float:
+    """prod(1 - risk) over the steps: how the fallback ranks unsafe plans."""
+    out = 1.0
+    for p in predicted:
+        out *= 1.0 - p.risk
+    return out
 
 
 class CountingOracle:
@@ -85,6 +101,10 @@ class _Outcome:
     @property
     def risk(self) -> float:
         return max((p.risk for p in self.predicted), default=0.0)
+
+    @property
+    def success(self) -> float:
+        return success_prob(self.predicted)
 
 
 def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float = 0.0,
@@ -128,17 +148,20 @@ def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float =
                         cur = cur | set(sub.sequence)
                         progressed = True
                         break
-                    if best is None or sub.risk < best.risk:
+                    if best is None or sub.success > best.success:
                         best = sub
             if progressed:
                 continue  # retry the box with its blocker gone
             # Dead end: no blocker comes out safely. Pull the box now, or first
-            # run the least risky blocker plan when that risks less.
-            if best is not None and best.risk < pred.risk:
-                seq += best.sequence
-                preds += best.predicted
-                cur = cur | set(best.sequence)
-                continue
+            # run the blocker plan most likely to go well when that, followed by
+            # this box (one trial of lookahead), is more likely to succeed.
+            if best is not None and best.success > 1.0 - pred.risk:
+                after = oracle(cur | set(best.sequence), box)
+                if best.success * (1.0 - after.risk) > 1.0 - pred.risk:
+                    seq += best.sequence
+                    preds += best.predicted
+                    cur = cur | set(best.sequence)
+                    continue
             return _Outcome((*seq, box), (*preds, pred))
 
     out = extract(target, frozenset(), ())

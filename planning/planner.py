@@ -106,5 +106,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         if own:
             predictor.close()  # type: ignore[union-attr]
     safe = all(p.risk <= risk for p in predicted)
+    from planning.extract import success_prob
+    search["success_prob"] = success_prob(predicted)
     return Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed,
                 {"search": search})

@@ -166,3 +166,29 @@ def test_on_stacking_graphs_the_search_finds_the_minimum(seed):
         assert res.safe and best is not None
         assert len(res.sequence) == len(best)
         assert set(res.sequence) == set(best)
+
+
+def test_fallback_ranks_plans_by_the_chance_that_nothing_collapses():
+    # pulling t now risks 0.5; taking a first risks 0.4 and leaves t at 0.4 (b leans on it):
+    # 0.6 * 0.6 = 0.36 < 0.5, so pulling t now is the better bet although its step risk is higher
+    def rules(removed, box):
+        if box == "t":
+            return risky(0.4, "b") if "a" in removed else risky(0.5, "a")
+        if box == "a":
+            return risky(0.4, "t")
+        return risky(1.0, "t")  # b cannot come out either
+    res = search_extract(["t", "a", "b"], "t", table_oracle(rules))
+    assert res.sequence == ("t",)
+    assert res.success_prob == pytest.approx(0.5)
+
+
+def test_fallback_takes_the_blocker_when_that_is_the_better_bet():
+    def rules(removed, box):
+        if box == "t":
+            return risky(0.1, "b") if "a" in removed else risky(0.6, "a")
+        if box == "a":
+            return risky(0.2, "t")
+        return risky(1.0, "t")
+    res = search_extract(["t", "a", "b"], "t", table_oracle(rules))
+    assert res.sequence == ("a", "t")  # 0.8 * 0.9 = 0.72 > 0.4
+    assert res.success_prob == pytest.approx(0.72) and res.risk == pytest.approx(0.2)
