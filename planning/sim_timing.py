@@ -54,30 +54,37 @@ def timing(config: PhysicsConfig, repeat: int = 3) -> dict:
         warnings.simplefilter("ignore")
         sim = ShelfSim(scene, config)
     snap = sim.snapshot()
-    single, steps = [], []
+    single, single_cpu, steps = [], [], []
     for _ in range(repeat):
         for b in scene.ids:
             sim.restore(snap)
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             r = sim.remove(b, stop_on_collapse=True)
             single.append(time.perf_counter() - t)
+            single_cpu.append(time.process_time() - c)
             steps.append(r.sim_time / config.time_step)
     sim.close()
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     pred = Predictor(scene.hide_depths(), samples=10, seed=0, config=config)
-    build = time.perf_counter() - t
-    trials = []
+    build, build_cpu = time.perf_counter() - t, time.process_time() - c
+    trials, trials_cpu = [], []
     for b in scene.ids:
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         pred.trial(frozenset(), b)
         trials.append(time.perf_counter() - t)
+        trials_cpu.append(time.process_time() - c)
     pred.close()
     return {"single_trial_ms_p50": 1000 * statistics.median(single),
             "single_trial_ms_mean": 1000 * statistics.mean(single),
             "steps_per_trial_mean": statistics.mean(steps),
             "predictor_build_s": build,
             "predictor_trial_ms_p50": 1000 * statistics.median(trials),
-            "predictor_trial_ms_mean": 1000 * statistics.mean(trials)}
+            "predictor_trial_ms_mean": 1000 * statistics.mean(trials),
+            "cpu": {"single_trial_ms_p50": 1000 * statistics.median(single_cpu),
+                    "single_trial_ms_mean": 1000 * statistics.mean(single_cpu),
+                    "predictor_build_s": build_cpu,
+                    "predictor_trial_ms_p50": 1000 * statistics.median(trials_cpu),
+                    "predictor_trial_ms_mean": 1000 * statistics.mean(trials_cpu)}}
 
 
 def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, samples: int = 4) -> dict:
