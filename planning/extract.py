@@ -17,10 +17,10 @@ Algorithm 1 with the additions the product needs:
 * a depth bound and an optional deadline (``time.monotonic()`` instant);
 * when no safe plan exists, the least risky plan found is returned with
   ``safe=False``. "Least risky" is judged by the chance that no step
-  collapses, prod(1 - risk_i): at every dead end the search either pulls the
-  box now or first runs the blocker sub-plan most likely to go well, looking
-  one trial ahead (the box's risk once that blocker is gone), whichever is
-  more likely to succeed. Greedy, not a global optimum.
+  collapses, prod(1 - risk_i): at every dead end the search compares two
+  complete plans, pulling the box now, or running the blocker sub-plan most
+  likely to go well and then planning the box again from there, and keeps the
+  likelier success. Greedy over blockers, not a global optimum.
 """
 from __future__ import annotations
 
@@ -152,17 +152,16 @@ def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float =
                         best = sub
             if progressed:
                 continue  # retry the box with its blocker gone
-            # Dead end: no blocker comes out safely. Pull the box now, or first
-            # run the blocker plan most likely to go well when that, followed by
-            # this box (one trial of lookahead), is more likely to succeed.
-            if best is not None and best.success > 1.0 - pred.risk:
-                after = oracle(cur | set(best.sequence), box)
-                if best.success * (1.0 - after.risk) > 1.0 - pred.risk:
-                    seq += best.sequence
-                    preds += best.predicted
-                    cur = cur | set(best.sequence)
-                    continue
-            return _Outcome((*seq, box), (*preds, pred))
+            # Dead end: no blocker comes out safely. Compare two complete plans:
+            # pull the box now, or run the blocker plan most likely to go well
+            # and then plan this box again from there; keep the likelier success.
+            now = _Outcome((*seq, box), (*preds, pred))
+            if best is None or success_prob(preds) * best.success <= now.success:
+                return now  # the blocker alone is already a worse bet than pulling now
+            rest = extract(box, cur | set(best.sequence), stack)
+            then = _Outcome((*seq, *best.sequence, *rest.sequence),
+                            (*preds, *best.predicted, *rest.predicted))
+            return then if then.success > now.success else now
 
     out = extract(target, frozenset(), ())
     return SearchResult(out.sequence, out.predicted, out.risk <= risk, oracle.calls, clock.hit)
