@@ -1,0 +1,489 @@
+"""The scalability benchmark: every box of every scene in turn is the target.
+
+Each planner plans on the scene with depths hidden (what a camera gives) and
+its plan is executed on the true scene. The unit of work is one scene (all its
+pending targets): the worker keeps one Predictor for the scene, so the
+planners share trial outcomes. Every seed is derived from (base seed, scene
+name[, target]), never from worker order, so serial, `--workers N` and Ray runs
+give the same records (planning times aside). Records are appended to a JSONL
+file and flushed as each scene finishes; a rerun skips the targets already
+there, so a stopped run continues and no task is counted twice.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field, asdict
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+from perception.errors import FormatError, ShelfpickError
+
+RECORDS = "records.jsonl"
+RUN_META = "run.json"
+# fields of a record that are measurements of the machine, not results
+TIMING_KEYS = ("plan_s", "setup_s", "exec_wall_s", "exhaustive_s", "worker")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    planners: tuple[str, ...] = ("physics", "heuristic")
+    samples: int = 10
+    seed: int = 0
+    exhaustive_max_boxes: int = 8
+    robot_time: float = 12.5
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["planners"] = list(self.planners)
+        return d
+
+
+def derive_seed(*parts: Any) -> int:
+    """A 31-bit seed from any parts (base seed, scene name, target): order-independent of workers."""
+    h = hashlib.sha256("\x1f".join(str(p) for p in parts).encode()).digest()
+    return int.from_bytes(h[:4], "big") & 0x7FFFFFFF
+
+
+def scene_kind(scene_doc: dict, name: str) -> str:
+    """Stack kind from the scene's `source.kind`, else from the file name, else 'other'."""
+    src = scene_doc.get("source")
+    if isinstance(src, dict) and isinstance(src.get("kind"), str):
+        return src["kind"]
+    for k in ("unstructured", "structured"):
+        if k in name:
+            return k
+    return "other"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One scene: its JSON document (so remote workers need no shared disk) and pending targets."""
+
+    name: str
+    doc: dict
+    targets: tuple[str, ...]
+    config: BenchConfig
+
+
+# --------------------------------------------------------------------------
+# the work itself (runs in a worker)
+def run_scene(job: Job) -> list[dict]:
+    """Plan and execute every pending target of one scene; one record per target."""
+    import warnings
+
+    from perception.scene import Scene
+    from planning.execute import execute_plan
+    from planning.planner import make_plan
+    from planning.predict import Predictor
+
+    cfg = job.config
+    truth = Scene.from_json(job.doc, job.name)
+    kind = scene_kind(job.doc, job.name)
+    hidden = truth.hide_depths()
+    plan_seed = derive_seed(cfg.seed, job.name, "plan")
+    records = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t0 = time.perf_counter()
+        predictor = Predictor(hidden, samples=cfg.samples, seed=plan_seed)
+        setup_s = time.perf_counter() - t0
+        exhaustive = None
+        if len(truth.boxes) <= cfg.exhaustive_max_boxes:
+            from planning.exhaustive import min_removals, true_scene_oracle
+            exhaustive = (min_removals, true_scene_oracle(truth, derive_seed(cfg.seed, job.name, "exhaustive")))
+        try:
+            for target in job.targets:
+                rec: dict[str, Any] = {"key": f"{job.name}:{target}", "scene": job.name, "kind": kind,
+                                       "n_boxes": len(truth.boxes), "target": target,
+                                       "seed": derive_seed(cfg.seed, job.name, target),
+                                       "setup_s": setup_s, "planners": {}}
+                for planner in cfg.planners:
+                    t1 = time.perf_counter()
+                    plan = make_plan(hidden, "extract", target, planner, cfg.samples, plan_seed,
+                                     predictor=predictor)
+                    plan_s = time.perf_counter() - t1
+                    t2 = time.perf_counter()
+                    ex = execute_plan(truth, plan.sequence, seed=rec["seed"])
+                    steps = ex.steps
+                    rec["planners"][planner] = {
+                        "sequence": list(plan.sequence), "safe": plan.safe,
+                        "predicted_risk": round(plan.risk, 6),
+                        "ok": bool(ex.ok),
+                        "extracted": bool(steps and steps[-1].extracted),
+                        "collapsed": sorted({b for s in steps for b in s.collapsed}),
+                        "removed": len(plan.sequence),
+                        "mean_disp": round(ex.mean_displacement(), 6),
+                        "plan_s": plan_s, "exec_wall_s": time.perf_counter() - t2,
+                    }
+                if exhaustive is not None:
+                    t3 = time.perf_counter()
+                    best = exhaustive[0](truth.ids, target, exhaustive[1], max_boxes=max(len(truth.ids), 1))
+                    rec["exhaustive"] = {"feasible": best is not None,
+                                         "min_removals": None if best is None else len(best),
+                                         "sequence": None if best is None else list(best)}
+                    rec["exhaustive_s"] = time.perf_counter() - t3
+                records.append(rec)
+        finally:
+            predictor.close()
+            if exhaustive is not None:
+                exhaustive[1].close()
+    return records
+
+
+# --------------------------------------------------------------------------
+# input, resume
+def load_jobs(scenes_dir: str | Path, config: BenchConfig, limit: int | None = None,
+              done: Iterable[str] = ()) -> list[Job]:
+    """Scene files (sorted by name) with the targets not yet in `done`."""
+    from perception.scene import Scene, read_json
+
+    d = Path(scenes_dir)
+    if not d.is_dir():
+        raise FormatError(str(d), "", "not a folder of scene files")
+    files = sorted(p for p in d.glob("*.json") if p.is_file())
+    if not files:
+        raise FormatError(str(d), "", "no scene files (*.json) in this folder")
+    if limit is not None:
+        files = files[:limit]
+    finished = set(done)
+    jobs = []
+    for p in files:
+        doc = read_json(p)
+        scene = Scene.from_json(doc, str(p))  # validate here: a bad file fails before any work
+        name = p.stem
+        targets = tuple(t for t in scene.ids if f"{name}:{t}" not in finished)
+        if targets:
+            jobs.append(Job(name, doc, targets, config))
+    return jobs
+
+
+def count_tasks(scenes_dir: str | Path, limit: int | None = None) -> int:
+    from perception.scene import Scene
+    files = sorted(Path(scenes_dir).glob("*.json"))
+    if limit is not None:
+        files = files[:limit]
+    return sum(len(Scene.load(p).boxes) for p in files)
+
+
+def read_records(path: str | Path) -> list[dict]:
+    """Finished records; a torn last line (crash mid-write) is dropped, duplicates keep the first."""
+    p = Path(path)
+    if not p.exists():
+        return []
+    out: dict[str, dict] = {}
+    for line in p.read_text(encoding="utf-8").splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(rec, dict) and isinstance(rec.get("key"), str):
+            out.setdefault(rec["key"], rec)
+    return list(out.values())
+
+
+class RecordLog:
+    """Append-only JSONL; each scene's records are written and fsync'ed as soon as they arrive."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # a crash can leave half a line: cut it off so the next append starts clean
+        if self.path.exists():
+            data = self.path.read_bytes()
+            if data and not data.endswith(b"\n"):
+                cut = data.rfind(b"\n") + 1
+                with open(self.path, "r+b") as f:
+                    f.truncate(cut)
+        self._f = open(self.path, "a", encoding="utf-8")
+
+    def write(self, records: Sequence[dict]) -> None:
+        for r in records:
+            self._f.write(json.dumps(r, sort_keys=True) + "\n")
+        self._f.flush()
+        os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        self._f.close()
+
+
+def check_meta(out: Path, config: BenchConfig, scenes_dir: str | Path) -> None:
+    """A rerun into the same folder must use the same settings, or the numbers would mix."""
+    meta_path = out / RUN_META
+    meta = {"format": "shelfpick.bench/1", "config": config.to_json(),
+            "scenes": str(Path(scenes_dir).resolve())}
+    if meta_path.exists():
+        from perception.scene import read_json
+        old = read_json(meta_path)
+        if old.get("config") != meta["config"]:
+            raise FormatError(str(meta_path), "config",
+                              f"this folder holds a run with {old.get('config')}, not {meta['config']}; "
+                              "use another --out")
+        return
+    from perception.scene import write_json
+    write_json(meta_path, meta)
+
+
+# --------------------------------------------------------------------------
+# executors: each yields lists of records as scenes finish (any order)
+def iter_serial(jobs: Sequence[Job], fn: Callable[[Job], list[dict]]) -> Iterator[list[dict]]:
+    for job in jobs:
+        yield fn(job)
+
+
+def iter_workers(jobs: Sequence[Job], fn: Callable[[Job], list[dict]], workers: int) -> Iterator[list[dict]]:
+    """Local worker processes (spawn: no forked PyBullet state), alive for the whole run."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(processes=workers) as pool:
+        # big scenes first keeps the pool busy to the end
+        order = sorted(jobs, key=lambda j: -len(j.targets))
+        yield from pool.imap_unordered(fn, order, chunksize=1)
+
+
+def iter_ray(jobs: Sequence[Job], fn: Callable[[Job], list[dict]], address: str,
+             workers: int | None = None) -> Iterator[list[dict]]:
+    """Ray: one long-lived actor per worker slot; `address` is 'auto', 'local' or HOST:PORT."""
+    try:
+        import ray
+        from ray.util import ActorPool
+    except ImportError:
+        raise ShelfpickError("--ray needs the 'ray' package: pip install 'shelfpick[distributed]'") from None
+    started = False
+    if not ray.is_initialized():
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        if address == "local":
+            kwargs["num_cpus"] = workers or os.cpu_count() or 1
+        else:
+            kwargs["address"] = address
+        # workers import the project from the driver's working directory
+        kwargs["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join(
+            [str(Path(__file__).resolve().parent.parent)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}}
+        try:
+            ray.init(**kwargs)
+        except ConnectionError as exc:
+            raise ShelfpickError(f"--ray {address}: cannot connect to a Ray cluster ({exc})") from None
+        started = True
+    try:
+        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+        @ray.remote(num_cpus=1)
+        class _Worker:
+            def run(self, job: Job) -> list[dict]:
+                rec = fn(job)
+                return rec
+
+        actors = [_Worker.remote() for _ in range(min(n, max(1, len(jobs))))]
+        pool = ActorPool(actors)
+        order = sorted(jobs, key=lambda j: -len(j.targets))
+        yield from pool.map_unordered(lambda a, j: a.run.remote(j), order)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+# --------------------------------------------------------------------------
+def run_bench(scenes_dir: str | Path, out: str | Path, config: BenchConfig, *,
+              workers: int = 1, ray_address: str | None = None, limit: int | None = None,
+              fn: Callable[[Job], list[dict]] = run_scene, progress: bool = True) -> dict:
+    """Run (or continue) the benchmark; write records, results.json/.md and a plot; return the summary."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    check_meta(out, config, scenes_dir)
+    rec_path = out / RECORDS
+    done = {r["key"] for r in read_records(rec_path)}
+    jobs = load_jobs(scenes_dir, config, limit, done)
+    total = count_tasks(scenes_dir, limit)
+    pending = sum(len(j.targets) for j in jobs)
+    log = RecordLog(rec_path)
+    t0 = time.perf_counter()
+    try:
+        if ray_address:
+            it = iter_ray(jobs, fn, ray_address, workers if workers > 1 else None)
+        elif workers > 1:
+            it = iter_workers(jobs, fn, workers)
+        else:
+            it = iter_serial(jobs, fn)
+        with tqdm(total=total, initial=total - pending, desc="bench", unit="task",
+                  disable=not progress) as bar:
+            for recs in it:
+                log.write(recs)
+                bar.update(len(recs))
+    finally:
+        log.close()
+    wall = time.perf_counter() - t0
+    records = read_records(rec_path)
+    summary = summarize(records, config)
+    summary["run"] = {"tasks": len(records), "new_tasks": pending, "wall_s": round(wall, 3),
+                      "throughput_tasks_per_s": round(pending / wall, 4) if pending and wall > 0 else None,
+                      "mode": f"ray:{ray_address}" if ray_address else (f"workers:{workers}" if workers > 1 else "serial")}
+    write_reports(out, summary)
+    return summary
+
+
+# --------------------------------------------------------------------------
+# the report
+def _pct(values: Sequence[float], q: float) -> float | None:
+    if not values:
+        return None
+    v = sorted(values)
+    k = (len(v) - 1) * q
+    lo, hi = math.floor(k), math.ceil(k)
+    return v[lo] + (v[hi] - v[lo]) * (k - lo)
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
+    """Per planner and kind (and 'all'): success, removals, robot time, planning time, displacement."""
+    kinds = sorted({r["kind"] for r in records})
+    groups = {k: [r for r in records if r["kind"] == k] for k in kinds}
+    if len(kinds) > 1:
+        groups["all"] = list(records)
+    table: dict[str, dict[str, dict]] = {}
+    for kind, recs in groups.items():
+        table[kind] = {}
+        for planner in config.planners:
+            rows = [r["planners"][planner] for r in recs if planner in r.get("planners", {})]
+            if not rows:
+                continue
+            removed = [p["removed"] for p in rows]
+            table[kind][planner] = {
+                "tasks": len(rows),
+                "success_rate": sum(p["ok"] for p in rows) / len(rows),
+                "mean_removed": _mean(removed),
+                "mean_exec_time_s": _mean([n * config.robot_time for n in removed]),
+                "plan_p50_s": _pct([p["plan_s"] for p in rows], 0.5),
+                "plan_p90_s": _pct([p["plan_s"] for p in rows], 0.9),
+                "mean_disp_per_step_m": _mean([p["mean_disp"] for p in rows]),
+            }
+        pa, bh = table[kind].get("physics"), table[kind].get("heuristic")
+        if pa and bh:
+            t_pa, t_bh = pa["mean_exec_time_s"], bh["mean_exec_time_s"]
+            table[kind]["relative"] = {
+                "success_rate_ratio": (pa["success_rate"] / bh["success_rate"]) if bh["success_rate"] else None,
+                "success_rate_gain": pa["success_rate"] - bh["success_rate"],
+                "efficiency": (t_bh - t_pa) / t_pa if t_pa else None,
+            }
+    # exhaustive ground truth on small scenes
+    small = [r for r in records if r.get("exhaustive")]
+    exh: dict[str, Any] = {"tasks": len(small), "max_boxes": config.exhaustive_max_boxes}
+    if small:
+        feas = [r for r in small if r["exhaustive"]["feasible"]]
+        exh["feasible_rate"] = len(feas) / len(small)
+        exh["feasible_tasks"] = len(feas)
+        for planner in config.planners:
+            rows = [r for r in feas if planner in r["planners"]]
+            if not rows:
+                continue
+            ok = [r for r in rows if r["planners"][planner]["ok"]]
+            exh[planner] = {
+                "success_rate_on_feasible": len(ok) / len(rows),
+                "mean_gap_removals": _mean([r["planners"][planner]["removed"] - r["exhaustive"]["min_removals"]
+                                            for r in ok]),
+                "optimal_rate": (sum(r["planners"][planner]["removed"] == r["exhaustive"]["min_removals"]
+                                     for r in ok) / len(ok)) if ok else None,
+            }
+    return {"format": "shelfpick.bench-results/1", "config": config.to_json(), "table": table,
+            "exhaustive": exh, "scenes": len({r["scene"] for r in records}), "tasks": len(records)}
+
+
+def _f(v: Any, fmt: str = "{:.2f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def to_markdown(summary: dict) -> str:
+    cfg = summary["config"]
+    lines = [f"# shelfpick bench: {summary['scenes']} scenes, {summary['tasks']} tasks",
+             "",
+             f"planners {', '.join(cfg['planners'])}; {cfg['samples']} depth samples; seed {cfg['seed']}; "
+             f"robot time {cfg['robot_time']} s per removed box. Plans made with depths hidden, executed on the true scene.",
+             "",
+             "| kind | planner | tasks | success | boxes removed | exec time (s) | plan p50 (s) | plan p90 (s) | displacement/step (mm) |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for kind, rows in summary["table"].items():
+        for planner, r in rows.items():
+            if planner == "relative":
+                continue
+            lines.append(f"| {kind} | {planner} | {r['tasks']} | {_f(r['success_rate'] * 100, '{:.1f}%')} | "
+                         f"{_f(r['mean_removed'])} | {_f(r['mean_exec_time_s'], '{:.1f}')} | "
+                         f"{_f(r['plan_p50_s'], '{:.3f}')} | {_f(r['plan_p90_s'], '{:.3f}')} | "
+                         f"{_f(None if r['mean_disp_per_step_m'] is None else r['mean_disp_per_step_m'] * 1000, '{:.1f}')} |")
+    rel = [(k, v["relative"]) for k, v in summary["table"].items() if "relative" in v]
+    if rel:
+        lines += ["", "Physics-aware relative to the height heuristic (efficiency = (T_bh - T_pa) / T_pa):", "",
+                  "| kind | success physics - heuristic | success ratio | efficiency |", "|---|---:|---:|---:|"]
+        for k, r in rel:
+            lines.append(f"| {k} | {_f(r['success_rate_gain'] * 100, '{:+.1f} pp')} | "
+                         f"{_f(r['success_rate_ratio'], '{:.2f}x')} | {_f(r['efficiency'] * 100 if r['efficiency'] is not None else None, '{:+.1f}%')} |")
+    e = summary["exhaustive"]
+    if e.get("tasks"):
+        lines += ["", f"Exhaustive search on the true scene (scenes of <= {e['max_boxes']} boxes, {e['tasks']} tasks): "
+                  f"a collapse-free order exists for {_f(e['feasible_rate'] * 100, '{:.1f}%')} ({e['feasible_tasks']} tasks).", "",
+                  "| planner | success on feasible tasks | mean gap to the minimum (successes) | optimal |",
+                  "|---|---:|---:|---:|"]
+        for p in cfg["planners"]:
+            if p in e:
+                r = e[p]
+                lines.append(f"| {p} | {_f(r['success_rate_on_feasible'] * 100, '{:.1f}%')} | "
+                             f"{_f(r['mean_gap_removals'])} | {_f(None if r['optimal_rate'] is None else r['optimal_rate'] * 100, '{:.1f}%')} |")
+    run = summary.get("run")
+    if run:
+        lines += ["", f"Run: {run['mode']}, {run['new_tasks']} new tasks in {run['wall_s']} s "
+                  f"({_f(run['throughput_tasks_per_s'], '{:.3f}')} tasks/s); {run['tasks']} tasks in total."]
+    return "\n".join(lines) + "\n"
+
+
+def plot(summary: dict, path: str | Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    table = summary["table"]
+    kinds = list(table)
+    planners = summary["config"]["planners"]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    metrics = [("success_rate", "success rate", 100.0), ("mean_removed", "boxes removed", 1.0),
+               ("plan_p50_s", "planning time p50 (s)", 1.0)]
+    width = 0.8 / max(1, len(planners))
+    for ax, (key, label, scale) in zip(axes, metrics):
+        for i, p in enumerate(planners):
+            vals = [(table[k].get(p, {}).get(key) or 0.0) * scale for k in kinds]
+            xs = [j + (i - (len(planners) - 1) / 2) * width for j in range(len(kinds))]
+            ax.bar(xs, vals, width, label=p)
+        ax.set_xticks(range(len(kinds)), kinds)
+        ax.set_title(label)
+    axes[0].set_ylim(0, 100)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_reports(out: Path, summary: dict) -> None:
+    from perception.scene import write_json
+
+    write_json(out / "results.json", summary)
+    (out / "results.md").write_text(to_markdown(summary), encoding="utf-8")
+    plot(summary, out / "results.png")
+
+
+def comparable(records: Iterable[dict]) -> list[dict]:
+    """Records without the machine's timings, sorted by key: equal for serial, workers and Ray."""
+    def strip(r: dict) -> dict:
+        r = {k: v for k, v in r.items() if k not in TIMING_KEYS}
+        r["planners"] = {p: {k: v for k, v in d.items() if k not in TIMING_KEYS}
+                         for p, d in r.get("planners", {}).items()}
+        return r
+    return sorted((strip(r) for r in records), key=lambda r: r["key"])
