@@ -523,9 +523,11 @@ class ConsoleApp:
                                         show_share_button=False, dark_mode=False)
         self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("+z")
+        # shadows cost a lot in software WebGL (browsers without a GPU) and add nothing here
+        self.server.scene.configure_default_lights(True, cast_shadow=False)
         cam = self.server.initial_camera
-        cam.position = (0.9, -2.4, 1.3)
-        cam.look_at = (0.0, 0.15, 0.6)
+        cam.position = (0.7, -2.0, 1.1)
+        cam.look_at = (0.0, 0.15, 0.55)
         cam.up = (0.0, 0.0, 1.0)
         self.views: dict[int, ClientView] = {}
         self._views_lock = threading.Lock()

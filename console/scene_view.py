@@ -54,7 +54,8 @@ def draw_camera(scene_api: Any, camera: Any, image: np.ndarray | None = None,
     """The camera frustum at its pose in the shelf frame (OpenCV convention, like viser's)."""
     fov = 2.0 * math.atan2(camera.height / 2.0, camera.fy)
     return scene_api.add_camera_frustum(name, fov=fov, aspect=camera.width / camera.height,
-                                        scale=0.15, color=(40, 40, 40), image=image,
+                                        scale=0.1, thickness=0.004, color=(40, 40, 40), image=image,
+                                        cast_shadow=False, receive_shadow=False,
                                         wxyz=tuple(camera.orientation),
                                         position=tuple(camera.position))
 
@@ -76,7 +77,8 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
     for b in scene.boxes:
         base = f"{prefix}/{b.id}"
         handle = scene_api.add_box(base, color=colors[b.id], dimensions=tuple(b.size),
-                                   position=tuple(b.position), wxyz=tuple(b.orientation))
+                                   position=tuple(b.position), wxyz=tuple(b.orientation),
+                                   cast_shadow=False, receive_shadow=False)
         # children follow the parent's pose during the preview animation
         label = scene_api.add_label(f"{base}/label", b.id, position=(0.0, 0.0, b.size[2] / 2 + 0.03),
                                     anchor="bottom-center", font_screen_scale=1.1)

@@ -1,0 +1,233 @@
+"""End to end in a real headless Chromium (Debian's /usr/bin/chromium driven by playwright).
+
+The console runs in-process on a free port with the built-in demo shelf,
+real perception, both planners (2 depth samples), the simulated robot and a
+SQLite file. The tests click what a person clicks: a box in the 3D view,
+`Plan extraction`, `Approve`, `Replay`; a second test has an operator and a
+supervisor in two browser contexts.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.browser
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+PASS = "correct horse"
+README_DIR = Path(__file__).resolve().parents[2] / "static" / "readme"
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    assert Path(CHROMIUM).exists(), f"{CHROMIUM} missing: apt-get install -y chromium"
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        yield b
+        b.close()
+
+
+def small_shelf():
+    """Two boxes stacked on the left (taking the bottom one needs the top one out first), one alone."""
+    from perception.render import default_camera
+    from perception.scene import Box, Scene, Shelf
+
+    return Scene(Shelf(), (Box("b0", (0.31, 0.25, 0.23), (-0.25, 0.13, 0.115)),
+                           Box("b1", (0.20, 0.20, 0.20), (-0.25, 0.11, 0.33)),
+                           Box("b2", (0.20, 0.20, 0.20), (0.20, 0.10, 0.10))), default_camera())
+
+
+@pytest.fixture
+def console(tmp_path):
+    from console.app import ConsoleApp
+    from console.robot import open_robot
+    from console.sources import DemoSource
+    from console.store import SessionStore
+    from console.workflow import Workflow
+
+    store = SessionStore(tmp_path / "sessions.sqlite")
+    wf = Workflow(DemoSource([("small", small_shelf())], seed=2), store,
+                  lambda truth, seed: open_robot("sim", truth=truth, seed=seed), PASS, samples=2, seed=0)
+    app = ConsoleApp(wf, port=0)
+    yield app, wf, store
+    app.stop()
+    store.close()
+
+
+T0 = [time.monotonic()]
+
+
+def mark(what: str) -> None:
+    print(f"[{time.monotonic() - T0[0]:6.1f} s] {what}", flush=True)
+
+
+def until(cond, timeout: float = 30.0, what: str = "condition"):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def wait_text(page, text: str, timeout: float = 30.0) -> None:
+    page.wait_for_function("t => document.body.innerText.includes(t)", arg=text, timeout=timeout * 1000)
+
+
+def open_page(context, app):
+    before = set(app.views)
+    page = context.new_page()
+    page.goto(app.url)
+    page.get_by_role("button", name="Capture").wait_for(timeout=60_000)
+    new = until(lambda: [app.views[c] for c in set(app.views) - before], 30, "client view")
+    return page, new[0]
+
+
+def canvas_box(page) -> dict:
+    """The 3D view: the largest canvas on the page."""
+    boxes = [c.bounding_box() for c in page.locator("canvas").all()]
+    return max((b for b in boxes if b), key=lambda b: b["width"] * b["height"])
+
+
+def click_box_in_3d(page, view, box) -> None:
+    """Point this browser's camera at the box's front face, then click the middle of the 3D view."""
+    fx, fy, fz = box.front_center
+    cam = view.client.camera
+    cam.up_direction = (0.0, 0.0, 1.0)
+    cam.position = (fx, fy - 0.9, fz)   # moves look_at along; set look_at after it
+    cam.look_at = (fx, fy, fz)
+    until(lambda: abs(cam.position[1] - (fy - 0.9)) < 1e-3 and abs(cam.look_at[0] - fx) < 1e-3, 10,
+          "camera update")
+    mark("camera pointed")
+    time.sleep(0.8)  # let the browser render the new view
+    cb = canvas_box(page)
+    x, y = cb["x"] + cb["width"] / 2, cb["y"] + cb["height"] / 2
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.up()
+
+
+def fill_text(page, label: str, value: str) -> None:
+    # viser's <label for> does not point at the input's id: find the input in the label's row
+    field = page.locator(f'xpath=//label[text()="{label}"]/ancestor::div[contains(@class,"mantine-Flex-root")][1]//input')
+    field.fill(value)
+    field.evaluate("e => e.blur()")
+
+
+def bottom_left(scene) -> str:
+    return min((b for b in scene.boxes if b.position[0] < 0), key=lambda b: b.position[2]).id
+
+
+def test_operator_plans_approves_executes_and_replays(browser, console):
+    app, wf, store = console
+    ctx = browser.new_context(viewport={"width": 1000, "height": 680})
+    try:
+        T0[0] = time.monotonic()
+        page, view = open_page(ctx, app)
+        mark("page loaded")
+        page.get_by_role("button", name="Capture").click()
+        st = until(lambda: (wf.state.scene is not None or wf.state.error) and wf.state, 60, "capture")
+        assert st.error is None and st.scene.boxes, st.error
+        target = bottom_left(st.scene)
+        if st.target == target:                       # make the click change something
+            wf.select_target(next(i for i in st.scene.ids if i != target))
+        until(lambda: view.target.value == wf.state.target, 10, "dropdown in step")
+
+        mark("captured")
+        click_box_in_3d(page, view, st.scene.box(target))
+        until(lambda: wf.state.target == target, 15, f"3D click to select {target}")
+        mark("target selected")
+        until(lambda: view.target.value == target, 10, "dropdown follows the click")
+        wait_text(page, f"target {target}")
+
+        mark("selected by 3D click")
+        page.get_by_role("button", name="Plan extraction").click()
+        st = until(lambda: not wf.state.planning and wf.state.plans and wf.state, 90, "plans")
+        assert set(st.plans) == {"physics", "heuristic"}, st.error
+        wait_text(page, "est. execution")
+        for e in st.plans.values():
+            wait_text(page, " → ".join(e.plan.sequence))
+        mark("plans shown")
+        phys = st.plans["physics"]
+        assert phys.plan.sequence[-1] == target
+
+        # preview: play the physics plan; the slider moves through the recorded frames
+        page.get_by_role("button", name="Play").click()
+        until(lambda: int(view.slider.value) > 0, 10, "preview playing")
+        README_DIR.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(README_DIR / "operator.png"))
+
+        page.get_by_role("tab", name="Supervisor").click()
+        fill_text(page, "Passphrase", PASS)
+        until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
+        page.get_by_role("button", name="Approve").click()
+        st = until(lambda: wf.state.robot in ("done", "failed", "stopped") and wf.state, 60, "robot run")
+        assert st.robot == "done", (st.error, st.outcome)
+        assert st.outcome.completed == phys.plan.sequence
+
+        mark("executed")
+        rec = store.load_session(st.session_id)
+        assert [(d["decision"], d["plan_hash"]) for d in rec.decisions] == [("approve", phys.hash)]
+        assert {e["plan_hash"] for e in rec.robot_events} == {phys.hash}
+        assert rec.outcome["ok"] and rec.status == "done"
+
+        page.get_by_role("tab", name="Sessions").click()
+        until(lambda: view.session_pick.value == str(st.session_id), 10, "session listed")
+        page.get_by_role("button", name="Replay").click()
+        wait_text(page, f"Session {st.session_id}")
+        wait_text(page, "Robot outcome vs prediction")
+        wait_text(page, f"approve {phys.hash} by supervisor")
+        mark("replayed")
+    except BaseException:
+        page.screenshot(path="/tmp/scratch/fail.png")
+        raise
+    finally:
+        ctx.close()
+
+
+def test_operator_cannot_approve_supervisor_sees_plan_live(browser, console):
+    app, wf, store = console
+    op_ctx = browser.new_context(viewport={"width": 900, "height": 600})
+    sup_ctx = browser.new_context(viewport={"width": 900, "height": 600})
+    try:
+        op, op_view = open_page(op_ctx, app)
+        sup, sup_view = open_page(sup_ctx, app)
+        op.get_by_role("button", name="Capture").click()
+        st = until(lambda: (wf.state.scene is not None or wf.state.error) and wf.state, 60, "capture")
+        assert st.error is None and st.scene.boxes, st.error
+        op.get_by_role("button", name="Plan clearance").click()
+        st = until(lambda: not wf.state.planning and wf.state.plans and wf.state, 90, "plans")
+        phys = st.plans["physics"]
+        # the supervisor's browser shows the operator's plan without reloading
+        sup.get_by_role("tab", name="Supervisor").click()
+        wait_text(sup, phys.hash)
+
+        # the operator has no passphrase: Approve is refused, nothing reaches the robot
+        op.get_by_role("tab", name="Supervisor").click()
+        fill_text(op, "Passphrase", "let me in")
+        until(lambda: op_view.passphrase.value == "let me in", 10, "operator typed")
+        op.get_by_role("button", name="Approve").click()
+        wait_text(op, "wrong supervisor passphrase")
+        assert wf.state.approved is None and wf.state.robot == "idle"
+        assert sup_view.passphrase.value == ""          # typed text stays in its own browser
+
+        fill_text(sup, "Passphrase", PASS)
+        until(lambda: sup_view.passphrase.value == PASS, 10, "supervisor typed")
+        sup.get_by_role("button", name="Approve").click()
+        st = until(lambda: wf.state.robot in ("done", "failed", "stopped") and wf.state, 60, "robot run")
+        assert st.outcome is not None and st.outcome.completed
+        wait_text(op, "Outcome:")                        # the operator sees the robot's result live
+        rec = store.load_session(st.session_id)
+        assert [d["decision"] for d in rec.decisions] == ["approve"]
+        assert [e["detail"]["reason"] for e in rec.robot_events if e["kind"] == "auth_refused"] \
+            == ["wrong supervisor passphrase"]
+    finally:
+        op_ctx.close()
+        sup_ctx.close()
