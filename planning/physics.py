@@ -43,6 +43,7 @@ class PhysicsConfig:
     rest_velocity: float = 0.02         # m/s, below this a box is at rest
     rest_angular_velocity: float = 0.3  # rad/s
     rest_window: float = 0.1            # s a scene must stay at rest to count as settled
+    monitor_every: int = 2              # steps between looks at the other boxes during a trial
     # verdicts
     collapse_displacement: float = 0.02     # m from the step's start to its end
     collapse_rotation: float = 10.0         # degrees from the step's start to its end

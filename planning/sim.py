@@ -474,6 +474,7 @@ class ShelfSim:
         frames: list[Frame] = []
         frame_every = max(1, int(round(1.0 / (30.0 * dt))))
         rest_need = max(1, int(round(cfg.rest_window / dt)))
+        every = max(1, int(cfg.monitor_every))
 
         pos0, orn0 = p.getBasePositionAndOrientation(body)
         r0 = quat_to_matrix(xyzw_to_wxyz(orn0))
@@ -579,7 +580,8 @@ class ShelfSim:
                 self._step()
                 step += 1
                 pos = place_gripper()
-                monitor()
+                if step % every == 0:
+                    monitor()
                 # contacts of the pulled box and the gripper with other boxes
                 engaged = False
                 for c in p.getContactPoints(bodyA=body):
@@ -621,7 +623,8 @@ class ShelfSim:
             for _ in range(int(math.ceil(cfg.settle_time / dt))):
                 self._step()
                 step += 1
-                calm = calm + 1 if not monitor() else 0
+                if step % every == 0:
+                    calm = calm + every if not monitor() else 0
                 if record and step % frame_every == 0:
                     record_frame(not extracted)
                 if stop_on_collapse and collapse_at:
