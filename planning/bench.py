@@ -347,6 +347,7 @@ def _mean(values: Sequence[float]) -> float | None:
 
 def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
     """Per planner and kind (and 'all'): success, removals, robot time, planning time, displacement."""
+    records = sorted(records, key=lambda r: r["key"])  # same sums in the same order, however it ran
     kinds = sorted({r["kind"] for r in records})
     groups = {k: [r for r in records if r["kind"] == k] for k in kinds}
     if len(kinds) > 1:

@@ -1,0 +1,192 @@
+"""The benchmark's orchestration: same records serially, with workers and on Ray; resume; report formulas."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from perception.scene import Box, Scene, Shelf
+from planning.bench import (BenchConfig, RecordLog, comparable, derive_seed, read_records, run_bench,
+                            summarize, to_markdown)
+
+SHELF = Shelf(1.0, 0.30, 1.60)
+
+
+def _tiny_scene(kind: str, stacked: bool) -> Scene:
+    """Two or three cubes: side by side, or one on top of another (a real collapse risk)."""
+    boxes = [Box("b0", (0.2, 0.2, 0.2), (-0.2, 0.1, 0.1)), Box("b1", (0.2, 0.2, 0.2), (0.2, 0.1, 0.1))]
+    if stacked:
+        boxes.append(Box("b2", (0.2, 0.2, 0.2), (-0.2, 0.1, 0.301)))
+    return Scene(SHELF, tuple(boxes), source={"kind": kind})
+
+
+@pytest.fixture()
+def scenes_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "scenes"
+    d.mkdir()
+    _tiny_scene("structured", True).save(d / "s-a.json")
+    _tiny_scene("unstructured", False).save(d / "u-b.json")
+    return d
+
+
+def fake_job(job) -> list[dict]:
+    """A cheap deterministic stand-in for run_scene: the orchestration is what is tested."""
+    out = []
+    for t in job.targets:
+        s = derive_seed(job.config.seed, job.name, t)
+        out.append({"key": f"{job.name}:{t}", "scene": job.name, "kind": job.doc["source"]["kind"],
+                    "n_boxes": len(job.doc["boxes"]), "target": t, "seed": s,
+                    "planners": {p: {"ok": s % 3 != 0, "removed": 1 + s % 2, "plan_s": 0.01,
+                                     "mean_disp": 0.0, "sequence": [t]} for p in job.config.planners}})
+    return out
+
+
+CFG = BenchConfig(("physics", "heuristic"), samples=2, seed=3, exhaustive_max_boxes=3)
+
+
+def _untimed(table: dict) -> dict:
+    return {k: {p: {m: v for m, v in r.items() if not m.startswith("plan_p")} for p, r in t.items()}
+            for k, t in table.items()}
+
+
+def test_serial_equals_workers_real_planning(scenes_dir: Path, tmp_path: Path) -> None:
+    a = run_bench(scenes_dir, tmp_path / "serial", CFG, progress=False)
+    b = run_bench(scenes_dir, tmp_path / "workers", CFG, workers=2, progress=False)
+    ra, rb = read_records(tmp_path / "serial" / "records.jsonl"), read_records(tmp_path / "workers" / "records.jsonl")
+    assert len(ra) == 5
+    assert comparable(ra) == comparable(rb)
+    assert _untimed(a["table"]) == _untimed(b["table"])
+    # side-by-side cubes: the physics plan takes just the target, and it works on the true scene
+    for r in ra:
+        if r["scene"] == "u-b":
+            assert r["planners"]["physics"]["ok"] and r["planners"]["physics"]["removed"] == 1
+    # exhaustive ground truth ran on these small scenes
+    assert all("exhaustive" in r for r in ra)
+    top = next(r for r in ra if r["key"] == "s-a:b0")  # the box under b2
+    assert top["exhaustive"]["feasible"] and top["exhaustive"]["min_removals"] == 2
+    for f in ("results.md", "results.json", "results.png"):
+        assert (tmp_path / "serial" / f).stat().st_size > 0
+
+
+def test_ray_equals_serial(scenes_dir: Path, tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray")
+    from ray import cloudpickle
+    import sys
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    run_bench(scenes_dir, tmp_path / "serial", CFG, fn=fake_job, progress=False)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        run_bench(scenes_dir, tmp_path / "ray", CFG, fn=fake_job, ray_address="auto", progress=False)
+    finally:
+        ray.shutdown()
+    ra = read_records(tmp_path / "serial" / "records.jsonl")
+    rb = read_records(tmp_path / "ray" / "records.jsonl")
+    assert len(ra) == 5 and comparable(ra) == comparable(rb)
+
+
+@pytest.mark.slow
+def test_ray_equals_serial_real_planning(scenes_dir: Path, tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray")
+    run_bench(scenes_dir, tmp_path / "serial", CFG, progress=False)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        run_bench(scenes_dir, tmp_path / "ray", CFG, ray_address="auto", progress=False)
+    finally:
+        ray.shutdown()
+    assert comparable(read_records(tmp_path / "serial" / "records.jsonl")) == \
+        comparable(read_records(tmp_path / "ray" / "records.jsonl"))
+
+
+def test_resume_skips_done_tasks(scenes_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    run_bench(scenes_dir, out, CFG, fn=fake_job, progress=False, limit=1)
+    first = read_records(out / "records.jsonl")
+    assert {r["scene"] for r in first} == {"s-a"}
+    # a crash mid-write leaves a torn line: it is dropped and the log continues cleanly
+    with open(out / "records.jsonl", "a") as f:
+        f.write('{"key": "u-b:b0", "trunc')
+    calls = []
+
+    def counting(job):
+        calls.append((job.name, job.targets))
+        return fake_job(job)
+
+    s = run_bench(scenes_dir, out, CFG, fn=counting, progress=False)
+    assert calls == [("u-b", ("b0", "b1"))]        # only what was missing
+    lines = (out / "records.jsonl").read_text().splitlines()
+    keys = [json.loads(x)["key"] for x in lines]
+    assert sorted(keys) == sorted(set(keys)) and len(keys) == 5
+    assert s["tasks"] == 5
+    calls.clear()
+    run_bench(scenes_dir, out, CFG, fn=counting, progress=False)
+    assert calls == []
+
+
+def test_rerun_with_other_settings_is_refused(scenes_dir: Path, tmp_path: Path) -> None:
+    from perception.errors import ShelfpickError
+    run_bench(scenes_dir, tmp_path / "o", CFG, fn=fake_job, progress=False, limit=1)
+    with pytest.raises(ShelfpickError, match="another --out"):
+        run_bench(scenes_dir, tmp_path / "o", BenchConfig(samples=5), fn=fake_job, progress=False)
+
+
+def _rec(key, kind, pa, bh, exh=None):
+    r = {"key": key, "scene": key.split(":")[0], "kind": kind, "target": "b0", "n_boxes": 5,
+         "planners": {"physics": {"ok": pa[0], "removed": pa[1], "plan_s": pa[2], "mean_disp": 0.001},
+                      "heuristic": {"ok": bh[0], "removed": bh[1], "plan_s": 0.0, "mean_disp": 0.004}}}
+    if exh is not None:
+        r["exhaustive"] = {"feasible": exh is not False, "min_removals": exh or None}
+    return r
+
+
+def test_report_formulas_on_hand_made_records() -> None:
+    recs = [_rec("a:b0", "structured", (True, 1, 0.1), (True, 3, 0.0), exh=1),
+            _rec("a:b1", "structured", (True, 2, 0.3), (False, 4, 0.0), exh=1),
+            _rec("b:b0", "unstructured", (False, 2, 0.5), (False, 2, 0.0), exh=False),
+            _rec("b:b1", "unstructured", (True, 1, 0.9), (True, 4, 0.0))]
+    s = summarize(recs, BenchConfig(robot_time=10.0))
+    st = s["table"]["structured"]
+    assert st["physics"]["success_rate"] == 1.0 and st["heuristic"]["success_rate"] == 0.5
+    assert st["physics"]["mean_removed"] == 1.5 and st["physics"]["mean_exec_time_s"] == 15.0
+    assert st["heuristic"]["mean_exec_time_s"] == 35.0
+    assert st["relative"]["efficiency"] == pytest.approx((35.0 - 15.0) / 15.0)
+    assert st["physics"]["plan_p50_s"] == pytest.approx(0.2) and st["physics"]["plan_p90_s"] == pytest.approx(0.28)
+    assert st["physics"]["mean_disp_per_step_m"] == pytest.approx(0.001)
+    allk = s["table"]["all"]
+    assert allk["physics"]["tasks"] == 4 and allk["physics"]["success_rate"] == 0.75
+    e = s["exhaustive"]
+    assert e["tasks"] == 3 and e["feasible_tasks"] == 2
+    assert e["physics"]["success_rate_on_feasible"] == 1.0
+    assert e["physics"]["mean_gap_removals"] == pytest.approx(0.5)   # (1-1 + 2-1) / 2
+    assert e["heuristic"]["success_rate_on_feasible"] == 0.5
+    md = to_markdown(s)
+    assert "| structured | physics | 2 | 100.0% | 1.50 | 15.0 |" in md
+    assert "+133.3%" in md
+
+
+def test_record_log_cuts_torn_line(tmp_path: Path) -> None:
+    p = tmp_path / "r.jsonl"
+    p.write_text('{"key": "x:b0"}\n{"key": "x:b1", "pla')
+    log = RecordLog(p)
+    log.write([{"key": "x:b2"}])
+    log.close()
+    assert [r["key"] for r in read_records(p)] == ["x:b0", "x:b2"]
+
+
+def test_seeds_do_not_depend_on_order() -> None:
+    assert derive_seed(0, "s", "b1") == derive_seed(0, "s", "b1")
+    assert derive_seed(0, "s", "b1") != derive_seed(1, "s", "b1")
+    assert derive_seed(0, "s", "b1") != derive_seed(0, "s", "b2")
+
+
+def test_bench_cli_bad_input(tmp_path: Path, capsys) -> None:
+    from console.cli import main
+    assert main(["bench", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    assert "not a folder" in capsys.readouterr().err
+    assert main(["bench", str(tmp_path), "--planners", "physics,magic"]) == 2
+    assert "magic" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text('{"format": "shelfpick.scene/1", "shelf": {"width": 1, "depth": 0.3, "height": 1.6}, "boxes": [{"id": "b0", "size": [0, 1, 1], "position": [0, 0.1, 0.1]}]}')
+    assert main(["bench", str(tmp_path), "--out", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.json" in err and "size" in err
