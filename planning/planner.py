@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from typing import TYPE_CHECKING, Any, Callable
 
 from perception.errors import FormatError
@@ -76,6 +77,11 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     if own:
         from planning.predict import Predictor
         predictor = Predictor(scene, samples=samples, seed=seed, config=config)
+        if scene.depth_known:
+            # the predictor keeps its worlds quiet; with known depths its one world
+            # is the scene itself, so what it repaired is worth telling the user
+            for msg in getattr(getattr(predictor, "sims", [None])[0], "repairs", ()):
+                warnings.warn(f"scene repaired: {msg}", stacklevel=2)
     try:
         from planning.clear import search_clear, visit_order
         from planning.extract import CountingOracle, search_extract

@@ -175,3 +175,16 @@ def test_boxes_inside_each_other_are_refused(tmp_path, capsys):
     path = _doc(tmp_path, "overlap.json", boxes=boxes)
     line = _err(capsys, ["plan", str(path), "--target", "a"])
     assert "overlap.json" in line and "'a'" in line and "'b'" in line and "overlap" in line
+
+
+def test_small_overlap_is_repaired_with_a_warning(tmp_path, capsys):
+    # "top" sinks 1 cm into "bot": perception error the physics repairs and reports
+    boxes = [{"id": "bot", "size": [0.2, 0.2, 0.2], "position": [0.0, 0.15, 0.1]},
+             {"id": "top", "size": [0.2, 0.2, 0.2], "position": [0.0, 0.15, 0.29]}]
+    path = _doc(tmp_path, "sunk.json", boxes=boxes)
+    assert main(["plan", str(path), "--target", "bot"]) == 0
+    out = capsys.readouterr()
+    assert Plan.from_json(json.loads(out.out)).sequence == ("top", "bot")
+    warn = [ln for ln in out.err.splitlines() if "scene repaired" in ln]
+    assert warn and all(ln.startswith("shelfpick plan: warning: ") for ln in warn)
+    assert any("'top'" in ln for ln in warn)
