@@ -1,0 +1,84 @@
+"""Synthetic shelves: seeded, in the shelf, no overlaps, supported, settled in physics."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from perception.errors import ShelfpickError
+from perception.scene import Scene
+from planning.shelves import BOX_TYPES, STANDING_LONG, _Placed, generate, layout, obb_overlap
+
+
+def _check_geometry(scene: Scene) -> None:
+    s = scene.shelf
+    sizes = set(BOX_TYPES.values()) | {STANDING_LONG}
+    for b in scene.boxes:
+        assert tuple(round(v, 6) for v in b.size) in sizes
+        cs = b.corners()
+        assert min(c[0] for c in cs) >= -s.width / 2 - 1e-3 and max(c[0] for c in cs) <= s.width / 2 + 1e-3
+        assert max(c[1] for c in cs) <= s.depth + 1e-3          # never behind the back wall
+        assert min(c[2] for c in cs) >= -1e-3
+    for i, a in enumerate(scene.boxes):
+        for b in scene.boxes[i + 1:]:
+            pa = _Placed(a.size, a.position, a.orientation)
+            pb = _Placed(b.size, b.position, b.orientation)
+            assert not obb_overlap(pa, pb, -0.003), (a.id, b.id)   # at most touching (settled contact)
+
+
+@pytest.mark.parametrize("kind", ["structured", "unstructured"])
+def test_generate_is_seeded_settled_and_valid(kind: str) -> None:
+    a = generate(kind, 5)
+    b = generate(kind, 5)
+    assert a.to_json() == b.to_json()
+    assert 8 <= len(a.boxes) <= 14
+    assert a.ids == tuple(f"b{i}" for i in range(len(a.boxes)))
+    assert a.source["kind"] == kind
+    Scene.from_json(a.to_json(), "generated")  # passes the reader's checks
+    _check_geometry(a)
+    # bottom-up ordering: b0 stands on the floor
+    assert min(c[2] for c in a.boxes[0].corners()) < 0.01
+    assert generate(kind, 6).to_json() != a.to_json()
+
+
+def test_structured_front_faces_stick_out_by_different_amounts() -> None:
+    scene = generate("structured", 11, 10)
+    fronts = [b.front_center[1] for b in scene.boxes]
+    assert all(-0.06 <= f <= 0.06 for f in fronts)
+    assert max(fronts) - min(fronts) > 0.02
+    assert all(abs(b.orientation[0]) > 0.999 for b in scene.boxes)  # rows and columns: no turns
+
+
+def test_unstructured_has_turns_and_overhangs() -> None:
+    turned = overhang = 0
+    for seed in range(3):
+        scene = layout("unstructured", seed, 12)
+        turned += sum(abs(b.orientation[3]) > 0.02 for b in scene.boxes)
+        for b in scene.boxes:
+            zb = b.position[2] - b.size[2] / 2
+            if zb < 0.01:
+                continue
+            below = [o for o in scene.boxes if abs(o.top_z - zb) < 0.01]
+            if below and (b.position[0] - b.size[0] / 2 < min(o.position[0] - o.size[0] / 2 for o in below) - 0.02
+                          or b.position[0] + b.size[0] / 2 > max(o.position[0] + o.size[0] / 2 for o in below) + 0.02):
+                overhang += 1
+    assert turned >= 3 and overhang >= 1
+
+
+def test_large_scenes_and_bad_arguments() -> None:
+    scene = generate("structured", 2, 26)
+    assert len(scene.boxes) == 26
+    _check_geometry(scene)
+    with pytest.raises(ShelfpickError, match="kind"):
+        generate("messy", 0)
+    with pytest.raises(ShelfpickError, match="n_boxes"):
+        generate("structured", 0, 0)
+
+
+def test_obb_overlap() -> None:
+    a = _Placed((0.2, 0.2, 0.2), (0.0, 0.1, 0.1), (1.0, 0.0, 0.0, 0.0))
+    b = _Placed((0.2, 0.2, 0.2), (0.205, 0.1, 0.1), (1.0, 0.0, 0.0, 0.0))
+    assert not obb_overlap(a, b)
+    assert obb_overlap(a, b, 0.003)
+    turned = _Placed((0.2, 0.2, 0.2), (0.23, 0.1, 0.1), (math.cos(0.4), 0.0, 0.0, math.sin(0.4)))
+    assert obb_overlap(a, turned)
