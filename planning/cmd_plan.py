@@ -32,10 +32,9 @@ def _warn(msg: str) -> None:
 def run(args: argparse.Namespace) -> int:
     import warnings
 
+    from perception.errors import FormatError, SceneError
     from perception.scene import Scene
     from planning.planner import check_request, make_plan
-
-    from perception.errors import FormatError, SceneError
 
     if args.samples < 1:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
@@ -57,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         _warn(str(w.message))
     search = plan.extra.get("search", {})
     if search.get("timed_out"):
-        _warn(f"the planning budget of {args.budget:g} s ran out; the plan below is the best "
+        _warn(f"the planning budget of {args.budget:g} s ran out; the plan is the best "
               "found so far, not a complete search")
     if not plan.safe:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
@@ -67,7 +66,10 @@ def run(args: argparse.Namespace) -> int:
               f"risk {plan.risk:.2f} (chance that nothing collapses {search.get('success_prob', 0):.2f}): "
               f"step {worst + 1} (pull {step.box}) may move {moved}")
     if args.out:
-        plan.save(args.out)
+        try:
+            plan.save(args.out)
+        except OSError as exc:
+            raise FormatError(args.out, "--out", f"cannot write the plan ({exc.strerror or exc})") from None
         print(f"shelfpick plan: {len(plan.sequence)} step(s) {' -> '.join(plan.sequence) or '(none)'}"
               f"; safe={str(plan.safe).lower()}; wrote {args.out}", file=sys.stderr)
     else:

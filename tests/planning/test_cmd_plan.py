@@ -166,7 +166,7 @@ def test_budget_that_runs_out_says_so(tmp_path, capsys):
     plan = Plan.from_json(json.loads(out.out))
     assert plan.sequence[-1] == "bot"
     assert plan.extra["search"]["timed_out"] is True
-    assert "budget of 1e-09 s ran out" in out.err
+    assert "budget of 1e-09 s ran out" in out.err and "best found so far" in out.err
 
 
 def test_boxes_inside_each_other_are_refused(tmp_path, capsys):
@@ -188,3 +188,11 @@ def test_small_overlap_is_repaired_with_a_warning(tmp_path, capsys):
     warn = [ln for ln in out.err.splitlines() if "scene repaired" in ln]
     assert warn and all(ln.startswith("shelfpick plan: warning: ") for ln in warn)
     assert any("'top'" in ln for ln in warn)
+
+
+def test_unwritable_out_is_one_line(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "free", "--planner", "heuristic",
+                         "--samples", "1", "--out", str(blocker / "plan.json")])
+    assert "--out" in line and "cannot write" in line
