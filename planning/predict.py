@@ -14,6 +14,7 @@ import time
 import warnings
 import zlib
 from collections import Counter
+from dataclasses import replace
 from typing import Sequence
 
 from perception.errors import SceneError
@@ -88,6 +89,104 @@ def _stable_seed(*parts: object) -> int:
     return zlib.crc32(":".join(str(p) for p in parts).encode())
 
 
+def trial_seed(seed: int, sample: int, removed: frozenset[str], box: str) -> int:
+    """The vibration seed of one pull: a pure function of what is pulled where."""
+    return _stable_seed(seed, sample, ",".join(sorted(removed)), box)
+
+
+def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig) -> ShelfSim:
+    """The settled world of one depth sample; an unstable draw is redrawn (deterministically)."""
+    last: Exception | None = None
+    for attempt in range(5):
+        sc = scene if scene.depth_known else sample_depths(scene, seed, sample + 1000 * attempt, config)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                return ShelfSim(sc, config)
+        except SceneError as exc:  # this draw does not stand; draw again
+            last = exc
+            if scene.depth_known:
+                raise
+    raise SceneError(f"no stable depth sample {sample} after 5 draws: {last}")
+
+
+class _Worlds:
+    """Some of the sample worlds (all of them, or one worker's share) and their cached states."""
+
+    def __init__(self, scene: Scene, seed: int, config: PhysicsConfig, indices: Sequence[int]):
+        self.seed = seed
+        self.order = {b: i for i, b in enumerate(scene.ids)}
+        self.sims: dict[int, ShelfSim] = {}
+        try:
+            for i in indices:
+                self.sims[i] = build_sample(scene, seed, i, config)
+        except BaseException:
+            self.close()
+            raise
+        self.states = {i: {frozenset(): sim.snapshot()} for i, sim in self.sims.items()}
+        self.new_states = 0
+
+    def state(self, i: int, removed: frozenset[str]):
+        st = self.states[i]
+        snap = st.get(removed)
+        if snap is None:
+            sim = self.sims[i]
+            sim.restore(st[frozenset()])
+            sim.delete_many(sorted(removed, key=self.order.__getitem__))
+            snap = sim.snapshot()
+            st[removed] = snap
+            self.new_states += 1
+        return snap
+
+    def pull(self, i: int, removed: frozenset[str], box: str) -> StepResult:
+        sim = self.sims[i]
+        sim.restore(self.state(i, removed))
+        return sim.remove(box, seed=trial_seed(self.seed, i, removed, box), stop_on_collapse=True)
+
+    def preview(self, sequence: Sequence[str], i: int) -> list[StepResult]:
+        sim = self.sims[i]
+        removed: frozenset[str] = frozenset()
+        out = []
+        sim.restore(self.states[i][frozenset()])
+        try:
+            for box in sequence:
+                out.append(sim.remove(box, seed=trial_seed(self.seed, i, removed, box), record=True))
+                removed = removed | {box}
+        finally:
+            sim.restore(self.states[i][frozenset()])
+        return out
+
+    def close(self) -> None:
+        for sim in self.sims.values():
+            sim.close()
+        self.sims = {}
+
+
+def _worker(conn, scene: Scene, seed: int, config: PhysicsConfig, indices: list[int]) -> None:
+    """A pool process: owns its share of the sample worlds for the Predictor's lifetime."""
+    try:
+        worlds = _Worlds(scene, seed, config, indices)
+    except BaseException as exc:  # reported to the parent, which raises it
+        conn.send(("error", exc))
+        return
+    conn.send(("ready", {i: sim.scene for i, sim in worlds.sims.items()}))
+    try:
+        while True:
+            msg = conn.recv()
+            if msg[0] == "pull":
+                _, removed, box = msg
+                conn.send(("ok", {i: replace(worlds.pull(i, removed, box), frames=())
+                                  for i in indices}))
+            elif msg[0] == "preview":
+                conn.send(("ok", worlds.preview(msg[1], msg[2])))
+            else:
+                break
+    except (EOFError, KeyboardInterrupt):
+        pass
+    finally:
+        worlds.close()
+
+
 class Predictor:
     """The planners' oracle: `trial(removed, box) -> StepPrediction` over N depth samples.
 
@@ -96,10 +195,13 @@ class Predictor:
     `early_stop_risk` (opt-in): stop sampling a candidate once more than that
     fraction of samples collapsed, because it can no longer be safe; the
     reported collapse_prob is then a lower bound that is already over it.
+    `workers` > 1 (opt-in) spreads the sample worlds over that many processes
+    that live as long as the Predictor; results are identical to `workers=1`.
     """
 
     def __init__(self, scene: Scene, samples: int = 10, seed: int = 0,
-                 config: PhysicsConfig | None = None, *, early_stop_risk: float | None = None):
+                 config: PhysicsConfig | None = None, *, early_stop_risk: float | None = None,
+                 workers: int = 1):
         if samples < 1:
             raise ValueError(f"samples must be >= 1, got {samples}")
         self.config = cfg = config or PhysicsConfig()
@@ -107,55 +209,54 @@ class Predictor:
         self.seed = int(seed)
         self.samples = samples
         self.early_stop_risk = early_stop_risk
-        n_worlds = samples if not scene.depth_known else 1
+        self._n = samples if not scene.depth_known else 1
         self._order = {b: i for i, b in enumerate(scene.ids)}
-        self.sample_scenes: list[Scene] = []
-        self.sims: list[ShelfSim] = []
+        self._local: _Worlds | None = None
+        self._pool: list = []
         t0 = time.perf_counter()
-        try:
-            for i in range(n_worlds):
-                sim = None
-                last: Exception | None = None
-                for attempt in range(5):
-                    sc = sample_depths(scene, self.seed, i + 1000 * attempt, cfg) \
-                        if not scene.depth_known else scene
-                    try:
-                        with warnings.catch_warnings():
-                            warnings.simplefilter("ignore")
-                            sim = ShelfSim(sc, cfg)
-                        break
-                    except SceneError as exc:  # this draw does not stand; draw again
-                        last = exc
-                        if scene.depth_known:
-                            raise
-                if sim is None:
-                    raise SceneError(f"no stable depth sample {i} after 5 draws: {last}")
-                self.sample_scenes.append(sc)
-                self.sims.append(sim)
-        except BaseException:
-            self.close()
-            raise
-        self._states = [{frozenset(): sim.snapshot()} for sim in self.sims]
+        workers = max(1, min(int(workers), self._n))
+        if workers == 1:
+            self._local = _Worlds(scene, self.seed, cfg, range(self._n))
+            self.sample_scenes = [self._local.sims[i].scene for i in range(self._n)]
+        else:
+            self._start_pool(workers)
         self._cache: dict[tuple[frozenset[str], str], StepPrediction] = {}
         self._results: dict[tuple[frozenset[str], str], list[StepResult]] = {}
         self.stats = {"build_s": time.perf_counter() - t0, "trials": 0, "cache_hits": 0,
-                      "pulls": 0, "trial_s": 0.0, "states": 0}
+                      "pulls": 0, "trial_s": 0.0, "workers": workers}
+
+    def _start_pool(self, workers: int) -> None:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        shares = [list(range(k, self._n, workers)) for k in range(workers)]
+        for share in shares:
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_worker, args=(child, self.scene, self.seed, self.config, share),
+                               daemon=True)
+            proc.start()
+            child.close()
+            self._pool.append((proc, parent, share))
+        scenes: dict[int, Scene] = {}
+        try:
+            for _, conn, _ in self._pool:
+                kind, payload = conn.recv()
+                if kind == "error":
+                    raise payload
+                scenes.update(payload)
+        except BaseException:
+            self.close()
+            raise
+        self.sample_scenes = [scenes[i] for i in range(self._n)]
 
     @property
     def worlds(self) -> int:
-        return len(self.sims)
+        return self._n
 
-    def _state(self, i: int, removed: frozenset[str]):
-        st = self._states[i]
-        snap = st.get(removed)
-        if snap is None:
-            sim = self.sims[i]
-            sim.restore(st[frozenset()])
-            sim.delete_many(sorted(removed, key=self._order.__getitem__))
-            snap = sim.snapshot()
-            st[removed] = snap
-            self.stats["states"] += 1
-        return snap
+    @property
+    def sims(self) -> list[ShelfSim]:
+        """The sample worlds of this process (empty when a pool holds them)."""
+        return [self._local.sims[i] for i in range(self._n)] if self._local else []
 
     def trial(self, removed: frozenset[str], box: str) -> StepPrediction:
         """Pull `box` from the scene with `removed` taken away, in every depth sample."""
@@ -169,19 +270,34 @@ class Predictor:
             raise SceneError(f"unknown box id {box!r}; the scene has {', '.join(self.scene.ids)}")
         if box in removed:
             raise ValueError(f"box {box!r} is already removed")
+        for b in removed:
+            if b not in self._order:
+                raise SceneError(f"unknown box id {b!r}; the scene has {', '.join(self.scene.ids)}")
         t0 = time.perf_counter()
-        results: list[StepResult] = []
-        n = len(self.sims)
+        n = self._n
         limit = None if self.early_stop_risk is None else self.early_stop_risk * n
+        results: list[StepResult] = []
         bad = 0
-        for i, sim in enumerate(self.sims):
-            sim.restore(self._state(i, removed))
-            r = sim.remove(box, seed=self._trial_seed(i, removed, box), stop_on_collapse=True)
-            results.append(r)
-            self.stats["pulls"] += 1
-            bad += bool(r.collapsed)
-            if limit is not None and bad > limit:
-                break
+        if self._local is not None:
+            for i in range(n):
+                r = self._local.pull(i, removed, box)
+                results.append(r)
+                self.stats["pulls"] += 1
+                bad += bool(r.collapsed)
+                if limit is not None and bad > limit:
+                    break
+        else:
+            for _, conn, _ in self._pool:
+                conn.send(("pull", removed, box))
+            merged: dict[int, StepResult] = {}
+            for _, conn, _ in self._pool:
+                merged.update(conn.recv()[1])
+            self.stats["pulls"] += n
+            for i in range(n):  # the same prefix the serial loop would have stopped at
+                results.append(merged[i])
+                bad += bool(merged[i].collapsed)
+                if limit is not None and bad > limit:
+                    break
         pred = self._aggregate(box, results, n)
         self._cache[key] = pred
         self._results[key] = results
@@ -195,9 +311,6 @@ class Predictor:
         """The per-sample StepResults behind a cached trial (runs it if needed)."""
         self.trial(removed, box)
         return self._results[(frozenset(removed), box)]
-
-    def _trial_seed(self, sample: int, removed: frozenset[str], box: str) -> int:
-        return _stable_seed(self.seed, sample, ",".join(sorted(removed)), box)
 
     def _aggregate(self, box: str, results: list[StepResult], n: int) -> StepPrediction:
         order = self._order
@@ -219,22 +332,29 @@ class Predictor:
 
     def preview(self, sequence: Sequence[str], sample: int = 0) -> list[StepResult]:
         """Run a whole sequence in one sample world, recording frames (~30 fps of sim time)."""
-        sim = self.sims[sample]
-        removed: frozenset[str] = frozenset()
-        out = []
-        sim.restore(self._states[sample][frozenset()])
-        try:
-            for box in sequence:
-                out.append(sim.remove(box, seed=self._trial_seed(sample, removed, box), record=True))
-                removed = removed | {box}
-        finally:
-            sim.restore(self._states[sample][frozenset()])
-        return out
+        if not 0 <= sample < self._n:
+            raise ValueError(f"sample must be in 0..{self._n - 1}, got {sample}")
+        if self._local is not None:
+            return self._local.preview(sequence, sample)
+        for _, conn, share in self._pool:
+            if sample in share:
+                conn.send(("preview", list(sequence), sample))
+                return conn.recv()[1]
+        raise AssertionError("no worker holds sample")  # pragma: no cover
 
     def close(self) -> None:
-        for sim in getattr(self, "sims", []):
-            sim.close()
-        self.sims = []
+        if getattr(self, "_local", None) is not None:
+            self._local.close()
+            self._local = None
+        for proc, conn, _ in getattr(self, "_pool", []):
+            try:
+                conn.send(("close",))
+            except (OSError, BrokenPipeError):
+                pass
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.terminate()
+        self._pool = []
 
     def __enter__(self) -> "Predictor":
         return self

@@ -101,3 +101,14 @@ def test_bad_calls():
             pred.trial(frozenset({"a"}), "a")
     with pytest.raises(ValueError):
         Predictor(stacked(), samples=0)
+
+
+def test_process_pool_gives_the_same_predictions_as_one_process():
+    scene = stacked().hide_depths()
+    calls = [(frozenset(), "a"), (frozenset(), "c"), (frozenset({"b"}), "a")]
+    with Predictor(scene, samples=3, seed=4) as serial, Predictor(scene, samples=3, seed=4, workers=2) as pool:
+        assert pool.worlds == 3 and pool.sims == [] and pool.stats["workers"] == 2
+        assert [serial.trial(*c) for c in calls] == [pool.trial(*c) for c in calls]
+        assert [r.to_json() for r in serial.results(*calls[0])] == [r.to_json() for r in pool.results(*calls[0])]
+        a, b = serial.preview(["b", "a"], sample=1), pool.preview(["b", "a"], sample=1)
+        assert [s.to_json(frames=True) for s in a] == [s.to_json(frames=True) for s in b]
