@@ -101,7 +101,7 @@ def _matvec(r: list[list[float]], v: tuple) -> tuple[float, float, float]:
 
 
 def _connect(gui: bool):
-    """A BulletClient whose C-level banner ("argv[0]=", build time) stays off stdout.
+    """A BulletClient whose C-level banner ("argv[0]=", build time) stays off stdout/stderr.
 
     `shelfpick simulate` prints JSON on stdout; pybullet's printf would corrupt it.
     """
@@ -109,17 +109,21 @@ def _connect(gui: bool):
     import sys
 
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = (os.dup(1), os.dup(2))
     null = os.open(os.devnull, os.O_WRONLY)
     os.dup2(null, 1)
+    os.dup2(null, 2)   # the "pybullet build time" line goes to stderr on first import
     try:
         import pybullet
         from pybullet_utils.bullet_client import BulletClient
 
         client = BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
     finally:
-        os.dup2(saved, 1)
-        os.close(saved)
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
         os.close(null)
     # BulletClient resolves every call through __getattr__ (a new partial each time);
     # binding the hot ones once saves ~20% of a trial's Python time.
