@@ -56,6 +56,8 @@ class PhysicsConfig:
     collision_threshold: float = 0.005      # m a touched neighbour must move to count
     # scene repair
     repair_tolerance: float = 0.02      # m of overlap repaired; more is refused
+    repair_min_overlap: float = 0.003   # m; shallower overlaps are resting contact, left to Bullet
+    settle_report: float = 0.005        # m a box must move while a new scene settles to be reported
     # shelf model
     shelf_top: bool = True
     wall_thickness: float = 0.05

@@ -134,3 +134,18 @@ def test_unknown_box_and_removed_box():
         sim.delete("c")
         r = sim.remove("c")
         assert not r.extracted and "not on the shelf" in r.note
+
+
+@pytest.mark.parametrize("kind, seed", [("structured", 1), ("unstructured", 2)])
+def test_synthetic_shelves_reload_still_and_unrepaired(kind, seed):
+    """A settled synthetic 10-box shelf, loaded again, needs no repair and does not move."""
+    from planning.shelves import generate
+
+    scene = generate(kind, seed, 10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any repair warning fails the test
+        sim = ShelfSim(scene)
+    poses = sim.poses()
+    assert sim.repairs == ()
+    assert max(math.dist(poses[b.id][0], b.position) for b in scene.boxes) < 0.003
+    sim.close()
