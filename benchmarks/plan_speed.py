@@ -1,0 +1,112 @@
+"""Issue 5's planning-speed benchmark: make_plan time (p50/p90) and plan quality on the true scene.
+
+Groups: extraction on 10-14 box scenes, extraction on 25-30 box scenes, clearance on
+10-14 box scenes; structured and unstructured shelves from the generator; 10 depth
+samples, risk 0; plans made with depths hidden and executed on the true scene.
+Timing is make_plan's wall time including building the Predictor (what an operator waits for).
+
+    .venv/bin/python benchmarks/plan_speed.py --scenes 6 --targets 3 --out bench-speed
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from planning.bench import derive_seed  # noqa: E402
+
+
+def _pct(v: list[float], q: float) -> float:
+    v = sorted(v)
+    k = (len(v) - 1) * q
+    lo = int(k)
+    hi = min(lo + 1, len(v) - 1)
+    return v[lo] + (v[hi] - v[lo]) * (k - lo)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=6, help="scenes per group and kind (default 6)")
+    ap.add_argument("--targets", type=int, default=3, help="extraction targets per scene (default 3)")
+    ap.add_argument("--samples", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--groups", default="extract-10-14,extract-25-30,clear-10-14")
+    ap.add_argument("--out", default="bench-speed")
+    args = ap.parse_args(argv)
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from planning.execute import execute_plan
+    from planning.planner import make_plan
+    from planning.shelves import generate
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    groups = args.groups.split(",")
+    work = []
+    for g in groups:
+        task, lo, hi = g.split("-")[0], int(g.split("-")[1]), int(g.split("-")[2])
+        for kind in ("structured", "unstructured"):
+            for i in range(args.scenes):
+                s = derive_seed(args.seed, g, kind, i)
+                n = int(np.random.default_rng(s).integers(lo, hi + 1))
+                work.append((g, task, kind, s, n))
+    rows = []
+    bar = tqdm(total=len(work), desc="plan speed", unit="scene")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for g, task, kind, s, n in work:
+            try:
+                truth = generate(kind, s, n)
+            except Exception as exc:  # a seed the generator cannot fill: say so, go on
+                rows.append({"group": g, "kind": kind, "seed": s, "error": str(exc)})
+                bar.update()
+                continue
+            hidden = truth.hide_depths()
+            rng = np.random.default_rng([s, 1])
+            targets = ([None] if task == "clear" else
+                       [truth.ids[int(i)] for i in rng.choice(len(truth.ids), min(args.targets, len(truth.ids)), replace=False)])
+            for t in targets:
+                t0 = time.perf_counter()
+                plan = make_plan(hidden, task, t, "physics", args.samples, s, risk=0.0)
+                dt = time.perf_counter() - t0
+                ex = execute_plan(truth, plan.sequence, seed=s)
+                rows.append({"group": g, "kind": kind, "seed": s, "n_boxes": n, "target": t,
+                             "plan_s": dt, "ok": bool(ex.ok), "removed": len(plan.sequence),
+                             "safe": plan.safe})
+            bar.update()
+    bar.close()
+    summary = {}
+    for g in groups:
+        r = [x for x in rows if x["group"] == g and "plan_s" in x]
+        if not r:
+            continue
+        times = [x["plan_s"] for x in r]
+        summary[g] = {"plans": len(r), "p50_s": _pct(times, 0.5), "p90_s": _pct(times, 0.9),
+                      "mean_s": statistics.fmean(times),
+                      "success_rate": sum(x["ok"] for x in r) / len(r),
+                      "mean_removed": statistics.fmean(x["removed"] for x in r),
+                      "skipped_scenes": sum(1 for x in rows if x["group"] == g and "error" in x)}
+    doc = {"config": vars(args), "summary": summary, "rows": rows}
+    (out / "plan_speed.json").write_text(json.dumps(doc, indent=2) + "\n")
+    md = ["| group | plans | p50 (s) | p90 (s) | success on true scene | boxes removed |",
+          "|---|---:|---:|---:|---:|---:|"]
+    for g, v in summary.items():
+        md.append(f"| {g} | {v['plans']} | {v['p50_s']:.2f} | {v['p90_s']:.2f} | "
+                  f"{v['success_rate'] * 100:.1f}% | {v['mean_removed']:.2f} |")
+    text = (f"Planning speed, {args.samples} depth samples, risk 0, seed {args.seed}, "
+            f"{args.scenes} scenes per kind and group\n\n" + "\n".join(md) + "\n")
+    (out / "plan_speed.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
