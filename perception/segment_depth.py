@@ -29,12 +29,18 @@ class DepthEdgeConfig:
     normal_step: int = 3             # px: finite-difference half step for normals
     canny_low: int = 40
     canny_high: int = 110
+    line_extend: int = 14             # px: long straight edges are extended this far (seam gaps)
+    line_min: int = 30               # px: shortest straight edge that is extended
+    line_votes: int = 25
+    chroma_gain: float = 2   # Lab a/b channels scaled by this before their own Canny
     min_face_m2: float = 0.0025      # smallest front face kept (5 x 5 cm)
     min_side_m: float = 0.04         # thinner pieces are tape/edges, not faces
-    colour_merge: float = 14.0       # Lab distance under which two pieces are one box
-    rect_fill: float = 0.86          # a merged piece must fill its min-area rectangle this well
+    colour_merge: float = 11.0       # Lab distance under which two pieces are one box
+    rect_fill: float = 0.65          # a merged piece must fill its min-area rectangle this well
     tape_max_m: float = 0.12         # a tape band is at most this thick ...
     tape_rel: float = 1.25           # ... and at most this fraction of the pieces it joins
+    tape_frac: float = 0.35          # ... at most this fraction of the face across the tape
+    tape_centre: float = 0.3         # ... and its centre this close to the face's (of its size)
     tape_span: float = 0.85          # ... and runs across at least this fraction of the face
     tape_colour: float = 20.0        # Lab distance between the pieces on both sides of a tape
     wall_margin: float = 0.012       # m: points this close to the back wall are the shelf
@@ -125,6 +131,13 @@ class DepthEdgeSegmenter:
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         gray = cv2.GaussianBlur(gray, (3, 3), 0)
         edges = cv2.Canny(gray, cfg.canny_low, cfg.canny_high) > 0
+        # hue seams that grey levels miss (two browns of one brightness)
+        lab8 = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB), (3, 3), 0)
+        for c in (1, 2) if cfg.chroma_gain > 0 else ():
+            ch = np.clip((lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255
+                         ).astype(np.uint8)
+            edges |= cv2.Canny(ch, cfg.canny_low, cfg.canny_high) > 0
+        edges = _extend_lines(edges, fg, cfg)
         edges = cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         core = fg & ~edges
         npiece, piece = cv2.connectedComponents(core.astype(np.uint8), connectivity=4)
@@ -145,9 +158,40 @@ class DepthEdgeSegmenter:
         # ---- merge pieces of one patch with matching colour and a rectangular union
         lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
         # ---- tape: a band (or cross) of another colour between pieces of one colour
-        merged = _merge_tape(assigned, core & keep[piece], lab, mpp, cfg)
-        merged = _merge_pieces(merged, core & keep[piece], patch, lab, cfg)
+        kcore = core & keep[piece]
+        merged = _merge_tape(assigned, kcore, lab, mpp, cfg)
+        merged = _merge_pieces(merged, kcore, patch, lab, cfg)
+        merged = _merge_tape(merged, kcore, lab, mpp, cfg)
         return _finish(merged, mpp, cfg)
+
+
+def _extend_lines(edges: np.ndarray, fg: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
+    """Close the gaps where a seam's Canny line stops short of the face border.
+
+    A seam between two flush boxes is a long straight line; Canny often leaves a
+    few pixels open where it meets the depth boundary (a T junction), and one open
+    pixel joins two boxes into one piece. Long straight segments are drawn again,
+    extended by `line_extend` px at both ends, but only over foreground.
+    """
+    import cv2
+
+    if cfg.line_extend <= 0:
+        return edges
+    lines = cv2.HoughLinesP(edges.astype(np.uint8) * 255, 1, np.pi / 180, cfg.line_votes,
+                            minLineLength=cfg.line_min, maxLineGap=3)
+    if lines is None:
+        return edges
+    extra = np.zeros(edges.shape, np.uint8)
+    for x1, y1, x2, y2 in lines.reshape(-1, 4).astype(float):
+        d = np.hypot(x2 - x1, y2 - y1)
+        if d < 1:
+            continue
+        ux, uy = (x2 - x1) / d, (y2 - y1) / d
+        e = cfg.line_extend
+        p1 = (int(round(x1 - ux * e)), int(round(y1 - uy * e)))
+        p2 = (int(round(x2 + ux * e)), int(round(y2 + uy * e)))
+        cv2.line(extra, p1, p2, 1, 1)
+    return edges | ((extra > 0) & fg)
 
 
 def _rot(camera: Camera):
@@ -273,12 +317,16 @@ def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.n
         return labels
     idx = np.arange(1, n + 1)
     # thickness: twice the largest distance to another label or the background, in metres
-    border = np.zeros(labels.shape, bool)
-    border[:, 1:] |= labels[:, 1:] != labels[:, :-1]
-    border[:, :-1] |= labels[:, 1:] != labels[:, :-1]
-    border[1:, :] |= labels[1:, :] != labels[:-1, :]
-    border[:-1, :] |= labels[1:, :] != labels[:-1, :]
-    inner = (labels > 0) & ~border
+    # (depth holes inside a face are not borders: close them first)
+    fgl = labels > 0
+    filled = cv2.morphologyEx(fgl.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
+    border = ~filled
+    for a, b, sl_a, sl_b in ((labels[:, 1:], labels[:, :-1], np.s_[:, 1:], np.s_[:, :-1]),
+                             (labels[1:, :], labels[:-1, :], np.s_[1:, :], np.s_[:-1, :])):
+        diff = (a != b) & (a > 0) & (b > 0)
+        border[sl_a] |= diff
+        border[sl_b] |= diff
+    inner = ~border
     dist = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
     # 90th percentile, not the maximum: the centre of a tape cross is wider than its arms
     thick = 2 * np.asarray(ndimage.labeled_comprehension(
@@ -316,11 +364,22 @@ def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.n
                 break
         if best is None:
             continue
-        union = np.isin(labels, [p] + best)
-        if _DEBUG:
-            print('  try', best, round(_rect_fill(union), 3))
-        if _rect_fill(union) < cfg.rect_fill or not _spans(labels == p, union, cfg.tape_span):
+        # the pieces along the tape's long sides first (not one it only touches with its end)
+        side = [q for q in best if contacts[(min(p, q), max(p, q))]
+                >= 0.3 * max(contacts[(min(p, r), max(p, r))] for r in best)]
+        ok = None
+        for group in ([side, best] if len(side) >= 2 and len(side) < len(best) else [best]):
+            union = np.isin(labels, [p] + group)
+            if _DEBUG:
+                print('  try', group, round(_rect_fill(union), 3))
+            if _rect_fill(union) >= cfg.rect_fill and _spans(
+                    labels == p, union, cfg.tape_span, thick[p - 1] / max(float(np.median(mpp[union])), 1e-6),
+                    cfg.tape_frac, cfg.tape_centre):
+                ok = group
+                break
+        if ok is None:
             continue
+        best = ok
         for q in best:
             lut[q] = p
             done.add(q)
@@ -328,9 +387,19 @@ def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.n
     return lut[labels]
 
 
-def _spans(piece: np.ndarray, union: np.ndarray, frac: float) -> bool:
-    """Whether `piece` reaches across `union` along one of the piece's rectangle axes
-    (a tape runs from one edge of the face to the other; a strip of another box does not)."""
+def _short_side_m(mask: np.ndarray, mpp: np.ndarray) -> float:
+    import cv2
+
+    pts = cv2.findNonZero(mask.astype(np.uint8))
+    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
+    return float(min(rw, rh)) * float(np.median(mpp[mask]))
+
+
+def _spans(piece: np.ndarray, union: np.ndarray, frac: float, thick_px: float = 0.0,
+           max_rel: float = 1.0, centre_tol: float = 1.0) -> bool:
+    """Whether `piece` looks like tape on the face `union`: it runs across the face along one
+    of its rectangle axes (>= `frac` of the face), is thin across that axis (<= `max_rel` of the
+    face) and lies near the middle of the face (tape closes the flaps' centre seam)."""
     import cv2
 
     pts = cv2.findNonZero(piece.astype(np.uint8))
@@ -339,24 +408,40 @@ def _spans(piece: np.ndarray, union: np.ndarray, frac: float) -> bool:
         return False
     (_, _), (_, _), ang = cv2.minAreaRect(pts)
     a = np.deg2rad(ang)
-    for ax in (np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])):
+    axes = (np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)]))
+    ext = []
+    for ax in axes:
         pp = pts.reshape(-1, 2) @ ax
         uu = upts.reshape(-1, 2) @ ax
-        pe = np.percentile(pp, 99) - np.percentile(pp, 1)
-        ue = np.percentile(uu, 99) - np.percentile(uu, 1)
-        if ue > 0 and pe >= frac * ue:
+        ext.append((np.percentile(pp, 1), np.percentile(pp, 99), np.percentile(uu, 1), np.percentile(uu, 99)))
+    for i in (0, 1):
+        p0, p1, u0, u1 = ext[i]
+        if u1 - u0 <= 0 or p1 - p0 < frac * (u1 - u0):
+            continue
+        q0, q1, v0, v1 = ext[1 - i]
+        if v1 - v0 <= 0:
+            continue
+        width = min(q1 - q0, thick_px) if thick_px > 0 else q1 - q0
+        centre = abs(0.5 * (q0 + q1) - 0.5 * (v0 + v1)) / (v1 - v0)
+        if _DEBUG:
+            print('    span axis', i, 'width rel', round(width / (v1 - v0), 3), 'centre', round(centre, 3))
+        if width <= max_rel * (v1 - v0) and centre <= centre_tol:
             return True
     return False
 
 
 def _rect_fill(mask: np.ndarray) -> float:
+    """Fraction of the min-area rectangle the mask covers (depth holes inside it closed)."""
     import cv2
 
     pts = cv2.findNonZero(mask.astype(np.uint8))
     if pts is None:
         return 0.0
+    x, y, w, h = cv2.boundingRect(pts)
+    sub = mask[y:y + h, x:x + w].astype(np.uint8)
+    sub = cv2.morphologyEx(np.pad(sub, 2), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
-    return float(mask.sum()) / max((rw + 1) * (rh + 1), 1.0)
+    return float(sub.sum()) / max((rw + 1) * (rh + 1), 1.0)
 
 
 def _finish(merged: np.ndarray, mpp: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
