@@ -14,6 +14,9 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from perception.errors import FormatError
 from perception.scene import Scene
+from planning.clear import search_clear, visit_order
+from planning.extract import CountingOracle, search_extract, success_prob
+from planning.heuristic import heuristic_order
 from planning.plan import TASKS, Plan, StepPrediction
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -77,16 +80,12 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     if own:
         from planning.predict import Predictor
         predictor = Predictor(scene, samples=samples, seed=seed, config=config)
-        if scene.depth_known:
+    try:
+        if own and scene.depth_known:
             # the predictor keeps its worlds quiet; with known depths its one world
             # is the scene itself, so what it repaired is worth telling the user
             for msg in getattr(getattr(predictor, "sims", [None])[0], "repairs", ()):
                 warnings.warn(f"scene repaired: {msg}", stacklevel=2)
-    try:
-        from planning.clear import search_clear, visit_order
-        from planning.extract import CountingOracle, search_extract
-        from planning.heuristic import heuristic_order
-
         t_ready = time.perf_counter()
         oracle = CountingOracle(predictor.trial)
         if planner == "heuristic":
@@ -112,7 +111,6 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         if own:
             predictor.close()  # type: ignore[union-attr]
     safe = all(p.risk <= risk for p in predicted)
-    from planning.extract import success_prob
     search["success_prob"] = success_prob(predicted)
     return Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed,
                 {"search": search})
