@@ -525,6 +525,12 @@ class ConsoleApp:
         self.server.scene.set_up_direction("+z")
         # shadows cost a lot in software WebGL (browsers without a GPU) and add nothing here
         self.server.scene.configure_default_lights(True, cast_shadow=False)
+        # no HDRI environment: building it takes ~15 s in software WebGL at the first mesh
+        self.server.scene.configure_environment_map(None)
+        self.server.scene.add_light_ambient("/lights/ambient", intensity=1.2)
+        # three.js directional lights shine from their position towards the origin: from the front
+        self.server.scene.add_light_directional("/lights/front", intensity=1.5, cast_shadow=False,
+                                                position=(0.6, -2.0, 1.6))
         cam = self.server.initial_camera
         cam.position = (0.7, -2.0, 1.1)
         cam.look_at = (0.0, 0.15, 0.55)
