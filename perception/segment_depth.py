@@ -37,7 +37,7 @@ class DepthEdgeConfig:
     min_side_m: float = 0.04         # thinner pieces are tape/edges, not faces
     colour_merge: float = 11.0       # Lab distance under which two pieces are one box
     rect_fill: float = 0.65          # a merged piece must fill its min-area rectangle this well
-    tape_max_m: float = 0.12         # a tape band is at most this thick ...
+    tape_max_m: float = 0.09         # a tape band is at most this thick ...
     tape_rel: float = 1.25           # ... and at most this fraction of the pieces it joins
     tape_frac: float = 0.35          # ... at most this fraction of the face across the tape
     tape_centre: float = 0.3         # ... and its centre this close to the face's (of its size)
