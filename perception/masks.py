@@ -149,17 +149,36 @@ def from_label_image(labels: np.ndarray) -> list[np.ndarray]:
     return [labels == k for k in np.unique(labels) if k > 0]
 
 
+def _box(mask: np.ndarray, pad: int = 3) -> tuple[slice, slice] | None:
+    ys = np.flatnonzero(mask.any(axis=1))
+    if len(ys) == 0:
+        return None
+    xs = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    return (slice(max(0, ys[0] - pad), min(h, ys[-1] + pad + 1)),
+            slice(max(0, xs[0] - pad), min(w, xs[-1] + pad + 1)))
+
+
 def refine(masks: list[np.ndarray], depth: np.ndarray | None, min_pixels: int = 200,
            min_gap: float = 0.03) -> list[np.ndarray]:
-    """The full clean-up every segmenter's output goes through."""
+    """The full clean-up every segmenter's output goes through (each mask worked on in its
+    bounding box: the same result as on the full frame, several times faster)."""
     out: list[np.ndarray] = []
     for m in masks:
-        c = clean_mask(m, min_pixels)
-        if not c.any():
+        sl = _box(np.asarray(m, bool))
+        if sl is None:
             continue
-        out.extend(split_by_depth(c, depth, min_gap=min_gap, min_pixels=min_pixels))
-    out = [clean_mask(m, min_pixels, open_px=0) for m in out]
-    return dedupe([m for m in out if m.any()], min_pixels=min_pixels)
+        sub = clean_mask(m[sl], min_pixels)
+        if not sub.any():
+            continue
+        dsub = depth[sl] if depth is not None else None
+        for part in split_by_depth(sub, dsub, min_gap=min_gap, min_pixels=min_pixels):
+            part = clean_mask(part, min_pixels, open_px=0)
+            if part.any():
+                full = np.zeros(m.shape, bool)
+                full[sl] = part
+                out.append(full)
+    return dedupe(out, min_pixels=min_pixels)
 
 
 def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, steps: int = 6,
