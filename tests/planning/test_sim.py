@@ -149,3 +149,22 @@ def test_synthetic_shelves_reload_still_and_unrepaired(kind, seed):
     assert sim.repairs == ()
     assert max(math.dist(poses[b.id][0], b.position) for b in scene.boxes) < 0.003
     sim.close()
+
+
+def test_a_recycled_bullet_client_gives_bit_identical_results():
+    """A closed ShelfSim's client is reset and reused (connect costs ~25 ms); nothing may leak."""
+    from planning import sim as simmod
+
+    scene = grid(3, 3)
+    simmod._IDLE.clear()
+    with quiet(scene) as fresh:
+        r1 = fresh.remove("b4", seed=3)
+        first = fresh._p
+    other = PhysicsConfig(time_step=1 / 240, solver_iterations=10)
+    with quiet(column(), other) as dirty:   # reuses the client with other parameters, then returns it
+        assert dirty._p is first
+        dirty.remove("c5")
+    with quiet(scene) as again:
+        assert again._p is first
+        r2 = again.remove("b4", seed=3)
+    assert r1 == r2
