@@ -213,3 +213,27 @@ def test_locked_database_is_a_message_not_a_crash(make_wf, tmp_path):
         other.close()
     st = wf.capture()
     assert st.error is None and st.session_id is not None
+
+
+@pytest.mark.parametrize("fault", ["drop_after", "refuse_steps"])
+def test_tcp_robot_disconnect_or_refusal_is_recorded(make_wf, fault):
+    """A real robot-side TCP server that drops the connection after one step / refuses step 2."""
+    from console.robot import open_robot
+    from console.robot_controller import RobotController
+
+    kw = {"drop_after": 1} if fault == "drop_after" else {"refuse_steps": [1]}
+    with RobotController(**kw).start() as ctl:
+        wf = make_wf(robot=lambda truth, seed: open_robot(ctl.url, truth=truth, seed=seed))
+        st = planned(wf, "clear")
+        phys = st.plans["physics"]
+        wf.approve(phys.hash, PASS, "sue")
+        st = wf.execute(wait=True)
+    assert st.robot == "failed" and st.needs_recapture and st.error.startswith("robot:")
+    assert st.outcome.completed == phys.plan.sequence[:1]          # step 1 done, nothing after
+    rec = wf.store.load_session(st.session_id)
+    kinds = [e["kind"] for e in rec.robot_events]
+    assert kinds.count("done") == 1
+    assert ("disconnected" if fault == "drop_after" else "error") in kinds
+    assert rec.outcome["completed"] == list(phys.plan.sequence[:1]) and not rec.outcome["ok"]
+    sent = [m for m in ctl.received("step")] if hasattr(ctl, "received") else []
+    assert len({m.get("step") for m in sent}) <= 2                  # never past the failing step
