@@ -35,7 +35,8 @@ BOX_TYPES: dict[str, tuple[float, float, float]] = {
 }
 STANDING_LONG = (0.17, 0.17, 0.50)
 
-MAX_BOXES = 40
+MAX_BOXES = 30
+DENSE_FROM = 16                      # unstructured scenes above this size: turned, shifted columns
 FRONT_MIN, FRONT_MAX = -0.05, 0.05   # y of the front face (boxes stick out up to 5 cm)
 GAP = 0.004                          # clearance kept between placed boxes, m
 CELL = 0.005                         # height-map resolution, m
@@ -51,6 +52,8 @@ class _Placed:
     position: tuple[float, float, float]
     orientation: tuple[float, float, float, float]
     leaning: bool = False
+    sole: int | None = None          # index of the one box it rests on (None: floor, or shared support)
+    hull: np.ndarray | None = None   # its support polygon (convex hull equations, xy)
 
     def box(self, bid: str) -> Box:
         return Box(bid, self.size, self.position, self.orientation)
@@ -105,7 +108,9 @@ class _Layout:
         self.height = np.zeros(self.gx.shape)
         # the floor supports only inside the shelf (y >= 0); in front of it there is nothing
         self.support = self.gy >= 0.0
+        self.owner = np.full(self.gx.shape, -1, dtype=int)   # which box's top is the surface here
         self.placed: list[_Placed] = []
+        self.load: list[list[int]] = []                    # boxes resting (through sole supports) on each
 
     def footprint(self, cx: float, cy: float, sx: float, sy: float, yaw: float) -> np.ndarray:
         c, s = math.cos(yaw), math.sin(yaw)
@@ -146,15 +151,44 @@ class _Layout:
         sup = mask & self.support & (self.height >= base - 0.004)
         if sup.sum() < 4 or sup.sum() < min_support * mask.sum():
             return None
-        if not _inside_hull(self.gx[sup], self.gy[sup], cx, cy, inset=0.02):
+        hull = _hull(self.gx[sup], self.gy[sup])
+        if hull is None or not _inside(hull, cx, cy, inset=0.02):
             return None
-        p = _Placed(size, (cx, cy, base + size[2] / 2 + GAP), (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)))
-        if not self.fits_shelf(p) or self.collides(p):
+        owners = np.unique(self.owner[sup])
+        sole = int(owners[0]) if len(owners) == 1 and owners[0] >= 0 else None
+        p = _Placed(size, (cx, cy, base + size[2] / 2 + GAP), (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)),
+                    sole=sole, hull=hull)
+        if not self.fits_shelf(p) or self.collides(p) or not self.carries(p):
             return None
         return p
 
+    def carries(self, p: _Placed) -> bool:
+        """Does every box below p (down a chain of sole supports) keep the load's centre of mass
+        inside its own support polygon? (A box resting on two supports shares the load: not followed.)"""
+        vol = p.size[0] * p.size[1] * p.size[2]
+        s = p.sole
+        while s is not None:
+            q = self.placed[s]
+            members = [q] + [self.placed[i] for i in self.load[s]]
+            vols = [m.size[0] * m.size[1] * m.size[2] for m in members] + [vol]
+            xs = [m.position[0] for m in members] + [p.position[0]]
+            ys = [m.position[1] for m in members] + [p.position[1]]
+            tot = sum(vols)
+            cx = sum(v * x for v, x in zip(vols, xs)) / tot
+            cy = sum(v * y for v, y in zip(vols, ys)) / tot
+            if q.hull is None or not _inside(q.hull, cx, cy, inset=0.015):
+                return False
+            s = q.sole
+        return True
+
     def add(self, p: _Placed) -> None:
+        idx = len(self.placed)
         self.placed.append(p)
+        self.load.append([])
+        s = p.sole
+        while s is not None:
+            self.load[s].append(idx)
+            s = self.placed[s].sole
         cs = np.array(p.box("_").corners())
         if p.leaning:
             # nothing may stand on a leaning box: raise its whole bounding rectangle, no support
@@ -168,21 +202,25 @@ class _Layout:
         top = float(cs[:, 2].max())
         self.height[mask] = top
         self.support[mask] = True
+        self.owner[mask] = idx
 
 
-def _inside_hull(px: np.ndarray, py: np.ndarray, cx: float, cy: float, inset: float) -> bool:
-    """Is (cx, cy) at least `inset` inside the convex hull of the support points?"""
+def _hull(px: np.ndarray, py: np.ndarray) -> np.ndarray | None:
+    """Convex hull equations (normal . p + offset <= 0 inside) of support points; None if degenerate."""
     from scipy.spatial import ConvexHull, QhullError
 
     pts = np.column_stack([px, py])
     if len(pts) < 3:
-        return False
+        return None
     try:
-        hull = ConvexHull(pts)
+        return ConvexHull(pts).equations
     except QhullError:
-        return False
-    # equations: normal . p + offset <= 0 inside; distance to each facet must exceed inset
-    d = hull.equations[:, :2] @ np.array([cx, cy]) + hull.equations[:, 2]
+        return None
+
+
+def _inside(hull: np.ndarray, cx: float, cy: float, inset: float) -> bool:
+    """Is (cx, cy) at least `inset` inside the hull?"""
+    d = hull[:, :2] @ np.array([cx, cy]) + hull[:, 2]
     return bool(np.all(d <= -inset))
 
 
@@ -193,46 +231,167 @@ def _front_y(rng: np.random.Generator, depth: float, shelf: Shelf) -> float:
     return float(rng.uniform(FRONT_MIN, max(FRONT_MIN, hi)))
 
 
-def _structured(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
-    """Rows and columns: a bottom row of stacks side by side, layers stacked on each column."""
+def _yaw_of(p: _Placed) -> float:
+    return 2 * math.atan2(p.orientation[3], p.orientation[0])
+
+
+def _extent(t: Sequence[float], yaw: float) -> tuple[float, float]:
+    """Axis-aligned x and y extent of an upright box turned by yaw."""
+    c, s = abs(math.cos(yaw)), abs(math.sin(yaw))
+    return t[0] * c + t[1] * s, t[1] * c + t[0] * s
+
+
+def _room(t: Sequence[float], top: float, cap: float) -> int:
+    """How many boxes of type t still stack on a column whose top is at `top` under `cap`."""
+    return max(0, int((cap - top + 1e-9) // (t[2] + GAP)))
+
+
+def _draw_columns(rng: np.random.Generator, n: int, shelf: Shelf, cap: float,
+                  slack: float) -> list[tuple[float, float, float]]:
+    """Column types left to right: each needs its width + `slack`, together they hold >= n boxes.
+
+    Random draws (cube-heavy for large n) first; if none holds n, the densest
+    packing: 20 cm cube columns, then a standing 50 cm box column in what is left.
+    """
+    width = shelf.width - GAP
+    small = n <= 16
+    pool = [BOX_TYPES["carton"], BOX_TYPES["cube"], BOX_TYPES["long"]]
+    fillers = pool + ([] if small else [STANDING_LONG])
+    weights = np.array([1 / 3, 1 / 3, 1 / 3]) if small else np.array([0.1, 0.8, 0.1])
+    for _ in range(12):
+        cols: list[tuple[float, float, float]] = []
+        used = 0.0
+        while True:
+            t = pool[int(rng.choice(3, p=weights))]
+            if used + t[0] + slack + GAP > width:
+                fitting = [u for u in fillers if used + u[0] + slack + GAP <= width]
+                if not fitting:
+                    break
+                t = fitting[int(rng.integers(len(fitting)))]
+            cols.append(t)
+            used += t[0] + slack + GAP
+        if sum(_room(t, 0.0, cap) for t in cols) >= n:
+            return cols
+    for s in (slack, 0.0):
+        k = int(width // (0.20 + s + GAP))
+        cols = [BOX_TYPES["cube"]] * k
+        if width - k * (0.20 + s + GAP) >= STANDING_LONG[0] + s + GAP:
+            cols.append(STANDING_LONG)
+        if sum(_room(t, 0.0, cap) for t in cols) >= n:
+            break
+    order = rng.permutation(len(cols))
+    return [cols[i] for i in order]
+
+
+def _intervals(rng: np.random.Generator, cols: list[tuple[float, float, float]], shelf: Shelf,
+               spread: str) -> list[tuple[float, float]]:
+    """x intervals for the columns: the free width goes to the gaps ('gaps') or to the columns ('columns')."""
+    free = shelf.width - sum(t[0] for t in cols) - (len(cols) + 1) * GAP
+    k = len(cols)
+    if spread == "gaps":
+        share = rng.dirichlet(np.ones(k + 1)) * free
+        x = -shelf.width / 2 + GAP + share[0]
+        out = []
+        for t, g in zip(cols, share[1:]):
+            out.append((x, x + t[0]))
+            x += t[0] + GAP + g
+        return out
+    share = rng.dirichlet(np.full(k, 2.0)) * free
+    x = -shelf.width / 2 + GAP
+    out = []
+    for t, g in zip(cols, share):
+        out.append((x, x + t[0] + g))
+        x += t[0] + g + GAP
+    return out
+
+
+def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool) -> list[_Placed]:
+    """Rows and columns: columns of one box type stacked bottom-up, the lowest filled first.
+
+    Structured: upright boxes, a little x jitter, front faces sticking out by
+    different amounts, now and then a narrower type on a column. Unstructured
+    (the dense, 17+ box case): each column gets part of the free width, so its
+    boxes turn in-plane and shift sideways over the box below (overhangs).
+    Never short of room: the columns are drawn to hold n boxes.
+    """
+    cap = _cap(n)
+    slack = 0.03 if unstructured else 0.0
+    cols = _draw_columns(rng, n, shelf, cap, slack)
+    spans = _intervals(rng, cols, shelf, "columns" if unstructured else "gaps")
     lay = _Layout(shelf)
-    types = list(BOX_TYPES.values())
-    # columns: left to right, each with a base type and a small gap
-    columns: list[tuple[float, tuple[float, float, float]]] = []
-    x = -shelf.width / 2 + GAP + float(rng.uniform(0.0, 0.04))
-    while True:
-        t = _pick_type(rng, types, n)
-        if x + t[0] > shelf.width / 2 - GAP:
-            # try a narrower type in the remaining space
-            fitting = [u for u in types if x + u[0] <= shelf.width / 2 - GAP]
-            if not fitting:
-                break
-            t = fitting[int(rng.integers(len(fitting)))]
-        columns.append((x + t[0] / 2, t))
-        x += t[0] + float(rng.uniform(0.005, 0.03))
+    tops = [0.0] * len(cols)
+    below: list[_Placed | None] = [None] * len(cols)
+    def narrower(t: tuple[float, float, float]) -> list[tuple[float, float, float]]:
+        return [u for u in (BOX_TYPES["cube"], BOX_TYPES["carton"]) if u[0] < t[0]]
+
     placed = 0
-    stuck = 0
-    tops = [0.0] * len(columns)
-    while placed < n and stuck < 150:
-        # rows: fill the lower columns first, so layers build up side by side
-        low = min(tops)
-        choice = [i for i, h in enumerate(tops) if h <= low + 0.15]
+    while placed < n:
+        rooms = [_room(t, h, cap) for t, h in zip(cols, tops)]
+        left = n - placed
+        open_cols = [i for i, r in enumerate(rooms) if r > 0]
+        if not open_cols:
+            break
+        low = min(tops[i] for i in open_cols)
+        band = 0.15 if n <= 16 else 0.05
+        choice = [i for i in open_cols if tops[i] <= low + band]
         ci = choice[int(rng.integers(len(choice)))]
-        cx, base_t = columns[ci]
-        # mostly the column's own type; sometimes another type that fits on it
-        t = base_t if rng.random() < 0.7 else _pick_type(rng, types, n)
-        jitter = float(rng.uniform(-0.01, 0.01))
-        fy = _front_y(rng, t[1], shelf)
-        p = lay.upright(t, cx + jitter, fy + t[1] / 2, 0.0, min_support=0.5)
-        if p is None or p.position[2] + t[2] / 2 > _cap(n):
-            stuck += 1
-            if p is None and rng.random() < 0.02:
-                tops[ci] = 9.0  # this column takes nothing more
+        t = cols[ci]
+        # now and then a narrower type on this column, if the rest still fits
+        if narrower(t) and rng.random() < (0.25 if n <= 16 else 0.1) and below[ci] is not None:
+            u = narrower(t)[int(rng.integers(len(narrower(t))))]
+            spare = sum(rooms) - rooms[ci] + _room(t, tops[ci] + u[2] + GAP, cap)
+            if spare >= left - 1 and _room(u, tops[ci], cap) > 0:
+                t = u
+                cols[ci] = u   # the column goes on with the narrower type (a wide box would not rest on it)
+        p = _place_in_column(lay, rng, t, spans[ci], below[ci], unstructured)
+        if p is None:
+            tops[ci] = 9.0  # nothing more fits on this column
             continue
         lay.add(p)
+        below[ci] = p
         tops[ci] = p.position[2] + t[2] / 2
         placed += 1
     return lay.placed
+
+
+def _place_in_column(lay: _Layout, rng: np.random.Generator, t: tuple[float, float, float],
+                     span: tuple[float, float], under: _Placed | None, turn: bool) -> _Placed | None:
+    """One box on a column: random front offset (kept over the box below), jitter or turn and shift."""
+    shelf = lay.shelf
+    for attempt in range(10):
+        last = attempt == 9
+        yaw = 0.0
+        if turn and not last and rng.random() < 0.7:
+            room = span[1] - span[0]
+            # largest turn whose x extent still fits the column's span (and stays <= 0.3 rad)
+            hi = 0.0
+            for a in np.linspace(0.3, 0.0, 16):
+                if _extent(t, a)[0] <= room - 1e-4 and t[1] * math.cos(a) + t[0] * math.sin(a) <= 0.33:
+                    hi = float(a)
+                    break
+            yaw = float(rng.uniform(-hi, hi))
+        ex, ey = _extent(t, yaw)
+        free = max(0.0, (span[1] - span[0]) - ex)
+        if last:
+            cx = (span[0] + span[1]) / 2
+        elif turn:
+            cx = span[0] + ex / 2 + float(rng.uniform(0.0, free))
+        else:
+            j = min(0.005, free / 2)
+            cx = (span[0] + span[1]) / 2 + float(rng.uniform(-j, j))
+        hi_front = min(FRONT_MAX, shelf.depth - GAP - ey)
+        if under is None:
+            front = float(rng.uniform(FRONT_MIN, max(FRONT_MIN, hi_front)))
+        else:
+            # keep the centre well over the box below
+            ucy = under.position[1]
+            lo_c, hi_c = ucy - (0.0 if last else 0.04), ucy + (0.0 if last else 0.04)
+            front = float(rng.uniform(lo_c, hi_c)) - ey / 2
+            front = min(max(front, FRONT_MIN), max(FRONT_MIN, hi_front))
+        p = lay.upright(t, cx, front + ey / 2, yaw, min_support=0.5)
+        if p is not None:
+            return p
+    return None
 
 
 def _lean(lay: _Layout, rng: np.random.Generator, shelf: Shelf) -> _Placed | None:
@@ -240,7 +399,7 @@ def _lean(lay: _Layout, rng: np.random.Generator, shelf: Shelf) -> _Placed | Non
     w, d, h = STANDING_LONG
     phi = math.radians(float(rng.uniform(24.0, 32.0)))
     side = 1 if rng.random() < 0.5 else -1            # +1: leans to the right
-    fy = _front_y(rng, d, shelf)
+    fy = float(rng.uniform(-0.02, min(FRONT_MAX, shelf.depth - GAP - d)))  # the pivot edge stands on the floor
     cy = fy + d / 2
     contact_z = h * math.cos(phi)
     # what it can lean on: the side wall, or the side face of a placed upright box tall enough
@@ -255,7 +414,7 @@ def _lean(lay: _Layout, rng: np.random.Generator, shelf: Shelf) -> _Placed | Non
         walls.append(q.position[0] - side * q.size[0] / 2)
     rng.shuffle(walls)
     for xw in walls:
-        xw = float(xw) - side * 0.002
+        xw = float(xw) - side * (GAP + 0.001)   # keep the clearance the overlap test asks for
         # pivot (lowest edge on the floor) sits h sin(phi) away from the wall
         pivot_x = xw - side * h * math.sin(phi)
         rot = _axis_quat((0.0, 1.0, 0.0), side * phi)
@@ -276,99 +435,127 @@ def _lean(lay: _Layout, rng: np.random.Generator, shelf: Shelf) -> _Placed | Non
     return None
 
 
-def _unstructured(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
-    """Random positions, in-plane turns, overhangs, bridges and the odd leaning box."""
+def _landing_spots(lay: _Layout, rng: np.random.Generator, t: tuple[float, float, float], yaw: float,
+                   k: int, pile: bool) -> list[tuple[float, float]]:
+    """Up to k centres (x, y) where the box would land low: a max filter over the height map gives
+    the resting height of its (axis-aligned bounding) footprint at every cell at once."""
+    from scipy.ndimage import maximum_filter
+
+    shelf = lay.shelf
+    ex, ey = _extent(t, yaw)
+    kx, ky = max(1, int(math.ceil(ex / CELL))), max(1, int(math.ceil(ey / CELL)))
+    # a raised cell that cannot hold anything (a leaning box's zone) blocks like a wall
+    surface = np.where(lay.support | (lay.height <= 0.0), lay.height, 10.0)
+    base = maximum_filter(surface, size=(kx, ky), mode="constant", cval=10.0)
+    xs_ok = np.abs(lay.xs) <= shelf.width / 2 - GAP - ex / 2 - 1e-4
+    hi_front = min(FRONT_MAX, shelf.depth - GAP - ey)
+    fronts = np.linspace(FRONT_MIN, max(FRONT_MIN, hi_front), 5)
+    rows = np.unique(np.clip(np.searchsorted(lay.ys, fronts + ey / 2), 0, len(lay.ys) - 1))
+    sub = base[:, rows]
+    sub = np.where(xs_ok[:, None], sub, np.inf)
+    m = float(sub.min())
+    if not math.isfinite(m):
+        return []
+    tol = float(rng.uniform(0.05, 0.25)) if pile else 0.02
+    ii, jj = np.nonzero(sub <= m + tol)
+    out: list[tuple[float, float]] = []
+    # ends of low runs along x (packed against a neighbour or a wall) and random cells
+    low_x = np.zeros(len(lay.xs), dtype=bool)
+    low_x[ii] = True
+    edges = np.flatnonzero(low_x & ~np.r_[False, low_x[:-1]]).tolist() + \
+        np.flatnonzero(low_x & ~np.r_[low_x[1:], False]).tolist()
+    picks = []
+    for e in (rng.permutation(len(edges))[:max(1, k // 2)] if edges else []):
+        at = np.flatnonzero(ii == int(edges[int(e)]))
+        picks.append(int(at[int(rng.integers(len(at)))]))
+    rest = list(rng.permutation(len(ii))[:k])
+    # mostly packed against a neighbour (dense piles), sometimes anywhere low
+    picks = picks + rest if rng.random() < 0.7 else rest + picks
+    for p in picks[:k]:
+        out.append((float(lay.xs[ii[p]]), float(lay.ys[rows[jj[p]]])))
+    return out
+
+
+def _scattered(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+    """Random piles for small scenes: random types and turns, each box dropped where it lands low
+    (now and then on top of a pile: overhangs), long boxes bridging two tops, a leaning box."""
     lay = _Layout(shelf)
     types = list(BOX_TYPES.values())
-    lean_at = int(rng.integers(max(1, n // 2), max(2, n))) if rng.random() < 0.6 else -1
+    cap = SHELF.height - 0.05
+    want_lean = rng.random() < 0.7
+    # it needs free floor: mostly first (against a side wall), else later against a stack if there is room
+    lean_from = 0 if rng.random() < 0.6 else int(rng.integers(1, max(2, n // 2)))
+    want_bridge = rng.random() < 0.6
     stuck = 0
-    while len(lay.placed) < n and stuck < (40 if n <= 16 else 100):
-        if len(lay.placed) == lean_at:
+    while len(lay.placed) < n and stuck < 40:
+        k = len(lay.placed)
+        if want_lean and k >= lean_from:
             p = _lean(lay, rng, shelf)
-            lean_at = -1
             if p is not None:
                 lay.add(p)
-            continue
-        t = _pick_type(rng, types, n)
-        yaw = float(rng.uniform(-0.35, 0.35)) if rng.random() < 0.6 else 0.0
-        uprights = [q for q in lay.placed if not q.leaning]
-        # a bridge: the long box across two neighbouring tops of about the same height
-        pairs = [(a, b) for i, a in enumerate(uprights) for b in uprights[i + 1:]
-                 if abs(a.position[2] + a.size[2] / 2 - b.position[2] - b.size[2] / 2) < 0.01
-                 and 0.15 < abs(a.position[0] - b.position[0]) < 0.4]
-        if pairs and rng.random() < 0.25:
-            a, b = pairs[int(rng.integers(len(pairs)))]
-            t = BOX_TYPES["long"]
-            cx = (a.position[0] + b.position[0]) / 2 + float(rng.uniform(-0.03, 0.03))
-            yaw = float(rng.uniform(-0.1, 0.1))
-        else:
-            # several random drops (near a box: stacks and overhangs; anywhere: new piles);
-            # the lowest wins, so piles grow from the floor as a real shelf fills
-            valid = []
-            for _ in range(10 if n <= 16 else 20):
-                u = rng.random()
-                if u < 0.3 and uprights:
-                    q = uprights[int(rng.integers(len(uprights)))]
-                    cx = q.position[0] + float(rng.uniform(-0.15, 0.15))
-                elif u < 0.6 and uprights:
-                    # beside a box (packs the floor and the layers densely)
-                    q = uprights[int(rng.integers(len(uprights)))]
-                    qyaw = abs(2 * math.atan2(q.orientation[3], q.orientation[0]))
-                    qw = q.size[0] * math.cos(qyaw) + q.size[1] * math.sin(qyaw)
-                    tw = t[0] * math.cos(abs(yaw)) + t[1] * math.sin(abs(yaw))
-                    side = 1 if rng.random() < 0.5 else -1
-                    cx = q.position[0] + side * ((qw + tw) / 2 + float(rng.uniform(0.006, 0.03)))
-                elif u < 0.8:
-                    cx = _low_spot(lay, rng, t[0] + 0.02)
-                else:
-                    cx = float(rng.uniform(-shelf.width / 2 + t[0] / 2, shelf.width / 2 - t[0] / 2))
-                p = _drop(lay, rng, t, cx, yaw, shelf)
-                if p is not None:
-                    valid.append(p)
-            valid.sort(key=lambda v: v.position[2] - v.size[2] / 2)
-            best = None
-            if valid:
-                best = valid[0] if rng.random() < 0.75 else valid[int(rng.integers(len(valid)))]
-            if best is None or best.position[2] + t[2] / 2 > _cap(n):
-                stuck += 1
+                want_lean = False
                 continue
-            lay.add(best)
-            continue
-        p = _drop(lay, rng, t, cx, yaw, shelf)
-        if p is None or p.position[2] + t[2] / 2 > _cap(n):
+            if k > lean_from + 3:
+                want_lean = False
+        if want_bridge and k >= 2:
+            p = _bridge(lay, rng)
+            if p is not None and p.position[2] + p.size[2] / 2 <= cap:
+                lay.add(p)
+                want_bridge = False
+                continue
+        t = types[int(rng.integers(len(types)))]
+        yaw = float(rng.uniform(-0.35, 0.35)) if rng.random() < 0.6 else 0.0
+        limit = math.asin(0.03 / t[0]) if t[1] > 0.28 else (0.12 if t[0] > 0.4 else 0.35)
+        yaw = max(-limit, min(limit, yaw))
+        best = None
+        tries = [(t, yaw), (t, 0.0), (BOX_TYPES["cube"], 0.0)]
+        if stuck >= 3:   # running out of room: any type, upright, more spots, on piles too
+            tries += [(u, 0.0) for u in types]
+        for tt, yy in tries:
+            pile = rng.random() < (0.15 if stuck < 3 else 0.5)
+            for cx, cy in _landing_spots(lay, rng, tt, yy, 6 if stuck < 3 else 12, pile=pile):
+                p = lay.upright(tt, cx, cy, yy, min_support=0.3)
+                if p is not None and p.position[2] + tt[2] / 2 <= cap:
+                    best = p
+                    break
+            if best is not None:
+                break
+        if best is None:
             stuck += 1
             continue
-        lay.add(p)
+        lay.add(best)
     return lay.placed
 
 
-def _drop(lay: _Layout, rng: np.random.Generator, t: tuple[float, float, float], cx: float,
-          yaw: float, shelf: Shelf) -> _Placed | None:
-    """An upright box turned by (at most) `yaw` dropped at x = cx with a random front offset."""
-    # a turned box reaches deeper: keep its footprint inside the 30 cm (plus 5 cm in front)
-    limit = math.asin(0.03 / t[0]) if t[1] > 0.28 else (0.12 if t[0] > 0.4 else 0.35)
-    yaw = max(-limit, min(limit, yaw))
-    extent = t[1] * math.cos(yaw) + t[0] * abs(math.sin(yaw))
-    fy = _front_y(rng, extent, shelf)
-    return lay.upright(t, cx, fy + extent / 2, yaw, min_support=0.3)
+def _bridge(lay: _Layout, rng: np.random.Generator) -> _Placed | None:
+    """A long box lying across two tops of about the same height with a gap between them."""
+    t = BOX_TYPES["long"]
+    ups = [q for q in lay.placed if not q.leaning]
+    pairs = [(a, b) for i, a in enumerate(ups) for b in ups[i + 1:]
+             if abs(a.position[2] + a.size[2] / 2 - b.position[2] - b.size[2] / 2) < 0.01
+             and 0.15 < abs(a.position[0] - b.position[0]) < 0.42]
+    for i in rng.permutation(len(pairs))[:6]:
+        a, b = pairs[int(i)]
+        cx = (a.position[0] + b.position[0]) / 2 + float(rng.uniform(-0.02, 0.02))
+        yaw = float(rng.uniform(-0.08, 0.08))
+        cy = (a.position[1] + b.position[1]) / 2 + float(rng.uniform(-0.02, 0.02))
+        ex, ey = _extent(t, yaw)
+        cy = min(max(cy, FRONT_MIN + ey / 2), lay.shelf.depth - GAP - ey / 2)
+        p = lay.upright(t, cx, cy, yaw, min_support=0.2)
+        if p is not None:
+            return p
+    return None
 
 
-def _low_spot(lay: _Layout, rng: np.random.Generator, width: float) -> float:
-    """An x where a box of this width would land low: a gap in the piles, picked at random."""
-    profile = lay.height.max(axis=1)              # highest top across the depth, per x cell
-    k = max(1, int(round(width / CELL)))
-    windows = np.lib.stride_tricks.sliding_window_view(profile, k).max(axis=1)
-    low = np.flatnonzero(windows <= windows.min() + 0.01)
-    i = int(low[int(rng.integers(len(low)))])
-    return float(lay.xs[i] + (k - 1) * CELL / 2)
+def _unstructured(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+    """Small scenes: random piles; dense ones (more than 16 boxes): turned, shifted columns."""
+    if n <= DENSE_FROM:
+        return _scattered(rng, n, shelf)
+    return _columns(rng, n, shelf, unstructured=True)
 
 
-def _pick_type(rng: np.random.Generator, types: list, n: int) -> tuple[float, float, float]:
-    """Uniform over the types; large scenes favour the 20 cm cube so that 30 boxes fit."""
-    if n > 16:
-        w = np.array([0.15, 0.7, 0.15])
-        return types[int(rng.choice(len(types), p=w))]
-    return types[int(rng.integers(len(types)))]
+def _structured(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+    return _columns(rng, n, shelf, unstructured=False)
 
 
 def _cap(n: int) -> float:
@@ -417,7 +604,11 @@ def _settle(scene: Scene) -> Scene:
     after = {b.id: b for b in settled.boxes}
     for b in scene.boxes:
         a = after[b.id]
-        move = math.dist(a.position, b.position)
+        # every box was placed GAP above what holds it: a stack of k boxes sinks by about k * GAP
+        sink = GAP * (1 + (b.position[2] - b.size[2] / 2) / 0.17)
+        side = math.hypot(a.position[0] - b.position[0], a.position[1] - b.position[1])
+        drop = b.position[2] - a.position[2]
+        move = max(side, abs(drop) - sink if drop > 0 else -drop)
         dot = abs(sum(x * y for x, y in zip(a.orientation, b.orientation)))
         turn = math.degrees(2 * math.acos(min(1.0, dot)))
         if move > SETTLE_MOVE_LIMIT or turn > SETTLE_TURN_LIMIT:

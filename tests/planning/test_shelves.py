@@ -65,14 +65,41 @@ def test_unstructured_has_turns_and_overhangs() -> None:
     assert turned >= 3 and overhang >= 1
 
 
-def test_large_scenes_and_bad_arguments() -> None:
-    scene = generate("structured", 2, 26)
-    assert len(scene.boxes) == 26
+def _bridges(scene: Scene) -> int:
+    """Long boxes resting on two boxes at once."""
+    n = 0
+    for b in scene.boxes:
+        zb = b.position[2] - b.size[2] / 2
+        under = [o for o in scene.boxes if o is not b and abs(o.top_z - zb) < 0.015
+                 and abs(o.position[0] - b.position[0]) < (o.size[0] + b.size[0]) / 2]
+        n += len(under) >= 2 and round(b.size[0], 3) == 0.5
+    return n
+
+
+def test_unstructured_has_leaning_and_bridging_boxes() -> None:
+    scenes = [layout("unstructured", seed, 12) for seed in (2, 3)]
+    leaning = [b for s in scenes for b in s.boxes if abs(b.orientation[1]) > 0.05 or abs(b.orientation[2]) > 0.05]
+    assert leaning and all(tuple(round(v, 3) for v in b.size) == STANDING_LONG for b in leaning)
+    assert sum(_bridges(s) for s in scenes) >= 1
+
+
+@pytest.mark.parametrize("kind,n", [("structured", 30), ("unstructured", 27)])
+def test_dense_scenes_fit_first_time(kind: str, n: int) -> None:
+    scene = generate(kind, 2, n)
+    assert len(scene.boxes) == n
+    assert scene.source["attempt"] == 0          # dense packing does not need retries
     _check_geometry(scene)
+    if kind == "unstructured":
+        assert sum(abs(b.orientation[3]) > 0.02 for b in scene.boxes) >= 3
+
+
+def test_bad_arguments() -> None:
     with pytest.raises(ShelfpickError, match="kind"):
         generate("messy", 0)
     with pytest.raises(ShelfpickError, match="n_boxes"):
         generate("structured", 0, 0)
+    with pytest.raises(ShelfpickError, match="n_boxes"):
+        generate("structured", 0, 31)
 
 
 def test_obb_overlap() -> None:
