@@ -107,6 +107,11 @@ class Workflow:
         self._plan_thread: threading.Thread | None = None
         self._robot_thread: threading.Thread | None = None
         self._stop = threading.Event()
+        # listeners run on one notifier thread, never under the lock: a view that holds its own
+        # lock and reads `state` can then never deadlock against a change being announced
+        self._notify_cv = threading.Condition()
+        self._pending: State | None = None
+        threading.Thread(target=self._notify_loop, name="shelfpick-notify", daemon=True).start()
 
     # ------------------------------------------------------------------ state
     @property
@@ -124,17 +129,32 @@ class Workflow:
                 self._listeners.remove(fn)
 
     def _set(self, **changes: Any) -> State:
-        """Apply changes under the lock, then notify listeners outside it."""
+        """Apply changes under the lock; listeners hear of it from the notifier thread."""
         with self._lock:
             self._state = replace(self._state, version=self._state.version + 1, **changes)
             snap = self._state
-            listeners = list(self._listeners)
-        for fn in listeners:
-            try:
-                fn(snap)
-            except Exception:  # noqa: BLE001 - a broken view must not break the workflow
-                traceback.print_exc()
+        with self._notify_cv:
+            if self._pending is None or self._pending.version < snap.version:
+                self._pending = snap
+            self._notify_cv.notify()
         return snap
+
+    def _notify_loop(self) -> None:
+        """Hand the newest state to every listener, in version order (intermediate ones may be skipped)."""
+        last = -1
+        while True:
+            with self._notify_cv:
+                while self._pending is None:
+                    self._notify_cv.wait()
+                snap, self._pending = self._pending, None
+            if snap.version <= last:
+                continue
+            last = snap.version
+            for fn in list(self._listeners):
+                try:
+                    fn(snap)
+                except Exception:  # noqa: BLE001 - a broken view must not break the workflow
+                    traceback.print_exc()
 
     def _record(self, what: str, fn: Callable, *args: Any, **kw: Any) -> Any:
         """Call the store; a database fault becomes a message, the session goes on."""
