@@ -19,7 +19,6 @@ CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 PASS = "correct horse"
-README_DIR = Path(__file__).resolve().parents[2] / "static" / "readme"
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +151,7 @@ def bottom_left(scene) -> str:
     return min((b for b in scene.boxes if b.position[0] < 0), key=lambda b: b.position[2]).id
 
 
-def test_operator_plans_approves_executes_and_replays(browser, console):
+def test_operator_plans_approves_executes_and_replays(browser, console, tmp_path):
     app, wf, store = console
     ctx = browser.new_context(viewport={"width": 1000, "height": 680})
     try:
@@ -188,8 +187,9 @@ def test_operator_plans_approves_executes_and_replays(browser, console):
         # preview: play the physics plan; the slider moves through the recorded frames
         press(page, "Play")
         until(lambda: int(view.slider.value) > 0, 10, "preview playing")
-        README_DIR.mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(README_DIR / "operator.png"))
+        shot = tmp_path / "operator.png"          # README shots: static/readme/make_screenshots.py
+        page.screenshot(path=str(shot))
+        assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000
 
         press(page, "Supervisor", role="tab")
         fill_text(page, "Passphrase", PASS)
@@ -214,9 +214,6 @@ def test_operator_plans_approves_executes_and_replays(browser, console):
         wait_text(page, "Robot outcome vs prediction")
         wait_text(page, f"approve {phys.hash} by supervisor")
         mark("replayed")
-    except BaseException:
-        page.screenshot(path="/tmp/scratch/fail.png")
-        raise
     finally:
         ctx.close()
 
@@ -259,11 +256,6 @@ def test_operator_cannot_approve_supervisor_sees_plan_live(browser, console):
         assert [d["decision"] for d in rec.decisions] == ["approve"]
         assert [e["detail"]["reason"] for e in rec.robot_events if e["kind"] == "auth_refused"] \
             == ["wrong supervisor passphrase"]
-    except BaseException:
-        for n, pg in (("op", op), ("sup", sup)):
-            if pg is not None:
-                pg.screenshot(path=f"/tmp/scratch/fail-{n}.png")
-        raise
     finally:
         op_ctx.close()
         sup_ctx.close()
