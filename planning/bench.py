@@ -59,6 +59,11 @@ def scene_kind(scene_doc: dict, name: str) -> str:
     return "other"
 
 
+def scene_sha(doc: dict) -> str:
+    """Identifies a scene's content: a resumed run refuses records made on a different file."""
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
 @dataclass(frozen=True)
 class Job:
     """One scene: its JSON document (so remote workers need no shared disk) and pending targets."""
@@ -98,6 +103,7 @@ def run_scene(job: Job) -> list[dict]:
         try:
             for target in job.targets:
                 rec: dict[str, Any] = {"key": f"{job.name}:{target}", "scene": job.name, "kind": kind,
+                                       "scene_sha": scene_sha(job.doc),
                                        "n_boxes": len(truth.boxes), "target": target,
                                        "seed": derive_seed(cfg.seed, job.name, target),
                                        "setup_s": setup_s, "planners": {}}
@@ -137,8 +143,8 @@ def run_scene(job: Job) -> list[dict]:
 # --------------------------------------------------------------------------
 # input, resume
 def load_jobs(scenes_dir: str | Path, config: BenchConfig, limit: int | None = None,
-              done: Iterable[str] = ()) -> list[Job]:
-    """Scene files (sorted by name) with the targets not yet in `done`."""
+              done: Iterable[str] = (), shas: dict[str, str] | None = None) -> list[Job]:
+    """Scene files (sorted by name) with the targets not yet in `done`; `shas` gets each scene's content id."""
     from perception.scene import Scene, read_json
 
     d = Path(scenes_dir)
@@ -155,6 +161,8 @@ def load_jobs(scenes_dir: str | Path, config: BenchConfig, limit: int | None = N
         doc = read_json(p)
         scene = Scene.from_json(doc, str(p))  # validate here: a bad file fails before any work
         name = p.stem
+        if shas is not None:
+            shas[name] = scene_sha(doc)
         targets = tuple(t for t in scene.ids if f"{name}:{t}" not in finished)
         if targets:
             jobs.append(Job(name, doc, targets, config))
@@ -300,8 +308,15 @@ def run_bench(scenes_dir: str | Path, out: str | Path, config: BenchConfig, *,
     out.mkdir(parents=True, exist_ok=True)
     check_meta(out, config, scenes_dir)
     rec_path = out / RECORDS
-    done = {r["key"] for r in read_records(rec_path)}
-    jobs = load_jobs(scenes_dir, config, limit, done)
+    old = read_records(rec_path)
+    done = {r["key"] for r in old}
+    shas: dict[str, str] = {}
+    jobs = load_jobs(scenes_dir, config, limit, done, shas)
+    for r in old:
+        if r.get("scene_sha") and r["scene"] in shas and r["scene_sha"] != shas[r["scene"]]:
+            raise FormatError(str(rec_path), "scene_sha",
+                              f"records of scene {r['scene']!r} were made on a different file "
+                              f"({r['scene_sha']} != {shas[r['scene']]}); use another --out")
     total = count_tasks(scenes_dir, limit)
     pending = sum(len(j.targets) for j in jobs)
     log = RecordLog(rec_path)

@@ -124,6 +124,33 @@ def test_resume_skips_done_tasks(scenes_dir: Path, tmp_path: Path) -> None:
     assert calls == []
 
 
+def test_resume_mid_scene_is_exact(scenes_dir: Path, tmp_path: Path) -> None:
+    """A run stopped after part of a scene's records continues to the same records as an unbroken run
+    (every trial is a pure function of its seed, not of what the scene's Predictor ran before)."""
+    full = tmp_path / "full"
+    run_bench(scenes_dir, full, CFG, progress=False)
+    whole = read_records(full / "records.jsonl")
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    shutil.copy(full / "run.json", cut / "run.json")
+    kept = [r for r in whole if r["key"] in ("s-a:b1",)]   # only the middle target of the first scene
+    (cut / "records.jsonl").write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept))
+    run_bench(scenes_dir, cut, CFG, progress=False)
+    again = read_records(cut / "records.jsonl")
+    assert comparable(again) == comparable(whole)
+
+
+def test_resume_refuses_records_of_a_changed_scene(scenes_dir: Path, tmp_path: Path) -> None:
+    from perception.errors import ShelfpickError
+    out = tmp_path / "o"
+    run_bench(scenes_dir, out, CFG, fn=fake_job, progress=False, limit=1)
+    with open(out / "records.jsonl") as f:
+        recs = [json.loads(x) for x in f]
+    (out / "records.jsonl").write_text("".join(json.dumps({**r, "scene_sha": "0" * 16}) + "\n" for r in recs))
+    with pytest.raises(ShelfpickError, match="different file"):
+        run_bench(scenes_dir, out, CFG, fn=fake_job, progress=False)
+
+
 def test_rerun_with_other_settings_is_refused(scenes_dir: Path, tmp_path: Path) -> None:
     from perception.errors import ShelfpickError
     run_bench(scenes_dir, tmp_path / "o", CFG, fn=fake_job, progress=False, limit=1)
