@@ -16,7 +16,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default 127.0.0.1; others need a supervisor passphrase)")
     p.add_argument("--port", type=int, default=8080, help="port (0 = any free port; default 8080)")
-    p.add_argument("--db", default=None, help="session database (default ./data/sessions.sqlite)")
+    p.add_argument("--db", default=None, help="session database (default ./data/shelfpick.db, as `shelfpick sessions`)")
     p.add_argument("--robot", default="sim", help="sim | tcp://HOST:PORT (default sim)")
     p.add_argument("--supervisor-passphrase", default=None,
                    help=f"passphrase for Approve/Reject (or env {ENV_PASSPHRASE}); "
@@ -41,12 +41,12 @@ def build(args: argparse.Namespace):
 
     from console.robot import open_robot
     from console.sources import open_source
-    from console.store import SessionStore
+    from console.store import DEFAULT_DB, SessionStore
     from console.workflow import Workflow
 
     passphrase = given or secrets.token_urlsafe(9)
     source = open_source(args.source, seed=args.seed)
-    db = Path(args.db) if args.db else Path("data") / "sessions.sqlite"
+    db = Path(args.db) if args.db else DEFAULT_DB
     db.parent.mkdir(parents=True, exist_ok=True)
     store = SessionStore(db)
     spec = args.robot
