@@ -162,29 +162,88 @@ class _Worlds:
         self.sims = {}
 
 
-def _worker(conn, scene: Scene, seed: int, config: PhysicsConfig, indices: list[int]) -> None:
-    """A pool process: owns its share of the sample worlds for the Predictor's lifetime."""
-    try:
-        worlds = _Worlds(scene, seed, config, indices)
-    except BaseException as exc:  # reported to the parent, which raises it
-        conn.send(("error", exc))
-        return
-    conn.send(("ready", {i: sim.scene for i, sim in worlds.sims.items()}))
+def _worker(conn) -> None:
+    """A pool process: holds one Predictor's share of the sample worlds at a time.
+
+    It lives as long as the parent process: after a Predictor closes, the
+    worker closes its worlds (their Bullet clients stay in this process's idle
+    list, see planning/sim.py) and waits for the next Predictor's "build".
+    """
+    worlds: _Worlds | None = None
     try:
         while True:
             msg = conn.recv()
-            if msg[0] == "pull":
-                _, removed, box = msg
-                conn.send(("ok", {i: replace(worlds.pull(i, removed, box), frames=())
-                                  for i in indices}))
+            if msg[0] == "build":
+                _, scene, seed, config, indices = msg
+                try:
+                    worlds = _Worlds(scene, seed, config, indices)
+                except BaseException as exc:  # reported to the parent, which raises it
+                    worlds = None
+                    conn.send(("error", exc))
+                    continue
+                conn.send(("ready", {i: sim.scene for i, sim in worlds.sims.items()}))
+            elif msg[0] == "pull":
+                _, removed, box, which = msg
+                conn.send(("ok", {i: replace(worlds.pull(i, removed, box), frames=())  # type: ignore[union-attr]
+                                  for i in which}))
             elif msg[0] == "preview":
-                conn.send(("ok", worlds.preview(msg[1], msg[2])))
+                conn.send(("ok", worlds.preview(msg[1], msg[2])))  # type: ignore[union-attr]
+            elif msg[0] == "release":
+                if worlds is not None:
+                    worlds.close()
+                worlds = None
             else:
                 break
     except (EOFError, KeyboardInterrupt):
         pass
     finally:
-        worlds.close()
+        if worlds is not None:
+            worlds.close()
+
+
+# Idle pool processes of this process, reused by the next Predictor (fork and import cost,
+# and the Bullet clients the worker already connected, are paid once per process).
+_IDLE_WORKERS: list = []
+_IDLE_WORKERS_PID: list[int] = [0]
+
+
+def _take_worker():
+    import multiprocessing as mp
+    import os
+
+    if _IDLE_WORKERS_PID[0] != os.getpid():
+        _IDLE_WORKERS.clear()
+        _IDLE_WORKERS_PID[0] = os.getpid()
+    while _IDLE_WORKERS:
+        proc, conn = _IDLE_WORKERS.pop()
+        if proc.is_alive():
+            return proc, conn
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=_worker, args=(child,), daemon=True)
+    proc.start()
+    child.close()
+    return proc, parent
+
+
+def _give_back_worker(proc, conn) -> None:
+    import os
+
+    try:
+        conn.send(("release",))
+    except (OSError, BrokenPipeError):
+        proc.join(timeout=1)
+        return
+    if _IDLE_WORKERS_PID[0] == os.getpid() and len(_IDLE_WORKERS) < 8:
+        _IDLE_WORKERS.append((proc, conn))
+    else:
+        try:
+            conn.send(("close",))
+        except (OSError, BrokenPipeError):
+            pass
+        proc.join(timeout=5)
+        if proc.is_alive():
+            proc.terminate()
 
 
 class Predictor:
@@ -213,6 +272,7 @@ class Predictor:
         self._order = {b: i for i, b in enumerate(scene.ids)}
         self._local: _Worlds | None = None
         self._pool: list = []
+        self._broken = False
         t0 = time.perf_counter()
         workers = max(1, min(int(workers), self._n))
         if workers == 1:
@@ -221,32 +281,32 @@ class Predictor:
         else:
             self._start_pool(workers)
         self._cache: dict[tuple[frozenset[str], str], StepPrediction] = {}
-        self._results: dict[tuple[frozenset[str], str], list[StepResult]] = {}
+        self._runs: dict[tuple[frozenset[str], str], list[StepResult]] = {}
         self.stats = {"build_s": time.perf_counter() - t0, "trials": 0, "cache_hits": 0,
-                      "pulls": 0, "trial_s": 0.0, "workers": workers}
+                      "screens": 0, "pulls": 0, "trial_s": 0.0, "workers": workers}
 
     def _start_pool(self, workers: int) -> None:
-        import multiprocessing as mp
-
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
         shares = [list(range(k, self._n, workers)) for k in range(workers)]
         for share in shares:
-            parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker, args=(child, self.scene, self.seed, self.config, share),
-                               daemon=True)
-            proc.start()
-            child.close()
-            self._pool.append((proc, parent, share))
+            proc, conn = _take_worker()
+            self._pool.append((proc, conn, share))
+            conn.send(("build", self.scene, self.seed, self.config, share))
         scenes: dict[int, Scene] = {}
+        error: BaseException | None = None
         try:
-            for _, conn, _ in self._pool:
+            for _, conn, _ in self._pool:  # every reply is read, so no pipe keeps a stale one
                 kind, payload = conn.recv()
                 if kind == "error":
-                    raise payload
-                scenes.update(payload)
+                    error = error or payload
+                else:
+                    scenes.update(payload)
         except BaseException:
+            self._broken = True
             self.close()
             raise
+        if error is not None:
+            self.close()
+            raise error
         self.sample_scenes = [scenes[i] for i in range(self._n)]
 
     @property
@@ -258,6 +318,55 @@ class Predictor:
         """The sample worlds of this process (empty when a pool holds them)."""
         return [self._local.sims[i] for i in range(self._n)] if self._local else []
 
+    def _check(self, removed: frozenset[str], box: str) -> None:
+        if box not in self._order:
+            raise SceneError(f"unknown box id {box!r}; the scene has {', '.join(self.scene.ids)}")
+        if box in removed:
+            raise ValueError(f"box {box!r} is already removed")
+        for b in removed:
+            if b not in self._order:
+                raise SceneError(f"unknown box id {b!r}; the scene has {', '.join(self.scene.ids)}")
+
+    def _run(self, key: tuple[frozenset[str], str], upto: int) -> list[StepResult]:
+        """The per-sample results of `key` for samples 0..upto-1 (at least), run as needed.
+
+        Every sample's result is a pure function of (seed, sample, removed, box), so
+        results run earlier, in whatever chunks, are reused as they are. A pool runs
+        one sample per worker at a time (some may be ahead of what was asked for).
+        """
+        runs = self._runs.get(key)
+        if runs is None:
+            self._check(*key)
+            runs = self._runs[key] = []
+        m = len(runs)
+        upto = min(upto, self._n)
+        if upto <= m:
+            return runs
+        t0 = time.perf_counter()
+        removed, box = key
+        if self._local is not None:
+            for i in range(m, upto):
+                runs.append(self._local.pull(i, removed, box))
+        else:
+            hi = min(self._n, max(upto, m + len(self._pool)))
+            busy = []
+            merged: dict[int, StepResult] = {}
+            try:
+                for _, conn, share in self._pool:
+                    which = [i for i in share if m <= i < hi]
+                    if which:
+                        conn.send(("pull", removed, box, which))
+                        busy.append(conn)
+                for conn in busy:
+                    merged.update(conn.recv()[1])
+            except BaseException:  # a reply may be left in a pipe: these workers are not reused
+                self._broken = True
+                raise
+            runs.extend(merged[i] for i in range(m, hi))
+        self.stats["pulls"] += len(runs) - m
+        self.stats["trial_s"] += time.perf_counter() - t0
+        return runs
+
     def trial(self, removed: frozenset[str], box: str) -> StepPrediction:
         """Pull `box` from the scene with `removed` taken away, in every depth sample."""
         removed = frozenset(removed)
@@ -266,51 +375,73 @@ class Predictor:
         if hit is not None:
             self.stats["cache_hits"] += 1
             return hit
-        if box not in self._order:
-            raise SceneError(f"unknown box id {box!r}; the scene has {', '.join(self.scene.ids)}")
-        if box in removed:
-            raise ValueError(f"box {box!r} is already removed")
-        for b in removed:
-            if b not in self._order:
-                raise SceneError(f"unknown box id {b!r}; the scene has {', '.join(self.scene.ids)}")
-        t0 = time.perf_counter()
-        n = self._n
-        limit = None if self.early_stop_risk is None else self.early_stop_risk * n
-        results: list[StepResult] = []
-        bad = 0
-        if self._local is not None:
-            for i in range(n):
-                r = self._local.pull(i, removed, box)
-                results.append(r)
-                self.stats["pulls"] += 1
-                bad += bool(r.collapsed)
-                if limit is not None and bad > limit:
-                    break
+        if self.early_stop_risk is not None:
+            pred = self.screen(removed, box, self.early_stop_risk)
         else:
-            for _, conn, _ in self._pool:
-                conn.send(("pull", removed, box))
-            merged: dict[int, StepResult] = {}
-            for _, conn, _ in self._pool:
-                merged.update(conn.recv()[1])
-            self.stats["pulls"] += n
-            for i in range(n):  # the same prefix the serial loop would have stopped at
-                results.append(merged[i])
-                bad += bool(merged[i].collapsed)
-                if limit is not None and bad > limit:
-                    break
-        pred = self._aggregate(box, results, n)
+            pred = self._aggregate(box, self._run(key, self._n), self._n)
         self._cache[key] = pred
-        self._results[key] = results
         self.stats["trials"] += 1
-        self.stats["trial_s"] += time.perf_counter() - t0
         return pred
 
     __call__ = trial
 
+    def screen(self, removed: frozenset[str], box: str, risk: float = 0.0) -> StepPrediction:
+        """Sample `box` only until it can no longer be safe at `risk` (sequential sampling).
+
+        Samples run in order 0, 1, ...; as soon as more than `risk * N` of them
+        collapsed (or collided), the candidate is unsafe whatever the remaining
+        samples say, and the prediction over that prefix comes back: its
+        probabilities are lower bounds (counts / N), already over `risk`. A
+        prediction at or under `risk` always covers every sample, so it is exact.
+        The prefix is fixed by the samples alone, so the answer is the same
+        whichever worker count ran them.
+        """
+        removed = frozenset(removed)
+        key = (removed, box)
+        n = self._n
+        limit = risk * n + 1e-9
+        c = x = m = 0
+        runs = self._runs.get(key, [])
+        while m < n:
+            if m >= len(runs):
+                runs = self._run(key, m + 1)
+            r = runs[m]
+            m += 1
+            c += bool(r.collapsed)
+            x += bool(r.collided or r.note.startswith("stuck"))
+            if max(c, x) > limit:
+                break
+        self.stats["screens"] += 1
+        return self._aggregate(box, runs[:m], n)
+
+    def risk_bound(self, removed: frozenset[str], box: str) -> tuple[float, bool]:
+        """(lower bound of the risk from the samples run so far, whether that is all of them)."""
+        runs = self._runs.get((frozenset(removed), box), [])
+        c = sum(1 for r in runs if r.collapsed)
+        x = sum(1 for r in runs if r.collided or r.note.startswith("stuck"))
+        return max(c, x) / self._n, len(runs) >= self._n
+
+    def least_risky(self, removed: frozenset[str], boxes: Sequence[str]) -> str:
+        """The box of `boxes` with the lowest risk (first in the given order on a tie).
+
+        Exact, but lazily: the candidate with the lowest lower bound gets one more
+        sample until the lowest one has all its samples; its risk is then exact and
+        no other can be lower (their lower bounds already are not).
+        """
+        removed = frozenset(removed)
+        if not boxes:
+            raise ValueError("least_risky needs at least one box")
+        while True:
+            best = min(range(len(boxes)), key=lambda k: (self.risk_bound(removed, boxes[k])[0], k))
+            key = (removed, boxes[best])
+            runs = self._runs.get(key, [])
+            if len(runs) >= self._n:
+                return boxes[best]
+            self._run(key, len(runs) + 1)
+
     def results(self, removed: frozenset[str], box: str) -> list[StepResult]:
-        """The per-sample StepResults behind a cached trial (runs it if needed)."""
-        self.trial(removed, box)
-        return self._results[(frozenset(removed), box)]
+        """The per-sample StepResults behind a trial (runs them if needed)."""
+        return list(self._run((frozenset(removed), box), self._n))
 
     def _aggregate(self, box: str, results: list[StepResult], n: int) -> StepPrediction:
         order = self._order
@@ -347,13 +478,11 @@ class Predictor:
             self._local.close()
             self._local = None
         for proc, conn, _ in getattr(self, "_pool", []):
-            try:
-                conn.send(("close",))
-            except (OSError, BrokenPipeError):
-                pass
-            proc.join(timeout=5)
-            if proc.is_alive():
+            if getattr(self, "_broken", False):
                 proc.terminate()
+                proc.join(timeout=5)
+            else:
+                _give_back_worker(proc, conn)
         self._pool = []
 
     def __enter__(self) -> "Predictor":

@@ -112,3 +112,38 @@ def test_process_pool_gives_the_same_predictions_as_one_process():
         assert [r.to_json() for r in serial.results(*calls[0])] == [r.to_json() for r in pool.results(*calls[0])]
         a, b = serial.preview(["b", "a"], sample=1), pool.preview(["b", "a"], sample=1)
         assert [s.to_json(frames=True) for s in a] == [s.to_json(frames=True) for s in b]
+
+
+def test_screen_stops_at_the_first_collapsing_sample_and_least_risky_is_exact():
+    scene = column(4).hide_depths()
+    with Predictor(scene, samples=4, seed=2) as lazy, Predictor(scene, samples=4, seed=2) as full:
+        s = lazy.screen(frozenset(), "c1")          # two boxes stand on c1: every sample collapses
+        assert s.risk == 0.25 and s.moved[0] == "c2" and lazy.stats["pulls"] == 1
+        safe = lazy.screen(frozenset(), "f")        # a free box: all samples run, the answer is exact
+        assert safe == full.trial(frozenset(), "f") and lazy.stats["pulls"] == 5
+        boxes = ["c0", "c1", "c3", "f"]
+        exact = {b: full.trial(frozenset(), b).risk for b in boxes}
+        best = min(boxes, key=lambda b: (exact[b], boxes.index(b)))
+        assert lazy.least_risky(frozenset(), boxes) == best
+        assert lazy.trial(frozenset(), "c1") == full.trial(frozenset(), "c1")  # completes the prefix
+
+
+def test_pool_screens_the_same_prefix_as_one_process():
+    scene = column(4).hide_depths()
+    with Predictor(scene, samples=3, seed=1) as serial, Predictor(scene, samples=3, seed=1, workers=2) as pool:
+        for b in ("c1", "c3", "f"):
+            assert serial.screen(frozenset(), b) == pool.screen(frozenset(), b)
+        assert serial.least_risky(frozenset(), ["c0", "c2", "c3"]) == pool.least_risky(frozenset(), ["c0", "c2", "c3"])
+
+
+def test_pool_workers_outlive_a_predictor_and_serve_the_next_one():
+    from planning import predict
+
+    scene = stacked().hide_depths()
+    with Predictor(scene, samples=2, seed=1, workers=2) as first:
+        a = first.trial(frozenset(), "a")
+        pids = sorted(proc.pid for proc, _, _ in first._pool)
+    assert sorted(proc.pid for proc, _ in predict._IDLE_WORKERS) == pids
+    with Predictor(scene, samples=2, seed=1, workers=2) as second, Predictor(scene, samples=2, seed=1) as serial:
+        assert sorted(proc.pid for proc, _, _ in second._pool) == pids      # the same processes
+        assert second.trial(frozenset(), "a") == a == serial.trial(frozenset(), "a")
