@@ -36,6 +36,8 @@ class DepthEdgeConfig:
     min_face_m2: float = 0.0025      # smallest front face kept (5 x 5 cm)
     min_side_m: float = 0.04         # thinner pieces are tape/edges, not faces
     colour_merge: float = 11.0       # Lab distance under which two pieces are one box
+    seam_veto: float = 0.5           # pieces whose border is more than this much colour edge stay apart
+    seam_rect: float = 0.8           # ... when both are rectangles at least this full
     rect_fill: float = 0.65          # a merged piece must fill its min-area rectangle this well
     tape_max_m: float = 0.09         # a tape band is at most this thick ...
     tape_rel: float = 1.25           # ... and at most this fraction of the pieces it joins
@@ -160,7 +162,7 @@ class DepthEdgeSegmenter:
         # ---- tape: a band (or cross) of another colour between pieces of one colour
         kcore = core & keep[piece]
         merged = _merge_tape(assigned, kcore, lab, mpp, cfg)
-        merged = _merge_pieces(merged, kcore, patch, lab, cfg)
+        merged = _merge_pieces(merged, kcore, patch, lab, cfg, edges)
         merged = _merge_tape(merged, kcore, lab, mpp, cfg)
         return _finish(merged, mpp, cfg)
 
@@ -230,7 +232,7 @@ def _grow_within(assigned: np.ndarray, patch: np.ndarray, fg: np.ndarray) -> np.
 
 
 def _merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
-                  cfg: DepthEdgeConfig) -> np.ndarray:
+                  cfg: DepthEdgeConfig, edges: np.ndarray | None = None) -> np.ndarray:
     import cv2
     from scipy import ndimage
 
@@ -264,10 +266,14 @@ def _merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab
             cand.append((de, a, b))
     cand.sort()
     members: dict[int, list[int]] = {i: [i] for i in range(1, n + 1)}
+    seam = _seam_fraction(assigned, edges) if edges is not None and cfg.seam_veto < 1 else {}
     for _, a, b in cand:
         ra, rb = find(a), find(b)
         if ra == rb:
             continue
+        if seam.get((a, b), 0.0) > cfg.seam_veto and \
+                min(_rect_fill(np.isin(assigned, members[r])) for r in (ra, rb)) >= cfg.seam_rect:
+            continue        # two rectangles with an edge line all along their border: two boxes
         union = np.isin(assigned, members[ra] + members[rb])
         if _rect_fill(union) < cfg.rect_fill:
             continue
@@ -430,18 +436,50 @@ def _spans(piece: np.ndarray, union: np.ndarray, frac: float, thick_px: float = 
     return False
 
 
+def _seam_fraction(labels: np.ndarray, edges: np.ndarray) -> dict[tuple[int, int], float]:
+    """(a, b) -> fraction of the border between pieces a and b that runs along a colour edge.
+
+    Two pieces of one face cut apart by a thin tape meet at the tape's middle, away
+    from any edge; two boxes meet at their seam, which is an edge line all along.
+    """
+    n = int(labels.max())
+    tot: dict[int, int] = {}
+    hit: dict[int, int] = {}
+    for a, b, ea, eb in ((labels[:, :-1], labels[:, 1:], edges[:, :-1], edges[:, 1:]),
+                         (labels[:-1, :], labels[1:, :], edges[:-1, :], edges[1:, :])):
+        sel = (a != b) & (a > 0) & (b > 0)
+        if not sel.any():
+            continue
+        code = np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1) + np.maximum(a[sel], b[sel])
+        e = (ea[sel] | eb[sel]).astype(np.int64)
+        u, inv = np.unique(code, return_inverse=True)
+        t = np.bincount(inv)
+        h = np.bincount(inv, weights=e)
+        for k, tt, hh in zip(u, t, h):
+            tot[int(k)] = tot.get(int(k), 0) + int(tt)
+            hit[int(k)] = hit.get(int(k), 0) + int(hh)
+    return {(k // (n + 1), k % (n + 1)): hit[k] / tot[k] for k in tot if tot[k] >= 10}
+
+
 def _rect_fill(mask: np.ndarray) -> float:
-    """Fraction of the min-area rectangle the mask covers (depth holes inside it closed)."""
+    """How well the mask fills its min-area rectangle: the rectangle of the mask opened by
+    5x5 (one-pixel spurs left by growing must not inflate it), depth holes closed."""
     import cv2
 
     pts = cv2.findNonZero(mask.astype(np.uint8))
     if pts is None:
         return 0.0
     x, y, w, h = cv2.boundingRect(pts)
-    sub = mask[y:y + h, x:x + w].astype(np.uint8)
-    sub = cv2.morphologyEx(np.pad(sub, 2), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
-    return float(sub.sum()) / max((rw + 1) * (rh + 1), 1.0)
+    sub = np.pad(mask[y:y + h, x:x + w].astype(np.uint8), 3)
+    sub = cv2.morphologyEx(sub, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    core = cv2.morphologyEx(sub, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+    cpts = cv2.findNonZero(core)
+    if cpts is None:
+        return 0.0
+    rect = cv2.minAreaRect(cpts)
+    box = np.zeros_like(sub)
+    cv2.fillPoly(box, [np.round(cv2.boxPoints(rect)).astype(np.int32)], 1)
+    return float((sub & box).sum()) / max(float(box.sum()), 1.0)
 
 
 def _finish(merged: np.ndarray, mpp: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
