@@ -147,6 +147,8 @@ class ClientView:
             self.who = g.add_text("Name", "supervisor")
             self.passphrase = g.add_text("Passphrase", "")
             self.approve_plan = g.add_dropdown("Plan", PLANNERS, initial_value=PLANNERS[0])
+            self.accept_risk = g.add_checkbox("Accept predicted risk", False,
+                                              hint="needed to approve a plan predicted unsafe")
             self.btn_approve = g.add_button("Approve", color="green")
             self.reason = g.add_text("Reject reason", "")
             self.btn_reject = g.add_button("Reject", color="orange")
@@ -206,7 +208,9 @@ class ClientView:
     def _approve(self, event: Any) -> None:
         def go() -> None:
             entry = self._entry_for_approval()
-            self.wf.approve(entry.hash, self.passphrase.value, self.who.value.strip() or "supervisor")
+            self.wf.approve(entry.hash, self.passphrase.value, self.who.value.strip() or "supervisor",
+                            accept_risk=bool(self.accept_risk.value))
+            self.accept_risk.value = False
             self.wf.execute()
         self._do(event, go)
 

@@ -305,8 +305,9 @@ class Workflow:
             phys = entries["physics"].plan
             err = self.state.error
             if not phys.safe:
-                err = ("no safe plan: the physics planner found no sequence without predicted "
-                       "collapse; approval is refused. Rearrange the shelf or capture again")
+                err = (f"no safe plan: the least risky sequence still has a predicted collapse "
+                       f"risk of {100 * phys.risk:.0f}%; a supervisor may approve it only by "
+                       f"accepting that risk. Or rearrange the shelf and capture again")
             self._set(plans=entries, planning=False, progress=1.0, progress_text="done", error=err,
                       message="plans ready: compare them, preview, then a supervisor approves one")
         except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
@@ -350,8 +351,14 @@ class Workflow:
             self._refuse(f"{action} refused: plan {plan_hash} is not a plan for the current capture")
         return entry
 
-    def approve(self, plan_hash: str, passphrase: str, who: str = "supervisor") -> State:
-        """Approve exactly this plan for exactly the current capture."""
+    def approve(self, plan_hash: str, passphrase: str, who: str = "supervisor",
+                accept_risk: bool = False) -> State:
+        """Approve exactly this plan for exactly the current capture.
+
+        A plan predicted unsafe (the least risky one when no safe plan exists)
+        needs `accept_risk`: the supervisor says in so many words that they
+        take the predicted risk, and the decision records it.
+        """
         self._check_passphrase(plan_hash, passphrase, who, "approval")
         with self._lock:
             entry = self._current_entry(plan_hash, "approval")
@@ -360,16 +367,21 @@ class Workflow:
                 self._refuse("approval refused: the shelf has changed, capture and plan again")
             if st.robot in ("running", "stopping"):
                 self._refuse("approval refused: the robot is running")
+            risk_note = None
             if not entry.plan.safe:
-                self._refuse(f"approval refused: the {entry.plan.planner} plan is predicted unsafe")
+                risk = f"{100 * entry.plan.risk:.0f}%"
+                if not accept_risk:
+                    self._refuse(f"approval refused: the {entry.plan.planner} plan is predicted unsafe "
+                                 f"(collapse risk up to {risk}); tick 'Accept predicted risk' to approve it anyway")
+                risk_note = f"accepted predicted risk {risk}"
             sid = st.session_id
         if sid is not None:
-            self._record("the approval", self.store.add_decision, sid, plan_hash, "approve", who)
+            self._record("the approval", self.store.add_decision, sid, plan_hash, "approve", who, risk_note)
         with self._lock:
             if self._state.plan_by_hash(plan_hash) is None:   # a capture raced us
                 self._refuse("approval refused: a new capture arrived")
             dec = {"decision": "approve", "plan": plan_hash, "planner": entry.plan.planner,
-                   "who": who, "reason": None, "at": time.time()}
+                   "who": who, "reason": risk_note, "at": time.time()}
             return self._set(approved=plan_hash, decisions=self._state.decisions + (dec,), error=None,
                              message=f"{who} approved the {entry.plan.planner} plan {plan_hash}")
 

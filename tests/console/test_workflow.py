@@ -240,3 +240,36 @@ def test_tcp_robot_disconnect_or_refusal_is_recorded(make_wf, fault):
     assert rec.outcome["completed"] == list(phys.plan.sequence[:1]) and not rec.outcome["ok"]
     sent = [m for m in ctl.received("step")] if hasattr(ctl, "received") else []
     assert len({m.get("step") for m in sent}) <= 2                  # never past the failing step
+
+
+def test_unsafe_plan_needs_explicit_risk_acceptance(make_wf, monkeypatch):
+    """When no safe plan exists the least risky one may run only if the supervisor
+    accepts its predicted risk in so many words; the decision records that."""
+    import dataclasses
+
+    import planning.planner
+    from console.workflow import WorkflowError
+
+    real = planning.planner.make_plan
+
+    def unsafe(*args, **kwargs):
+        return dataclasses.replace(real(*args, **kwargs), safe=False)
+
+    monkeypatch.setattr(planning.planner, "make_plan", unsafe)
+    wf = make_wf()
+    st = wf.capture()
+    wf.select_target(bottom_left(st.scene))
+    wf.plan("extract", wait=True)
+    st = wf.state
+    assert st.error.startswith("no safe plan")
+    phys = st.plans["physics"]
+    assert not phys.plan.safe
+    with pytest.raises(WorkflowError, match="predicted unsafe.*Accept predicted risk"):
+        wf.approve(phys.hash, PASS, "sue")
+    assert wf.state.approved is None
+    wf.approve(phys.hash, PASS, "sue", accept_risk=True)
+    assert wf.state.approved == phys.hash
+    assert wf.state.decisions[-1]["reason"].startswith("accepted predicted risk")
+    rec = wf.store.load_session(st.session_id)
+    assert any(d["decision"] == "approve" and (d.get("reason") or "").startswith("accepted predicted risk")
+               for d in rec.decisions)
