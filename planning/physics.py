@@ -30,6 +30,9 @@ class PhysicsConfig:
     pull_force: float = 200.0           # N, absolute force limit of the suction drive ...
     pull_force_weights: float = 20.0    # ... and at most this many times the pulled box's weight
     pull_margin: float = 0.02           # m past the shelf front before the box counts as out
+    pull_lift: float = 0.006            # m the gripper lifts the box before pulling (capped by the
+                                        # free space above it; 0 = drag it on its support)
+    lift_time: float = 0.05             # s the lift takes
     pull_timeout: float = 3.0           # s; a box that does not come out by then is stuck
     disturbance: float = 0.002          # m, amplitude of the seeded lateral vibration (x)
     disturbance_force: float = 0.1      # vertical vibration force, in weights of the pulled box

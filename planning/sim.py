@@ -429,6 +429,25 @@ class ShelfSim:
         p.setCollisionFilterGroupMask(body, -1, 0, 0)
         self._parked.add(bid)
 
+    def _free_lift(self, box_id: str) -> float:
+        """How far the gripper may lift `box_id`: `pull_lift`, capped by the free space above it.
+
+        Anything whose bounding box overlaps this box's footprint and starts above its
+        top (another box, the shelf's top) bounds the lift; 2 mm are kept free.
+        """
+        p, cfg = self._p, self.config
+        lo, hi = p.getAABB(self._body[box_id])
+        gap = cfg.pull_lift + 0.002
+        shrink = 0.003
+        others = [self._body[b] for b in self._active() if b != box_id]
+        others += [b for b, name in self._static.items() if name == "top"]
+        for ob in others:
+            olo, ohi = p.getAABB(ob)
+            if (olo[0] < hi[0] - shrink and lo[0] + shrink < ohi[0] and olo[1] < hi[1] - shrink
+                    and lo[1] + shrink < ohi[1] and ohi[2] > hi[2]):
+                gap = min(gap, olo[2] - hi[2])
+        return max(0.0, min(cfg.pull_lift, gap - 0.002))
+
     def delete(self, box_id: str) -> None:
         """Take a box away without a pull (it vanishes), then let the rest settle."""
         self._require(box_id)
@@ -541,7 +560,14 @@ class ShelfSim:
         # box rides on its support with its own weight, as a dragged box does. A drive
         # that also held z would press the box into the one below it with up to the
         # force limit at every vertical jitter, and tip that box over (see docs/physics.md).
-        cid = p.createConstraint(body, -1, -1, -1, p.JOINT_PRISMATIC, [0, 0, 1], list(front_local),
+        # a suction gripper grasps, lifts a few mm, then pulls: a box with free space above it
+        # is lifted off its support (and then held at that height), so it no longer drags the
+        # box below it along by friction. A box that something rests on gets no lift (the
+        # free space above it is nil) and is dragged as before, z free.
+        lift = self._free_lift(box_id) if cfg.pull_lift > 0 else 0.0
+        lift_steps = int(math.ceil(cfg.lift_time / dt)) if lift > 0 else 0
+        joint = p.JOINT_FIXED if lift > 0 else p.JOINT_PRISMATIC
+        cid = p.createConstraint(body, -1, -1, -1, joint, [0, 0, 1], list(front_local),
                                  list(front0), [0, 0, 0, 1], list(orn0))
         p.changeConstraint(cid, list(front0), jointChildFrameOrientation=list(orn0),
                            maxForce=max_force)
@@ -606,15 +632,20 @@ class ShelfSim:
             pos = pos0
             max_steps = int(math.ceil(cfg.pull_timeout / dt))
             while True:
-                t = step * dt
-                speed = cfg.pull_speed * min(1.0, (t + dt) / ramp)
-                dist = min(travel_needed + 0.01, dist + speed * dt)
+                z = front0[2]
+                if step < lift_steps:
+                    z += lift * (step + 1) / lift_steps
+                else:
+                    z += lift
+                    t = (step - lift_steps) * dt
+                    speed = cfg.pull_speed * min(1.0, (t + dt) / ramp)
+                    dist = min(travel_needed + 0.01, dist + speed * dt)
                 if step % period == 0:
                     tx = rng.uniform(-cfg.disturbance, cfg.disturbance)
                     tz = rng.uniform(-cfg.disturbance_force, cfg.disturbance_force) * weight
                 jx += (tx - jx) * 0.3
                 jz += (tz - jz) * 0.3
-                target = [front0[0] + jx, front0[1] - dist, front0[2]]
+                target = [front0[0] + jx, front0[1] - dist, z]
                 p.changeConstraint(cid, target, jointChildFrameOrientation=list(orn0),
                                    maxForce=max_force)
                 if jz:
