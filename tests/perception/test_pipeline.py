@@ -65,14 +65,20 @@ def test_rgb_only_uses_a_planar_front():
     assert res2.front_distance is not None and 0.7 < res2.front_distance < 1.4
 
 
-def test_rendered_ten_box_scene_is_perceived_within_tolerances():
+def test_rendered_scenes_are_perceived_at_the_measured_accuracy():
+    """Four rendered shelves (up to 10 boxes each, two structured, two unstructured; ~29 visible
+    faces): the depth segmenter reached recall 0.97 and precision 0.93 on these at the time of
+    writing; the asserts leave a margin of about two boxes."""
     pytest.importorskip("pybullet")
-    from perception.bench import eval_rendered
+    from perception.bench import bench_rendered
     from perception.bench_scenes import sample_scene
 
-    scene = sample_scene(0, "structured", 10)
-    assert len(scene.boxes) == 10
-    fr = eval_rendered(scene, "structured-0", 0, DepthEdgeSegmenter())
-    assert fr.matched / fr.n_true >= 0.6
-    assert np.median(fr.centre_err) <= 0.01
-    assert np.median(fr.width_err) <= 0.01 and np.median(fr.height_err) <= 0.01
+    scenes = [(f"{k}-{i}", sample_scene(i, k, 10)) for i, k in
+              enumerate(("structured", "unstructured", "structured", "unstructured"))]
+    summary, frames = bench_rendered(scenes, 0, DepthEdgeSegmenter(), progress=False)
+    s = summary["all"]
+    assert s["true_boxes"] >= 25
+    assert s["recall"] >= 0.90, s
+    assert s["precision"] >= 0.85, s
+    assert s["centre_err_median_m"] <= 0.01 and s["width_err_median_m"] <= 0.01, s
+    assert s["height_err_median_m"] <= 0.01 and s["angle_err_median_deg"] <= 2.0, s

@@ -17,10 +17,12 @@ def test_neura_pallet_rgbd_boxes_found_with_real_sizes():
 
     r = bench_neura(NEURA, DepthEdgeSegmenter())
     assert r["boxes"] >= 10
-    # a camera looking down at a pallet ("a shelf on its back") is accepted and boxes are found;
-    # the accuracy numbers themselves are reported by perceive-bench (see docs/perception.md)
-    assert r["recall"] >= 0.4, r
-    assert r["matched"] >= 5 and r["size_err_median_m"] is not None and r["size_err_median_m"] < 0.15, r
+    # a camera looking down at a pallet ("a shelf on its back") is accepted and boxes are found.
+    # Measured with the depth segmenter: recall 10/12 = 0.83, precision 0.56, size error
+    # median 8.9 cm (docs/perception.md); the asserts leave one box of margin.
+    assert r["recall"] >= 0.75, r
+    assert r["precision"] >= 0.45, r
+    assert r["size_err_median_m"] is not None and r["size_err_median_m"] < 0.12, r
 
 
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
