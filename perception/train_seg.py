@@ -55,6 +55,7 @@ def sample_scene(rng: np.random.Generator, kind: str = "unstructured", shelf: Sh
             x += w + float(rng.uniform(0.0, 0.05))
             continue
         n = int(rng.integers(1, 5))
+        gap = float(rng.uniform(0.0, 0.015 if structured else 0.05))   # to the next column
         z = 0.0
         col_w = w
         front = float(rng.uniform(0.0, 0.02)) if structured else float(rng.uniform(-0.02, shelf.depth - d))
@@ -72,12 +73,13 @@ def sample_scene(rng: np.random.Generator, kind: str = "unstructured", shelf: Sh
             yaw = 0.0 if structured else float(rng.normal(0, math.radians(5)))
             if abs(yaw) > 0:   # keep a turned box inside its column
                 yaw = float(np.clip(yaw, -math.radians(12), math.radians(12)))
-            dx = float(rng.uniform(-0.01, 0.01)) if structured else float(rng.uniform(-0.03, 0.03))
+            # structured boxes stay inside their column and its gap: no two boxes overlap
+            dx = float(rng.uniform(0.0, gap)) if structured else float(rng.uniform(-0.03, 0.03))
             cx = float(np.clip(x + col_w / 2 + dx, -shelf.width / 2 + w2 / 2 + 0.005, shelf.width / 2 - w2 / 2 - 0.005))
             fy = front if (structured or k == 0) else float(np.clip(front + rng.uniform(-0.03, 0.05), -0.02, shelf.depth - d2))
             boxes.append(Box(f"b{len(boxes)}", (w2, d2, h2), (cx, fy + d2 / 2, z + h2 / 2), yaw_quat(yaw)))
             z += h2
-        x += col_w + float(rng.uniform(0.0, 0.015 if structured else 0.05))
+        x += col_w + gap
     return Scene(shelf, tuple(boxes))
 
 
@@ -235,8 +237,13 @@ def _best_metrics(run_dir: Path) -> tuple[float | None, float | None, int]:
 
 def train(out: str | Path, images: int = 300, epochs: int = 30, imgsz: int = 320, seed: int = 0,
           batch: int = 16, work: str | Path | None = None, workers: int = 0,
-          progress: bool = True) -> TrainResult:
-    """Render a dataset, train YOLO11n-seg from scratch on the CPU, copy the best weights to `out`."""
+          progress: bool = True, val_every_epoch: bool = False) -> TrainResult:
+    """Render a dataset, train YOLO11n-seg from scratch on the CPU, copy the best weights to `out`.
+
+    Validation runs after the last epoch only unless `val_every_epoch`: on a
+    barely trained model it is slower than the epoch itself (hundreds of
+    candidate masks per image), and on two CPU cores that time is training.
+    """
     from perception.segment_yolo import offline_env
 
     out = Path(out)
@@ -244,7 +251,8 @@ def train(out: str | Path, images: int = 300, epochs: int = 30, imgsz: int = 320
         raise PerceptionError(f"{out}: the output weights file must end in .pt")
     if images < 1 or epochs < 1 or imgsz < 32:
         raise PerceptionError(f"need images >= 1, epochs >= 1, imgsz >= 32; got {images}, {epochs}, {imgsz}")
-    work = Path(work) if work is not None else out.with_name(out.stem + ".work")
+    # absolute: ultralytics puts a relative `project` under its own runs/<task>/ folder
+    work = (Path(work) if work is not None else out.with_name(out.stem + ".work")).resolve()
     offline_env()
     data = build_dataset(work / "dataset", images, seed, progress=progress)
 
@@ -279,7 +287,8 @@ def train(out: str | Path, images: int = 300, epochs: int = 30, imgsz: int = 320
                 model.train(data=str(data.yaml), epochs=epochs, imgsz=imgsz, batch=batch, device="cpu",
                             workers=workers, project=str(work), name="run", exist_ok=True, seed=seed,
                             deterministic=True, pretrained=False, amp=False, plots=False, verbose=False,
-                            patience=max(10, epochs), cache="ram", close_mosaic=max(1, epochs // 5))
+                            patience=max(10, epochs), cache="ram", close_mosaic=max(1, epochs // 5),
+                            val=val_every_epoch, warmup_epochs=min(3.0, max(0.5, epochs / 10)))
         finally:
             bar.close()
     best = run_dir / "weights" / "best.pt"
