@@ -9,7 +9,7 @@ ends after at most n passes and n*(n+1)/2 oracle calls.
 """
 from __future__ import annotations
 
-from typing import Iterable
+from typing import Callable, Iterable
 
 from perception.scene import Scene
 from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
@@ -28,11 +28,19 @@ def visit_order(scene: Scene) -> tuple[str, ...]:
 
 
 def search_clear(ids: Iterable[str], trial: Oracle, risk: float = 0.0,
-                 deadline: float | None = None) -> SearchResult:
+                 deadline: float | None = None, *, screen: Oracle | None = None,
+                 least_risky: Callable[[frozenset[str], list[str]], str] | None = None) -> SearchResult:
     """Plan the removal of every box in ``ids`` (visited in the given order).
 
     After ``deadline`` (a ``time.monotonic()`` instant) no box is skipped any
     more: the rest are pulled in order, still each with its prediction.
+
+    Optional fast path (``Predictor.screen`` / ``Predictor.least_risky``), same
+    plan as without it: ``screen(removed, box)`` may stop sampling a box once it
+    can no longer be safe (its risk is then a lower bound, but a safe answer is
+    exact), and ``least_risky(removed, boxes)`` picks the least risky box (first
+    in the given order on a tie) sampling only as far as that takes. The plan
+    records the full ``trial`` prediction of every step taken.
     """
     pending = list(dict.fromkeys(ids))
     oracle = trial if isinstance(trial, CountingOracle) else CountingOracle(trial)
@@ -51,17 +59,20 @@ def search_clear(ids: Iterable[str], trial: Oracle, risk: float = 0.0,
         skipped: list[tuple[str, StepPrediction]] = []
         progressed = False
         for box in pending:
-            pred = oracle(removed, box)
+            pred = (screen or oracle)(removed, box)
             if pred.risk <= risk or clock.passed():
-                take(box, pred)
+                take(box, oracle(removed, box) if screen is not None else pred)
                 progressed = True
             else:
                 skipped.append((box, pred))
         if skipped and not progressed:
             # Nothing came out this pass, so every prediction is for the current
             # state: pull the least risky box (first in visiting order on a tie).
-            box, pred = min(skipped, key=lambda bp: bp[1].risk)
-            take(box, pred)
+            if least_risky is not None:
+                box = least_risky(removed, [b for b, _ in skipped])
+            else:
+                box = min(skipped, key=lambda bp: bp[1].risk)[0]
+            take(box, oracle(removed, box))
             skipped = [(b, p) for b, p in skipped if b != box]
         pending = [b for b, _ in skipped]
 

@@ -73,6 +73,11 @@ class CountingOracle:
     def calls(self) -> int:
         return len(self._cache)
 
+    @property
+    def keys(self) -> set[tuple[frozenset[str], str]]:
+        """The distinct (removed, box) questions asked so far."""
+        return set(self._cache)
+
     def __call__(self, removed: frozenset[str], box: str) -> StepPrediction:
         key = (frozenset(removed), box)
         hit = self._cache.get(key)
@@ -108,13 +113,21 @@ class _Outcome:
 
 
 def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float = 0.0,
-                   max_depth: int | None = None, deadline: float | None = None) -> SearchResult:
+                   max_depth: int | None = None, deadline: float | None = None, *,
+                   screen: Oracle | None = None) -> SearchResult:
     """Plan the removals that get ``target`` out with every step's risk <= ``risk``.
 
     ``ids`` are the boxes on the shelf; ``max_depth`` bounds the recursion
     (default: the number of boxes); ``deadline`` is a ``time.monotonic()``
     instant after which no further blocker is explored (the boxes still on
     the stack are then pulled as they are, so a plan always comes back).
+
+    ``screen`` (optional, ``Predictor.screen``) answers "is this pull safe?" with
+    as few depth samples as that takes: a safe answer covers every sample, an
+    unsafe one stops at the first sample past the threshold, and its ``moved``
+    boxes (the blockers tried next) come from the samples run so far. Every
+    step of the returned plan, and every risk compared at a dead end, is the
+    full ``trial`` prediction.
     """
     present = tuple(ids)
     if target not in present:
@@ -129,9 +142,9 @@ def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float =
         preds: list[StepPrediction] = []
         cur = removed
         while True:
-            pred = oracle(cur, box)
+            pred = screen(cur, box) if screen is not None else oracle(cur, box)
             if pred.risk <= risk:
-                return _Outcome((*seq, box), (*preds, pred))
+                return _Outcome((*seq, box), (*preds, oracle(cur, box) if screen is not None else pred))
             on_stack = set(stack) | {box}
             candidates = [m for m in dict.fromkeys(pred.moved)
                           if m in known and m not in cur and m not in on_stack]
@@ -155,6 +168,8 @@ def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float =
             # Dead end: no blocker comes out safely. Compare two complete plans:
             # pull the box now, or run the blocker plan most likely to go well
             # and then plan this box again from there; keep the likelier success.
+            if screen is not None:
+                pred = oracle(cur, box)  # the full prediction: risks are compared from here on
             now = _Outcome((*seq, box), (*preds, pred))
             if best is None or success_prob(preds) * best.success <= now.success:
                 return now  # the blocker alone is already a worse bet than pulling now

@@ -87,7 +87,10 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             for msg in getattr(getattr(predictor, "sims", [None])[0], "repairs", ()):
                 warnings.warn(f"scene repaired: {msg}", stacklevel=2)
         t_ready = time.perf_counter()
+        stats = getattr(predictor, "stats", None)
+        pulls0 = stats.get("pulls", 0) if isinstance(stats, dict) else 0
         oracle = CountingOracle(predictor.trial)
+        screened: set[tuple[frozenset[str], str]] = set()
         if planner == "heuristic":
             t1 = time.perf_counter()
             sequence = heuristic_order(scene, target)
@@ -97,14 +100,28 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             timed_out = False
         else:
             deadline = None if budget_s is None else time.monotonic() + budget_s
+            # the fast path (docs/speed.md): a Predictor samples a candidate only until it
+            # can no longer be safe, and finds the least risky box without sampling all
+            screen = getattr(predictor, "screen", None)
+            fast = None
+            if screen is not None:
+                def fast(r: frozenset[str], b: str) -> StepPrediction:
+                    screened.add((frozenset(r), b))
+                    return screen(r, b, risk)
+            least = getattr(predictor, "least_risky", None)
             if task == "extract":
-                res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline)  # type: ignore[arg-type]
+                res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
+                                     screen=fast)
             else:
-                res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline)
+                res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
+                                   screen=fast, least_risky=least)
             sequence, predicted, timed_out = res.sequence, res.predicted, res.timed_out
             timing = {"planning_s": time.perf_counter() - t0}
         timing["setup_s"] = t_ready - t0
-        search.update({"oracle_calls": oracle.calls, "timed_out": timed_out})
+        # distinct questions asked of the physics, whether screened or fully sampled
+        search.update({"oracle_calls": len(screened | oracle.keys), "timed_out": timed_out})
+        if isinstance(stats, dict) and "pulls" in stats:
+            search["pulls"] = stats["pulls"] - pulls0  # physics pulls (samples actually run)
         if budget_s is not None:
             search["budget_s"] = budget_s
     finally:

@@ -202,3 +202,41 @@ def test_generated_shelf_physics_plans_hold_where_a_collapse_free_order_exists(k
     assert feasible > 0
     assert held >= 0.95 * feasible, (held, feasible)
     assert at_minimum >= 0.9 * held, (at_minimum, held)
+
+
+class _FullSampling:
+    """A real Predictor without its fast path (screen, least_risky): every trial samples all."""
+
+    def __init__(self, pred):
+        self.trial = pred.trial
+
+    def close(self):
+        pass
+
+
+def test_fast_path_clear_is_the_same_plan_as_full_sampling_with_fewer_pulls():
+    from planning.clear import search_clear
+    from planning.predict import Predictor
+
+    scene = Scene(Shelf(), STACK.boxes + (_box("lid", 0.3, 0.3),)).hide_depths()
+    order = ["bot", "free", "top", "lid"]   # the worst order: boxes carrying others come first
+    with Predictor(scene, samples=4, seed=1) as fast, Predictor(scene, samples=4, seed=1) as full:
+        a = search_clear(order, fast.trial, screen=fast.screen, least_risky=fast.least_risky)
+        b = search_clear(order, full.trial)
+        assert a.sequence == b.sequence and a.predicted == b.predicted and a.safe == b.safe
+        assert a.sequence == ("top", "lid", "bot", "free")
+        assert fast.stats["pulls"] < full.stats["pulls"]
+        plan = make_plan(scene, "clear", samples=4, seed=1, predictor=fast)
+        assert plan == make_plan(scene, "clear", samples=4, seed=1, predictor=_FullSampling(full))
+
+
+def test_same_seed_same_plan_whichever_worker_count():
+    from planning.predict import Predictor
+
+    scene = _bridge_scene()
+    for task, target in (("extract", "left"), ("clear", None)):
+        plans = []
+        for workers in (1, 2):
+            with Predictor(scene, samples=4, seed=2, workers=workers) as pred:
+                plans.append(make_plan(scene, task, target, samples=4, seed=2, predictor=pred))
+        assert plans[0] == plans[1], task
