@@ -182,7 +182,9 @@ def bench_rcan(root: Path, segmenter, progress: bool = True, max_side: int = 960
 
     from perception.capture import read_rgb
     from perception.masks import refine
+    from perception.segment import for_capture
 
+    segmenter = for_capture(segmenter, has_depth=False)
     imgs = sorted((root / "img").glob("*.jpg"))
     rows, nt, nm, ious, secs = [], 0, 0, [], []
     for img in tqdm(imgs, desc="RCAN", disable=not progress):

@@ -19,7 +19,7 @@ from perception.geometry import check_intrinsics, point_map
 from perception.masks import grow_on_plane, refine, to_label_image
 from perception.overlay import draw_overlay
 from perception.scene import Scene, Shelf
-from perception.segment import Segmenter, load_segmenter, segmenter_name
+from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,6 +67,7 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     camera = capture.camera
     check_intrinsics(camera, capture.shape, origin)
     seg = segmenter if segmenter is not None else load_segmenter(None, "auto")
+    seg = for_capture(seg, capture.depth is not None)
     if hasattr(seg, "bind"):
         seg = seg.bind(camera, shelf)  # type: ignore[union-attr]
     depth = capture.depth

@@ -1,12 +1,15 @@
-"""Choosing a segmenter: YOLO11n-seg weights when there are some, else depth and edges.
+"""Choosing a segmenter: depth and edges for RGB-D, YOLO11n-seg when asked for.
 
 A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
 (one mask per box front face). `load_segmenter` picks one:
 - `kind="yolo"` or explicit `weights`: YOLO11n-seg through ultralytics
   (`perception/segment_yolo.py`); weights that do not load are a PerceptionError;
 - `kind="depth"`: the depth-and-edge segmenter, no learned weights;
-- `kind="auto"` (default): the given weights, else the shipped
-  `static/weights/shelfpick-seg.pt` when present, else depth-and-edge.
+- `kind="auto"` (default): the given weights when there are some; otherwise the
+  segmenter that measured best on `perceive-bench` for the kind of capture
+  (`AutoSegmenter`): depth-and-edge for RGB-D and, for photos without depth,
+  `RGB_ONLY` (see docs/perception.md for the figures behind the choice).
+`for_capture(seg, has_depth)` is what the pipeline calls to settle the choice.
 """
 from __future__ import annotations
 
@@ -27,6 +30,40 @@ class Segmenter(Protocol):
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None) -> list[np.ndarray]: ...
 
 
+# which segmenter `auto` uses for photos without depth: "depth" (the depth-and-edge segmenter
+# on a flat stand-in depth) or "yolo" (the shipped weights); chosen by perceive-bench on RCAN
+RGB_ONLY = "depth"
+
+
+class AutoSegmenter:
+    """Depth-and-edge for RGB-D captures; `RGB_ONLY` for photos (settled by `choose`)."""
+
+    name = "auto"
+
+    def __init__(self, rgb_only: str = RGB_ONLY):
+        self.rgb_only_kind = rgb_only
+
+    def choose(self, has_depth: bool) -> Segmenter:
+        from perception.segment_depth import DepthEdgeSegmenter
+
+        if has_depth or self.rgb_only_kind == "depth" or not DEFAULT_WEIGHTS.is_file():
+            return DepthEdgeSegmenter()
+        return load_segmenter(DEFAULT_WEIGHTS, "yolo")
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None) -> list[np.ndarray]:
+        return self.choose(depth is not None).segment(rgb, depth)
+
+
+def for_capture(seg: Segmenter, has_depth: bool) -> Segmenter:
+    """The segmenter to run on a capture with or without a depth image."""
+    choose = getattr(seg, "choose", None)
+    if callable(choose):
+        seg = choose(has_depth)
+    if not has_depth and callable(getattr(seg, "rgb_only", None)):
+        seg = seg.rgb_only()  # type: ignore[union-attr]
+    return seg
+
+
 def load_segmenter(weights: str | Path | None = None, kind: str = "auto") -> Segmenter:
     """The segmenter for `kind`; see the module docstring for the rules."""
     if kind not in KINDS:
@@ -37,10 +74,8 @@ def load_segmenter(weights: str | Path | None = None, kind: str = "auto") -> Seg
         from perception.segment_depth import DepthEdgeSegmenter
 
         return DepthEdgeSegmenter()
-    if weights is None and kind == "auto" and not DEFAULT_WEIGHTS.is_file():
-        from perception.segment_depth import DepthEdgeSegmenter
-
-        return DepthEdgeSegmenter()
+    if weights is None and kind == "auto":
+        return AutoSegmenter()
     path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
     if not path.is_file():
         raise PerceptionError(f"{path}: segmentation weights not found")

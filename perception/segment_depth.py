@@ -38,6 +38,7 @@ class DepthEdgeConfig:
     colour_merge: float = 11.0       # Lab distance under which two pieces are one box
     seam_veto: float = 0.5           # pieces whose border is more than this much colour edge stay apart
     seam_rect: float = 0.8           # ... when both are rectangles at least this full
+    rgb_rect_fill: float = 0.86      # the same for photos without depth (`rgb_only`)
     rect_fill: float = 0.65          # a merged piece must fill its min-area rectangle this well
     tape_max_m: float = 0.09         # a tape band is at most this thick ...
     tape_rel: float = 1.25           # ... and at most this fraction of the pieces it joins
@@ -61,6 +62,14 @@ class DepthEdgeSegmenter:
 
     def bind(self, camera: Camera | None, shelf: Shelf | None) -> "DepthEdgeSegmenter":
         return DepthEdgeSegmenter(camera, shelf, self.config)
+
+    def rgb_only(self) -> "DepthEdgeSegmenter":
+        """The settings for a photo without depth (a flat stand-in depth): no depth jump
+        separates boxes there, so pieces are joined only when their union is a clean rectangle."""
+        from dataclasses import replace
+
+        return DepthEdgeSegmenter(self.camera, self.shelf,
+                                  replace(self.config, rect_fill=self.config.rgb_rect_fill))
 
     # ------------------------------------------------------------------
     def segment(self, rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
