@@ -177,8 +177,10 @@ def labelme_masks(path: str | Path, shape: tuple[int, int]) -> list[np.ndarray]:
     return out
 
 
-def bench_rcan(root: Path, segmenter, progress: bool = True, max_side: int = 960) -> dict:
-    """Photos without depth: the RGB path of the segmenter; recall at IoU 0.5 and matched IoU."""
+def bench_rcan(root: Path, segmenter, progress: bool = True, max_side: int = 960,
+               names: Iterable[str] | None = None) -> dict:
+    """Photos without depth: the RGB path of the segmenter; recall at IoU 0.5 and matched IoU
+    (over the images `names`, e.g. ["484.jpg"], or all of them)."""
     import cv2
     from tqdm import tqdm
 
@@ -188,6 +190,9 @@ def bench_rcan(root: Path, segmenter, progress: bool = True, max_side: int = 960
 
     segmenter = for_capture(segmenter, has_depth=False)
     imgs = sorted((root / "img").glob("*.jpg"))
+    if names is not None:
+        wanted = set(names)
+        imgs = [i for i in imgs if i.name in wanted]
     rows, nt, nm, ious, secs = [], 0, 0, [], []
     for img in tqdm(imgs, desc="RCAN", disable=not progress):
         anno = root / "anno" / (img.stem + ".json")

@@ -32,3 +32,28 @@ def test_rcan_polygons_parse_into_carton_masks():
     masks = labelme_masks(RCAN / "anno" / "418.json", (4000, 4000))
     assert len(masks) >= 3 and all(m.any() for m in masks)
     assert all(m.dtype == bool for m in masks)
+
+
+@pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
+def test_rcan_photo_cartons_found_without_depth():
+    """One photo (484: five cartons): 4 found at IoU 0.5 when this was written."""
+    from perception.bench import bench_rcan
+    from perception.segment import load_segmenter
+
+    r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False, names=["484.jpg"])
+    assert r["images"] == 1 and r["cartons"] == 5
+    assert r["matched"] >= 3, r
+    assert r["mean_iou_matched"] >= 0.6, r
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
+def test_rcan_recall_over_all_photos():
+    """All 11 photos, 151 cartons: recall 56/151 = 0.37, mean IoU 0.72 when this was written."""
+    from perception.bench import bench_rcan
+    from perception.segment import load_segmenter
+
+    r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False)
+    assert r["cartons"] == 151
+    assert r["recall"] >= 0.33, r
+    assert r["mean_iou_matched"] >= 0.65, r
