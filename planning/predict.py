@@ -263,7 +263,9 @@ class Predictor:
                  workers: int = 1):
         if samples < 1:
             raise ValueError(f"samples must be >= 1, got {samples}")
-        self.config = cfg = config or PhysicsConfig()
+        # the sample worlds run the prediction settings (30 solver iterations, see docs/speed.md);
+        # execute_plan and the generator keep the full ones
+        self.config = cfg = (config or PhysicsConfig()).for_prediction()
         self.scene = scene
         self.seed = int(seed)
         self.samples = samples

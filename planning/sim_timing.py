@@ -96,7 +96,7 @@ def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, sample
     scenes = [sample_depths(base, 0, i) for i in range(samples)] + [column_scene()]
     out: dict[str, dict] = {}
     for name, cfg in [("reference", reference)] + list(configs.items()):
-        verdicts, spent, n = [], 0.0, 0
+        verdicts, spent, n, steps = [], 0.0, 0, 0.0
         for sc in scenes:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -104,13 +104,14 @@ def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, sample
             snap = sim.snapshot()
             for b in sc.ids:
                 sim.restore(snap)
-                t = time.perf_counter()
+                t = time.process_time()   # CPU: on a shared machine wall time is mostly the others
                 r = sim.remove(b, stop_on_collapse=name != "reference")
-                spent += time.perf_counter() - t
+                spent += time.process_time() - t
+                steps += r.sim_time / cfg.time_step
                 n += 1
                 verdicts.append((bool(r.collapsed), r.collapsed[0] if r.collapsed else None))
             sim.close()
-        out[name] = {"verdicts": verdicts, "trial_ms": 1000 * spent / n}
+        out[name] = {"verdicts": verdicts, "trial_ms": 1000 * spent / n, "steps": steps / n}
         print(f"{name}: {out[name]['trial_ms']:.1f} ms per trial", file=sys.stderr, flush=True)
     ref = out["reference"]["verdicts"]
     for name, o in out.items():
@@ -125,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=["timing", "accuracy"])
     ap.add_argument("--quick", action="store_true", help="accuracy on 2 depth samples only")
+    ap.add_argument("--levers", action="store_true",
+                    help="accuracy of the speed levers of docs/speed.md instead of the step sizes")
     args = ap.parse_args(argv)
     cfg = PhysicsConfig()
     if args.what == "timing":
@@ -138,9 +141,18 @@ def main(argv: list[str] | None = None) -> int:
         "1/60 s, 30 it": cfg.replace(time_step=1 / 60, solver_iterations=30),
         "default": cfg,
     }
+    if args.levers:
+        configs = {
+            "default": cfg,
+            "rest window 0.05 s": cfg.replace(rest_window=0.05),
+            "1/120 s, 30 it": cfg.replace(solver_iterations=30),
+            "1/90 s, 50 it": cfg.replace(time_step=1 / 90),
+            "no lift (dragged, z free)": cfg.replace(pull_lift=0.0),
+        }
     res = accuracy(configs, ref, samples=2 if args.quick else 4)
     for name, o in res.items():
-        print(f"| {name} | {o['collapse_agree']:.3f} | {o['first_agree']:.3f} | {o['trial_ms']:.1f} |")
+        print(f"| {name} | {o['collapse_agree']:.3f} | {o['first_agree']:.3f} | {o['trial_ms']:.1f} "
+              f"| {o['steps']:.1f} |")
     return 0
 
 
