@@ -51,3 +51,19 @@ def test_unbound_segmenter_still_finds_faces():
     # without the shelf it cannot drop the back wall, but both faces are there
     ious = _match(np.max([m * (i + 1) for i, m in enumerate(masks)], axis=0).astype(np.uint16), cap.masks)
     assert len(masks) >= 2 and min(ious.values()) > 0.65
+
+
+def test_auto_picks_depth_segmenter_and_photo_settings():
+    from perception.segment import AutoSegmenter, for_capture, load_segmenter
+
+    seg = load_segmenter(None, "auto")
+    assert isinstance(seg, AutoSegmenter)
+    rgbd = for_capture(seg, has_depth=True)
+    photo = for_capture(seg, has_depth=False)
+    assert isinstance(rgbd, DepthEdgeSegmenter) and isinstance(photo, DepthEdgeSegmenter)
+    # without depth nothing geometric separates boxes: a stricter rectangle test joins pieces
+    assert photo.config.rect_fill == rgbd.config.rgb_rect_fill > rgbd.config.rect_fill
+    # an explicit depth segmenter is left as it is for RGB-D
+    d = DepthEdgeSegmenter()
+    assert for_capture(d, True) is d
+
