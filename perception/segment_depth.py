@@ -310,9 +310,6 @@ def _contacts(labels: np.ndarray) -> dict[tuple[int, int], int]:
     return out
 
 
-_DEBUG = False
-
-
 def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.ndarray,
                 cfg: DepthEdgeConfig) -> np.ndarray:
     """Join a tape piece with the pieces it separates.
@@ -359,16 +356,12 @@ def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.n
     done: set[int] = set()
     for p in sorted(idx, key=lambda i: thick[i - 1]):
         p = int(p)
-        if _DEBUG:
-            print('P', p, round(thick[p-1], 3), int(cnt[p-1]), [(q, round(thick[q-1], 3), round(float(np.linalg.norm(mean[q-1]-mean[p-1])), 1)) for q in nbrs[p]])
         if p in done or thick[p - 1] > cfg.tape_max_m:
             continue
         cand = [q for q in nbrs[p] if q not in done
                 and thick[p - 1] <= cfg.tape_rel * thick[q - 1]]
         if len(cand) < 2:
             continue
-        if _DEBUG:
-            print('  pairwise', [(a, b, round(float(np.linalg.norm(mean[a-1]-mean[b-1])), 1)) for a in cand for b in cand if a < b])
         best = None
         # the neighbours that share a colour with the largest one of them
         for seed in sorted(cand, key=lambda q: -cnt[q - 1]):
@@ -385,8 +378,6 @@ def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.n
         ok = None
         for group in ([side, best] if len(side) >= 2 and len(side) < len(best) else [best]):
             union = np.isin(labels, [p] + group)
-            if _DEBUG:
-                print('  try', group, round(_rect_fill(union), 3))
             if _rect_fill(union) >= cfg.rect_fill and _spans(
                     labels == p, union, cfg.tape_span, thick[p - 1] / max(float(np.median(mpp[union])), 1e-6),
                     cfg.tape_frac, cfg.tape_centre):
@@ -400,14 +391,6 @@ def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.n
             done.add(q)
         done.add(p)
     return lut[labels]
-
-
-def _short_side_m(mask: np.ndarray, mpp: np.ndarray) -> float:
-    import cv2
-
-    pts = cv2.findNonZero(mask.astype(np.uint8))
-    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
-    return float(min(rw, rh)) * float(np.median(mpp[mask]))
 
 
 def _spans(piece: np.ndarray, union: np.ndarray, frac: float, thick_px: float = 0.0,
@@ -438,8 +421,6 @@ def _spans(piece: np.ndarray, union: np.ndarray, frac: float, thick_px: float = 
             continue
         width = min(q1 - q0, thick_px) if thick_px > 0 else q1 - q0
         centre = abs(0.5 * (q0 + q1) - 0.5 * (v0 + v1)) / (v1 - v0)
-        if _DEBUG:
-            print('    span axis', i, 'width rel', round(width / (v1 - v0), 3), 'centre', round(centre, 3))
         if width <= max_rel * (v1 - v0) and centre <= centre_tol:
             return True
     return False
