@@ -6,11 +6,15 @@ face of a box below the camera) and colour edges (boxes side by side with
 flush fronts). The segmenter
 1. drops the shelf itself (points outside the shelf volume or on the back wall),
 2. cuts the image at depth jumps and keeps camera-facing pixels: geometric patches,
-3. cuts patches further at Canny edges of the RGB image,
+3. cuts patches further at Canny edges of the RGB image; long straight edges are
+   extended a few pixels so a seam that stops short at a T junction still cuts,
 4. gives thin and small pieces (tape, edge bands, labels) to their nearest big piece,
-5. merges neighbouring pieces of one patch whose colours match and whose union
-   is still a rectangle (a box whose face was cut by a print or tape).
-Everything is vectorised; a 640x480 frame takes well under 0.2 s.
+5. joins a tape band or cross (thin, across the face, near its middle) with the
+   same-colour pieces it separates when together they fill a rectangle,
+6. merges neighbouring pieces whose colours match and whose union is still a
+   rectangle, unless both are rectangles with an edge line along their whole
+   common border (the seam between two boxes).
+Vectorised; a 640x480 frame takes about 0.1-0.3 s of the ~0.35 s of `perceive`.
 """
 from __future__ import annotations
 
