@@ -24,8 +24,8 @@ class PhysicsConfig:
     # integration
     time_step: float = 1.0 / 120.0      # s; see docs/physics.md for the fine-step comparison
     solver_iterations: int = 50
-    prediction_solver_iterations: int = 30  # the Predictor's sample worlds: same verdicts vs the
-                                            # fine reference as 50, 35% less CPU (docs/speed.md)
+    prediction_solver_iterations: int = 50  # the Predictor's sample worlds; 30 was tried and dropped:
+                                            # spurious collapses in 30-box shelves (docs/speed.md)
     # suction pull along -y
     pull_speed: float = 0.5             # m/s, reached after `pull_ramp`
     pull_ramp: float = 0.05             # s of linear speed ramp (no infinite jerk)
