@@ -33,12 +33,28 @@ def _pct(v: list[float], q: float) -> float:
 
 
 def _cpu() -> float:
-    """CPU seconds of this process and its finished-or-waited children (pool workers)."""
+    """CPU seconds of this process, its waited-for children and the live pool workers.
+
+    The Predictor's pool processes outlive it (they wait in an idle list for the
+    next Predictor), so their CPU time is read from /proc while they live.
+    """
+    import os
     import resource
+
+    from planning import predict
 
     own = time.process_time()
     ch = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own + ch.ru_utime + ch.ru_stime
+    tick = os.sysconf("SC_CLK_TCK")
+    workers = 0.0
+    for proc, _ in list(predict._IDLE_WORKERS):
+        try:
+            with open(f"/proc/{proc.pid}/stat") as fh:
+                f = fh.read().rsplit(")", 1)[1].split()
+            workers += (int(f[11]) + int(f[12])) / tick   # utime, stime
+        except (OSError, IndexError, ValueError):
+            pass
+    return own + ch.ru_utime + ch.ru_stime + workers
 
 
 def main(argv: list[str] | None = None) -> int:
