@@ -20,6 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exhaustive-max-boxes", type=int, default=8,
                         help="exhaustive search over removal orders on scenes up to this size (default 8; 0: off)")
     parser.add_argument("--robot-time", type=float, default=12.5, help="robot seconds per removed box (default 12.5)")
+    parser.add_argument("--shared-predictor", action="store_true",
+                        help="one Predictor per scene for all its targets (faster; planning times then "
+                             "exclude its build and reuse cached trials)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("--limit", "", f"expected a positive number, got {args.limit!r}")
     if not math.isfinite(args.robot_time) or args.robot_time <= 0:
         raise FormatError("--robot-time", "", f"expected a positive number of seconds, got {args.robot_time!r}")
-    config = BenchConfig(planners, args.samples, args.seed, max(0, args.exhaustive_max_boxes), args.robot_time)
+    config = BenchConfig(planners, args.samples, args.seed, max(0, args.exhaustive_max_boxes), args.robot_time,
+                         shared_predictor=args.shared_predictor)
     summary = run_bench(args.scenes, args.out, config, workers=args.workers, ray_address=args.ray,
                         limit=args.limit)
     from planning.bench import to_markdown
