@@ -67,11 +67,14 @@ def _face(b: Box) -> list:
             for sx in (-1, 1) for sz in (-1, 1)]
 
 
-def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | None = None) -> Scene:
+def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | None = None,
+                  reach: float = 1.0) -> Scene:
     """One depth sample of the scene: unknown depths drawn uniformly in `depth_range`.
 
     Ranges are computed on the scene as perceived (placeholder depths for the
     others are not used as obstacles: only front faces and known boxes are).
+    `reach` < 1 shrinks each range towards its lowest depth (used to redraw a
+    sample whose boxes, turned in the plane, swing into a neighbour).
     """
     rng = random.Random(f"shelfpick-depth:{int(seed)}:{int(sample)}")
     out = []
@@ -80,7 +83,7 @@ def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | 
             out.append(b)
             continue
         lo, hi = depth_range(scene, b, config)
-        d = rng.uniform(lo, hi)
+        d = rng.uniform(lo, lo + (hi - lo) * reach)
         out.append(b.with_depth(d))
     return scene.with_boxes(out)
 
@@ -95,19 +98,28 @@ def trial_seed(seed: int, sample: int, removed: frozenset[str], box: str) -> int
 
 
 def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig) -> ShelfSim:
-    """The settled world of one depth sample; an unstable draw is redrawn (deterministically)."""
+    """The settled world of one depth sample; an unstable draw is redrawn (deterministically).
+
+    Redraws reach less and less deep (a box turned in the plane swings its back
+    corners sideways into its neighbours), and the last resort is the scene as
+    perceived, with its placeholder depths, which perception made valid.
+    """
     last: Exception | None = None
-    for attempt in range(5):
-        sc = scene if scene.depth_known else sample_depths(scene, seed, sample + 1000 * attempt, config)
+    reaches = (1.0, 1.0, 0.66, 0.33, 0.0)
+    for attempt, reach in enumerate(reaches + (None,)):
+        if scene.depth_known or reach is None:
+            sc = scene
+        else:
+            sc = sample_depths(scene, seed, sample + 1000 * attempt, config, reach)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 return ShelfSim(sc, config)
         except SceneError as exc:  # this draw does not stand; draw again
             last = exc
-            if scene.depth_known:
+            if scene.depth_known or reach is None:
                 raise
-    raise SceneError(f"no stable depth sample {sample} after 5 draws: {last}")
+    raise SceneError(f"no stable depth sample {sample}: {last}")  # pragma: no cover - loop raises
 
 
 class _Worlds:

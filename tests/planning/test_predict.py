@@ -147,3 +147,25 @@ def test_pool_workers_outlive_a_predictor_and_serve_the_next_one():
     with Predictor(scene, samples=2, seed=1, workers=2) as second, Predictor(scene, samples=2, seed=1) as serial:
         assert sorted(proc.pid for proc, _, _ in second._pool) == pids      # the same processes
         assert second.trial(frozenset(), "a") == a == serial.trial(frozenset(), "a")
+
+
+def test_turned_box_whose_deep_samples_hit_a_neighbour_still_gets_samples():
+    """A box turned in the plane swings its back corners sideways as its sampled depth
+    grows; redraws reach less deep instead of refusing the perceived scene."""
+    from dataclasses import replace
+
+    from perception.scene import Box, Scene, Shelf, quat_to_matrix, yaw_quat
+    from planning.predict import Predictor
+
+    q = yaw_quat(-0.6)
+    r = quat_to_matrix(q)
+    front, d = (-0.19, 0.0, 0.1), 0.05
+    turned = replace(Box("b1", (0.2, d, 0.2), (0, 0, 0), q, depth_known=False),
+                     position=tuple(front[i] + r[i][1] * d / 2 for i in range(3)))
+    neighbour = Box("b0", (0.2, 0.05, 0.2), (0.0, 0.045, 0.1), depth_known=False)
+    p = Predictor(Scene(Shelf(), (neighbour, turned)), samples=4, seed=0)
+    try:
+        pred = p.trial(frozenset(), "b0")
+        assert pred.collapse_prob == 0.0
+    finally:
+        p.close()
