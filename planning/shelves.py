@@ -42,6 +42,8 @@ GAP = 0.004                          # clearance kept between placed boxes, m
 CELL = 0.005                         # height-map resolution, m
 Y_MIN_GRID = -0.12                   # the grid covers the part of boxes sticking out in front
 MAX_ATTEMPTS = 60
+STILL_TIME = 1.0                     # a settled shelf left alone this long ...
+STILL_LIMIT = 0.01                   # ... moves no box more than this, or it is dropped
 SETTLE_MOVE_LIMIT = 0.03             # a box that moved more than this while settling: drop the scene
 SETTLE_TURN_LIMIT = 12.0             # degrees
 
@@ -597,8 +599,14 @@ def _settle(scene: Scene) -> Scene:
     try:
         settled = sim.scene
         present = set(sim.present())
+        drift = sim.idle(STILL_TIME) if present == set(scene.ids) else {}
     finally:
         sim.close()
+    creeping = {b: d for b, d in drift.items() if d > STILL_LIMIT}
+    if creeping:
+        worst = max(creeping, key=creeping.get)
+        raise SceneError(f"box {worst} still moves {creeping[worst] * 100:.1f} cm in {STILL_TIME:.0f} s "
+                         f"after settling: the shelf is not at rest")
     if present != set(scene.ids):
         raise SceneError(f"boxes fell off while settling: {sorted(set(scene.ids) - present)}")
     after = {b.id: b for b in settled.boxes}

@@ -416,6 +416,20 @@ class ShelfSim:
                 return True
         return False
 
+    def idle(self, seconds: float) -> dict[str, float]:
+        """Let the world run untouched; how far (m) each box on the shelf moved.
+
+        A settled shelf barely creeps. A stack that is still sliding or tipping
+        slowly (under the rest velocity, so settling called it calm) moves
+        centimetres, and every later step would misreport that as a collapse.
+        """
+        ids = self.present()
+        before = self._raw_poses(ids)
+        for _ in range(int(math.ceil(seconds / self.config.time_step))):
+            self._step()
+        after = self._raw_poses(ids)
+        return {b: math.dist(before[b][0], after[b][0]) for b in ids}
+
     def _park(self, bid: str) -> None:
         p = self._p
         i = self._ids.index(bid)

@@ -87,7 +87,8 @@ def test_unstructured_has_leaning_and_bridging_boxes() -> None:
 def test_dense_scenes_fit_first_time(kind: str, n: int) -> None:
     scene = generate(kind, 2, n)
     assert len(scene.boxes) == n
-    assert scene.source["attempt"] == 0          # dense packing does not need retries
+    # dense packing rarely needs retries (a layout that still creeps after settling is one)
+    assert scene.source["attempt"] <= 2
     _check_geometry(scene)
     if kind == "unstructured":
         assert sum(abs(b.orientation[3]) > 0.02 for b in scene.boxes) >= 3
@@ -109,3 +110,14 @@ def test_obb_overlap() -> None:
     assert obb_overlap(a, b, 0.003)
     turned = _Placed((0.2, 0.2, 0.2), (0.23, 0.1, 0.1), (math.cos(0.4), 0.0, 0.0, math.sin(0.4)))
     assert obb_overlap(a, turned)
+
+
+def test_generated_shelves_are_at_rest() -> None:
+    """A shelf that still slides after settling would make every later step look like a
+    collapse; generated shelves barely move when left alone."""
+    from planning.sim import ShelfSim
+
+    scene = generate("unstructured", 2, 11)
+    with ShelfSim(scene) as sim:
+        drift = sim.idle(1.0)
+    assert max(drift.values()) < 0.01, drift
