@@ -4,8 +4,6 @@ from __future__ import annotations
 from perception.scene import Box, Scene, Shelf
 
 CUBE = (0.2, 0.2, 0.2)
-A = (0.31, 0.23, 0.25)   # the method's box types, as (width, depth, height)
-C = (0.5, 0.17, 0.17)
 
 
 def cube(bid: str, x: float, z: float, y: float = 0.12, size=CUBE) -> Box:
@@ -32,17 +30,7 @@ def grid(nx: int = 4, nz: int = 3) -> Scene:
 
 
 def twelve() -> Scene:
-    """A 12-box shelf like the synthetic structured ones: columns, a bridging long box, fronts staggered."""
-    boxes: list[Box] = []
+    """A 12-box shelf like the synthetic structured ones (the one the timing script measures)."""
+    from planning.sim_timing import twelve_box_scene
 
-    def add(size, x, z, dy=0.0):
-        boxes.append(Box(f"b{len(boxes)}", size, (x, dy + size[1] / 2, z)))
-
-    add(A, -0.34, 0.125, 0.0); add(A, -0.34, 0.375, 0.02); add(CUBE, -0.34, 0.6, -0.02)
-    add(CUBE, -0.08, 0.1, 0.01); add(CUBE, -0.08, 0.3, 0.0)
-    add(CUBE, 0.13, 0.1, -0.01); add(CUBE, 0.13, 0.3, 0.03)
-    add(C, 0.07, 0.4 + 0.085, 0.0)
-    add(CUBE, 0.36, 0.1, 0.0); add(CUBE, 0.36, 0.3, 0.02)
-    add(CUBE, -0.34, 0.8, 0.0)
-    add(CUBE, 0.05, 0.57 + 0.1, 0.01)
-    return Scene(Shelf(), tuple(boxes))
+    return twelve_box_scene()
