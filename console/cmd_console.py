@@ -23,6 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "generated and printed when unset on a local address")
     p.add_argument("--samples", type=int, default=10, help="depth samples per prediction (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed for the source, planners and robot (default 0)")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="processes simulating the depth samples while planning (default: 2, or 1 on "
+                        "a 1-core machine); the plans do not depend on it")
     p.add_argument("--no-capture", action="store_true", help="do not capture once at start")
 
 
@@ -32,6 +35,9 @@ def build(args: argparse.Namespace):
     from perception.errors import ShelfpickError
 
     # refuse bad settings before opening anything
+    workers = getattr(args, "workers", 1)
+    if workers < 1:
+        raise ShelfpickError(f"--workers: must be >= 1, got {workers}")
     if args.samples < 1:
         raise ShelfpickError(f"--samples: must be >= 1, got {args.samples}")
     given = args.supervisor_passphrase or os.environ.get(ENV_PASSPHRASE) or ""
@@ -55,7 +61,8 @@ def build(args: argparse.Namespace):
     def robot_factory(truth, seed):
         return open_robot(spec, truth=truth, seed=seed)
 
-    wf = Workflow(source, store, robot_factory, passphrase, samples=args.samples, seed=args.seed)
+    wf = Workflow(source, store, robot_factory, passphrase, samples=args.samples, seed=args.seed,
+                  workers=workers)
     app = ConsoleApp(wf, host=args.host, port=args.port, passphrase_set=bool(given))
     return app, wf, store, passphrase, bool(given), db
 

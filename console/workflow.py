@@ -90,7 +90,7 @@ class Workflow:
 
     def __init__(self, source: Any, store: Any, robot_factory: RobotFactory,
                  supervisor_passphrase: str, samples: int = 10, seed: int = 0,
-                 segmenter: Any = None) -> None:
+                 segmenter: Any = None, workers: int = 1) -> None:
         if not supervisor_passphrase:
             raise ValueError("a supervisor passphrase is required")
         self.source = source
@@ -100,6 +100,7 @@ class Workflow:
         self.samples = int(samples)
         self.seed = int(seed)
         self.segmenter = segmenter
+        self.workers = max(1, int(workers))     # processes for the depth samples (same plans for any count)
         self._lock = threading.RLock()
         self._state = State(source=getattr(source, "name", str(source)))
         self._listeners: list[Listener] = []
@@ -279,7 +280,7 @@ class Workflow:
 
             self._progress(gen, 0.05, f"building {self.samples} depth samples")
             t_setup = time.perf_counter()
-            predictor = Predictor(scene, samples=self.samples, seed=self.seed)
+            predictor = Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers)
             t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
             entries: dict[str, PlanEntry] = {}
             n = len(PLANNERS)

@@ -58,10 +58,11 @@ def make_wf(tmp_path):
 
     made = []
 
-    def build(scene: Scene | None = None, robot=None, fail: bool = False, db=None, timeout: float = 5.0):
-        store = SessionStore(db or tmp_path / "s.sqlite", timeout=timeout)
+    def build(scene: Scene | None = None, robot=None, fail: bool = False, db=None, timeout: float = 5.0,
+              workers: int = 1):
+        store = SessionStore(db or tmp_path / f"s{len(made)}.sqlite", timeout=timeout)
         wf = Workflow(CodeShelfSource(scene or small_scene(), fail), store, robot or sim_factory(),
-                      PASS, samples=2, seed=0)
+                      PASS, samples=2, seed=0, workers=workers)
         made.append(store)
         return wf
 
@@ -273,3 +274,12 @@ def test_unsafe_plan_needs_explicit_risk_acceptance(make_wf, monkeypatch):
     rec = wf.store.load_session(st.session_id)
     assert any(d["decision"] == "approve" and (d.get("reason") or "").startswith("accepted predicted risk")
                for d in rec.decisions)
+
+
+def test_planning_on_two_processes_gives_the_same_plans(make_wf):
+    """The console plans on a pool of processes (shelfpick console --workers): same plans."""
+    one, two = make_wf(), make_wf(workers=2)
+    a, b = planned(one), planned(two)
+    for planner in ("physics", "heuristic"):
+        assert a.plans[planner].hash == b.plans[planner].hash
+        assert a.plans[planner].plan.predicted == b.plans[planner].plan.predicted
