@@ -245,7 +245,9 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
             c = _aabb(out[j])
             if _overlap(a, c, 0) < min_contact or _overlap(a, c, 1) <= 0:
                 continue
-            if c[1, 2] <= bottom + snap and c[1, 2] > support:
+            # under this box: its top within `snap` above our bottom, or (a larger overlap)
+            # its bottom below ours: we were measured partly inside it, so we rest on it
+            if (c[1, 2] <= bottom + snap or c[0, 2] < bottom - 1e-3) and c[1, 2] > support:
                 support, under = float(c[1, 2]), out[j].id
         delta = support - bottom
         if abs(delta) > 1e-3:

@@ -99,3 +99,18 @@ def test_distance_from_known_box_size():
     d = distance_from_box_size([cap.masks == 1], cap.camera, (0.30, 0.20))
     true = 0.0 - cap.camera.position[1]
     assert abs(d - true) < 0.04
+
+
+def test_box_measured_partly_inside_the_box_below_rests_on_it():
+    """A face measured 3.5 cm too low overlaps the box under it by more than the snap
+    distance: it is pushed up onto that box, never dropped through it to a lower one."""
+    from perception.boxes import make_valid
+    from perception.scene import Box, Shelf
+
+    bottom = Box("b0", (0.5, 0.25, 0.17), (0.0, 0.125, 0.085), depth_known=False)
+    middle = Box("b1", (0.5, 0.25, 0.12), (0.0, 0.125, 0.17 + 0.06), depth_known=False)
+    top = Box("b2", (0.23, 0.25, 0.16), (0.0, 0.125, 0.29 - 0.035 + 0.08), depth_known=False)
+    out, notes = make_valid([bottom, middle, top], Shelf())
+    placed = {b.id: b for b in out}
+    assert placed["b2"].position[2] - 0.08 == pytest.approx(0.29, abs=1e-3)
+    assert any("b2" in n and "pushed up" in n for n in notes)
