@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from perception.capture import Capture
+from perception.geometry import pose_matrix, project  # noqa: F401 - project is part of this module's API
 from perception.scene import Camera, Scene, quat_to_matrix, wxyz_to_xyzw
 
 NEAR, FAR = 0.05, 6.0          # clip planes, metres
@@ -40,23 +41,9 @@ def default_camera(pitch_deg: float = DEFAULT_PITCH_DEG) -> Camera:
                   depth_scale=0.001, position=(0.0, -1.05, 0.80), orientation=q)
 
 
-def camera_matrices(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t): camera-to-shelf rotation (columns = camera axes) and camera position."""
-    return np.asarray(quat_to_matrix(camera.orientation), float), np.asarray(camera.position, float)
-
-
-def project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Shelf-frame points (N,3) -> pixel coordinates (N,2, OpenCV: pixel centres at integers) and z."""
-    r, t = camera_matrices(camera)
-    pc = (np.asarray(points, float).reshape(-1, 3) - t) @ r   # = R^T (p - t)
-    z = pc[:, 2]
-    uv = np.stack([camera.fx * pc[:, 0] / z + camera.cx, camera.fy * pc[:, 1] / z + camera.cy], axis=1)
-    return uv, z
-
-
 def gl_view_matrix(camera: Camera) -> list[float]:
     """World->OpenGL-eye matrix (column-major, 16 floats) for the camera pose."""
-    r, t = camera_matrices(camera)
+    r, t = pose_matrix(camera)
     world_to_cv = np.eye(4)
     world_to_cv[:3, :3] = r.T
     world_to_cv[:3, 3] = -r.T @ t
@@ -277,7 +264,7 @@ def _instance_masks(scene: Scene, cam: Camera, seg: np.ndarray, z: np.ndarray,
     h, w = seg.shape
     masks = np.zeros((h, w), np.uint16)
     labels: dict[int, str] = {}
-    r, t = camera_matrices(cam)
+    r, t = pose_matrix(cam)
     for body, box_id in body_to_box.items():
         hit = seg == body
         if front_only and hit.any():

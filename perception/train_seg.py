@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from perception.errors import PerceptionError
+from perception.geometry import matrix_to_quat
 from perception.scene import Box, Camera, Scene, Shelf, yaw_quat
 
 # The method's box types (cm, as listed): each may stand on any face that fits the shelf depth.
@@ -83,25 +84,6 @@ def sample_scene(rng: np.random.Generator, kind: str = "unstructured", shelf: Sh
     return Scene(shelf, tuple(boxes))
 
 
-def _quat_from_matrix(r: np.ndarray) -> tuple[float, float, float, float]:
-    """Rotation matrix -> unit quaternion (w, x, y, z)."""
-    tr = float(np.trace(r))
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        q = (0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s)
-    else:
-        i = int(np.argmax(np.diag(r)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = math.sqrt(1.0 + r[i, i] - r[j, j] - r[k, k]) * 2
-        v = [0.0, 0.0, 0.0]
-        v[i] = 0.25 * s
-        v[j] = (r[j, i] + r[i, j]) / s
-        v[k] = (r[k, i] + r[i, k]) / s
-        q = ((r[k, j] - r[j, k]) / s, v[0], v[1], v[2])
-    n = math.sqrt(sum(c * c for c in q))
-    return tuple(float(c / n) for c in q)  # type: ignore[return-value]
-
-
 def jittered_camera(rng: np.random.Generator) -> Camera:
     """The default D435 pose moved a little, as a mount or a hand-held capture would."""
     from perception.render import default_camera
@@ -120,7 +102,7 @@ def jittered_camera(rng: np.random.Generator) -> Camera:
     r = rz(yaw) @ rx(-pitch) @ rz(roll)   # world yaw, tilt, then roll about the optical axis
     pos = (float(rng.uniform(-0.08, 0.08)), float(rng.uniform(-1.12, -0.98)), float(rng.uniform(0.70, 0.90)))
     return Camera(base.width, base.height, base.fx, base.fy, base.cx, base.cy, base.depth_scale,
-                  pos, _quat_from_matrix(r))
+                  pos, matrix_to_quat(r))
 
 
 def mask_polygon(mask: np.ndarray, min_area: float = 40.0) -> np.ndarray | None:

@@ -34,10 +34,7 @@ def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> 
     """
     cfg = config or PhysicsConfig()
     r = quat_to_matrix(box.orientation)
-    f = box.front_center
-    hx, hz = box.size[0] / 2, box.size[2] / 2
-    face = [tuple(f[i] + sx * r[i][0] * hx + sz * r[i][2] * hz for i in range(3))
-            for sx in (-1, 1) for sz in (-1, 1)]
+    face = _face(box)
     face_max_y = max(c[1] for c in face)
     dy = r[1][1]  # how much of the box's depth axis points into the shelf
     if dy < 0.2:
