@@ -54,7 +54,9 @@ def console(tmp_path):
     wf = Workflow(DemoSource([("small", small_shelf())], seed=2), store,
                   lambda truth, seed: open_robot("sim", truth=truth, seed=seed), PASS, samples=2, seed=0)
     app = ConsoleApp(wf, port=0)
+    WATCHED.append(wf)
     yield app, wf, store
+    WATCHED.remove(wf)
     app.stop()
     store.close()
 
@@ -66,6 +68,9 @@ def mark(what: str) -> None:
     print(f"[{time.monotonic() - T0[0]:6.1f} s] {what}", flush=True)
 
 
+WATCHED: list = []  # the workflow under test, so a timeout can say where it stood
+
+
 def until(cond, timeout: float = 30.0, what: str = "condition"):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -73,7 +78,11 @@ def until(cond, timeout: float = 30.0, what: str = "condition"):
         if v:
             return v
         time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
+    where = ""
+    if WATCHED:
+        st = WATCHED[-1].state
+        where = f" (workflow: message={st.message!r}, error={st.error!r}, robot={st.robot!r})"
+    raise AssertionError(f"timed out waiting for {what}{where}")
 
 
 def wait_text(page, text: str, timeout: float = 30.0) -> None:
@@ -87,14 +96,25 @@ def open_page(context, app):
     page.goto(app.url)
     page.get_by_role("button", name="Capture").wait_for(timeout=60_000)
     new = until(lambda: [app.views[c] for c in set(app.views) - before], 30, "client view")
+    # the first render replaces the "Starting…" status and moves the buttons below it: a click
+    # aimed before that lands on whatever slides under the pointer (seen once on a slow CI machine)
+    page.wait_for_function("() => !document.body.innerText.includes('Starting…')", timeout=30_000)
     return page, new[0]
 
 
 def press(page, name: str, role: str = "button") -> None:
-    """A real mouse click on a control. `force` skips playwright's "stable" check, which waits for
-    two identical animation frames: with software WebGL in two pages a frame can take seconds."""
+    """A real mouse click on a control, after playwright's checks that the control is still and
+    is what the pointer would hit. Those checks wait for two identical animation frames, and with
+    software WebGL in two pages a frame can take seconds: then the click goes without them."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     page.bring_to_front()      # a page in the background gets no animation frames
-    page.get_by_role(role, name=name, exact=True).click(force=True, timeout=30_000)
+    control = page.get_by_role(role, name=name, exact=True)
+    try:
+        control.click(timeout=15_000)
+    except PlaywrightTimeout:
+        mark(f"{name}: not still after 15 s, clicking without the checks")
+        control.click(force=True, timeout=30_000)
 
 
 def canvas_box(page) -> dict:
