@@ -67,9 +67,27 @@ def _rect_long_edge(pts: np.ndarray) -> tuple[tuple[float, float], float, float,
 
 def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px: int = 3,
                   angle_snap: float = 1.0) -> FrontFace | None:
-    """Measure one mask's front face; None when the mask has too little valid depth."""
+    """Measure one mask's front face; None when the mask has too little valid depth.
+
+    Works on the mask's bounding box (the camera's principal point shifted with it):
+    the same numbers as on the full frame, several times faster."""
     import cv2
 
+    mask = np.asarray(mask, bool)
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    pad = erode_px + 2
+    y0, y1 = max(0, rows[0] - pad), min(mask.shape[0], rows[-1] + pad + 1)
+    x0, x1 = max(0, cols[0] - pad), min(mask.shape[1], cols[-1] + pad + 1)
+    if (y0, x0, y1, x1) != (0, 0) + mask.shape:
+        sub = replace(camera, cx=camera.cx - x0, cy=camera.cy - y0)
+        f = measure_front(mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], sub, erode_px, angle_snap)
+        if f is None:
+            return None
+        (rx, ry), rs, ra = f.rect_px
+        return replace(f, rect_px=((rx + x0, ry + y0), rs, ra))
     m = mask.astype(np.uint8)
     if m.sum() < 20:
         return None
@@ -299,16 +317,19 @@ def _clamp(b: Box, shelf: Shelf, notes: list[str]) -> Box:
 
 # --------------------------------------------------------------------------
 def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
-                     placeholder: float = 0.25) -> tuple[list[Box], list[np.ndarray], list[FrontFace], list[str]]:
+                     placeholder: float = 0.25, faces: list[FrontFace | None] | None = None,
+                     ) -> tuple[list[Box], list[np.ndarray], list[FrontFace], list[str]]:
     """Measure every mask; boxes get ids b0.. ordered bottom-up then left to right.
 
     Returns boxes, the masks in the same order (mask_label = index + 1), the faces
-    and warnings about masks that could not be measured.
+    and warnings about masks that could not be measured. `faces`: the masks' faces when
+    they were measured already (`measure_front` on the same depth), None to measure here.
     """
     warnings: list[str] = []
-    faces: list[tuple[FrontFace, np.ndarray]] = []
+    measured = faces
+    faces: list[tuple[FrontFace, np.ndarray]] = []  # type: ignore[no-redef]
     for i, m in enumerate(masks):
-        f = measure_front(m, depth, camera)
+        f = measured[i] if measured is not None else measure_front(m, depth, camera)
         if f is None:
             warnings.append(f"mask {i + 1}: too little valid depth to measure; dropped")
             continue

@@ -14,12 +14,16 @@ import numpy as np
 
 from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
                               distance_from_box_size, make_valid, planar_depth)
+from perception.box_catalogue import Catalogue, apply_catalogue
 from perception.capture import Capture
 from perception.geometry import check_intrinsics, point_map
 from perception.masks import grow_on_plane, refine, to_label_image
 from perception.overlay import draw_overlay
 from perception.scene import Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
+
+
+DEFAULT_CATALOGUE = Catalogue()
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,8 +62,10 @@ def _inside_shelf(depth: np.ndarray | None, camera, shelf: Shelf, margin: float 
 
 def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf | None = None, *,
              front_distance: float | None = None, box_size: tuple[float, float] | None = None,
-             placeholder: float = 0.25, origin: str = "camera") -> Perception:
-    """The scene seen in `capture` (see module docstring)."""
+             placeholder: float = 0.25, origin: str = "camera",
+             catalogue: Catalogue | None = DEFAULT_CATALOGUE) -> Perception:
+    """The scene seen in `capture` (see module docstring). `catalogue`: the box types a face
+    may be (joins pieces and splits merged faces only where it explains them); None: no types."""
     t0 = time.perf_counter()
     timing: dict[str, float] = {}
     warnings: list[str] = []
@@ -87,6 +93,12 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     masks = refine(raw, capture.depth, min_pixels=minpx)
     masks = grow_on_plane(masks, capture.depth, camera, rgb=capture.rgb,
                           allowed=_inside_shelf(capture.depth, camera, shelf))
+    catalogue_notes: list[str] = []
+    if catalogue is not None and capture.depth is not None and masks:
+        masks, measured = apply_catalogue(masks, capture.depth, camera, capture.rgb, catalogue,
+                                          catalogue_notes)
+    else:
+        measured = None
     timing["masks"] = time.perf_counter() - t
     if capture.depth is None and box_size is not None and front_distance is None and masks:
         used_distance = distance_from_box_size(masks, camera, box_size)
@@ -94,9 +106,11 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
         warnings.append(f"no depth image: front at {used_distance:.3f} m derived from the box size "
                         f"{box_size[0]:g} x {box_size[1]:g} m")
     t = time.perf_counter()
-    boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder)
+    boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder,
+                                             faces=measured if depth is capture.depth else None)
     warnings.extend(w)
     boxes, notes = make_valid(boxes, shelf)
+    notes = catalogue_notes + notes
     timing["boxes"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = to_label_image(masks, capture.shape)

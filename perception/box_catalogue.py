@@ -1,0 +1,353 @@
+"""Known box types: join pieces of one face, split one mask that covers two boxes.
+
+A warehouse usually stocks a few box types (the method's: 23x31x25, 20x20x20
+and 50x17x17 cm), so a front face is one of a few rectangles. Two masks fail
+that test in typical ways:
+- a piece cut off a face (a label or tape at its border, one side of a tape
+  band) is too small to be a face; joined with the neighbour on its plane the
+  union is a known face;
+- two flush boxes of one colour (stacked, or side by side) with a faint seam
+  merge into one mask whose size is no type face, but which splits at one line
+  into two type faces; the seam shows as a line of colour edges (and/or a small
+  depth step) right there.
+Both rules only act when the catalogue explains the result, within `tol`, so
+a capture of other boxes (real data) is left as it is; the catalogue is a
+parameter (`Catalogue(types=...)`), the reference types are the default.
+perception/scene.py holds no type table the pipeline can use, so it lives here.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perception.scene import Camera
+
+# the method's box types (w, d, h in metres), as in perception.bench_scenes and planning.shelves
+REFERENCE_TYPES: tuple[tuple[float, float, float], ...] = (
+    (0.23, 0.31, 0.25), (0.20, 0.20, 0.20), (0.50, 0.17, 0.17))
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    """Box types whose faces a front face may be; `tol` (m) is how close both sides must be."""
+
+    types: tuple[tuple[float, float, float], ...] = REFERENCE_TYPES
+    tol: float = 0.02
+    join_tol: float = 0.025          # m: a joined union may be this far off a type face
+    min_evidence: float = 5.0        # colour line/step along the split, in robust noise units ...
+    depth_step: float = 0.004        # ... or a depth step (m) along the line counts as a seam
+    min_share: float = 0.25         # used only when this share of the faces already are type faces
+    max_join_gap_px: int = 3         # pieces this close (px) are neighbours
+    plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
+    faces: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        fs = set()
+        for t in self.types:
+            for a, b in itertools.permutations(t, 2):
+                fs.add((round(float(a), 4), round(float(b), 4)))
+        object.__setattr__(self, "faces", tuple(sorted(fs)))
+
+    def error(self, width: float, height: float) -> float:
+        """Largest side error (m) to the closest type face."""
+        if not self.faces:
+            return math.inf
+        return min(max(abs(width - w), abs(height - h)) for w, h in self.faces)
+
+    def matches(self, width: float, height: float, tol: float | None = None) -> bool:
+        return self.error(width, height) <= (self.tol if tol is None else tol)
+
+    @property
+    def sides(self) -> tuple[float, ...]:
+        return tuple(sorted({s for f in self.faces for s in f}))
+
+    def to_json(self) -> dict:
+        return {"types": [list(t) for t in self.types], "tol": self.tol}
+
+
+@dataclass
+class _Face:
+    mask: np.ndarray
+    face: object                      # boxes.FrontFace
+    err: float
+
+
+def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue,
+             cache: dict | None = None) -> _Face | None:
+    """The measured face of a mask (memoised per mask object in `cache`)."""
+    from perception.boxes import measure_front
+
+    hit = cache.get(id(mask)) if cache is not None else None
+    if hit is not None and hit[0] is mask:
+        return hit[1]
+    f = measure_front(mask, depth, camera)
+    out = None if f is None else _Face(mask, f, cat.error(f.width, f.height))
+    if cache is not None:
+        cache[id(mask)] = (mask, out)   # the mask is kept alive, so its id is not reused
+    return out
+
+
+def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
+                    cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
+    """`join_pieces` then `split_faces`; returns the masks and their measured faces (None where
+    a mask cannot be measured), so the pipeline need not measure them again."""
+    cache: dict = {}
+    masks = [np.asarray(m, bool) for m in masks]
+    measured = [_measure(m, depth, camera, cat, cache) for m in masks]
+    ok = [f for f in measured if f is not None]
+    share = sum(f.err <= cat.tol for f in ok) / max(len(ok), 1)
+    if share < cat.min_share:
+        # not a capture of these box types (another warehouse, real data): leave it alone
+        return masks, [None if f is None else f.face for f in measured]
+    masks = join_pieces(masks, depth, camera, cat, notes, cache)
+    masks = split_faces(masks, depth, camera, rgb, cat, notes, cache=cache)
+    faces = []
+    for m in masks:
+        f = _measure(m, depth, camera, cat, cache)
+        faces.append(None if f is None else f.face)
+    return masks, faces
+
+
+def _coords(face, mask: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels of the mask and their (x, z) on the measured face plane, centred on the face."""
+    from perception.boxes import face_axes
+    from perception.geometry import ray_plane
+
+    rot = face_axes(face)
+    c = np.asarray(face.center, float)
+    ys, xs = np.nonzero(mask)
+    hit = ray_plane(camera, xs.astype(np.float64), ys.astype(np.float64), c, rot[:, 1])
+    rel = hit - c
+    return ys, xs, rel @ rot[:, 0], rel @ rot[:, 2]
+
+
+def _extent(v: np.ndarray, q: float = 0.02) -> float:
+    if len(v) < 10:
+        return 0.0
+    lo, hi = np.quantile(v, (q, 1 - q))
+    return float(hi - lo) / (1 - 2 * q)
+
+
+def _plane_dist(face, mask: np.ndarray, depth: np.ndarray, camera: Camera) -> float:
+    """Median distance (m) of the mask's depth points to the plane of `face`."""
+    from perception.boxes import face_axes
+    from perception.geometry import backproject
+
+    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    if len(xs) < 10:
+        return math.inf
+    if len(xs) > 3000:
+        st = len(xs) // 3000 + 1
+        ys, xs = ys[::st], xs[::st]
+    p = backproject(camera, xs.astype(np.float64), ys.astype(np.float64), depth[ys, xs].astype(np.float64))
+    n = face_axes(face)[:, 1]
+    return float(np.median(np.abs((p - np.asarray(face.center)) @ n)))
+
+
+def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
+                notes: list[str] | None = None, cache: dict | None = None) -> list[np.ndarray]:
+    """Join a piece that is no type face to the neighbour on its plane when the union is one
+    (and fills its rectangle): a label, tape end or flap cut off a face."""
+    import cv2
+
+    if len(masks) < 2:
+        return masks
+    masks = [np.asarray(m, bool) for m in masks]
+    faces = [_measure(m, depth, camera, cat, cache) for m in masks]
+    alive = [f is not None for f in faces]
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    changed = True
+    while changed:
+        changed = False
+        order = sorted((i for i in range(len(masks)) if alive[i] and faces[i].err > cat.tol),
+                       key=lambda i: int(masks[i].sum()))
+        for i in order:
+            near = cv2.dilate(masks[i].astype(np.uint8), k) > 0
+            best = None
+            for j in range(len(masks)):
+                if j == i or not alive[j] or not (near & masks[j]).any():
+                    continue
+                if _plane_dist(faces[j].face, masks[i], depth, camera) > cat.plane_tol:
+                    continue
+                union = masks[i] | masks[j]
+                # close the one-pixel gaps between the two pieces
+                union = cv2.morphologyEx(union.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
+                union &= (near | masks[j] | masks[i])
+                fu = _measure(union, depth, camera, cat, cache)
+                if fu is None or fu.err > cat.join_tol:
+                    continue
+                if _fill(union) < 0.85:
+                    continue
+                if best is None or fu.err < best[1].err:
+                    best = (j, fu)
+            if best is None:
+                continue
+            j, fu = best
+            if notes is not None:
+                notes.append(f"joined a {faces[i].face.width * 100:.0f}x{faces[i].face.height * 100:.0f} cm "
+                             f"piece to its neighbour: {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
+            masks[j] = fu.mask
+            faces[j] = fu
+            alive[i] = False
+            changed = True
+            break
+    return [m for m, a in zip(masks, alive) if a]
+
+
+def _fill(mask: np.ndarray) -> float:
+    from perception.segment_depth import _rect_fill
+
+    return _rect_fill(mask)
+
+
+def split_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
+                cat: Catalogue, notes: list[str] | None = None, max_parts: int = 3,
+                cache: dict | None = None) -> list[np.ndarray]:
+    """Split a mask that is no type face at the line where it falls into two type faces,
+    when a seam (colour edge line or depth step) runs along that line."""
+    import cv2
+
+    lab = None
+    if rgb is not None:
+        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+        lab[..., 1:] = (lab[..., 1:] - 128) * 2
+    out: list[np.ndarray] = []
+    for m in masks:
+        out.extend(_split_one(np.asarray(m, bool), depth, camera, lab, cat, notes, max_parts, cache))
+    return out
+
+
+def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndarray | None,
+               cat: Catalogue, notes: list[str] | None, budget: int,
+               cache: dict | None = None) -> list[np.ndarray]:
+    if budget <= 1:
+        return [mask]
+    f = _measure(mask, depth, camera, cat, cache)
+    if f is None or f.err <= cat.tol:
+        return [mask]
+    face = f.face
+    side_min = min(cat.sides) - cat.tol
+    if max(face.width, face.height) < 2 * side_min:
+        return [mask]
+    ys, xs, cx, cz = _coords(face, mask, camera)
+    best = None
+    for axis in (1, 0):                        # stacked (split along z) first, then side by side
+        t = cz if axis == 1 else cx
+        o = cx if axis == 1 else cz
+        lo, hi = np.quantile(t, (0.01, 0.99))
+        length = hi - lo
+        if length < 2 * side_min:
+            continue
+        cands = set()
+        for s in cat.sides:
+            for pos in (lo + s, hi - s):
+                if lo + side_min <= pos <= hi - side_min:
+                    cands.add(round(float(pos), 3))
+        if not cands:
+            continue
+        # seam evidence per 3 mm bin: the fraction of 1 cm strips across the face that hold an
+        # edge pixel at that position, and the depth step across it
+        ev = _line_evidence(t, o, ys, xs, lab, depth, camera, face, cat)
+        for pos in sorted(cands):
+            for p2, score in _peaks(ev, pos, 0.015, cat):
+                a = t < p2
+                if a.sum() < 50 or (~a).sum() < 50:
+                    continue
+                wa, ha = (_extent(cx[a]), _extent(cz[a]))
+                wb, hb = (_extent(cx[~a]), _extent(cz[~a]))
+                if axis == 1:
+                    ha, hb = p2 - np.quantile(t[a], 0.01), np.quantile(t[~a], 0.99) - p2
+                else:
+                    wa, wb = p2 - np.quantile(t[a], 0.01), np.quantile(t[~a], 0.99) - p2
+                ea, eb = cat.error(wa, ha), cat.error(wb, hb)
+                if max(ea, eb) > cat.tol or score < 1.0:
+                    continue
+                key = (score, -max(ea, eb))
+                if best is None or key > best[0]:
+                    best = (key, axis, p2, a, wa, ha, wb, hb)
+    if best is None:
+        return [mask]
+    _, axis, p2, a, wa, ha, wb, hb = best
+    pa = np.zeros_like(mask)
+    pb = np.zeros_like(mask)
+    pa[ys[a], xs[a]] = True
+    pb[ys[~a], xs[~a]] = True
+    if notes is not None:
+        notes.append(f"split a {face.width * 100:.0f}x{face.height * 100:.0f} cm face "
+                     f"{'across' if axis == 1 else 'down'} its seam into {wa * 100:.0f}x{ha * 100:.0f} and "
+                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][0]:.2f})")
+    return (_split_one(pa, depth, camera, lab, cat, notes, budget - 1, cache)
+            + _split_one(pb, depth, camera, lab, cat, notes, budget - 1, cache))
+
+
+@dataclass
+class _Evidence:
+    bins: np.ndarray        # bin centres (m)
+    score: np.ndarray       # seam score per bin: 1 = the weakest seam taken
+
+
+def _line_evidence(t, o, ys, xs, lab, depth, camera, face, cat: Catalogue,
+                   bin_m: float = 0.003) -> _Evidence:
+    """How much a seam runs across the face at each position along `t`.
+
+    Colour: the mean colour of each 3 mm band across the face (texture and grain
+    average out along the band, a seam line does not): a band that differs from
+    the bands 9 mm either side, or a colour step across it, in units of the
+    profile's own robust noise. Depth: the step of the mean plane residual
+    across the position.
+    """
+    from perception.boxes import face_axes
+    from perception.geometry import backproject
+
+    lo, hi = float(t.min()), float(t.max())
+    nb = max(1, int(math.ceil((hi - lo) / bin_m)))
+    bi = np.clip(((t - lo) / bin_m).astype(int), 0, nb - 1)
+    olo, ohi = np.quantile(o, (0.08, 0.92))
+    inner = (o > olo) & (o < ohi)
+    cnt = np.bincount(bi[inner], minlength=nb).astype(float)
+    good = cnt >= 5
+    score = np.zeros(nb)
+    r, w = 3, 5
+    if lab is not None and good.sum() > 4 * w:
+        col = lab[ys[inner], xs[inner]].astype(np.float64)
+        for c in range(3):
+            prof = np.bincount(bi[inner], weights=col[:, c], minlength=nb) / np.maximum(cnt, 1)
+            idx = np.arange(nb)
+            prof = np.interp(idx, idx[good], prof[good])
+            line = np.zeros(nb)
+            line[r:-r] = prof[r:-r] - 0.5 * (prof[:-2 * r] + prof[2 * r:])
+            cs = np.concatenate([[0], np.cumsum(prof)])
+            stp = np.zeros(nb)
+            k = np.arange(w, nb - w)
+            stp[k] = (cs[k] - cs[k - w]) / w - (cs[k + w + 1] - cs[k + 1]) / w
+            for v in (line, stp):
+                core = v[w:-w] if nb > 2 * w else v
+                noise = 1.4826 * float(np.median(np.abs(core - np.median(core)))) + 0.3
+                score = np.maximum(score, np.abs(v) / (noise * cat.min_evidence))
+    d = depth[ys, xs].astype(np.float64)
+    ok = np.isfinite(d) & (d > 0) & inner
+    if ok.sum() > 50:
+        p = backproject(camera, xs[ok].astype(np.float64), ys[ok].astype(np.float64), d[ok])
+        res = (p - np.asarray(face.center)) @ face_axes(face)[:, 1]
+        s_ = np.bincount(bi[ok], weights=res, minlength=nb)
+        c_ = np.bincount(bi[ok], minlength=nb).astype(float)
+        cs, cc = np.concatenate([[0], np.cumsum(s_)]), np.concatenate([[0], np.cumsum(c_)])
+        for k in range(w, nb - w):
+            n1, n2 = cc[k] - cc[k - w], cc[k + w + 1] - cc[k + 1]
+            if n1 > 10 and n2 > 10:
+                stp = abs((cs[k] - cs[k - w]) / n1 - (cs[k + w + 1] - cs[k + 1]) / n2)
+                score[k] = max(score[k], stp / cat.depth_step)
+    return _Evidence(lo + (np.arange(nb) + 0.5) * bin_m, score)
+
+
+def _peaks(ev: _Evidence, pos: float, win: float, cat: Catalogue) -> list[tuple[float, float]]:
+    """The best seam position within `win` of `pos` and its score (>= 1 means a seam)."""
+    sel = np.flatnonzero(np.abs(ev.bins - pos) <= win)
+    if len(sel) == 0:
+        return []
+    score = ev.score[sel]
+    k = int(np.argmax(score))
+    return [(float(ev.bins[sel[k]]), float(score[k]))]
