@@ -49,6 +49,11 @@ class PhysicsConfig:
     rest_angular_velocity: float = 0.3  # rad/s
     rest_window: float = 0.1            # s a scene must stay at rest to count as settled
     monitor_every: int = 2              # steps between looks at the other boxes during a trial
+    # locality (docs/speed.md): a prediction trial simulates only the pulled box's
+    # neighbourhood (boxes within `local_margin` of it, plus everything stacked on
+    # those); the other boxes stand in as static copies of themselves
+    prediction_local: bool = True       # the Predictor's sample worlds use it; execution never does
+    local_margin: float = 0.02          # m between bounding boxes that still counts as near
     # verdicts
     collapse_displacement: float = 0.02     # m from the step's start to its end
     collapse_rotation: float = 10.0         # degrees from the step's start to its end

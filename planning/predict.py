@@ -64,14 +64,20 @@ def _face(b: Box) -> list:
             for sx in (-1, 1) for sz in (-1, 1)]
 
 
+def depth_ranges(scene: Scene, config: PhysicsConfig | None = None) -> dict[str, tuple[float, float]]:
+    """`depth_range` of every box with an unknown depth (the same for every sample: compute once)."""
+    return {b.id: depth_range(scene, b, config) for b in scene.boxes if not b.depth_known}
+
+
 def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | None = None,
-                  reach: float = 1.0) -> Scene:
+                  reach: float = 1.0, ranges: dict[str, tuple[float, float]] | None = None) -> Scene:
     """One depth sample of the scene: unknown depths drawn uniformly in `depth_range`.
 
     Ranges are computed on the scene as perceived (placeholder depths for the
     others are not used as obstacles: only front faces and known boxes are).
     `reach` < 1 shrinks each range towards its lowest depth (used to redraw a
     sample whose boxes, turned in the plane, swing into a neighbour).
+    `ranges` (from `depth_ranges(scene, config)`) saves recomputing them per sample.
     """
     rng = random.Random(f"shelfpick-depth:{int(seed)}:{int(sample)}")
     out = []
@@ -79,7 +85,7 @@ def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | 
         if b.depth_known:
             out.append(b)
             continue
-        lo, hi = depth_range(scene, b, config)
+        lo, hi = ranges[b.id] if ranges is not None else depth_range(scene, b, config)
         d = rng.uniform(lo, lo + (hi - lo) * reach)
         out.append(b.with_depth(d))
     return scene.with_boxes(out)
@@ -94,7 +100,8 @@ def trial_seed(seed: int, sample: int, removed: frozenset[str], box: str) -> int
     return _stable_seed(seed, sample, ",".join(sorted(removed)), box)
 
 
-def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig) -> ShelfSim:
+def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
+                 ranges: dict[str, tuple[float, float]] | None = None) -> ShelfSim:
     """The settled world of one depth sample; an unstable draw is redrawn (deterministically).
 
     Redraws reach less and less deep (a box turned in the plane swings its back
@@ -107,11 +114,11 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig) ->
         if scene.depth_known or reach is None:
             sc = scene
         else:
-            sc = sample_depths(scene, seed, sample + 1000 * attempt, config, reach)
+            sc = sample_depths(scene, seed, sample + 1000 * attempt, config, reach, ranges)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return ShelfSim(sc, config)
+                return ShelfSim(sc, config, local=config.prediction_local)
         except SceneError as exc:  # this draw does not stand; draw again
             last = exc
             if scene.depth_known or reach is None:
@@ -124,11 +131,13 @@ class _Worlds:
 
     def __init__(self, scene: Scene, seed: int, config: PhysicsConfig, indices: Sequence[int]):
         self.seed = seed
+        self.local = config.prediction_local
         self.order = {b: i for i, b in enumerate(scene.ids)}
         self.sims: dict[int, ShelfSim] = {}
+        ranges = depth_ranges(scene, config) if not scene.depth_known else None
         try:
             for i in indices:
-                self.sims[i] = build_sample(scene, seed, i, config)
+                self.sims[i] = build_sample(scene, seed, i, config, ranges)
         except BaseException:
             self.close()
             raise
@@ -141,7 +150,7 @@ class _Worlds:
         if snap is None:
             sim = self.sims[i]
             sim.restore(st[frozenset()])
-            sim.delete_many(sorted(removed, key=self.order.__getitem__))
+            sim.delete_many(sorted(removed, key=self.order.__getitem__), local=self.local)
             snap = sim.snapshot()
             st[removed] = snap
             self.new_states += 1
@@ -150,7 +159,8 @@ class _Worlds:
     def pull(self, i: int, removed: frozenset[str], box: str) -> StepResult:
         sim = self.sims[i]
         sim.restore(self.state(i, removed))
-        return sim.remove(box, seed=trial_seed(self.seed, i, removed, box), stop_on_collapse=True)
+        return sim.remove(box, seed=trial_seed(self.seed, i, removed, box), stop_on_collapse=True,
+                          local=self.local)
 
     def preview(self, sequence: Sequence[str], i: int) -> list[StepResult]:
         sim = self.sims[i]

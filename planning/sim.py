@@ -171,7 +171,9 @@ _HOT_CALLS = ("getBasePositionAndOrientation", "getBaseVelocity", "stepSimulatio
 class ShelfSim:
     """One scene in one PyBullet world, settled, ready for removal trials."""
 
-    def __init__(self, scene: Scene, config: PhysicsConfig | None = None, *, gui: bool = False):
+    def __init__(self, scene: Scene, config: PhysicsConfig | None = None, *, gui: bool = False,
+                 local: bool = False):
+        """`local=True` also builds the static stand-ins that local trials need (see `remove`)."""
         self.config = cfg = config or PhysicsConfig()
         self._gui = gui
         self._p = _acquire(gui)
@@ -188,6 +190,10 @@ class ShelfSim:
         self._build_shelf(scene)
         self._body: dict[str, int] = {}
         self._half: dict[str, tuple[float, float, float]] = {}
+        self._shape: dict[str, int] = {}
+        self._twin: dict[str, int] = {}      # box -> its static stand-in (local trials only)
+        self._frozen: dict[str, tuple] = {}  # boxes standing in as static copies right now
+        self._support_level = True
         for b in scene.boxes:
             self._body[b.id] = self._add_box(b)
         self._box_of = {v: k for k, v in self._body.items()}
@@ -212,6 +218,10 @@ class ShelfSim:
         for msg in repairs:
             warnings.warn(f"scene repaired: {msg}", stacklevel=2)
         self.repairs: tuple[str, ...] = tuple(repairs)
+        if local:
+            for i, bid in enumerate(self._ids):
+                self._twin[bid] = self._add_twin(bid, i)
+        self._twin_of = {v: k for k, v in self._twin.items()}
         snap = self.snapshot()   # start every world from a canonical state (see `restore`)
         self.restore(snap)
         self.forget(snap)
@@ -249,6 +259,7 @@ class ShelfSim:
         half = tuple(x / 2 for x in b.size)
         self._half[b.id] = half  # type: ignore[assignment]
         col = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(half))
+        self._shape[b.id] = col
         vis = p.createVisualShape(p.GEOM_BOX, halfExtents=list(half), rgbaColor=[0.76, 0.6, 0.42, 1]) \
             if self._gui else -1
         mass = b.mass if b.mass is not None else cfg.density * b.size[0] * b.size[1] * b.size[2]
@@ -258,6 +269,15 @@ class ShelfSim:
         p.changeDynamics(body, -1, lateralFriction=cfg.lateral_friction,
                          spinningFriction=cfg.spinning_friction, restitution=0.0,
                          activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING)
+        return body
+
+    def _add_twin(self, bid: str, i: int) -> int:
+        """A static copy of a box, out of the broadphase until a local trial freezes the box."""
+        p, cfg = self._p, self.config
+        body = p.createMultiBody(0.0, self._shape[bid], -1, [_PARK_X0 + _PARK_DX * i, 10.0, _PARK_Z])
+        p.changeDynamics(body, -1, lateralFriction=cfg.lateral_friction,
+                         spinningFriction=cfg.spinning_friction, restitution=0.0)
+        p.setCollisionFilterGroupMask(body, -1, 0, 0)
         return body
 
     def _add_gripper(self) -> int:
@@ -394,6 +414,8 @@ class ShelfSim:
         cfg, p = self.config, self._p
         out = []
         for bid in self._active():
+            if bid in self._frozen:
+                continue
             lin, ang = p.getBaseVelocity(self._body[bid])
             if _norm(lin) > cfg.rest_velocity or _norm(ang) > cfg.rest_angular_velocity:
                 out.append(bid)
@@ -462,19 +484,112 @@ class ShelfSim:
                 gap = min(gap, olo[2] - hi[2])
         return max(0.0, min(cfg.pull_lift, gap - 0.002))
 
+    # --------------------------------------------------------------- locality
+    def neighbourhood(self, seeds) -> set[str]:
+        """The boxes a change at `seeds` can move first: the seeds, every box whose
+        bounding box comes within `local_margin` of a seed's, and everything stacked
+        on those, transitively (a box stands on another when its bottom is at the
+        other's top, within 3 cm for tilt, and their footprints overlap by 5 mm).
+
+        Boxes beside a neighbour, or under it, are left out: they can only move
+        once a neighbour has moved a lot, and by then the step has collapsed.
+        """
+        p, m = self._p, self.config.local_margin
+        act = self._active()
+        box = {b: p.getAABB(self._body[b]) for b in act}
+        keep = {s for s in seeds if s in box}
+
+        def near(a, c) -> bool:
+            return (a[0][0] - m < c[1][0] and c[0][0] - m < a[1][0] and a[0][1] - m < c[1][1]
+                    and c[0][1] - m < a[1][1] and a[0][2] - m < c[1][2] and c[0][2] - m < a[1][2])
+
+        def stands_on(c, d) -> bool:
+            ov = 0.005
+            return (c[0][0] < d[1][0] - ov and d[0][0] < c[1][0] - ov and c[0][1] < d[1][1] - ov
+                    and d[0][1] < c[1][1] - ov and d[1][2] - 0.03 < c[0][2] < d[1][2] + m)
+
+        seed_boxes = [box[s] for s in keep]
+        keep |= {c for c in act if any(near(a, box[c]) for a in seed_boxes)}
+        # what the seeds stand on, down to the floor: a wobbly column under the pulled
+        # box rocks with it
+        down = {b for b in act if b in seeds}
+        todo = list(down)
+        while todo:
+            c = box[todo.pop()]
+            for d in act:
+                if d not in down and stands_on(c, box[d]):
+                    down.add(d)
+                    todo.append(d)
+        keep |= down
+        # and everything stacked on any of those, up to the top
+        todo = [b for b in act if b in keep]
+        while todo:
+            d = box[todo.pop()]
+            for c in act:
+                if c not in keep and stands_on(box[c], d):
+                    keep.add(c)
+                    todo.append(c)
+        # the other supports of what may tip (a box bridging two columns pivots on them)
+        if self._support_level:
+            keep |= {d for d in act if d not in keep and any(stands_on(box[c], box[d]) for c in keep)}
+        return keep
+
+    def _freeze(self, keep) -> None:
+        """Every box on the shelf outside `keep` stands in as a static copy of itself.
+
+        Its dynamic body leaves the broadphase (it falls freely, touching nothing,
+        and costs the solver nothing); `_thaw` puts it back exactly as it was.
+        """
+        p = self._p
+        for bid in self._active():
+            if bid in keep or bid in self._frozen:
+                continue
+            body, twin = self._body[bid], self._twin[bid]
+            pos, orn = p.getBasePositionAndOrientation(body)
+            lin, ang = p.getBaseVelocity(body)
+            self._frozen[bid] = (pos, orn, lin, ang)
+            p.resetBasePositionAndOrientation(twin, pos, orn)
+            p.setCollisionFilterGroupMask(twin, -1, 2, -1 ^ 2)   # Bullet's default for static bodies
+            p.setCollisionFilterGroupMask(body, -1, 0, 0)
+
+    def _thaw(self) -> None:
+        p = self._p
+        for bid, (pos, orn, lin, ang) in self._frozen.items():
+            body = self._body[bid]
+            p.resetBasePositionAndOrientation(body, pos, orn)
+            p.resetBaseVelocity(body, lin, ang)
+            p.setCollisionFilterGroupMask(body, -1, 1, -1)
+            p.setCollisionFilterGroupMask(self._twin[bid], -1, 0, 0)
+        self._frozen.clear()
+
     def delete(self, box_id: str) -> None:
         """Take a box away without a pull (it vanishes), then let the rest settle."""
         self._require(box_id)
         self._park(box_id)
         self._settle(self.config.settle_time)
 
-    def delete_many(self, box_ids) -> None:
-        """Take several boxes away at once, then settle once."""
+    def delete_many(self, box_ids, *, local: bool = False) -> None:
+        """Take several boxes away at once, then settle once.
+
+        `local=True` (a world built with `local=True`) settles only the boxes
+        around the deleted ones (`neighbourhood`); the others stay exactly where
+        they were.
+        """
+        box_ids = list(box_ids)
         for b in box_ids:
             self._require(b)
+        keep = self.neighbourhood(box_ids) if local and self._twin else None
+        for b in box_ids:
             if b not in self._parked:
                 self._park(b)
-        self._settle(self.config.settle_time)
+        if keep is None:
+            self._settle(self.config.settle_time)
+            return
+        self._freeze(keep)
+        try:
+            self._settle(self.config.settle_time)
+        finally:
+            self._thaw()
 
     def _require(self, box_id: str) -> None:
         if box_id not in self._body:
@@ -496,6 +611,9 @@ class ShelfSim:
         """
         p = self._p
         p.restoreState(snap[0])
+        for bid in self._frozen:   # a local trial that did not finish
+            p.setCollisionFilterGroupMask(self._twin[bid], -1, 0, 0)
+        self._frozen.clear()
         self._parked = set(snap[1])
         p.resetBasePositionAndOrientation(self._gripper, list(_GRIPPER_PARK), [0, 0, 0, 1])
         bodies = list(self._body.values()) + [self._gripper]
@@ -524,24 +642,38 @@ class ShelfSim:
 
     # ----------------------------------------------------------------- remove
     def remove(self, box_id: str, seed: int = 0, record: bool = False, *,
-               stop_on_collapse: bool = False) -> StepResult:
+               stop_on_collapse: bool = False, local: bool = False) -> StepResult:
         """Pull `box_id` out with the suction gripper and judge what the rest did.
 
         `stop_on_collapse` ends the trial as soon as a collapse is certain (the
         planners only need the verdict and the first collapsing box).
+        `local=True` (a world built with `local=True`, not recording) simulates only
+        the box's `neighbourhood`; the other boxes stand in as static copies during
+        the pull and are exactly where they were afterwards (docs/speed.md).
         """
         self._require(box_id)
         if box_id in self._parked or box_id not in self.present():
             return StepResult(box_id, False, note="not on the shelf")
+        if not (local and self._twin) or record:
+            return self._pull(box_id, seed, record, stop_on_collapse)
+        self._freeze(self.neighbourhood([box_id]))
+        try:
+            return self._pull(box_id, seed, record, stop_on_collapse)
+        finally:
+            self._thaw()
+
+    def _pull(self, box_id: str, seed: int, record: bool, stop_on_collapse: bool) -> StepResult:
         import random
 
         p, cfg = self._p, self.config
         dt = cfg.time_step
         rng = random.Random(f"shelfpick-pull:{int(seed)}:{box_id}")
         body = self._body[box_id]
-        others = [b for b in self._active() if b != box_id]
+        frozen = self._frozen
+        others = [b for b in self._active() if b != box_id and b not in frozen]
         obody = [self._body[b] for b in others]
         bodies_to_box = {self._body[b]: b for b in others}
+        bodies_to_box.update({self._twin[b]: b for b in frozen})
         start = [p.getBasePositionAndOrientation(ob) for ob in obody]
         onset: dict[str, int] = {}
         collapse_at: dict[str, int] = {}
@@ -725,6 +857,9 @@ class ShelfSim:
         end = {b: p.getBasePositionAndOrientation(self._body[b]) for b in others}
         disp = {b: _dist(end[b][0], start[k][0]) for k, b in enumerate(others)}
         rot = {b: _rot_angle_deg(end[b][1], start[k][1]) for k, b in enumerate(others)}
+        if frozen:   # they stood still, as static copies of themselves
+            disp = {b: disp.get(b, 0.0) for b in self._active() if b != box_id}
+            rot = {b: rot.get(b, 0.0) for b in disp}
         for b in others:
             if b not in collapse_at and (disp[b] > cfg.collapse_displacement
                                          or rot[b] > cfg.collapse_rotation):

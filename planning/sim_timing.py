@@ -2,6 +2,7 @@
 
     python -m planning.sim_timing timing             # single trial, Predictor.trial (10 samples)
     python -m planning.sim_timing accuracy [--quick] # verdicts of coarse settings vs 1/480 s
+    python -m planning.sim_timing locality [--quick] # local trials vs the full simulation
 
 The figures are written up in docs/physics.md. The scenes are built here so
 the measurement does not depend on the synthetic-shelf generator.
@@ -122,14 +123,116 @@ def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, sample
     return out
 
 
+def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
+             seed: int = 0, pairs: int = 1) -> dict:
+    """Local trials (neighbourhood only) against the full simulation, trial by trial.
+
+    For every depth sample of every scene: every single-box pull, then, after
+    taking away each of the first `pairs` boxes that nothing stands on, every
+    pull again (the state after a removal is settled locally or fully too).
+    Compares the collapse verdict, the first collapsing box and the collision
+    verdict, and counts steps and CPU time of both ways.
+    """
+    from planning.predict import sample_depths
+    from planning.sim import ShelfSim
+
+    rows = []
+    tot = {"full": [0.0, 0], "local": [0.0, 0]}
+    for name, base in scenes.items():
+        hidden = base.hide_depths()
+        for i in range(samples):
+            sc = sample_depths(hidden, seed, i, config)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    sim = ShelfSim(sc, config, local=True)
+                except Exception as exc:  # an unstable draw: skip it, as the Predictor would redraw
+                    print(f"{name} sample {i}: {exc}", file=sys.stderr)
+                    continue
+            base_snap = sim.snapshot()
+            tops = [b for b in sc.ids if not any(
+                b in sim.neighbourhood([b]) and b != c and c in _above(sim, b) for c in sc.ids)]
+            sets = [frozenset()] + [frozenset({b}) for b in tops[:pairs]]
+            for removed in sets:
+                snaps = {}
+                for mode in ("full", "local"):
+                    sim.restore(base_snap)
+                    sim.delete_many(sorted(removed), local=mode == "local")
+                    snaps[mode] = sim.snapshot()
+                for b in sc.ids:
+                    if b in removed:
+                        continue
+                    out = {}
+                    for mode in ("full", "local", "seed"):
+                        sim.restore(snaps["full" if mode == "seed" else mode])
+                        t = time.process_time()
+                        r = sim.remove(b, seed=8 if mode == "seed" else 7, stop_on_collapse=True,
+                                       local=mode == "local")
+                        if mode == "seed":
+                            out[mode] = (bool(r.collapsed), r.collapsed[0] if r.collapsed else None,
+                                         bool(r.collided))
+                            continue
+                        tot[mode][0] += time.process_time() - t
+                        tot[mode][1] += round(r.sim_time / config.time_step)
+                        out[mode] = (bool(r.collapsed), r.collapsed[0] if r.collapsed else None,
+                                     bool(r.collided))
+                    sim.restore(snaps["local"])
+                    rows.append({"scene": name, "sample": i, "removed": sorted(removed), "box": b,
+                                 "full": out["full"], "local": out["local"], "seed": out["seed"],
+                                 "kept": len(sim.neighbourhood([b])), "of": len(sim.present())})
+            for s_ in snaps.values():
+                sim.forget(s_)
+            sim.close()
+    n = len(rows)
+    agree = lambda k: sum(r["full"][k] == r["local"][k] for r in rows) / max(1, n)  # noqa: E731
+    first = sum(r["full"][:2] == r["local"][:2] for r in rows) / max(1, n)
+    noise = {"collapse_agree": sum(r["full"][0] == r["seed"][0] for r in rows) / max(1, n),
+             "first_agree": sum(r["full"][:2] == r["seed"][:2] for r in rows) / max(1, n)}
+    return {"trials": n, "collapse_agree": agree(0), "first_agree": first, "collision_agree": agree(2),
+            "full_other_vibration_seed": noise,
+            "kept_mean": statistics.fmean(r["kept"] / r["of"] for r in rows) if rows else 0.0,
+            "cpu_s": {m: v[0] for m, v in tot.items()}, "steps": {m: v[1] for m, v in tot.items()},
+            "disagree": [r for r in rows if r["full"][:2] != r["local"][:2]]}
+
+
+def _above(sim, box: str) -> set[str]:
+    """Boxes stacked on `box` (the part of its neighbourhood that stands on it)."""
+    p = sim._p
+    lo, hi = p.getAABB(sim._body[box])
+    out = set()
+    for b in sim.present():
+        if b == box:
+            continue
+        olo, ohi = p.getAABB(sim._body[b])
+        if (olo[0] < hi[0] - 0.005 and lo[0] + 0.005 < ohi[0] and olo[1] < hi[1] - 0.005
+                and lo[1] + 0.005 < ohi[1] and olo[2] > hi[2] - 0.03):
+            out.add(b)
+    return out
+
+
+def locality_scenes(quick: bool = False) -> dict[str, Scene]:
+    """The accuracy set (12-box shelf, 6-box column) and synthetic 25-30 box shelves."""
+    from planning.shelves import generate
+
+    out = {"twelve": twelve_box_scene(), "column": column_scene()}
+    for kind, seed, n in (("structured", 11, 28), ("unstructured", 12, 27),
+                          ("structured", 13, 30), ("unstructured", 14, 29))[: 2 if quick else 4]:
+        out[f"{kind}-{n}"] = generate(kind, seed, n)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["timing", "accuracy"])
+    ap.add_argument("what", choices=["timing", "accuracy", "locality"])
     ap.add_argument("--quick", action="store_true", help="accuracy on 2 depth samples only")
     ap.add_argument("--levers", action="store_true",
                     help="accuracy of the speed levers of docs/speed.md instead of the step sizes")
     args = ap.parse_args(argv)
     cfg = PhysicsConfig()
+    if args.what == "locality":
+        res = locality(locality_scenes(args.quick), cfg, samples=1 if args.quick else 2)
+        print(json.dumps(res, indent=2))
+        return 0
     if args.what == "timing":
         print(json.dumps(timing(cfg), indent=2))
         return 0
