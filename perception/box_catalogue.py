@@ -40,7 +40,7 @@ class Catalogue:
     min_evidence: float = 5.0        # colour line/step along the split, in robust noise units ...
     depth_step: float = 0.004        # ... or a depth step (m) along the line counts as a seam
     min_share: float = 0.25         # used only when this share of the faces already are type faces
-    max_join_gap_px: int = 3         # pieces this close (px) are neighbours
+    max_join_gap_px: int = 12        # pieces this close (px) are neighbours
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
     faces: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
 
@@ -59,6 +59,10 @@ class Catalogue:
 
     def matches(self, width: float, height: float, tol: float | None = None) -> bool:
         return self.error(width, height) <= (self.tol if tol is None else tol)
+
+    def fits(self, width: float, height: float) -> bool:
+        """Whether a face of this size fits inside some type face (a part of one)."""
+        return any(width <= w + self.tol and height <= h + self.tol for w, h in self.faces)
 
     @property
     def sides(self) -> tuple[float, ...]:
@@ -172,16 +176,21 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                     continue
                 if _plane_dist(faces[j].face, masks[i], depth, camera) > cat.plane_tol:
                     continue
-                union = masks[i] | masks[j]
-                # close the one-pixel gaps between the two pieces
-                union = cv2.morphologyEx(union.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
-                union &= (near | masks[j] | masks[i])
+                taken = np.zeros_like(masks[i])
+                for q in range(len(masks)):
+                    if alive[q] and q not in (i, j):
+                        taken |= masks[q]
+                union, fill = _joined(masks[i], masks[j], faces[j].face, taken, depth, camera, cat)
+                if fill < 0.85:
+                    continue
                 fu = _measure(union, depth, camera, cat, cache)
-                if fu is None or fu.err > cat.join_tol:
+                if fu is None:
                     continue
-                if _fill(union) < 0.85:
+                # the union is a type face, or (both being pieces) still fits inside one:
+                # a face cut into several pieces by tape and labels is joined step by step
+                if fu.err > cat.join_tol and not (faces[j].err > cat.tol and cat.fits(fu.face.width, fu.face.height)):
                     continue
-                if best is None or fu.err < best[1].err:
+                if best is None or (fu.err > cat.join_tol, fu.err) < (best[1].err > cat.join_tol, best[1].err):
                     best = (j, fu)
             if best is None:
                 continue
@@ -197,10 +206,48 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
     return [m for m, a in zip(masks, alive) if a]
 
 
-def _fill(mask: np.ndarray) -> float:
-    from perception.segment_depth import _rect_fill
+def _joined(a: np.ndarray, b: np.ndarray, face, taken: np.ndarray, depth: np.ndarray, camera: Camera,
+            cat: Catalogue) -> tuple[np.ndarray, float]:
+    """Two pieces joined with the unclaimed pixels between them that lie on their plane (a
+    label, a tape edge, the depth holes of a seam), within the union's min-area rectangle;
+    and how well that fills the rectangle."""
+    import cv2
 
-    return _rect_fill(mask)
+    from perception.boxes import face_axes
+    from perception.geometry import backproject
+
+    u = a | b
+    rows = np.flatnonzero(u.any(axis=1))
+    cols = np.flatnonzero(u.any(axis=0))
+    y0, y1 = max(0, rows[0] - 2), min(u.shape[0], rows[-1] + 3)
+    x0, x1 = max(0, cols[0] - 2), min(u.shape[1], cols[-1] + 3)
+    uc = u[y0:y1, x0:x1]
+    sub = cv2.morphologyEx(uc.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    pts = cv2.findNonZero(sub)
+    if pts is None:
+        return u, 0.0
+    rect = np.zeros(uc.shape, np.uint8)
+    cv2.fillPoly(rect, [np.round(cv2.boxPoints(cv2.minAreaRect(pts))).astype(np.int32)], 1)
+    rect = rect > 0
+    d = depth[y0:y1, x0:x1]
+    free = rect & ~uc & ~taken[y0:y1, x0:x1] & np.isfinite(d) & (d > 0)
+    cand = uc & rect
+    ys, xs = np.nonzero(free)
+    if len(xs):
+        p = backproject(camera, (xs + x0).astype(np.float64), (ys + y0).astype(np.float64),
+                        d[ys, xs].astype(np.float64))
+        on = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1]) < cat.plane_tol
+        cand[ys[on], xs[on]] = True
+    fill = float(cand.sum()) / max(float(rect.sum()), 1.0)
+    n, lbl, stats, _ = cv2.connectedComponentsWithStats(cand.astype(np.uint8), connectivity=4)
+    if n > 2:
+        cand = lbl == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    ac, bc = a[y0:y1, x0:x1], b[y0:y1, x0:x1]
+    if (cand & ac).sum() < 0.9 * ac.sum() or (cand & bc).sum() < 0.9 * bc.sum():
+        return u, 0.0          # the pieces do not connect on their plane
+    out = np.zeros_like(u)
+    out[y0:y1, x0:x1] = cand | (uc & ~rect)
+    return out, fill
 
 
 def split_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
