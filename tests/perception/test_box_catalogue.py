@@ -1,0 +1,94 @@
+"""Known box types: pieces of one face are joined, a mask of two flush boxes is split at its seam."""
+from __future__ import annotations
+
+import numpy as np
+
+from perception.box_catalogue import (REFERENCE_TYPES, Catalogue, apply_catalogue, join_pieces,
+                                      split_faces)
+from perception.bench import mask_iou
+from perception.scene import Scene, Shelf
+from synth_frames import COLOURS, box, cast
+
+
+def _front(cap, k: int) -> np.ndarray:
+    """The front-face pixels of box k (cast paints them in the box's own colour)."""
+    return (cap.masks == k) & np.all(cap.rgb == np.asarray(COLOURS[k - 1]), axis=-1)
+
+
+def _stack(w: float, h: float):
+    """Two flush boxes of one size stacked, and beside them a box of another size."""
+    scene = Scene(Shelf(), (box("low", -0.10, 0.0, w, h), box("high", -0.10, h, w, h),
+                            box("side", 0.25, 0.0, 0.23, 0.25)))
+    cap = cast(scene)
+    low, high, side = _front(cap, 1), _front(cap, 2), _front(cap, 3)
+    rgb = cap.rgb.copy()
+    rgb[low | high] = (180, 140, 95)      # one colour: no colour edge between the two ...
+    return cap, rgb, low, high, side
+
+
+def test_catalogue_faces_and_errors():
+    cat = Catalogue()
+    assert cat.types == REFERENCE_TYPES
+    assert (0.23, 0.25) in cat.faces and (0.5, 0.17) in cat.faces and (0.17, 0.5) in cat.faces
+    assert cat.matches(0.205, 0.19) and not cat.matches(0.20, 0.40)
+    assert cat.fits(0.30, 0.10) and not cat.fits(0.60, 0.10)
+    assert abs(cat.error(0.21, 0.33) - 0.02) < 1e-9
+    other = Catalogue(types=((0.34, 0.25, 0.20),))
+    assert other.matches(0.34, 0.25) and not other.matches(0.20, 0.20)
+
+
+def test_two_flush_boxes_of_one_colour_are_split_at_their_seam():
+    cap, rgb, low, high, side = _stack(0.20, 0.20)
+    seam = np.zeros_like(low)
+    rows = np.flatnonzero(high.any(axis=1))
+    seam[rows[-1]:rows[-1] + 2] = True    # ... but a faint 2 px seam line where they meet
+    rgb[seam & (low | high)] = (150, 115, 80)
+    notes: list[str] = []
+    out = split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    assert len(out) == 3, notes
+    assert max(mask_iou(m, low) for m in out) > 0.9
+    assert max(mask_iou(m, high) for m in out) > 0.9
+    assert any("split" in n for n in notes)
+
+
+def test_no_seam_no_split_and_other_sizes_are_left_alone():
+    cap, rgb, low, high, side = _stack(0.20, 0.20)
+    # one colour, flush, no line: nothing says where two boxes would meet
+    assert len(split_faces([low | high], cap.depth, cap.camera, rgb, Catalogue())) == 1
+    # boxes of a size the catalogue does not hold are never cut up (real data, other stock)
+    cap, rgb, low, high, side = _stack(0.34, 0.15)
+    rows = np.flatnonzero(high.any(axis=1))
+    rgb[rows[-1]:rows[-1] + 2][(low | high)[rows[-1]:rows[-1] + 2]] = (150, 115, 80)
+    assert len(split_faces([low | high], cap.depth, cap.camera, rgb, Catalogue())) == 1
+
+
+def test_a_face_cut_by_a_label_is_joined_back():
+    scene = Scene(Shelf(), (box("a", -0.15, 0.0, 0.23, 0.25), box("b", 0.15, 0.0, 0.20, 0.20)))
+    cap = cast(scene)
+    a, b = _front(cap, 1), _front(cap, 2)
+    rows = np.flatnonzero(a.any(axis=1))
+    cut = rows[0] + (rows[-1] - rows[0]) // 3
+    label = np.zeros_like(a)
+    label[cut:cut + 6] = True             # a label across the face, claimed by no mask
+    top, bottom = a & ~label & (np.arange(a.shape[0])[:, None] < cut), a & ~label & \
+        (np.arange(a.shape[0])[:, None] >= cut + 6)
+    notes: list[str] = []
+    out = join_pieces([top, bottom, b], cap.depth, cap.camera, Catalogue(), notes)
+    assert len(out) == 2, notes
+    assert max(mask_iou(m, a) for m in out) > 0.95      # the label's pixels are given back too
+    assert max(mask_iou(m, b) for m in out) > 0.99
+    # the same pieces with a catalogue of other (smaller) boxes stay apart
+    assert len(join_pieces([top, bottom, b], cap.depth, cap.camera,
+                           Catalogue(types=((0.12, 0.12, 0.12),)))) == 3
+
+
+def test_apply_catalogue_leaves_captures_of_other_boxes_alone():
+    cap, rgb, low, high, side = _stack(0.20, 0.20)
+    rows = np.flatnonzero(high.any(axis=1))
+    rgb[rows[-1]:rows[-1] + 2][(low | high)[rows[-1]:rows[-1] + 2]] = (150, 115, 80)
+    masks, faces = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, Catalogue())
+    assert len(masks) == 3 and all(f is not None for f in faces)
+    # with a catalogue none of these faces belongs to, nothing is changed
+    other = Catalogue(types=((0.34, 0.25, 0.45),))
+    masks, faces = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, other)
+    assert len(masks) == 2
