@@ -41,6 +41,8 @@ class Catalogue:
     depth_step: float = 0.004        # ... or a depth step (m) along the line counts as a seam
     min_share: float = 0.25         # used only when this share of the faces already are type faces
     max_join_gap_px: int = 12        # pieces this close (px) are neighbours
+    join_fill: float = 0.85          # a joined union fills its min-area rectangle this well ...
+    join_fill_loose: float = 0.75    # ... or this well when it is a type face within `tol`
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
     faces: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
 
@@ -181,10 +183,13 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                     if alive[q] and q not in (i, j):
                         taken |= masks[q]
                 union, fill = _joined(masks[i], masks[j], faces[j].face, taken, depth, camera, cat)
-                if fill < 0.85:
+                if fill < cat.join_fill_loose:
                     continue
                 fu = _measure(union, depth, camera, cat, cache)
                 if fu is None:
+                    continue
+                # a rectangle, or (a third piece still missing) a type face to within `tol`
+                if fill < cat.join_fill and fu.err > cat.tol:
                     continue
                 # the union is a type face, or (both being pieces) still fits inside one:
                 # a face cut into several pieces by tape and labels is joined step by step
