@@ -70,17 +70,22 @@ def main(argv: list[str] | None = None) -> int:
                          "here (default OUT/scenes): before/after runs compare the same shelves")
     ap.add_argument("--workers", type=int, default=1,
                     help="processes per Predictor over the depth samples (default 1)")
+    ap.add_argument("--physics", default=None, metavar="JSON",
+                    help='PhysicsConfig overrides, to measure a lever on and off, '
+                         'e.g. \'{"prediction_local": false}\'')
     args = ap.parse_args(argv)
 
     import numpy as np
     from tqdm import tqdm
 
     from planning.execute import execute_plan
+    from planning.physics import PhysicsConfig
     from planning.planner import make_plan
     from perception.scene import Scene
     from planning.predict import Predictor
     from planning.shelves import generate
 
+    config = PhysicsConfig.from_json(json.loads(args.physics), "--physics") if args.physics else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scene_dir = Path(args.scene_dir) if args.scene_dir else out / "scenes"
@@ -94,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
                 s = derive_seed(args.seed, g, kind, i)
                 n = int(np.random.default_rng(s).integers(lo, hi + 1))
                 work.append((g, task, kind, s, n))
+    import os
+
+    load_start = os.getloadavg()
     rows = []
     bar = tqdm(total=len(work), desc="plan speed", unit="scene")
     with warnings.catch_warnings():
@@ -117,15 +125,17 @@ def main(argv: list[str] | None = None) -> int:
             for t in targets:
                 t0 = time.perf_counter()
                 c0 = _cpu()
-                pred = Predictor(hidden, args.samples, s, workers=args.workers) if args.workers > 1 else None
+                pred = (Predictor(hidden, args.samples, s, config, workers=args.workers)
+                        if args.workers > 1 else None)
                 try:
-                    plan = make_plan(hidden, task, t, "physics", args.samples, s, risk=0.0, predictor=pred)
+                    plan = make_plan(hidden, task, t, "physics", args.samples, s, risk=0.0, config=config,
+                                     predictor=pred)
                 finally:
                     if pred is not None:
                         pred.close()
                 dt = time.perf_counter() - t0
                 dc = _cpu() - c0
-                ex = execute_plan(truth, plan.sequence, seed=s)
+                ex = execute_plan(truth, plan.sequence, seed=s)   # the default physics: the truth
                 row = {"group": g, "kind": kind, "seed": s, "n_boxes": n, "target": t,
                              "plan_s": dt, "cpu_s": dc, "ok": bool(ex.ok), "removed": len(plan.sequence),
                              "safe": plan.safe, "sequence": list(plan.sequence),
@@ -148,7 +158,9 @@ def main(argv: list[str] | None = None) -> int:
                       "success_rate": sum(x["ok"] for x in r) / len(r),
                       "mean_removed": statistics.fmean(x["removed"] for x in r),
                       "skipped_scenes": sum(1 for x in rows if x["group"] == g and "error" in x)}
-    doc = {"config": vars(args), "summary": summary, "rows": rows}
+    load_end = os.getloadavg()
+    doc = {"config": vars(args), "load_average": {"start": load_start, "end": load_end},
+           "summary": summary, "rows": rows}
     (out / "plan_speed.json").write_text(json.dumps(doc, indent=2) + "\n")
     md = ["| group | plans | p50 wall (s) | p90 wall (s) | p50 CPU (s) | p90 CPU (s) "
           "| success on true scene | boxes removed |",
@@ -158,7 +170,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{v['cpu_p50_s']:.2f} | {v['cpu_p90_s']:.2f} | "
                   f"{v['success_rate'] * 100:.1f}% | {v['mean_removed']:.2f} |")
     text = (f"Planning speed, {args.samples} depth samples, risk 0, seed {args.seed}, "
-            f"{args.scenes} scenes per kind and group\n\n" + "\n".join(md) + "\n")
+            f"{args.scenes} scenes per kind and group, {args.workers} worker(s); load average "
+            f"(1/5/15 min) {'/'.join(f'{x:.1f}' for x in load_start)} at the start, "
+            f"{'/'.join(f'{x:.1f}' for x in load_end)} at the end\n\n" + "\n".join(md) + "\n")
     (out / "plan_speed.md").write_text(text)
     print(text)
     return 0

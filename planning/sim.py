@@ -538,7 +538,8 @@ class ShelfSim:
         """Every box on the shelf outside `keep` stands in as a static copy of itself.
 
         Its dynamic body leaves the broadphase (it falls freely, touching nothing,
-        and costs the solver nothing); `_thaw` puts it back exactly as it was.
+        and costs the solver nothing); `_thaw` puts it back as it was (the position
+        bit for bit, the quaternion to its last bit: Bullet round-trips it).
         """
         p = self._p
         for bid in self._active():
@@ -572,8 +573,7 @@ class ShelfSim:
         """Take several boxes away at once, then settle once.
 
         `local=True` (a world built with `local=True`) settles only the boxes
-        around the deleted ones (`neighbourhood`); the others stay exactly where
-        they were.
+        around the deleted ones (`neighbourhood`); the others stay where they were.
         """
         box_ids = list(box_ids)
         for b in box_ids:
@@ -649,7 +649,7 @@ class ShelfSim:
         planners only need the verdict and the first collapsing box).
         `local=True` (a world built with `local=True`, not recording) simulates only
         the box's `neighbourhood`; the other boxes stand in as static copies during
-        the pull and are exactly where they were afterwards (docs/speed.md).
+        the pull and are where they were afterwards (docs/speed.md).
         """
         self._require(box_id)
         if box_id in self._parked or box_id not in self.present():
