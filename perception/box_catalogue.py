@@ -44,6 +44,7 @@ class Catalogue:
     join_fill: float = 0.85          # a joined union fills its min-area rectangle this well ...
     join_fill_loose: float = 0.75    # ... or this well when it is a type face within `tol`
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
+    row_margin: float = 0.05         # m: a mask this far off every type face may be a row of 3+
     faces: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -65,6 +66,17 @@ class Catalogue:
     def fits(self, width: float, height: float) -> bool:
         """Whether a face of this size fits inside some type face (a part of one)."""
         return any(width <= w + self.tol and height <= h + self.tol for w, h in self.faces)
+
+    def composable(self, width: float, height: float, axis: int, parts: int = 2) -> bool:
+        """Whether a face of this size is `parts` type faces in a row: stacked (axis 1, heights
+        add up, the widest as wide as it) or side by side (axis 0, widths add up)."""
+        for combo in itertools.combinations_with_replacement(self.faces, parts):
+            along = sum(f[1] if axis == 1 else f[0] for f in combo)
+            across = max(f[0] if axis == 1 else f[1] for f in combo)
+            total, span = (height, width) if axis == 1 else (width, height)
+            if abs(along - total) <= 1.5 * self.tol and abs(across - span) <= self.tol:
+                return True
+        return False
 
     @property
     def sides(self) -> tuple[float, ...]:
@@ -109,7 +121,10 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
         # not a capture of these box types (another warehouse, real data): leave it alone
         return masks, [None if f is None else f.face for f in measured]
     masks = join_pieces(masks, depth, camera, cat, notes, cache)
+    n = len(masks)
     masks = split_faces(masks, depth, camera, rgb, cat, notes, cache=cache)
+    if len(masks) > n:      # a row cut into faces may leave a piece of a face beside its rest
+        masks = join_pieces(masks, depth, camera, cat, notes, cache)
     faces = []
     for m in masks:
         f = _measure(m, depth, camera, cat, cache)
@@ -256,7 +271,7 @@ def _joined(a: np.ndarray, b: np.ndarray, face, taken: np.ndarray, depth: np.nda
 
 
 def split_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
-                cat: Catalogue, notes: list[str] | None = None, max_parts: int = 3,
+                cat: Catalogue, notes: list[str] | None = None, max_parts: int = 4,
                 cache: dict | None = None) -> list[np.ndarray]:
     """Split a mask that is no type face at the line where it falls into two type faces,
     when a seam (colour edge line or depth step) runs along that line."""
@@ -268,13 +283,18 @@ def split_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb:
         lab[..., 1:] = (lab[..., 1:] - 128) * 2
     out: list[np.ndarray] = []
     for m in masks:
-        out.extend(_split_one(np.asarray(m, bool), depth, camera, lab, cat, notes, max_parts, cache))
+        out.extend(_split_one(np.asarray(m, bool), depth, camera, lab, cat, notes, max_parts, cache,
+                              others=masks))
     return out
 
 
 def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndarray | None,
                cat: Catalogue, notes: list[str] | None, budget: int,
-               cache: dict | None = None) -> list[np.ndarray]:
+               cache: dict | None = None, row_axis: int | None = None,
+               others: list[np.ndarray] | None = None) -> list[np.ndarray]:
+    """`row_axis`: the mask is the rest of a row of faces cut off a longer mask along this
+    axis; it may then also split into a type face and a piece of one (its other part was cut
+    off the same face by the segmenter, and `join_pieces` joins them again)."""
     if budget <= 1:
         return [mask]
     f = _measure(mask, depth, camera, cat, cache)
@@ -285,7 +305,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
     if max(face.width, face.height) < 2 * side_min:
         return [mask]
     ys, xs, cx, cz = _coords(face, mask, camera)
-    best = None
+    cands_ok: list[tuple] = []
     for axis in (1, 0):                        # stacked (split along z) first, then side by side
         t = cz if axis == 1 else cx
         o = cx if axis == 1 else cz
@@ -315,24 +335,71 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
                 else:
                     wa, wb = p2 - np.quantile(t[a], 0.01), np.quantile(t[~a], 0.99) - p2
                 ea, eb = cat.error(wa, ha), cat.error(wb, hb)
-                if max(ea, eb) > cat.tol or score < 1.0:
+                if score < 1.0 or min(ea, eb) > cat.tol:
                     continue
-                key = (score, -max(ea, eb))
-                if best is None or key > best[0]:
-                    best = (key, axis, p2, a, wa, ha, wb, hb)
+                rest = (wb, hb) if ea <= cat.tol else (wa, ha)
+                # (the weakest case: its type face must match to half the tolerance)
+                piece = (row_axis == axis and max(ea, eb) > cat.tol and cat.fits(*rest)
+                         and min(rest) >= 0.05 and min(ea, eb) <= cat.tol / 2)
+                if max(ea, eb) > cat.tol and not piece:
+                    # one part a type face, the other (budget left) itself two faces in a row
+                    # along the same axis: a stack of three flush boxes is cut one seam at a time
+                    # (only for a mask far off any type face: a face measured a few cm too
+                    # long, labels on it, is not a stack of smaller faces)
+                    if f.err <= cat.row_margin or not any(
+                            cat.composable(rest[0], rest[1], axis, k) for k in range(2, budget)):
+                        continue
+                key = (max(ea, eb) <= cat.tol, score, -max(ea, eb))
+                cands_ok.append((key, axis, p2, a, wa, ha, wb, hb, ea, eb, piece))
+    best = None
+    for c in sorted(cands_ok, key=lambda c: c[0], reverse=True):
+        pa = np.zeros_like(mask)
+        pb = np.zeros_like(mask)
+        pa[ys[c[3]], xs[c[3]]] = True
+        pb[ys[~c[3]], xs[~c[3]]] = True
+        # a piece must join a neighbour into a type face, else the cut is at a label or tape
+        if c[10] and not _piece_joins(pa if c[8] > cat.tol else pb, pb if c[8] > cat.tol else pa, others or [],
+                                      depth, camera, cat, cache):
+            continue
+        best = c
+        break
     if best is None:
         return [mask]
-    _, axis, p2, a, wa, ha, wb, hb = best
-    pa = np.zeros_like(mask)
-    pb = np.zeros_like(mask)
-    pa[ys[a], xs[a]] = True
-    pb[ys[~a], xs[~a]] = True
+    _, axis, p2, a, wa, ha, wb, hb, ea, eb, _ = best
     if notes is not None:
         notes.append(f"split a {face.width * 100:.0f}x{face.height * 100:.0f} cm face "
                      f"{'across' if axis == 1 else 'down'} its seam into {wa * 100:.0f}x{ha * 100:.0f} and "
-                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][0]:.2f})")
-    return (_split_one(pa, depth, camera, lab, cat, notes, budget - 1, cache)
-            + _split_one(pb, depth, camera, lab, cat, notes, budget - 1, cache))
+                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][1]:.2f})")
+    return (_split_one(pa, depth, camera, lab, cat, notes, budget - 1, cache, axis if ea > cat.tol else None, others)
+            + _split_one(pb, depth, camera, lab, cat, notes, budget - 1, cache, axis if eb > cat.tol else None,
+                         others))
+
+
+def _piece_joins(piece: np.ndarray, rest: np.ndarray, others: list[np.ndarray], depth: np.ndarray,
+                 camera: Camera, cat: Catalogue, cache: dict | None) -> bool:
+    """Whether a piece, joined with a neighbouring mask on its plane (not taking pixels of
+    `rest` or of other masks), makes a type face that fills its rectangle."""
+    import cv2
+
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    near = cv2.dilate(piece.astype(np.uint8), k) > 0
+    for m in others:
+        if (m & piece).any() or not (near & m).any():
+            continue
+        fm = _measure(m, depth, camera, cat, cache)
+        if fm is None or _plane_dist(fm.face, piece, depth, camera) > cat.plane_tol:
+            continue
+        taken = rest.copy()
+        for q in others:
+            if q is not m:
+                taken |= q & ~piece
+        union, fill = _joined(piece, m, fm.face, taken, depth, camera, cat)
+        if fill < cat.join_fill:
+            continue
+        fu = _measure(union, depth, camera, cat, None)
+        if fu is not None and fu.err <= cat.tol:
+            return True
+    return False
 
 
 @dataclass

@@ -92,3 +92,26 @@ def test_apply_catalogue_leaves_captures_of_other_boxes_alone():
     other = Catalogue(types=((0.34, 0.25, 0.45),))
     masks, faces = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, other)
     assert len(masks) == 2
+
+
+def test_a_stack_of_three_flush_boxes_of_one_colour_is_cut_one_seam_at_a_time():
+    scene = Scene(Shelf(), (box("low", -0.10, 0.0, 0.23, 0.25), box("mid", -0.10, 0.25, 0.20, 0.20),
+                            box("high", -0.10, 0.45, 0.23, 0.25), box("side", 0.25, 0.0, 0.20, 0.20)))
+    cap = cast(scene)
+    low, mid, high, side = (_front(cap, k) for k in (1, 2, 3, 4))
+    rgb = cap.rgb.copy()
+    rgb[low | mid | high] = (180, 140, 95)
+    for upper in (mid, high):               # a faint seam line under the two upper boxes
+        rows = np.flatnonzero(upper.any(axis=1))
+        band = np.zeros_like(upper)
+        band[rows[-1]:rows[-1] + 2] = True
+        rgb[band & (low | mid | high)] = (150, 115, 80)
+    notes: list[str] = []
+    out = split_faces([low | mid | high, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    assert len(out) == 4, notes
+    for m in (low, mid, high, side):
+        assert max(mask_iou(o, m) for o in out) > 0.85, notes
+    # without the seams nothing is cut
+    plain = cap.rgb.copy()
+    plain[low | mid | high] = (180, 140, 95)
+    assert len(split_faces([low | mid | high], cap.depth, cap.camera, plain, Catalogue())) == 1
