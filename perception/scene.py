@@ -118,6 +118,15 @@ def yaw_quat(yaw: float) -> Quat:
 
 
 # --------------------------------------------------------------------------
+# The method's box types, (size along x, y, z) in metres as they stand on the shelf: the one table
+# the generators, the renderer's training scenes and perception's box catalogue all read.
+BOX_TYPES: dict[str, tuple[float, float, float]] = {
+    "carton": (0.23, 0.31, 0.25),
+    "cube": (0.20, 0.20, 0.20),
+    "long": (0.50, 0.17, 0.17),
+}
+
+
 @dataclass(frozen=True)
 class Shelf:
     """Interior of the shelf, metres: x in [-w/2, w/2], y in [0, depth], z in [0, height]."""

@@ -23,10 +23,11 @@ import numpy as np
 
 from perception.errors import PerceptionError
 from perception.geometry import matrix_to_quat
+from perception.scene import BOX_TYPES as scene_box_types
 from perception.scene import Box, Camera, Scene, Shelf, yaw_quat
 
 # The method's box types (cm, as listed): each may stand on any face that fits the shelf depth.
-BOX_TYPES: tuple[tuple[float, float, float], ...] = ((0.23, 0.31, 0.25), (0.20, 0.20, 0.20), (0.50, 0.17, 0.17))
+BOX_TYPES: tuple[tuple[float, float, float], ...] = tuple(scene_box_types.values())
 SHELF = Shelf(1.0, 0.30, 1.60)
 VIEW_TOP = 1.15    # nothing above this is in view from the default camera; stop stacking there
 

@@ -21,18 +21,12 @@ from typing import Literal, Sequence
 import numpy as np
 
 from perception.errors import SceneError, ShelfpickError
-from perception.scene import Box, Scene, Shelf, quat_to_matrix
+from perception.scene import BOX_TYPES, Box, Scene, Shelf, quat_to_matrix
 
 Kind = Literal["structured", "unstructured"]
 KINDS: tuple[str, ...] = ("structured", "unstructured")
 
 SHELF = Shelf(1.0, 0.30, 1.60)
-# (name, size along x, y, z) in metres
-BOX_TYPES: dict[str, tuple[float, float, float]] = {
-    "carton": (0.23, 0.31, 0.25),
-    "cube": (0.20, 0.20, 0.20),
-    "long": (0.50, 0.17, 0.17),
-}
 STANDING_LONG = (0.17, 0.17, 0.50)
 
 MAX_BOXES = 30
