@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from perception.masks import border_pixels, border_sides
 from perception.scene import Camera
 
 # the method's box types (w, d, h in metres), as in perception.bench_scenes and planning.shelves
@@ -179,17 +180,19 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
     masks = [np.asarray(m, bool) for m in masks]
     faces = [_measure(m, depth, camera, cat, cache) for m in masks]
     alive = [f is not None for f in faces]
+    # a face cut by the image border is only a lower bound of its size: no evidence of a piece
+    free = [not border_sides(m) for m in masks]
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
     changed = True
     while changed:
         changed = False
-        order = sorted((i for i in range(len(masks)) if alive[i] and faces[i].err > cat.tol),
+        order = sorted((i for i in range(len(masks)) if alive[i] and free[i] and faces[i].err > cat.tol),
                        key=lambda i: int(masks[i].sum()))
         for i in order:
             near = cv2.dilate(masks[i].astype(np.uint8), k) > 0
             best = None
             for j in range(len(masks)):
-                if j == i or not alive[j] or not (near & masks[j]).any():
+                if j == i or not alive[j] or not free[j] or not (near & masks[j]).any():
                     continue
                 if _plane_dist(faces[j].face, masks[i], depth, camera) > cat.plane_tol:
                     continue
@@ -295,7 +298,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
     """`row_axis`: the mask is the rest of a row of faces cut off a longer mask along this
     axis; it may then also split into a type face and a piece of one (its other part was cut
     off the same face by the segmenter, and `join_pieces` joins them again)."""
-    if budget <= 1:
+    if budget <= 1 or border_sides(mask):
         return [mask]
     f = _measure(mask, depth, camera, cat, cache)
     if f is None or f.err <= cat.tol:
@@ -470,3 +473,68 @@ def _peaks(ev: _Evidence, pos: float, win: float, cat: Catalogue) -> list[tuple[
     score = ev.score[sel]
     k = int(np.argmax(score))
     return [(float(ev.bins[sel[k]]), float(score[k]))]
+
+
+def cut_directions(face, mask: np.ndarray, camera: Camera, sides: tuple[str, ...] | None = None,
+                   margin: int = 2) -> set[str]:
+    """The face sides ("+x", "-x", "+z", "-z" on the face's width/height axes) that an image
+    border cuts: per border the mask runs into, the side its border pixels lie on (their median
+    cast onto the face plane, relative to the half extent)."""
+    out: set[str] = set()
+    for side in (border_sides(mask, margin) if sides is None else sides):
+        px = border_pixels(mask, side, margin)
+        if int(px.sum()) < 3:
+            continue
+        _, _, cx, cz = _coords(face, px, camera)
+        if not len(cx):
+            continue
+        rx = float(np.median(cx)) / max(face.width / 2, 1e-6)
+        rz = float(np.median(cz)) / max(face.height / 2, 1e-6)
+        if max(abs(rx), abs(rz)) < 0.25:
+            continue        # border pixels in the middle of the face: cannot tell
+        out.add(("+x" if rx > 0 else "-x") if abs(rx) >= abs(rz) else ("+z" if rz > 0 else "-z"))
+    return out
+
+
+def complete_cut_face(face, mask: np.ndarray, camera: Camera, cat: Catalogue | None,
+                      sides: tuple[str, ...] | None = None, min_side: float = 0.02):
+    """A face cut by the image border, completed where the catalogue explains it.
+
+    The face is at least as big as seen. Cut along one axis only (its other side seen whole),
+    it becomes the smallest type face whose uncut side matches (within `tol`) and whose cut
+    side is at least as long as seen, grown away from the border; otherwise it keeps its seen
+    size, but no side under `min_side` (a strip along the border still stands for a box).
+    Returns (face, cut directions, how it was completed or None)."""
+    from dataclasses import replace
+
+    from perception.boxes import face_axes
+
+    cut = cut_directions(face, mask, camera, sides)
+    w, h = face.width, face.height
+    how = None
+    axes = {d[1] for d in cut}
+    if cat is not None and len(axes) == 1:
+        ax = axes.pop()
+        seen, other = (h, w) if ax == "z" else (w, h)
+        cands = [(f[1], f[0]) if ax == "z" else (f[0], f[1]) for f in cat.faces]   # (cut side, uncut side)
+        cands = [c for c in cands if abs(c[1] - other) <= cat.tol and c[0] >= seen - cat.tol]
+        if cands:
+            full = max(min(cands)[0], seen)
+            if ax == "z":
+                h = full
+            else:
+                w = full
+            how = "type"
+    w, h = max(w, min_side), max(h, min_side)
+    if (w, h) == (face.width, face.height):
+        return face, cut, None
+    rot = face_axes(face)
+    shift = np.zeros(3)
+    for d in cut:
+        col = rot[:, 0] if d[1] == "x" else rot[:, 2]
+        grow = (w - face.width) if d[1] == "x" else (h - face.height)
+        if (("+" + d[1]) in cut) and (("-" + d[1]) in cut):
+            continue        # cut on both ends: grow about the centre
+        shift += (1.0 if d[0] == "+" else -1.0) * col * grow / 2
+    c = tuple(float(v) for v in np.asarray(face.center) + shift)
+    return replace(face, center=c, width=float(w), height=float(h)), cut, how or "min"

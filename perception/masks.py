@@ -251,3 +251,33 @@ def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, ste
     # pixels claimed by two grown masks go to neither (they were a boundary)
     count = np.sum([o.astype(np.uint8) for o in out], axis=0)
     return [o & ((count == 1) | m) for o, m in zip(out, masks)]
+
+
+BORDER_SIDES = ("top", "left", "right", "bottom")
+
+
+def border_sides(mask: np.ndarray, margin: int = 2, min_pixels: int = 5) -> tuple[str, ...]:
+    """The image borders a mask runs into ("top", "left", "right", "bottom"): its face may go on
+    beyond the view, so its size there is only a lower bound."""
+    m = np.asarray(mask, bool)
+    if not m.any():
+        return ()
+    strips = {"top": m[:margin, :], "left": m[:, :margin], "right": m[:, -margin:], "bottom": m[-margin:, :]}
+    return tuple(s for s in BORDER_SIDES if int(strips[s].sum()) >= min_pixels)
+
+
+def border_pixels(mask: np.ndarray, side: str, margin: int = 2) -> np.ndarray:
+    """The mask's pixels within `margin` of one image border."""
+    m = np.asarray(mask, bool)
+    sel = np.zeros(m.shape, bool)
+    if side == "top":
+        sel[:margin, :] = True
+    elif side == "bottom":
+        sel[-margin:, :] = True
+    elif side == "left":
+        sel[:, :margin] = True
+    elif side == "right":
+        sel[:, -margin:] = True
+    else:
+        raise ValueError(f"unknown image side {side!r}")
+    return m & sel

@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
-                              distance_from_box_size, make_valid, planar_depth)
-from perception.box_catalogue import Catalogue, apply_catalogue
+                              distance_from_box_size, make_valid, measure_front, planar_depth)
+from perception.box_catalogue import Catalogue, apply_catalogue, complete_cut_face
 from perception.capture import Capture
 from perception.geometry import check_intrinsics, point_map
-from perception.masks import grow_on_plane, refine, to_label_image
+from perception.masks import border_sides, grow_on_plane, refine, to_label_image
 from perception.overlay import draw_overlay
 from perception.scene import Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
@@ -58,6 +58,37 @@ def _inside_shelf(depth: np.ndarray | None, camera, shelf: Shelf, margin: float 
     p = point_map(camera, depth)
     return ((p[..., 2] > margin) & (np.abs(p[..., 0]) < shelf.width / 2 - margin)
             & (p[..., 1] < shelf.depth - margin) & (p[..., 2] < shelf.height - margin))
+
+
+def _complete_cut_faces(masks: list[np.ndarray], faces: list[FrontFace | None], camera,
+                        catalogue: Catalogue | None) -> tuple[list[FrontFace | None], dict[int, str]]:
+    """Faces cut by the image border, completed to a type face where the catalogue explains
+    them (else kept at least as seen, never dropped for being thin); id(new face) -> what was done."""
+    out = list(faces)
+    done: dict[int, str] = {}
+    for i, (m, f) in enumerate(zip(masks, faces)):
+        sides = border_sides(m)
+        if f is None or not sides:
+            continue
+        g, cut, how = complete_cut_face(f, m, camera, catalogue, sides)
+        out[i] = g
+        if how is not None:
+            what = "the type face" if how == "type" else "at least"
+            done[id(g)] = (f"face cut by the {'/'.join(sides)} image border, seen {f.width * 100:.0f}x"
+                           f"{f.height * 100:.0f} cm, taken as {what} {g.width * 100:.0f}x{g.height * 100:.0f} cm")
+    return out, done
+
+
+def _border_warnings(boxes: list, masks: list[np.ndarray]) -> list[str]:
+    """One warning per image border (top, left, right) that perceived faces run into."""
+    by_side: dict[str, list[str]] = {}
+    for b, m in zip(boxes, masks):
+        for side in border_sides(m):
+            by_side.setdefault(side, []).append(b.id)
+    where = {"top": "above", "left": "left of", "right": "right of"}
+    return [f"{', '.join(ids)} touch{'es' if len(ids) == 1 else ''} the {side} image border: boxes may be cut "
+            f"off or lie {where[side]} the view; the scene may be incomplete there"
+            for side, ids in by_side.items() if side in where]
 
 
 def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf | None = None, *,
@@ -106,11 +137,16 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
         warnings.append(f"no depth image: front at {used_distance:.3f} m derived from the box size "
                         f"{box_size[0]:g} x {box_size[1]:g} m")
     t = time.perf_counter()
-    boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder,
-                                             faces=measured if depth is capture.depth else None)
+    if measured is None or depth is not capture.depth:
+        measured = [measure_front(m, depth, camera) for m in masks]
+    measured, completed = _complete_cut_faces(masks, measured, camera,
+                                              catalogue if capture.depth is not None else None)
+    boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured)
     warnings.extend(w)
+    warnings.extend(_border_warnings(boxes, masks))
+    cut_notes = [f"{b.id}: {completed[id(f)]}" for b, f in zip(boxes, faces) if id(f) in completed]
     boxes, notes = make_valid(boxes, shelf)
-    notes = catalogue_notes + notes
+    notes = catalogue_notes + cut_notes + notes
     timing["boxes"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = to_label_image(masks, capture.shape)

@@ -51,6 +51,9 @@ class DepthEdgeConfig:
     tape_span: float = 0.85          # ... and runs across at least this fraction of the face
     tape_colour: float = 20.0        # Lab distance between the pieces on both sides of a tape
     wall_margin: float = 0.012       # m: points this close to the back wall are the shelf
+    border_px: int = 3               # px: a piece this close to the image border may be cut by it ...
+    border_min_px: int = 20          # ... when this many of its pixels are there; it is then kept ...
+    border_side_m: float = 0.004     # ... down to this thickness (a strip of a face above the view)
 
 
 class DepthEdgeSegmenter:
@@ -115,6 +118,10 @@ class DepthEdgeSegmenter:
         for i, p in enumerate((px, py, pz)):
             du[i][:, k:-k] = p[:, 2 * k:] - p[:, :-2 * k]
             dv[i][k:-k, :] = p[2 * k:, :] - p[:-2 * k, :]
+            # the first and last k rows/columns take the nearest full difference: a face cut
+            # by the image border keeps its normal up to the border (a strip at the top edge)
+            du[i][:, :k], du[i][:, -k:] = du[i][:, k:k + 1], du[i][:, -k - 1:-k]
+            dv[i][:k, :], dv[i][-k:, :] = dv[i][k:k + 1, :], dv[i][-k - 1:-k, :]
         nx = du[1] * dv[2] - du[2] * dv[1]
         ny = du[2] * dv[0] - du[0] * dv[2]
         nz = du[0] * dv[1] - du[1] * dv[0]
@@ -125,6 +132,16 @@ class DepthEdgeSegmenter:
         else:
             fwd = np.array([0.0, 0.0, 1.0])
         facing = (nx * fwd[0] + ny * fwd[1] + nz * fwd[2]) / nn > cfg.facing_cos
+        if self.camera is not None and cfg.border_px > 0:
+            # the top 2k+1 rows: the vertical difference reaches past a strip cut by the image
+            # border (the bottom of a box above the view) into whatever is below it; a front
+            # face is vertical, so there its normal is the horizontal tangent x shelf up
+            b = 2 * k + 1
+            up = rot.T @ np.array([0.0, 0.0, 1.0])
+            tx, ty, tz = du[0][:b], du[1][:b], du[2][:b]
+            mx, my, mz = ty * up[2] - tz * up[1], tz * up[0] - tx * up[2], tx * up[1] - ty * up[0]
+            mn = np.sqrt(mx * mx + my * my + mz * mz) + 1e-12
+            facing[:b] = np.abs(mx * fwd[0] + my * fwd[1] + mz * fwd[2]) / mn > cfg.facing_cos
         fg = vs & facing & ~jump
         # ---- the shelf itself
         if self.camera is not None and self.shelf is not None:
@@ -165,6 +182,15 @@ class DepthEdgeSegmenter:
         area_m2 = ndimage.sum(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
         thick_m = 2 * ndimage.maximum(dist * mpp, piece, idx) if npiece > 1 else np.zeros(0)
         big = (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.min_side_m)
+        if npiece > 1 and cfg.border_px > 0:
+            # a face cut by the image border is at least this big: a thin strip along the
+            # border (the bottom of a box above the view) is a face, not tape
+            edge = np.zeros((h, w), bool)
+            b = cfg.border_px
+            edge[:b, :] = edge[-b:, :] = True
+            edge[:, :b] = edge[:, -b:] = True
+            on_edge = ndimage.sum(edge, piece, idx) >= cfg.border_min_px if npiece > 1 else np.zeros(0, bool)
+            big |= on_edge & (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.border_side_m)
         keep = np.zeros(npiece, bool)
         keep[1:] = big
         assigned = np.where(keep[piece], piece, 0)
