@@ -64,6 +64,14 @@ class Catalogue:
     def matches(self, width: float, height: float, tol: float | None = None) -> bool:
         return self.error(width, height) <= (self.tol if tol is None else tol)
 
+    def error_cut(self, width: float, height: float, cut_axes: set[str] | frozenset[str] = frozenset()) -> float:
+        """`error` for a face cut by the image border along `cut_axes` ("x", "z"): a cut side
+        is only a lower bound, so it counts only where it is longer than the type's side."""
+        if not self.faces:
+            return math.inf
+        return min(max(max(0.0, width - w) if "x" in cut_axes else abs(width - w),
+                       max(0.0, height - h) if "z" in cut_axes else abs(height - h)) for w, h in self.faces)
+
     def fits(self, width: float, height: float) -> bool:
         """Whether a face of this size fits inside some type face (a part of one)."""
         return any(width <= w + self.tol and height <= h + self.tol for w, h in self.faces)
@@ -180,19 +188,30 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
     masks = [np.asarray(m, bool) for m in masks]
     faces = [_measure(m, depth, camera, cat, cache) for m in masks]
     alive = [f is not None for f in faces]
-    # a face cut by the image border is only a lower bound of its size: no evidence of a piece
-    free = [not border_sides(m) for m in masks]
+    # a face cut by the image border is only a lower bound of its size along the cut: its error
+    # counts a cut side only where it is too long, and it joins only pieces cut by the same border
+    sides = [border_sides(m) for m in masks]
+
+    def err(fc: _Face, m: np.ndarray, sd: tuple[str, ...]) -> float:
+        if not sd:
+            return fc.err
+        axes = {d[1] for d in cut_directions(fc.face, m, camera, sd)}
+        return cat.error_cut(fc.face.width, fc.face.height, axes)
+
+    errs = [err(f, m, sd) if f is not None else math.inf for f, m, sd in zip(faces, masks, sides)]
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
     changed = True
     while changed:
         changed = False
-        order = sorted((i for i in range(len(masks)) if alive[i] and free[i] and faces[i].err > cat.tol),
+        order = sorted((i for i in range(len(masks)) if alive[i] and errs[i] > cat.tol),
                        key=lambda i: int(masks[i].sum()))
         for i in order:
             near = cv2.dilate(masks[i].astype(np.uint8), k) > 0
             best = None
             for j in range(len(masks)):
-                if j == i or not alive[j] or not free[j] or not (near & masks[j]).any():
+                if j == i or not alive[j] or not (near & masks[j]).any():
+                    continue
+                if (sides[i] or sides[j]) and not set(sides[i]) & set(sides[j]):
                     continue
                 if _plane_dist(faces[j].face, masks[i], depth, camera) > cat.plane_tol:
                     continue
@@ -206,23 +225,26 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                 fu = _measure(union, depth, camera, cat, cache)
                 if fu is None:
                     continue
+                eu = err(fu, union, border_sides(union))
                 # a rectangle, or (a third piece still missing) a type face to within `tol`
-                if fill < cat.join_fill and fu.err > cat.tol:
+                if fill < cat.join_fill and eu > cat.tol:
                     continue
                 # the union is a type face, or (both being pieces) still fits inside one:
                 # a face cut into several pieces by tape and labels is joined step by step
-                if fu.err > cat.join_tol and not (faces[j].err > cat.tol and cat.fits(fu.face.width, fu.face.height)):
+                if eu > cat.join_tol and not (errs[j] > cat.tol and cat.fits(fu.face.width, fu.face.height)):
                     continue
-                if best is None or (fu.err > cat.join_tol, fu.err) < (best[1].err > cat.join_tol, best[1].err):
-                    best = (j, fu)
+                if best is None or (eu > cat.join_tol, eu) < (best[2] > cat.join_tol, best[2]):
+                    best = (j, fu, eu)
             if best is None:
                 continue
-            j, fu = best
+            j, fu, eu = best
             if notes is not None:
                 notes.append(f"joined a {faces[i].face.width * 100:.0f}x{faces[i].face.height * 100:.0f} cm "
                              f"piece to its neighbour: {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
             masks[j] = fu.mask
             faces[j] = fu
+            sides[j] = border_sides(fu.mask)
+            errs[j] = eu
             alive[i] = False
             changed = True
             break
@@ -298,7 +320,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
     """`row_axis`: the mask is the rest of a row of faces cut off a longer mask along this
     axis; it may then also split into a type face and a piece of one (its other part was cut
     off the same face by the segmenter, and `join_pieces` joins them again)."""
-    if budget <= 1 or border_sides(mask):
+    if budget <= 1:
         return [mask]
     f = _measure(mask, depth, camera, cat, cache)
     if f is None or f.err <= cat.tol:

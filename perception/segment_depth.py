@@ -72,11 +72,12 @@ class DepthEdgeSegmenter:
 
     def rgb_only(self) -> "DepthEdgeSegmenter":
         """The settings for a photo without depth (a flat stand-in depth): no depth jump
-        separates boxes there, so pieces are joined only when their union is a clean rectangle."""
+        separates boxes there, so pieces are joined only when their union is a clean rectangle;
+        and a thin strip at the image border is not taken for a face (no depth to tell)."""
         from dataclasses import replace
 
         return DepthEdgeSegmenter(self.camera, self.shelf,
-                                  replace(self.config, rect_fill=self.config.rgb_rect_fill))
+                                  replace(self.config, rect_fill=self.config.rgb_rect_fill, border_px=0))
 
     # ------------------------------------------------------------------
     def segment(self, rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:

@@ -77,3 +77,33 @@ def test_cut_direction_and_completion_on_a_measured_face():
     # a catalogue without a type of that width: kept as seen
     g2, _, how2 = complete_cut_face(f, m, cap.camera, Catalogue(types=((0.3, 0.3, 0.3),)))
     assert how2 is None and g2 == f
+
+
+def test_error_cut_counts_a_cut_side_only_where_too_long():
+    cat = Catalogue()
+    assert cat.error_cut(0.50, 0.05, {"z"}) < 1e-9          # the bottom of a 50x17 face
+    assert cat.error(0.50, 0.05) > 0.1
+    assert cat.error_cut(0.40, 0.05, {"z"}) > cat.tol        # no type is 40 cm wide
+
+
+def test_pieces_cut_by_the_same_border_join_but_a_border_strip_never_joins_a_face_below():
+    from perception.box_catalogue import join_pieces
+
+    scene = _stack(0.70)
+    cap = cast(scene, noise=0.0)
+    top, carton = cap.masks == 3, cap.masks == 2
+    xs = np.nonzero(top)[1]
+    # cut down a tape line into 12 and 37 cm pieces (no type is that wide: pieces, not faces;
+    # a half of 25 cm could be a cut 25 cm face and is rightly left alone)
+    cut = int(xs.min() + 0.24 * (xs.max() - xs.min()))
+    cols = np.arange(top.shape[1])[None, :]
+    left, right = top & (cols < cut - 3), top & (cols > cut + 3)
+    notes: list[str] = []
+    out = join_pieces([left, right, carton], cap.depth, cap.camera, Catalogue(), notes)
+    assert len(out) == 2 and notes
+    assert any((o & left).any() and (o & right).any() for o in out)
+    assert any((o == carton).all() for o in out)             # the carton is left alone
+    # a strip along the top border beside a carton that does not reach the border: kept apart
+    strip = top & (np.arange(top.shape[0])[:, None] < 6)
+    out = join_pieces([strip, carton], cap.depth, cap.camera, Catalogue())
+    assert len(out) == 2
