@@ -122,6 +122,7 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     """`join_pieces` then `split_faces`; returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
+    notes = notes if notes is not None else []
     masks = [np.asarray(m, bool) for m in masks]
     measured = [_measure(m, depth, camera, cat, cache) for m in masks]
     ok = [f for f in measured if f is not None]
@@ -132,7 +133,9 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     masks = join_pieces(masks, depth, camera, cat, notes, cache)
     n = len(masks)
     masks = split_faces(masks, depth, camera, rgb, cat, notes, cache=cache)
-    if len(masks) > n:      # a row cut into faces may leave a piece of a face beside its rest
+    k = len(notes)
+    masks = cut_l_shapes(masks, depth, camera, cat, notes, cache)
+    if len(masks) > n or len(notes) > k:     # a cut piece may join its own face's rest      # a row cut into faces may leave a piece of a face beside its rest
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
     faces = []
     for m in masks:
@@ -560,3 +563,88 @@ def complete_cut_face(face, mask: np.ndarray, camera: Camera, cat: Catalogue | N
         shift += (1.0 if d[0] == "+" else -1.0) * col * grow / 2
     c = tuple(float(v) for v in np.asarray(face.center) + shift)
     return replace(face, center=c, width=float(w), height=float(h)), cut, how or "min"
+
+
+def _rect_fill(m: np.ndarray) -> float:
+    """Area over the area of the axis-aligned bounding rectangle (image rows/columns)."""
+    rows = np.flatnonzero(m.any(axis=1))
+    cols = np.flatnonzero(m.any(axis=0))
+    if len(rows) == 0:
+        return 0.0
+    return float(m.sum()) / float((rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1))
+
+
+def cut_l_shapes(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
+                 notes: list[str] | None = None, cache: dict | None = None,
+                 max_fill: float = 0.8, part_fill: float = 0.8) -> list[np.ndarray]:
+    """Cut an L-shaped mask (no type face, filling its rectangle < `max_fill`: the strip of one
+    box merged with the end of another) at the image row or column that leaves two rectangles,
+    and keep the cut only when a part joins a neighbouring mask into a type face (within `tol`,
+    filling its rectangle >= `join_fill`; never a union that merely fits inside one)."""
+    import cv2
+
+    out = list(masks)
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    i = 0
+    while i < len(out):
+        m = out[i]
+        f = _measure(m, depth, camera, cat, cache)
+        if f is None or f.err <= cat.tol or border_sides(m) or _rect_fill(m) >= max_fill:
+            i += 1
+            continue
+        rows = np.flatnonzero(m.any(axis=1))
+        cols = np.flatnonzero(m.any(axis=0))
+        sl = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        sub = m[sl]
+        cuts = []                  # the best cut along rows and the best along columns
+        for axis in (0, 1):
+            best = None
+            for pos in range(10, sub.shape[axis] - 9):
+                a = sub.copy()
+                if axis == 0:
+                    a[pos:, :] = False
+                else:
+                    a[:, pos:] = False
+                score = min(_rect_fill(a), _rect_fill(sub & ~a))
+                if score >= part_fill and (best is None or score > best[0]):
+                    best = (score, pos)
+            if best is not None:
+                a = np.zeros_like(m)
+                a[sl] = sub
+                if axis == 0:
+                    a[rows[0] + best[1]:, :] = False
+                else:
+                    a[:, cols[0] + best[1]:] = False
+                cuts += [(a, m & ~a), (m & ~a, a)]
+        others = [o for j, o in enumerate(out) if j != i]
+        joined = None
+        for piece, rest in cuts:
+            near = cv2.dilate(piece.astype(np.uint8), k) > 0
+            for j, o in enumerate(others):
+                if not (near & o).any():
+                    continue
+                fo = _measure(o, depth, camera, cat, cache)
+                if fo is None or _plane_dist(fo.face, piece, depth, camera) > cat.plane_tol:
+                    continue
+                taken = rest.copy()
+                for q in others:
+                    if q is not o:
+                        taken |= q
+                union, fill = _joined(piece, o, fo.face, taken, depth, camera, cat)
+                if fill < cat.join_fill:
+                    continue
+                fu = _measure(union, depth, camera, cat, None)
+                if fu is not None and fu.err <= cat.tol and (joined is None or fu.err < joined[3].err):
+                    joined = (piece, rest, j, fu)
+        if joined is None:
+            i += 1
+            continue
+        piece, rest, j, fu = joined
+        if notes is not None:
+            notes.append(f"cut an L-shaped {f.face.width * 100:.0f}x{f.face.height * 100:.0f} cm mask in two; "
+                         f"a part joined its neighbour into a {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} "
+                         "cm type face")
+        others[j] = fu.mask
+        out = others[:i] + [rest] + others[i:]
+        i = 0
+    return out

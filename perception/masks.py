@@ -253,17 +253,21 @@ def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, ste
     return [o & ((count == 1) | m) for o, m in zip(out, masks)]
 
 
-BORDER_SIDES = ("top", "left", "right", "bottom")
+# the borders beyond which a box may stand on or beside the seen ones; below the view of a shelf
+# camera lies the floor in front of the shelf (and on the real pallet capture the bottom border
+# cuts only the pallet's own edge), so the bottom border is not among them by default
+BORDER_SIDES = ("top", "left", "right")
 
 
-def border_sides(mask: np.ndarray, margin: int = 2, min_pixels: int = 5) -> tuple[str, ...]:
-    """The image borders a mask runs into ("top", "left", "right", "bottom"): its face may go on
-    beyond the view, so its size there is only a lower bound."""
+def border_sides(mask: np.ndarray, margin: int = 2, min_pixels: int = 5,
+                 sides: tuple[str, ...] = BORDER_SIDES) -> tuple[str, ...]:
+    """The image borders among `sides` ("top", "left", "right", "bottom") a mask runs into: its
+    face may go on beyond the view, so its size there is only a lower bound."""
     m = np.asarray(mask, bool)
     if not m.any():
         return ()
     strips = {"top": m[:margin, :], "left": m[:, :margin], "right": m[:, -margin:], "bottom": m[-margin:, :]}
-    return tuple(s for s in BORDER_SIDES if int(strips[s].sum()) >= min_pixels)
+    return tuple(s for s in sides if int(strips[s].sum()) >= min_pixels)
 
 
 def border_pixels(mask: np.ndarray, side: str, margin: int = 2) -> np.ndarray:

@@ -119,10 +119,12 @@ class DepthEdgeSegmenter:
         for i, p in enumerate((px, py, pz)):
             du[i][:, k:-k] = p[:, 2 * k:] - p[:, :-2 * k]
             dv[i][k:-k, :] = p[2 * k:, :] - p[:-2 * k, :]
-            # the first and last k rows/columns take the nearest full difference: a face cut
-            # by the image border keeps its normal up to the border (a strip at the top edge)
-            du[i][:, :k], du[i][:, -k:] = du[i][:, k:k + 1], du[i][:, -k - 1:-k]
-            dv[i][:k, :], dv[i][-k:, :] = dv[i][k:k + 1, :], dv[i][-k - 1:-k, :]
+            if cfg.border_px > 0:
+                # the first k rows and the first/last k columns take the nearest full
+                # difference: a face cut by the top or a side border keeps its normal up to the
+                # border (the bottom border stays as it was: the floor in front of the shelf)
+                du[i][:, :k], du[i][:, -k:] = du[i][:, k:k + 1], du[i][:, -k - 1:-k]
+                dv[i][:k, :] = dv[i][k:k + 1, :]
         nx = du[1] * dv[2] - du[2] * dv[1]
         ny = du[2] * dv[0] - du[0] * dv[2]
         nz = du[0] * dv[1] - du[1] * dv[0]
@@ -188,7 +190,7 @@ class DepthEdgeSegmenter:
             # border (the bottom of a box above the view) is a face, not tape
             edge = np.zeros((h, w), bool)
             b = cfg.border_px
-            edge[:b, :] = edge[-b:, :] = True
+            edge[:b, :] = True
             edge[:, :b] = edge[:, -b:] = True
             on_edge = ndimage.sum(edge, piece, idx) >= cfg.border_min_px if npiece > 1 else np.zeros(0, bool)
             big |= on_edge & (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.border_side_m)

@@ -115,3 +115,33 @@ def test_a_stack_of_three_flush_boxes_of_one_colour_is_cut_one_seam_at_a_time():
     plain = cap.rgb.copy()
     plain[low | mid | high] = (180, 140, 95)
     assert len(split_faces([low | mid | high], cap.depth, cap.camera, plain, Catalogue())) == 1
+
+
+def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face():
+    from perception.box_catalogue import cut_l_shapes
+
+    # a long box on the floor and another on it, shifted right; the segmenter cut the lower one
+    # at its tape (x = 0.10 m) and the upper one along its middle, then merged the lower one's
+    # right end with the upper one's lower strip into one L-shaped mask
+    scene = Scene(Shelf(), (box("low", 0.0, 0.0, 0.50, 0.17), box("up", 0.20, 0.17, 0.50, 0.17)))
+    cap = cast(scene)
+    low, up = _front(cap, 1), _front(cap, 2)
+    cols = np.arange(low.shape[1])[None, :]
+    rows = np.arange(low.shape[0])[:, None]
+    tape = int(np.median(np.nonzero(low)[1]) + 0.2 * (np.ptp(np.nonzero(low)[1])))
+    mid = int(np.median(np.nonzero(up)[0]))
+    low_left, low_right = low & (cols < tape), low & (cols >= tape)
+    up_top, up_bottom = up & (rows < mid), up & (rows >= mid)
+    ell = low_right | up_bottom
+    notes: list[str] = []
+    out = cut_l_shapes([low_left, ell, up_top], cap.depth, cap.camera, Catalogue(), notes)
+    assert len(out) == 3 and any("L-shaped" in n for n in notes), notes
+    # one part joined its own box into a type face, the other is a rectangle of its own box,
+    # and the second join pass (as in apply_catalogue) gives both boxes back whole
+    assert max(mask_iou(o, low) for o in out) > 0.95 or max(mask_iou(o, up) for o in out) > 0.95
+    assert all(max(mask_iou(o & t, o) for t in (low, up)) > 0.98 for o in out)
+    out = join_pieces(out, cap.depth, cap.camera, Catalogue())
+    assert len(out) == 2
+    assert max(mask_iou(o, low) for o in out) > 0.95 and max(mask_iou(o, up) for o in out) > 0.95
+    # nothing to join it with into a type face: the L stays as it is
+    assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
