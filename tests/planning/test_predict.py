@@ -5,7 +5,7 @@ import pytest
 
 from perception.scene import Box, Scene, Shelf, yaw_quat
 from planning.physics import PhysicsConfig
-from planning.predict import Predictor, depth_range, sample_depths
+from planning.predict import Predictor, depth_range, depth_ranges, sample_depths
 from tests.planning.sim_scenes import column, stacked, twelve
 
 
@@ -39,6 +39,14 @@ def test_same_seed_same_samples_other_seed_other_samples():
     scene = twelve().hide_depths()
     assert sample_depths(scene, 1, 0) == sample_depths(scene, 1, 0)
     assert sample_depths(scene, 1, 0) != sample_depths(scene, 2, 0)
+
+
+def test_depth_ranges_computed_once_give_the_same_samples():
+    scene = twelve().hide_depths()
+    ranges = depth_ranges(scene)
+    assert set(ranges) == set(scene.ids)
+    for i in range(3):
+        assert sample_depths(scene, 4, i, ranges=ranges) == sample_depths(scene, 4, i)
 
 
 def test_top_box_collapse_is_predicted_and_named_first():
