@@ -12,9 +12,10 @@ import itertools
 
 import numpy as np
 
+from perception.scene import BOX_TYPES as TYPE_TABLE
 from perception.scene import Box, Scene, Shelf
 
-BOX_TYPES = ((0.23, 0.31, 0.25), (0.20, 0.20, 0.20), (0.50, 0.17, 0.17))
+BOX_TYPES = tuple(TYPE_TABLE.values())
 
 
 def _orientations(size: tuple[float, float, float], shelf: Shelf) -> list[tuple[float, float, float]]:

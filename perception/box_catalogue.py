@@ -24,11 +24,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perception.masks import border_pixels, border_sides
-from perception.scene import Camera
+from perception.scene import BOX_TYPES, Camera
 
-# the method's box types (w, d, h in metres), as in perception.bench_scenes and planning.shelves
-REFERENCE_TYPES: tuple[tuple[float, float, float], ...] = (
-    (0.23, 0.31, 0.25), (0.20, 0.20, 0.20), (0.50, 0.17, 0.17))
+# the method's box types (w, d, h in metres): perception.scene's table
+REFERENCE_TYPES: tuple[tuple[float, float, float], ...] = tuple(BOX_TYPES.values())
 
 
 @dataclass(frozen=True)
