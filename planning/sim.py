@@ -193,7 +193,6 @@ class ShelfSim:
         self._shape: dict[str, int] = {}
         self._twin: dict[str, int] = {}      # box -> its static stand-in (local trials only)
         self._frozen: dict[str, tuple] = {}  # boxes standing in as static copies right now
-        self._support_level = True
         for b in scene.boxes:
             self._body[b.id] = self._add_box(b)
         self._box_of = {v: k for k, v in self._body.items()}
@@ -485,14 +484,23 @@ class ShelfSim:
         return max(0.0, min(cfg.pull_lift, gap - 0.002))
 
     # --------------------------------------------------------------- locality
-    def neighbourhood(self, seeds) -> set[str]:
-        """The boxes a change at `seeds` can move first: the seeds, every box whose
-        bounding box comes within `local_margin` of a seed's, and everything stacked
-        on those, transitively (a box stands on another when its bottom is at the
-        other's top, within 3 cm for tilt, and their footprints overlap by 5 mm).
+    def neighbourhood(self, seeds, *, corridor: bool = False) -> set[str]:
+        """The boxes a change at `seeds` can move before the step is decided.
 
-        Boxes beside a neighbour, or under it, are left out: they can only move
-        once a neighbour has moved a lot, and by then the step has collapsed.
+        - the seeds and every box whose bounding box comes within `local_margin`
+          of a seed's;
+        - with `corridor` (a pull), every box in front of a seed that overlaps it
+          in x and z (within the margin): the box and the gripper travel there;
+        - what the seeds stand on, down to the floor (a fragile column under the
+          pulled box rocks with it);
+        - everything stacked on any of those, up to the top;
+        - the direct supports of all of those (a box bridging two columns
+          pivots on both).
+
+        A box stands on another when its bottom is at the other's top, within
+        3 cm for tilt, and their footprints overlap by 5 mm. The rest of the
+        shelf can only move once some box here has moved a lot, and by then the
+        step has collapsed (docs/physics.md, "Local trials").
         """
         p, m = self._p, self.config.local_margin
         act = self._active()
@@ -503,16 +511,19 @@ class ShelfSim:
             return (a[0][0] - m < c[1][0] and c[0][0] - m < a[1][0] and a[0][1] - m < c[1][1]
                     and c[0][1] - m < a[1][1] and a[0][2] - m < c[1][2] and c[0][2] - m < a[1][2])
 
+        def in_front(a, c) -> bool:
+            return (a[0][0] - m < c[1][0] and c[0][0] - m < a[1][0] and a[0][2] - m < c[1][2]
+                    and c[0][2] - m < a[1][2] and c[0][1] < a[0][1])
+
         def stands_on(c, d) -> bool:
             ov = 0.005
             return (c[0][0] < d[1][0] - ov and d[0][0] < c[1][0] - ov and c[0][1] < d[1][1] - ov
                     and d[0][1] < c[1][1] - ov and d[1][2] - 0.03 < c[0][2] < d[1][2] + m)
 
         seed_boxes = [box[s] for s in keep]
-        keep |= {c for c in act if any(near(a, box[c]) for a in seed_boxes)}
-        # what the seeds stand on, down to the floor: a wobbly column under the pulled
-        # box rocks with it
-        down = {b for b in act if b in seeds}
+        keep |= {c for c in act if any(near(a, box[c]) or (corridor and in_front(a, box[c]))
+                                       for a in seed_boxes)}
+        down = set(keep & set(seeds))
         todo = list(down)
         while todo:
             c = box[todo.pop()]
@@ -521,7 +532,6 @@ class ShelfSim:
                     down.add(d)
                     todo.append(d)
         keep |= down
-        # and everything stacked on any of those, up to the top
         todo = [b for b in act if b in keep]
         while todo:
             d = box[todo.pop()]
@@ -529,9 +539,7 @@ class ShelfSim:
                 if c not in keep and stands_on(box[c], d):
                     keep.add(c)
                     todo.append(c)
-        # the other supports of what may tip (a box bridging two columns pivots on them)
-        if self._support_level:
-            keep |= {d for d in act if d not in keep and any(stands_on(box[c], box[d]) for c in keep)}
+        keep |= {d for d in act if d not in keep and any(stands_on(box[c], box[d]) for c in keep)}
         return keep
 
     def _freeze(self, keep) -> None:
@@ -656,7 +664,7 @@ class ShelfSim:
             return StepResult(box_id, False, note="not on the shelf")
         if not (local and self._twin) or record:
             return self._pull(box_id, seed, record, stop_on_collapse)
-        self._freeze(self.neighbourhood([box_id]))
+        self._freeze(self.neighbourhood([box_id], corridor=True))
         try:
             return self._pull(box_id, seed, record, stop_on_collapse)
         finally:

@@ -150,8 +150,7 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
                     print(f"{name} sample {i}: {exc}", file=sys.stderr)
                     continue
             base_snap = sim.snapshot()
-            tops = [b for b in sc.ids if not any(
-                b in sim.neighbourhood([b]) and b != c and c in _above(sim, b) for c in sc.ids)]
+            tops = [b for b in sc.ids if not _above(sim, b)]   # nothing stands on them
             sets = [frozenset()] + [frozenset({b}) for b in tops[:pairs]]
             for removed in sets:
                 snaps = {}
@@ -179,7 +178,8 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
                     sim.restore(snaps["local"])
                     rows.append({"scene": name, "sample": i, "removed": sorted(removed), "box": b,
                                  "full": out["full"], "local": out["local"], "seed": out["seed"],
-                                 "kept": len(sim.neighbourhood([b])), "of": len(sim.present())})
+                                 "kept": len(sim.neighbourhood([b], corridor=True)),
+                                 "of": len(sim.present())})
             for s_ in snaps.values():
                 sim.forget(s_)
             sim.close()

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import warnings
 
-from perception.scene import Scene, Shelf
+from perception.scene import Box, Scene, Shelf
 from planning.physics import PhysicsConfig
 from planning.predict import Predictor
 from planning.sim import ShelfSim
@@ -106,3 +106,20 @@ def test_locality_measurement_compares_with_the_full_simulation():
     assert res["collapse_agree"] == 1.0
     assert 0.0 < res["kept_mean"] < 1.0
     assert res["cpu_s"]["local"] > 0 and res["steps"]["full"] > 0
+
+
+def test_a_box_in_front_of_the_pulled_one_is_in_its_way_whatever_the_gap():
+    # `front` stands 4 cm in front of `back` (more than the 2 cm margin), in its way out
+    scene = Scene(Shelf(), (Box("back", (0.2, 0.15, 0.2), (0.0, 0.2, 0.1)),
+                            Box("front", (0.1, 0.08, 0.1), (0.0, 0.045, 0.05)),
+                            cube("far", 0.35, 0.1)))
+    with local_sim(scene) as sim:
+        assert sim.neighbourhood(["back"]) == {"back"}
+        assert sim.neighbourhood(["back"], corridor=True) == {"back", "front"}
+        snap = sim.snapshot()
+        full = sim.remove("back", seed=1)
+        sim.restore(snap)
+        local = sim.remove("back", seed=1, local=True)
+        assert "front" in full.collided
+        assert (local.extracted, local.collapsed, local.collided) == \
+            (full.extracted, full.collapsed, full.collided)
