@@ -22,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="highest acceptable collapse probability per step (default 0: no sample collapses)")
     parser.add_argument("--budget", type=float, default=None, metavar="SECONDS",
                         help="time budget of the physics search (default: none)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="processes over the depth samples (default 1; 2 on a 2-core machine is about "
+                             "twice as fast, same plan)")
     parser.add_argument("--out", default=None, help="write the plan here (default: stdout)")
 
 
@@ -40,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
+    if args.workers < 1:
+        raise FormatError("", "--workers", f"expected a positive integer, got {args.workers}")
     if args.budget is not None and not args.budget > 0:
         raise FormatError("", "--budget", f"expected a positive number of seconds, got {args.budget}")
     scene = Scene.load(args.scene)
@@ -49,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("always")
         try:
             plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
-                             seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene)
+                             seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene,
+                             workers=args.workers)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
     for w in caught:

@@ -59,14 +59,14 @@ def evaluate_sequence(sequence: tuple[str, ...],
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
               samples: int = 10, seed: int = 0, risk: float = 0.0,
               config: "PhysicsConfig | None" = None, predictor: "Predictor | None" = None,
-              *, budget_s: float | None = None, origin: str = "") -> Plan:
+              *, budget_s: float | None = None, origin: str = "", workers: int = 1) -> Plan:
     """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
 
     `predictor` (anything with ``trial(removed, box) -> StepPrediction``) is
     reused when given (the console and the benchmark keep one per scene);
     otherwise one is built from `scene` with `samples` depth samples and
-    `seed`, and closed afterwards. `budget_s` bounds the physics search; when
-    it runs out the plan says so (``extra["search"]["timed_out"]``).
+    `seed` (over `workers` processes: same plan, less wait), and closed
+    afterwards. `budget_s` bounds the physics search; when it runs out the plan says so (``extra["search"]["timed_out"]``).
     """
     check_request(scene, task, target, planner, samples, risk, origin)
     if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
@@ -79,7 +79,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     own = predictor is None
     if own:
         from planning.predict import Predictor
-        predictor = Predictor(scene, samples=samples, seed=seed, config=config)
+        predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers)
     try:
         if own and scene.depth_known:
             # the predictor keeps its worlds quiet; with known depths its one world

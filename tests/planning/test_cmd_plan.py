@@ -136,7 +136,7 @@ def test_plan_to_file_heuristic_clear(tmp_path, capsys):
 class _AlwaysCollapses:
     """Stands in for the physics: every pull drops some other box."""
 
-    def __init__(self, scene, samples=10, seed=0, config=None):
+    def __init__(self, scene, samples=10, seed=0, config=None, workers=1):
         self.ids = scene.ids
 
     def trial(self, removed, box):
@@ -196,3 +196,23 @@ def test_unwritable_out_is_one_line(tmp_path, capsys):
     line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "free", "--planner", "heuristic",
                          "--samples", "1", "--out", str(blocker / "plan.json")])
     assert "--out" in line and "cannot write" in line
+
+
+def test_workers_give_the_same_plan(tmp_path, capsys):
+    """`--workers 2` spreads the depth samples over two processes; the plan is the same."""
+    scene = Scene.load(_stack(tmp_path)).hide_depths()
+    path = tmp_path / "hidden.json"
+    scene.save(path)
+    plans = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"plan-{workers}.json"
+        assert main(["plan", str(path), "--target", "bot", "--samples", "4", "--workers", workers,
+                     "--out", str(out)]) == 0
+        plans.append(Plan.load(out))
+    assert plans[0].sequence == plans[1].sequence == ("top", "bot")
+    assert [p.risk for p in plans[0].predicted] == [p.risk for p in plans[1].predicted]
+
+
+def test_bad_workers(tmp_path, capsys):
+    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "bot", "--workers", "0"])
+    assert "--workers" in line and "0" in line
