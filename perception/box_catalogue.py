@@ -351,7 +351,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
         # edge pixel at that position, and the depth step across it
         ev = _line_evidence(t, o, ys, xs, lab, depth, camera, face, cat)
         for pos in sorted(cands):
-            for p2, score in _peaks(ev, pos, 0.015, cat):
+            for p2, score, step in _peaks(ev, pos, 0.015, cat):
                 a = t < p2
                 if a.sum() < 50 or (~a).sum() < 50:
                     continue
@@ -366,8 +366,11 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
                     continue
                 rest = (wb, hb) if ea <= cat.tol else (wa, ha)
                 # (the weakest case: its type face must match to half the tolerance)
-                piece = (row_axis == axis and max(ea, eb) > cat.tol and cat.fits(*rest)
+                # (or, for any mask, when the piece joins a neighbour that is itself a piece:
+                # the segmenter cut a face and gave one part to the box beside it)
+                piece = ((row_axis in (axis, None)) and max(ea, eb) > cat.tol and cat.fits(*rest)
                          and min(rest) >= 0.05 and min(ea, eb) <= cat.tol / 2)
+                piece = piece and ("row" if row_axis == axis else "pieces")
                 if max(ea, eb) > cat.tol and not piece:
                     # one part a type face, the other (budget left) itself two faces in a row
                     # along the same axis: a stack of three flush boxes is cut one seam at a time
@@ -376,7 +379,8 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
                     if f.err <= cat.row_margin or not any(
                             cat.composable(rest[0], rest[1], axis, k) for k in range(2, budget)):
                         continue
-                key = (max(ea, eb) <= cat.tol, score, -max(ea, eb))
+                # a depth step is two fronts (a label or tape edge is flat): it beats colour alone
+                key = (max(ea, eb) <= cat.tol, step, score, -max(ea, eb))
                 cands_ok.append((key, axis, p2, a, wa, ha, wb, hb, ea, eb, piece))
     best = None
     for c in sorted(cands_ok, key=lambda c: c[0], reverse=True):
@@ -386,7 +390,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
         pb[ys[~c[3]], xs[~c[3]]] = True
         # a piece must join a neighbour into a type face, else the cut is at a label or tape
         if c[10] and not _piece_joins(pa if c[8] > cat.tol else pb, pb if c[8] > cat.tol else pa, others or [],
-                                      depth, camera, cat, cache):
+                                      depth, camera, cat, cache, pieces_only=c[10] == "pieces"):
             continue
         best = c
         break
@@ -396,16 +400,17 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
     if notes is not None:
         notes.append(f"split a {face.width * 100:.0f}x{face.height * 100:.0f} cm face "
                      f"{'across' if axis == 1 else 'down'} its seam into {wa * 100:.0f}x{ha * 100:.0f} and "
-                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][1]:.2f})")
+                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][2]:.2f}{', depth step' if best[0][1] else ''})")
     return (_split_one(pa, depth, camera, lab, cat, notes, budget - 1, cache, axis if ea > cat.tol else None, others)
             + _split_one(pb, depth, camera, lab, cat, notes, budget - 1, cache, axis if eb > cat.tol else None,
                          others))
 
 
 def _piece_joins(piece: np.ndarray, rest: np.ndarray, others: list[np.ndarray], depth: np.ndarray,
-                 camera: Camera, cat: Catalogue, cache: dict | None) -> bool:
+                 camera: Camera, cat: Catalogue, cache: dict | None, pieces_only: bool = False) -> bool:
     """Whether a piece, joined with a neighbouring mask on its plane (not taking pixels of
-    `rest` or of other masks), makes a type face that fills its rectangle."""
+    `rest` or of other masks), makes a type face that fills its rectangle (`pieces_only`: a
+    neighbour that is itself no type face)."""
     import cv2
 
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
@@ -414,7 +419,8 @@ def _piece_joins(piece: np.ndarray, rest: np.ndarray, others: list[np.ndarray], 
         if (m & piece).any() or not (near & m).any():
             continue
         fm = _measure(m, depth, camera, cat, cache)
-        if fm is None or _plane_dist(fm.face, piece, depth, camera) > cat.plane_tol:
+        if fm is None or (pieces_only and fm.err <= cat.tol) \
+                or _plane_dist(fm.face, piece, depth, camera) > cat.plane_tol:
             continue
         taken = rest.copy()
         for q in others:
@@ -433,6 +439,7 @@ def _piece_joins(piece: np.ndarray, rest: np.ndarray, others: list[np.ndarray], 
 class _Evidence:
     bins: np.ndarray        # bin centres (m)
     score: np.ndarray       # seam score per bin: 1 = the weakest seam taken
+    depth: np.ndarray | None = None   # the depth step's share of it (a step >= depth_step is 1)
 
 
 def _line_evidence(t, o, ys, xs, lab, depth, camera, face, cat: Catalogue,
@@ -475,6 +482,7 @@ def _line_evidence(t, o, ys, xs, lab, depth, camera, face, cat: Catalogue,
                 score = np.maximum(score, np.abs(v) / (noise * cat.min_evidence))
     d = depth[ys, xs].astype(np.float64)
     ok = np.isfinite(d) & (d > 0) & inner
+    dscore = np.zeros(nb)
     if ok.sum() > 50:
         p = backproject(camera, xs[ok].astype(np.float64), ys[ok].astype(np.float64), d[ok])
         res = (p - np.asarray(face.center)) @ face_axes(face)[:, 1]
@@ -485,18 +493,21 @@ def _line_evidence(t, o, ys, xs, lab, depth, camera, face, cat: Catalogue,
             n1, n2 = cc[k] - cc[k - w], cc[k + w + 1] - cc[k + 1]
             if n1 > 10 and n2 > 10:
                 stp = abs((cs[k] - cs[k - w]) / n1 - (cs[k + w + 1] - cs[k + 1]) / n2)
-                score[k] = max(score[k], stp / cat.depth_step)
-    return _Evidence(lo + (np.arange(nb) + 0.5) * bin_m, score)
+                dscore[k] = stp / cat.depth_step
+                score[k] = max(score[k], dscore[k])
+    return _Evidence(lo + (np.arange(nb) + 0.5) * bin_m, score, dscore)
 
 
-def _peaks(ev: _Evidence, pos: float, win: float, cat: Catalogue) -> list[tuple[float, float]]:
-    """The best seam position within `win` of `pos` and its score (>= 1 means a seam)."""
+def _peaks(ev: _Evidence, pos: float, win: float, cat: Catalogue) -> list[tuple[float, float, bool]]:
+    """The best seam position within `win` of `pos`, its score (>= 1 means a seam) and whether
+    a depth step (>= depth_step) runs there."""
     sel = np.flatnonzero(np.abs(ev.bins - pos) <= win)
     if len(sel) == 0:
         return []
     score = ev.score[sel]
     k = int(np.argmax(score))
-    return [(float(ev.bins[sel[k]]), float(score[k]))]
+    step = ev.depth is not None and bool(ev.depth[sel[k]] >= 1.0)
+    return [(float(ev.bins[sel[k]]), float(score[k]), step)]
 
 
 def cut_directions(face, mask: np.ndarray, camera: Camera, sides: tuple[str, ...] | None = None,

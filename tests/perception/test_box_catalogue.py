@@ -145,3 +145,49 @@ def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face():
     assert max(mask_iou(o, low) for o in out) > 0.95 and max(mask_iou(o, up) for o in out) > 0.95
     # nothing to join it with into a type face: the L stays as it is
     assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
+
+
+def test_a_depth_step_beats_a_label_edge_as_the_seam():
+    # a 17x17 end below a 17x50 face 1.5 cm nearer, one colour, merged into one mask: the mask
+    # splits into 17x17 + 17x50 at the depth step, or (wrongly) into 17x50 + 17x17 at the lower
+    # edge of a white label on the upper box, 17 cm below the top
+    scene = Scene(Shelf(), (box("low", 0.0, 0.0, 0.17, 0.17, d=0.17, front=0.035),
+                            box("up", 0.0, 0.17, 0.17, 0.50, d=0.17, front=0.02),
+                            box("side", 0.30, 0.0, 0.23, 0.25)))
+    cap = cast(scene)
+    low, up, side = _front(cap, 1), _front(cap, 2), _front(cap, 3)
+    rgb = cap.rgb.copy()
+    rgb[low | up] = (180, 140, 95)
+    rows = np.flatnonzero(up.any(axis=1))
+    cols = np.flatnonzero(up.any(axis=0))
+    label_bottom = rows[0] + int(round(0.17 / 0.50 * len(rows)))      # 0.50 m above the floor
+    band = np.zeros_like(up)
+    band[label_bottom - 8:label_bottom, cols[0] + 3:cols[-1] - 8] = True
+    rgb[band & up] = (235, 235, 230)
+    notes: list[str] = []
+    out = split_faces([low | up, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    assert len(out) == 3, notes
+    assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, up) for m in out) > 0.9, notes
+    assert any("depth step" in n for n in notes)
+
+
+def test_a_face_given_in_part_to_the_box_below_is_cut_back_and_rejoined():
+    # a 20x20 cube on a 23x31 face; the segmenter gave the cube's left 65% to the box below
+    # (one mask, 23x51: no type face, filling its rectangle > 0.8: no L-shape) and kept its
+    # right part as a piece
+    scene = Scene(Shelf(), (box("low", -0.10, 0.0, 0.23, 0.31), box("cube", -0.10, 0.31, 0.20, 0.20),
+                            box("side", 0.25, 0.0, 0.23, 0.25)))
+    cap = cast(scene)
+    low, cube, side = _front(cap, 1), _front(cap, 2), _front(cap, 3)
+    cols = np.arange(low.shape[1])[None, :]
+    xs = np.nonzero(cube)[1]
+    cut = int(xs.min() + 0.65 * np.ptp(xs))
+    merged, piece = low | (cube & (cols < cut)), cube & (cols >= cut)
+    notes: list[str] = []
+    out, _ = apply_catalogue([merged, piece, side], cap.depth, cap.camera, cap.rgb, Catalogue(), notes)
+    assert len(out) == 3, notes
+    assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, cube) for m in out) > 0.9, notes
+    # with no piece beside it to take the cut-off part, the mask is not cut (a label at a face's
+    # end would otherwise be cut off a face measured too long)
+    out, _ = apply_catalogue([merged, side], cap.depth, cap.camera, cap.rgb, Catalogue())
+    assert len(out) == 2
