@@ -202,6 +202,42 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
 
     errs = [err(f, m, sd) if f is not None else math.inf for f, m, sd in zip(faces, masks, sides)]
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+
+    def _group_join(i: int):
+        """A face cut into 3+ pieces (a wide tape cross): no two of them fill a rectangle, but
+        mask i (a piece, or the cross itself, which may measure as the whole face) and ALL its
+        on-plane neighbouring pieces do, and make a type face. Returns (j, joined face, error)
+        with the other pieces marked dead, or None."""
+        near = cv2.dilate(masks[i].astype(np.uint8), k) > 0
+        group = [j for j in range(len(masks))
+                 if j != i and alive[j] and errs[j] > cat.tol and (near & masks[j]).any()
+                 and not ((sides[i] or sides[j]) and not set(sides[i]) & set(sides[j]))
+                 and _plane_dist(faces[i].face, masks[j], depth, camera) <= cat.plane_tol]
+        if len(group) < 2:
+            return None
+        rest = np.zeros_like(masks[i])
+        for j in group:
+            rest |= masks[j]
+        taken = np.zeros_like(masks[i])
+        for q in range(len(masks)):
+            if alive[q] and q != i and q not in group:
+                taken |= masks[q]
+        union, fill = _joined(masks[i], rest, faces[i].face, taken, depth, camera, cat)
+        if fill < cat.join_fill:
+            return None
+        fu = _measure(union, depth, camera, cat, cache)
+        if fu is None:
+            return None
+        eu = err(fu, union, border_sides(union))
+        if eu > cat.join_tol:
+            return None
+        if errs[i] <= cat.tol and max(abs(fu.face.width - faces[i].face.width),
+                                      abs(fu.face.height - faces[i].face.height)) > cat.tol:
+            return None       # a type face takes pieces only inside its own extent (its arms)
+        j = group[0]
+        for q in group[1:]:
+            alive[q] = False
+        return j, fu, eu
     changed = True
     while changed:
         changed = False
@@ -238,6 +274,8 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                 if best is None or (eu > cat.join_tol, eu) < (best[2] > cat.join_tol, best[2]):
                     best = (j, fu, eu)
             if best is None:
+                best = _group_join(i)
+            if best is None:
                 continue
             j, fu, eu = best
             if notes is not None:
@@ -250,6 +288,20 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
             alive[i] = False
             changed = True
             break
+        if not changed:      # a cross measured as the whole face, its quarters as pieces
+            for i in sorted((i for i in range(len(masks)) if alive[i] and errs[i] <= cat.tol),
+                            key=lambda i: -int(masks[i].sum())):
+                g = _group_join(i)
+                if g is None:
+                    continue
+                j, fu, eu = g
+                if notes is not None:
+                    notes.append(f"joined the pieces of a face cut in several (a tape cross): "
+                                 f"{fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
+                masks[j], faces[j], sides[j], errs[j] = fu.mask, fu, border_sides(fu.mask), eu
+                alive[i] = False
+                changed = True
+                break
     return [m for m, a in zip(masks, alive) if a]
 
 

@@ -191,3 +191,27 @@ def test_a_face_given_in_part_to_the_box_below_is_cut_back_and_rejoined():
     # end would otherwise be cut off a face measured too long)
     out, _ = apply_catalogue([merged, side], cap.depth, cap.camera, cap.rgb, Catalogue())
     assert len(out) == 2
+
+
+def test_a_face_cut_into_arms_by_a_wide_tape_cross_is_joined_as_a_group():
+    # a 50x17 face: the segmenter kept the cross with one quarter (48x16: just no type face) and
+    # three quarters as pieces; no pair fills its rectangle, the group does
+    scene = Scene(Shelf(), (box("long", 0.0, 0.0, 0.50, 0.17), box("side", 0.36, 0.0, 0.20, 0.20)))
+    cap = cast(scene)
+    face, side = _front(cap, 1), _front(cap, 2)
+    ys, xs = np.nonzero(face)
+    rows, cols = np.arange(face.shape[0])[:, None], np.arange(face.shape[1])[None, :]
+    cx, cy = int(np.median(xs)), int(np.median(ys))
+    hw, hh = int(0.06 * np.ptp(xs)), int(0.15 * np.ptp(ys))
+    cross = face & ((np.abs(cols - cx) <= hw) | (np.abs(rows - cy) <= hh))
+    quarters = [face & ~cross & (rows < cy) & (cols < cx), face & ~cross & (rows < cy) & (cols > cx),
+                face & ~cross & (rows > cy) & (cols < cx), face & ~cross & (rows > cy) & (cols > cx)]
+    masks = [cross | quarters[3]] + quarters[:3] + [side]
+    notes: list[str] = []
+    out = join_pieces(masks, cap.depth, cap.camera, Catalogue(), notes)
+    assert len(out) == 2, notes
+    assert max(mask_iou(m, face) for m in out) > 0.95 and max(mask_iou(m, side) for m in out) > 0.95
+    # one quarter taken by another box's mask: the union cannot make the face, nothing joined
+    out = join_pieces([cross | quarters[3], quarters[0], quarters[1], quarters[2] | side], cap.depth,
+                      cap.camera, Catalogue())
+    assert max(mask_iou(m, face) for m in out) < 0.9
