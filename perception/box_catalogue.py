@@ -203,6 +203,13 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
     errs = [err(f, m, sd) if f is not None else math.inf for f, m, sd in zip(faces, masks, sides)]
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
 
+    def take(i: int, j: int, fu: _Face, eu: float, note: str) -> None:
+        """Mask j becomes the joined face `fu`; piece i is gone."""
+        if notes is not None:
+            notes.append(note)
+        masks[j], faces[j], sides[j], errs[j] = fu.mask, fu, border_sides(fu.mask), eu
+        alive[i] = False
+
     def _group_join(i: int):
         """A face cut into 3+ pieces (a wide tape cross): no two of them fill a rectangle, but
         mask i (a piece, or the cross itself, which may measure as the whole face) and ALL its
@@ -278,14 +285,8 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
             if best is None:
                 continue
             j, fu, eu = best
-            if notes is not None:
-                notes.append(f"joined a {faces[i].face.width * 100:.0f}x{faces[i].face.height * 100:.0f} cm "
-                             f"piece to its neighbour: {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
-            masks[j] = fu.mask
-            faces[j] = fu
-            sides[j] = border_sides(fu.mask)
-            errs[j] = eu
-            alive[i] = False
+            take(i, j, fu, eu, f"joined a {faces[i].face.width * 100:.0f}x{faces[i].face.height * 100:.0f} cm "
+                               f"piece to its neighbour: {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
             changed = True
             break
         if not changed:      # a cross measured as the whole face, its quarters as pieces
@@ -295,11 +296,8 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                 if g is None:
                     continue
                 j, fu, eu = g
-                if notes is not None:
-                    notes.append(f"joined the pieces of a face cut in several (a tape cross): "
-                                 f"{fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
-                masks[j], faces[j], sides[j], errs[j] = fu.mask, fu, border_sides(fu.mask), eu
-                alive[i] = False
+                take(i, j, fu, eu, f"joined the pieces of a face cut in several (a tape cross): "
+                                   f"{fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
                 changed = True
                 break
     return [m for m, a in zip(masks, alive) if a]
