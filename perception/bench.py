@@ -26,6 +26,31 @@ import numpy as np
 from perception.scene import Scene, Shelf
 
 MIN_GT_PIXELS = 400
+DEFAULT_DISTANCE = 1.05     # m: perception.render.default_camera's distance to the shelf front
+
+
+def camera_at(distance: float = DEFAULT_DISTANCE):
+    """The default camera moved back along -y to `distance` m from the shelf front and
+    re-pitched to look at the same point of the shelf front (at 1.05 m: the default camera).
+    Why: perception must hold when the camera is set further back to see a whole stack."""
+    import dataclasses
+
+    from perception.errors import PerceptionError
+    from perception.render import DEFAULT_PITCH_DEG, _rot_x, default_camera
+
+    if not 0.3 <= distance <= 4.0:
+        raise PerceptionError(f"--distance: camera distance must be 0.3-4.0 m, got {distance}")
+    base = default_camera()
+    aim_z = base.position[2] - DEFAULT_DISTANCE * math.tan(math.radians(DEFAULT_PITCH_DEG))
+    pitch = math.degrees(math.atan2(base.position[2] - aim_z, distance))
+    return dataclasses.replace(base, position=(base.position[0], -distance, base.position[2]),
+                               orientation=_rot_x(-math.radians(90.0 + pitch)))
+
+
+def min_gt_pixels(camera) -> int:
+    """MIN_GT_PIXELS at 1.05 m, scaled with the camera's distance so the same face AREA counts."""
+    d = max(1e-3, -float(camera.position[1]))
+    return max(50, int(round(MIN_GT_PIXELS * (DEFAULT_DISTANCE / d) ** 2)))
 
 
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -76,13 +101,14 @@ def _angle_of(box) -> float:
     return math.degrees(math.atan2(ex[2], math.hypot(ex[0], ex[1])))
 
 
-def eval_rendered(scene: Scene, name: str, seed: int, segmenter=None) -> FrameResult:
+def eval_rendered(scene: Scene, name: str, seed: int, segmenter=None, camera=None) -> FrameResult:
     from perception.bench_truth import front_face_masks
     from perception.pipeline import perceive
     from perception.render import render
 
-    cap = render(scene, seed=seed)
-    gt = {k: m for k, m in front_face_masks(scene, cap).items() if m.sum() >= MIN_GT_PIXELS}
+    cap = render(scene, camera, seed=seed)
+    least = MIN_GT_PIXELS if camera is None else min_gt_pixels(camera)
+    gt = {k: m for k, m in front_face_masks(scene, cap).items() if m.sum() >= least}
     t, c = time.perf_counter(), time.process_time()
     res = perceive(cap, segmenter, scene.shelf)
     sec, cpu = time.perf_counter() - t, time.process_time() - c
@@ -140,12 +166,12 @@ def scenes_from(dir_: str | Path | None, count: int, seed: int) -> list[tuple[st
 
 
 def bench_rendered(scenes: list[tuple[str, Scene]], seed: int = 0, segmenter=None,
-                   progress: bool = True) -> tuple[dict, list[FrameResult]]:
+                   progress: bool = True, camera=None) -> tuple[dict, list[FrameResult]]:
     from tqdm import tqdm
 
     frames = []
     for i, (name, sc) in enumerate(tqdm(scenes, desc="rendered", disable=not progress)):
-        frames.append(eval_rendered(sc, name, seed + i, segmenter))
+        frames.append(eval_rendered(sc, name, seed + i, segmenter, camera))
     by_kind: dict[str, list[FrameResult]] = {}
     for f in frames:
         by_kind.setdefault(f.name.split("-")[0], []).append(f)
@@ -294,6 +320,8 @@ def markdown(report: dict) -> str:
         return f"{v:.4g}{unit}"
 
     lines = ["# Perception benchmark", "", f"segmenter: `{report.get('segmenter')}`", ""]
+    if report.get("camera_distance_m") is not None:
+        lines += [f"camera: the default camera moved to {report['camera_distance_m']:g} m from the shelf front", ""]
     if "rendered" in report:
         lines += ["## Rendered scenes", "",
                   "| set | frames | boxes | recall | precision | mean IoU | centre err | width err | "

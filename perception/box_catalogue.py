@@ -40,7 +40,8 @@ class Catalogue:
     min_evidence: float = 5.0        # colour line/step along the split, in robust noise units ...
     depth_step: float = 0.004        # ... or a depth step (m) along the line counts as a seam
     min_share: float = 0.25         # used only when this share of the faces already are type faces
-    max_join_gap_px: int = 12        # pieces this close (px) are neighbours
+    max_join_gap_px: int = 12        # pieces this close (px) are neighbours (at REF_DEPTH, see `scaled`)
+    l_margin_px: int = 10            # an L-cut leaves at least this many rows/columns on each side
     join_fill: float = 0.85          # a joined union fills its min-area rectangle this well ...
     join_fill_loose: float = 0.75    # ... or this well when it is a type face within `tol`
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
@@ -53,6 +54,18 @@ class Catalogue:
             for a, b in itertools.permutations(t, 2):
                 fs.add((round(float(a), 4), round(float(b), 4)))
         object.__setattr__(self, "faces", tuple(sorted(fs)))
+
+    def scaled(self, scale: float) -> "Catalogue":
+        """The pixel thresholds at `scale` (masks.pixel_scale: f / depth relative to the tuning
+        distance), so a camera further back joins and cuts what one at ~1 m would."""
+        from dataclasses import replace
+
+        from perception.masks import scaled_px
+
+        if scale == 1.0:
+            return self
+        return replace(self, max_join_gap_px=scaled_px(self.max_join_gap_px, scale, 2),
+                       l_margin_px=scaled_px(self.l_margin_px, scale, 3))
 
     def error(self, width: float, height: float) -> float:
         """Largest side error (m) to the closest type face."""
@@ -659,7 +672,7 @@ def cut_l_shapes(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat
         cuts = []                  # the best cut along rows and the best along columns
         for axis in (0, 1):
             best = None
-            for pos in range(10, sub.shape[axis] - 9):
+            for pos in range(cat.l_margin_px, sub.shape[axis] - cat.l_margin_px + 1):
                 a = sub.copy()
                 if axis == 0:
                     a[pos:, :] = False

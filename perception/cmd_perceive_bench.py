@@ -14,6 +14,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--realdata", help="path of shared/realdata (default ../shared/realdata if present)")
     p.add_argument("--no-real", action="store_true", help="rendered scenes only")
     p.add_argument("--no-rendered", action="store_true", help="real captures only")
+    p.add_argument("--distance", type=float, default=None,
+                   help="render from the default camera moved back to this many m from the shelf front "
+                        "(re-pitched to the same aim point; default 1.05)")
     p.add_argument("--segmenter", choices=("auto", "depth", "yolo"), default="auto")
     p.add_argument("--weights", help="YOLO11n-seg weights for --segmenter yolo/auto")
     p.add_argument("--out", default="perceive-bench", help="folder for report.md and report.json")
@@ -36,7 +39,10 @@ def run(args: argparse.Namespace) -> int:
         scenes = bench.scenes_from(args.scenes, args.count, args.seed)
         if not scenes:
             raise PerceptionError(f"{args.scenes}: no scene JSON files in the folder")
-        summary, frames = bench.bench_rendered(scenes, args.seed, seg)
+        camera = bench.camera_at(args.distance) if args.distance is not None else None
+        summary, frames = bench.bench_rendered(scenes, args.seed, seg, camera=camera)
+        if args.distance is not None:
+            report["camera_distance_m"] = args.distance
         report["rendered"] = summary
         report["rendered_frames"] = [vars(f) for f in frames]
     if not args.no_real:

@@ -10,6 +10,31 @@ from __future__ import annotations
 import numpy as np
 
 
+REF_DEPTH = 1.2      # m: the face distance the pixel thresholds were tuned at (default camera)
+
+
+def pixel_scale(depth: np.ndarray | None, where: np.ndarray | None = None, ref: float = REF_DEPTH,
+                least: float = 0.3) -> float:
+    """How many pixels a metre spans here relative to the tuning distance: ref / median depth
+    of the valid pixels in `where` (f / depth, the focal length cancels), at most 1 (closer than
+    `ref`: thresholds stay as tuned) and at least `least`. Why: pixel thresholds tuned at ~1 m
+    must shrink with the faces when the camera stands further back."""
+    if depth is None:
+        return 1.0
+    d = np.asarray(depth, np.float32)
+    sel = np.isfinite(d) & (d > 0)
+    if where is not None and (sel & where).any():
+        sel &= where
+    if not sel.any():
+        return 1.0
+    return float(np.clip(ref / float(np.median(d[sel])), least, 1.0))
+
+
+def scaled_px(px: float, scale: float, least: int = 1) -> int:
+    """A pixel threshold at `scale` (rounded, never below `least`)."""
+    return max(least, int(round(px * scale)))
+
+
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask with every hole that does not touch the image border filled."""
     import cv2

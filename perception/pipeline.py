@@ -17,7 +17,7 @@ from perception.boxes import (FrontFace, boxes_from_masks, default_front_distanc
 from perception.box_catalogue import Catalogue, apply_catalogue, complete_cut_face
 from perception.capture import Capture
 from perception.geometry import check_intrinsics, point_map
-from perception.masks import border_sides, grow_on_plane, refine, to_label_image
+from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from perception.overlay import draw_overlay
 from perception.scene import Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
@@ -47,8 +47,10 @@ class Perception:
                 "faces": {b.id: f.to_json() for b, f in zip(self.scene.boxes, self.faces)}}
 
 
-def _min_pixels(shape: tuple[int, int]) -> int:
-    return max(40, int(150 * shape[0] * shape[1] / (640 * 480)))
+def _min_pixels(shape: tuple[int, int], scale: float = 1.0) -> int:
+    """Smallest mask kept (px): 150 at 640x480 and the tuning distance; an area, so it shrinks
+    with the square of the pixel scale (`masks.pixel_scale`)."""
+    return max(40, int(150 * shape[0] * shape[1] / (640 * 480) * scale * scale))
 
 
 def _inside_shelf(depth: np.ndarray | None, camera, shelf: Shelf, margin: float = 0.004) -> np.ndarray | None:
@@ -120,13 +122,15 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     raw = seg.segment(capture.rgb, depth)
     timing["segment"] = time.perf_counter() - t
     t = time.perf_counter()
-    minpx = _min_pixels(capture.shape)
+    union = np.any(raw, axis=0) if raw else None
+    scale = pixel_scale(capture.depth, union)       # 1.0 without depth (the distance is a guess)
+    minpx = _min_pixels(capture.shape, scale)
     masks = refine(raw, capture.depth, min_pixels=minpx)
     masks = grow_on_plane(masks, capture.depth, camera, rgb=capture.rgb,
                           allowed=_inside_shelf(capture.depth, camera, shelf))
     catalogue_notes: list[str] = []
     if catalogue is not None and capture.depth is not None and masks:
-        masks, measured = apply_catalogue(masks, capture.depth, camera, capture.rgb, catalogue,
+        masks, measured = apply_catalogue(masks, capture.depth, camera, capture.rgb, catalogue.scaled(scale),
                                           catalogue_notes)
     else:
         measured = None
@@ -159,4 +163,4 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
                   {"kind": "perception", "segmenter": name, "adjustments": notes})
     timing["total"] = time.perf_counter() - t0
     return Perception(scene, labels, overlay, tuple(warnings), timing, tuple(notes), tuple(faces),
-                      name, used_distance)
+                      name, used_distance, {"pixel_scale": scale})

@@ -18,7 +18,7 @@ Vectorised; a 640x480 frame takes about 0.1-0.3 s of the ~0.35 s of `perceive`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -54,6 +54,7 @@ class DepthEdgeConfig:
     border_px: int = 3               # px: a piece this close to the image border may be cut by it ...
     border_min_px: int = 20          # ... when this many of its pixels are there; it is then kept ...
     border_side_m: float = 0.004     # ... down to this thickness (a strip of a face above the view)
+    metric_px: bool = True           # line_min scales with f / depth (masks.pixel_scale)
 
 
 class DepthEdgeSegmenter:
@@ -74,10 +75,9 @@ class DepthEdgeSegmenter:
         """The settings for a photo without depth (a flat stand-in depth): no depth jump
         separates boxes there, so pieces are joined only when their union is a clean rectangle;
         and a thin strip at the image border is not taken for a face (no depth to tell)."""
-        from dataclasses import replace
-
         return DepthEdgeSegmenter(self.camera, self.shelf,
-                                  replace(self.config, rect_fill=self.config.rgb_rect_fill, border_px=0))
+                                  replace(self.config, rect_fill=self.config.rgb_rect_fill, border_px=0,
+                                          metric_px=False))
 
     # ------------------------------------------------------------------
     def segment(self, rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
@@ -172,7 +172,7 @@ class DepthEdgeSegmenter:
             ch = np.clip((lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255
                          ).astype(np.uint8)
             edges |= cv2.Canny(ch, cfg.canny_low, cfg.canny_high) > 0
-        edges = _extend_lines(edges, fg, cfg)
+        edges = _extend_lines(edges, fg, _scaled(cfg, depth, fg))
         edges = cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         core = fg & ~edges
         npiece, piece = cv2.connectedComponents(core.astype(np.uint8), connectivity=4)
@@ -207,6 +207,20 @@ class DepthEdgeSegmenter:
         merged = _merge_pieces(merged, kcore, patch, lab, cfg, edges)
         merged = _merge_tape(merged, kcore, lab, mpp, cfg)
         return _finish(merged, mpp, cfg)
+
+
+def _scaled(cfg: DepthEdgeConfig, depth: np.ndarray, fg: np.ndarray) -> DepthEdgeConfig:
+    """The straight-line threshold (px) at the capture's pixel scale (f / depth of the
+    camera-facing pixels relative to the tuning distance); unchanged without real depth."""
+    from perception.masks import pixel_scale, scaled_px
+
+    s = pixel_scale(depth, fg) if cfg.metric_px else 1.0
+    if s == 1.0:
+        return cfg
+    # only the shortest line: a seam spans fewer pixels further back. The extension (a gap left
+    # by smoothing at a T junction) and the Hough votes (edge noise) are pixel effects; scaling
+    # the votes down too cut a 50x17 face at its tape edges (seed 201 at 1.6 m).
+    return replace(cfg, line_min=scaled_px(cfg.line_min, s, 8))
 
 
 def _extend_lines(edges: np.ndarray, fg: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
