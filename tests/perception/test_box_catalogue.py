@@ -147,6 +147,37 @@ def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face():
     assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
 
 
+def test_l_shaped_mask_with_a_ragged_strip_is_cut_at_its_corner():
+    from perception.box_catalogue import cut_l_shapes
+
+    # as above, but the upper box's strip took a label's lower half with it: its edge to the
+    # rest of its face is ragged (half its width reaches up into the upper half), so no straight cut leaves two
+    # parts that both fill their rectangles; the cut at the L's corner (where the width jumps)
+    # still joins the strip back into the upper face
+    scene = Scene(Shelf(), (box("low", 0.0, 0.0, 0.50, 0.17), box("up", 0.20, 0.17, 0.50, 0.17)))
+    cap = cast(scene)
+    low, up = _front(cap, 1), _front(cap, 2)
+    cols = np.arange(low.shape[1])[None, :]
+    rows = np.arange(low.shape[0])[:, None]
+    lx, uy, ux = np.nonzero(low)[1], np.nonzero(up)[0], np.nonzero(up)[1]
+    tape = int(np.median(lx) + 0.2 * np.ptp(lx))
+    mid = int(np.median(uy))
+    label = up & (rows >= mid - 0.4 * np.ptp(uy)) & (cols >= ux.min() + 0.25 * np.ptp(ux)) \
+        & (cols < ux.min() + 0.75 * np.ptp(ux))
+    low_left, low_right = low & (cols < tape), low & (cols >= tape)
+    up_bottom = (up & (rows >= mid)) | label
+    up_top = up & ~up_bottom
+    ell = low_right | up_bottom
+    notes: list[str] = []
+    out = cut_l_shapes([low_left, ell, up_top], cap.depth, cap.camera, Catalogue(), notes)
+    assert len(out) == 3 and any("L-shaped" in n for n in notes), notes
+    assert all(max(mask_iou(o & t, o) for t in (low, up)) > 0.98 for o in out)
+    out = join_pieces(out, cap.depth, cap.camera, Catalogue())
+    assert len(out) == 2
+    assert max(mask_iou(o, low) for o in out) > 0.95 and max(mask_iou(o, up) for o in out) > 0.95
+    assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
+
+
 def test_a_depth_step_beats_a_label_edge_as_the_seam():
     # a 17x17 end below a 17x50 face 1.5 cm nearer, one colour, merged into one mask: the mask
     # splits into 17x17 + 17x50 at the depth step, or (wrongly) into 17x50 + 17x17 at the lower
