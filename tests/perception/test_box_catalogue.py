@@ -117,19 +117,26 @@ def test_a_stack_of_three_flush_boxes_of_one_colour_is_cut_one_seam_at_a_time():
     assert len(split_faces([low | mid | high], cap.depth, cap.camera, plain, Catalogue())) == 1
 
 
-def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face():
-    from perception.box_catalogue import cut_l_shapes
-
-    # a long box on the floor and another on it, shifted right; the segmenter cut the lower one
-    # at its tape (x = 0.10 m) and the upper one along its middle, then merged the lower one's
-    # right end with the upper one's lower strip into one L-shaped mask
+def _long_on_long():
+    """A long box on the floor and another on it, shifted right, rendered: the capture, both
+    front-face masks, the pixel grids, the lower box's tape column and the upper box's middle row."""
     scene = Scene(Shelf(), (box("low", 0.0, 0.0, 0.50, 0.17), box("up", 0.20, 0.17, 0.50, 0.17)))
     cap = cast(scene)
     low, up = _front(cap, 1), _front(cap, 2)
     cols = np.arange(low.shape[1])[None, :]
     rows = np.arange(low.shape[0])[:, None]
-    tape = int(np.median(np.nonzero(low)[1]) + 0.2 * (np.ptp(np.nonzero(low)[1])))
+    lx = np.nonzero(low)[1]
+    tape = int(np.median(lx) + 0.2 * np.ptp(lx))
     mid = int(np.median(np.nonzero(up)[0]))
+    return cap, low, up, rows, cols, tape, mid
+
+
+def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face():
+    from perception.box_catalogue import cut_l_shapes
+
+    # the segmenter cut the lower box at its tape (x = 0.10 m) and the upper one along its
+    # middle, then merged the lower one's right end with the upper one's lower strip: an L
+    cap, low, up, rows, cols, tape, mid = _long_on_long()
     low_left, low_right = low & (cols < tape), low & (cols >= tape)
     up_top, up_bottom = up & (rows < mid), up & (rows >= mid)
     ell = low_right | up_bottom
@@ -154,14 +161,8 @@ def test_l_shaped_mask_with_a_ragged_strip_is_cut_at_its_corner():
     # rest of its face is ragged (half its width reaches up into the upper half), so no straight cut leaves two
     # parts that both fill their rectangles; the cut at the L's corner (where the width jumps)
     # still joins the strip back into the upper face
-    scene = Scene(Shelf(), (box("low", 0.0, 0.0, 0.50, 0.17), box("up", 0.20, 0.17, 0.50, 0.17)))
-    cap = cast(scene)
-    low, up = _front(cap, 1), _front(cap, 2)
-    cols = np.arange(low.shape[1])[None, :]
-    rows = np.arange(low.shape[0])[:, None]
-    lx, uy, ux = np.nonzero(low)[1], np.nonzero(up)[0], np.nonzero(up)[1]
-    tape = int(np.median(lx) + 0.2 * np.ptp(lx))
-    mid = int(np.median(uy))
+    cap, low, up, rows, cols, tape, mid = _long_on_long()
+    uy, ux = np.nonzero(up)
     label = up & (rows >= mid - 0.4 * np.ptp(uy)) & (cols >= ux.min() + 0.25 * np.ptp(ux)) \
         & (cols < ux.min() + 0.75 * np.ptp(ux))
     low_left, low_right = low & (cols < tape), low & (cols >= tape)
