@@ -149,6 +149,7 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     masks = cut_l_shapes(masks, depth, camera, cat, notes, cache)
     if len(masks) > n or len(notes) > k:     # a cut piece may join its own face's rest      # a row cut into faces may leave a piece of a face beside its rest
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
+    masks = split_stepped_faces(masks, depth, camera, cat, notes, cache)
     faces = []
     for m in masks:
         f = _measure(m, depth, camera, cat, cache)
@@ -800,3 +801,109 @@ def _l_join(cuts, others, depth, camera, cat, cache, k):
             if fu is not None and fu.err <= cat.tol and (joined is None or fu.err < joined[3].err):
                 joined = (piece, rest, j, fu)
     return joined
+
+
+def split_stepped_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
+                        notes: list[str] | None = None, cache: dict | None = None,
+                        min_part: float = 0.05) -> list[np.ndarray]:
+    """Split a mask that measures as a type face but is two boxes: the left halves of two
+    stacked faces, each cut down one line by the segmenter, merged into one mask that happens
+    to have a type face's size (17x50 cm from two 23x25 faces).
+
+    `split_faces` never looks at such a mask (it is a type face), so this runs once the pieces
+    are as joined as they get. The mask splits only at a depth step (>= `depth_step`, two
+    fronts; a label edge is flat) running across it, each part at least `min_part` long, and
+    only when BOTH parts join a different neighbouring piece (no type face itself) on the
+    part's own plane into a type face filling its rectangle >= `join_fill`; the three masks
+    become the two joined faces."""
+    import cv2
+
+    out = [np.asarray(m, bool) for m in masks]
+    if len(out) < 3:
+        return out
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    i = 0
+    while i < len(out):
+        m = out[i]
+        f = _measure(m, depth, camera, cat, cache)
+        if f is None or f.err > cat.tol or border_sides(m):
+            i += 1
+            continue
+        near = cv2.dilate(m.astype(np.uint8), k) > 0
+        pieces = []
+        for j, o in enumerate(out):
+            if j == i or border_sides(o) or not (near & o).any():
+                continue
+            fo = _measure(o, depth, camera, cat, cache)
+            if fo is not None and fo.err > cat.tol:
+                pieces.append(j)
+        done = None
+        if len(pieces) >= 2:
+            done = _stepped_split(m, i, f, pieces, out, depth, camera, cat, cache, k, min_part)
+        if done is None:
+            i += 1
+            continue
+        (ja, ua), (jb, ub), axis, step = done
+        if notes is not None:
+            fa, fb = _measure(ua, depth, camera, cat, cache), _measure(ub, depth, camera, cat, cache)
+            notes.append(f"split a {f.face.width * 100:.0f}x{f.face.height * 100:.0f} cm type-face mask "
+                         f"{'across' if axis == 1 else 'down'} a {step * 100:.1f} cm depth step; its parts "
+                         f"joined their neighbouring pieces into {fa.face.width * 100:.0f}x{fa.face.height * 100:.0f}"
+                         f" and {fb.face.width * 100:.0f}x{fb.face.height * 100:.0f} cm faces")
+        out = [o for j, o in enumerate(out) if j not in (i, ja, jb)] + [ua, ub]
+        i = 0
+    return out
+
+
+def _stepped_split(m, i, f, pieces, out, depth, camera, cat, cache, k, min_part):
+    """((piece a, union a), (piece b, union b), axis, step in m) for the best depth-step line
+    through mask `m` whose two parts each join one of `pieces` into a type face; else None."""
+    import cv2
+
+    ys, xs, cx, cz = _coords(f.face, m, camera)
+    best = None
+    for axis in (1, 0):
+        t, o = (cz, cx) if axis == 1 else (cx, cz)
+        lo, hi = np.quantile(t, (0.01, 0.99))
+        if hi - lo < 2 * min_part:
+            continue
+        ev = _line_evidence(t, o, ys, xs, None, depth, camera, f.face, cat)
+        sel = np.flatnonzero((ev.bins >= lo + min_part) & (ev.bins <= hi - min_part) & (ev.depth >= 1.0))
+        if not len(sel):
+            continue
+        pk = int(sel[np.argmax(ev.depth[sel])])
+        a = t < ev.bins[pk]
+        parts = []
+        for sel_ in (a, ~a):
+            p = np.zeros_like(m)
+            p[ys[sel_], xs[sel_]] = True
+            parts.append(p)
+        joins = []
+        for p, rest in ((parts[0], parts[1]), (parts[1], parts[0])):
+            fp = _measure(p, depth, camera, cat, None)
+            if fp is None:
+                break
+            nearp = cv2.dilate(p.astype(np.uint8), k) > 0
+            cand = None
+            for j in pieces:
+                if not (nearp & out[j]).any() or _plane_dist(fp.face, out[j], depth, camera) > cat.plane_tol:
+                    continue
+                taken = rest.copy()
+                for q, oq in enumerate(out):
+                    if q not in (i, j):
+                        taken |= oq
+                union, fill = _joined(p, out[j], fp.face, taken, depth, camera, cat)
+                if fill < cat.join_fill:
+                    continue
+                fu = _measure(union, depth, camera, cat, None)
+                if fu is not None and fu.err <= cat.tol and (cand is None or fu.err < cand[2]):
+                    cand = (j, union, fu.err)
+            if cand is None:
+                break
+            joins.append(cand)
+        if len(joins) < 2 or joins[0][0] == joins[1][0]:
+            continue
+        step = float(ev.depth[pk]) * cat.depth_step
+        if best is None or step > best[3]:
+            best = ((joins[0][0], joins[0][1]), (joins[1][0], joins[1][1]), axis, step)
+    return best

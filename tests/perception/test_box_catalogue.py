@@ -247,3 +247,44 @@ def test_a_face_cut_into_arms_by_a_wide_tape_cross_is_joined_as_a_group():
     out = join_pieces([cross | quarters[3], quarters[0], quarters[1], quarters[2] | side], cap.depth,
                       cap.camera, Catalogue())
     assert max(mask_iou(m, face) for m in out) < 0.9
+
+
+def _two_cut_stacked_faces(step: float):
+    """Two 23x25 faces stacked (the upper one `step` m nearer the camera) and a box beside them;
+    the segmenter cut both down one column and merged their left parts (17 cm wide) into one
+    17x50 mask: the size of an upright long box's face."""
+    scene = Scene(Shelf(), (box("low", -0.05, 0.0, 0.23, 0.25, front=0.04),
+                            box("up", -0.05, 0.25, 0.23, 0.25, front=0.04 - step),
+                            box("side", 0.30, 0.0, 0.23, 0.25)))
+    cap = cast(scene)
+    low, up, side = _front(cap, 1), _front(cap, 2), _front(cap, 3)
+    cols = np.arange(low.shape[1])[None, :]
+    xs = np.nonzero(low)[1]
+    cut = int(round(xs.min() + 0.17 / 0.23 * (np.ptp(xs) + 1)))
+    merged = (low | up) & (cols < cut)
+    return cap, low, up, side, merged, low & (cols >= cut), up & (cols >= cut)
+
+
+def test_a_type_face_mask_across_a_depth_step_whose_parts_complete_two_pieces_is_two_boxes():
+    cat = Catalogue()
+    cap, low, up, side, merged, low_r, up_r = _two_cut_stacked_faces(0.013)
+    assert cat.matches(*_size(merged, cap))          # the merged mask reads as a type face
+    notes: list[str] = []
+    out, _ = apply_catalogue([merged, low_r, up_r, side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    assert len(out) == 3, notes
+    assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, up) for m in out) > 0.9, notes
+    assert any("type-face mask" in n and "depth step" in n for n in notes), notes
+    # only one part has a piece to complete: not split (it may be a long box with a label)
+    out, _ = apply_catalogue([merged, low_r, side], cap.depth, cap.camera, cap.rgb, cat)
+    assert len(out) == 3 and any(mask_iou(m, merged) > 0.99 for m in out)
+    # no depth step through it (one flat front): the type face stays as it is
+    cap, low, up, side, merged, low_r, up_r = _two_cut_stacked_faces(0.0)
+    out, _ = apply_catalogue([merged, low_r, up_r, side], cap.depth, cap.camera, cap.rgb, cat)
+    assert any(mask_iou(m, merged) > 0.99 for m in out)
+
+
+def _size(mask: np.ndarray, cap) -> tuple[float, float]:
+    from perception.boxes import measure_front
+
+    f = measure_front(mask, cap.depth, cap.camera)
+    return f.width, f.height
