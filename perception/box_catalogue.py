@@ -131,7 +131,8 @@ def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue
 
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                     cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
-    """`join_pieces` then `split_faces`; returns the masks and their measured faces (None where
+    """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass, then
+    `split_stepped_faces`; returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
     notes = notes if notes is not None else []
