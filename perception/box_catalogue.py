@@ -131,8 +131,8 @@ def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue
 
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                     cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
-    """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass, then
-    `split_stepped_faces`; returns the masks and their measured faces (None where
+    """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass,
+    `split_stepped_faces`, then `take_bridging_parts`; returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
     notes = notes if notes is not None else []
@@ -151,6 +151,7 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     if len(masks) > n or len(notes) > k:     # a cut piece may join its own face's rest      # a row cut into faces may leave a piece of a face beside its rest
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
     masks = split_stepped_faces(masks, depth, camera, cat, notes, cache)
+    masks = take_bridging_parts(masks, depth, camera, cat, notes, cache)
     faces = []
     for m in masks:
         f = _measure(m, depth, camera, cat, cache)
@@ -908,3 +909,87 @@ def _stepped_split(m, i, f, pieces, out, depth, camera, cat, cache, k, min_part)
         if best is None or step > best[3]:
             best = ((joins[0][0], joins[0][1]), (joins[1][0], joins[1][1]), axis, step)
     return best
+
+
+def take_bridging_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
+                        notes: list[str] | None = None, cache: dict | None = None) -> list[np.ndarray]:
+    """Give a face back the part of another mask that lies inside its rectangle: a tape band
+    across a face, merged with the flush face above it (same colour, same plane), leaves the
+    face as two pieces on either side of the band and a T-shaped mask that is no type face.
+
+    For a mask that is no type face with >= 2 neighbouring pieces (no type faces, on its
+    plane): the pieces' joint rectangle is their face; the mask's pixels inside it go to the
+    pieces only when the pieces and that part join into a type face filling its rectangle
+    >= `join_fill` AND what is left of the mask is a type face (within `tol`)."""
+    import cv2
+
+    out = [np.asarray(m, bool) for m in masks]
+    if len(out) < 3:
+        return out
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    i = 0
+    while i < len(out):
+        m = out[i]
+        f = _measure(m, depth, camera, cat, cache)
+        if f is None or f.err <= cat.tol or border_sides(m):
+            i += 1
+            continue
+        near = cv2.dilate(m.astype(np.uint8), k) > 0
+        pieces = []
+        for j, o in enumerate(out):
+            if j == i or border_sides(o) or not (near & o).any():
+                continue
+            fo = _measure(o, depth, camera, cat, cache)
+            if fo is not None and fo.err > cat.tol and _plane_dist(f.face, o, depth, camera) <= cat.plane_tol:
+                pieces.append(j)
+        done = _bridge(m, i, pieces, out, depth, camera, cat, cache) if len(pieces) >= 2 else None
+        if done is None:
+            i += 1
+            continue
+        rest, union, fr, fu = done
+        if notes is not None:
+            notes.append(f"gave the part of a {f.face.width * 100:.0f}x{f.face.height * 100:.0f} cm mask inside "
+                         f"{len(pieces)} pieces' rectangle to them: {fu.face.width * 100:.0f}x"
+                         f"{fu.face.height * 100:.0f} and {fr.face.width * 100:.0f}x{fr.face.height * 100:.0f} cm")
+        out = [o for j, o in enumerate(out) if j != i and j not in pieces] + [rest, union]
+        i = 0
+    return out
+
+
+def _bridge(m, i, pieces, out, depth, camera, cat, cache):
+    """(rest of m, joined face mask, their faces) or None; see `take_bridging_parts`."""
+    import cv2
+
+    grp = np.zeros_like(m)
+    for j in pieces:
+        grp |= out[j]
+    pts = cv2.findNonZero(grp.astype(np.uint8))
+    rect = np.zeros(m.shape, np.uint8)
+    cv2.fillPoly(rect, [np.round(cv2.boxPoints(cv2.minAreaRect(pts))).astype(np.int32)], 1)
+    part = m & (rect > 0)
+    rest = m & ~part
+    if part.sum() < 0.05 * m.sum() or rest.sum() < 0.3 * m.sum():
+        return None
+    # what is left must stay one piece (drop a thin fringe along the rectangle's edge)
+    n, lbl, stats, _ = cv2.connectedComponentsWithStats(rest.astype(np.uint8), connectivity=4)
+    if n > 2:
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        if stats[big, cv2.CC_STAT_AREA] < 0.95 * rest.sum():
+            return None
+        part |= rest & (lbl != big)
+        rest = lbl == big
+    fr = _measure(rest, depth, camera, cat, None)
+    if fr is None or fr.err > cat.tol or _rect_fill(rest) < cat.join_fill:
+        return None
+    fg = _measure(out[pieces[0]], depth, camera, cat, cache)
+    taken = rest.copy()
+    for q, oq in enumerate(out):
+        if q != i and q not in pieces:
+            taken |= oq
+    union, fill = _joined(part, grp, fg.face, taken, depth, camera, cat)
+    if fill < cat.join_fill:
+        return None
+    fu = _measure(union, depth, camera, cat, None)
+    if fu is None or fu.err > cat.tol:
+        return None
+    return rest, union, fr, fu

@@ -288,3 +288,27 @@ def _size(mask: np.ndarray, cap) -> tuple[float, float]:
 
     f = measure_front(mask, cap.depth, cap.camera)
     return f.width, f.height
+
+
+def test_a_tape_band_merged_with_the_face_above_is_given_back_to_its_face():
+    # two flush 31x23 faces stacked; a vertical tape band down the lower one was merged with the
+    # upper face (a T: no type face) and the lower face is left as two pieces beside the band
+    cat = Catalogue()
+    scene = Scene(Shelf(), (box("low", -0.05, 0.0, 0.31, 0.23), box("up", -0.05, 0.23, 0.31, 0.23),
+                            box("side", 0.30, 0.0, 0.20, 0.20)))
+    cap = cast(scene)
+    low, up, side = _front(cap, 1), _front(cap, 2), _front(cap, 3)
+    cols = np.arange(low.shape[1])[None, :]
+    xs = np.nonzero(low)[1]
+    cx, hw = int(np.median(xs)), int(0.06 * np.ptp(xs))
+    band = low & (np.abs(cols - cx) <= hw)
+    left, right = low & (cols < cx - hw), low & (cols > cx + hw)
+    assert not cat.matches(*_size(up | band, cap))
+    notes: list[str] = []
+    out, _ = apply_catalogue([up | band, left, right, side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    assert len(out) == 3, notes
+    assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, up) for m in out) > 0.9, notes
+    assert any("pieces' rectangle" in n for n in notes), notes
+    # one piece only (the other taken by the side box's mask): the T is left as it is
+    out, _ = apply_catalogue([up | band, left, right | side], cap.depth, cap.camera, cap.rgb, cat)
+    assert any(mask_iou(m, up | band) > 0.99 for m in out)
