@@ -738,8 +738,6 @@ def cut_l_shapes(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat
     off by default) also tries lines turned by each angle (the mask filling its turned
     rectangle < `max_fill`): on a test a turned cut joined a union holding 11% of another
     box, and the framed shelf it was meant for (perceive_plan seed 11) needs no turned line."""
-    import cv2
-
     out = list(masks)
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
     i = 0
@@ -805,6 +803,26 @@ def _l_join(cuts, others, depth, camera, cat, cache, k):
     return joined
 
 
+def _neighbour_pieces(i: int, masks: list[np.ndarray], kernel: np.ndarray, depth: np.ndarray,
+                      camera: Camera, cat: Catalogue, cache: dict | None, plane=None) -> list[int]:
+    """Indices of the masks next to mask i (within the join gap) that are pieces: measurable, no
+    type face, not cut by the image border; with `plane` (a face), only those on its plane."""
+    import cv2
+
+    near = cv2.dilate(masks[i].astype(np.uint8), kernel) > 0
+    out = []
+    for j, o in enumerate(masks):
+        if j == i or border_sides(o) or not (near & o).any():
+            continue
+        fo = _measure(o, depth, camera, cat, cache)
+        if fo is None or fo.err <= cat.tol:
+            continue
+        if plane is not None and _plane_dist(plane, o, depth, camera) > cat.plane_tol:
+            continue
+        out.append(j)
+    return out
+
+
 def split_stepped_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
                         notes: list[str] | None = None, cache: dict | None = None,
                         min_part: float = 0.05) -> list[np.ndarray]:
@@ -818,8 +836,6 @@ def split_stepped_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Came
     only when BOTH parts join a different neighbouring piece (no type face itself) on the
     part's own plane into a type face filling its rectangle >= `join_fill`; the three masks
     become the two joined faces."""
-    import cv2
-
     out = [np.asarray(m, bool) for m in masks]
     if len(out) < 3:
         return out
@@ -831,14 +847,7 @@ def split_stepped_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Came
         if f is None or f.err > cat.tol or border_sides(m):
             i += 1
             continue
-        near = cv2.dilate(m.astype(np.uint8), k) > 0
-        pieces = []
-        for j, o in enumerate(out):
-            if j == i or border_sides(o) or not (near & o).any():
-                continue
-            fo = _measure(o, depth, camera, cat, cache)
-            if fo is not None and fo.err > cat.tol:
-                pieces.append(j)
+        pieces = _neighbour_pieces(i, out, k, depth, camera, cat, cache)
         done = None
         if len(pieces) >= 2:
             done = _stepped_split(m, i, f, pieces, out, depth, camera, cat, cache, k, min_part)
@@ -921,8 +930,6 @@ def take_bridging_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Came
     plane): the pieces' joint rectangle is their face; the mask's pixels inside it go to the
     pieces only when the pieces and that part join into a type face filling its rectangle
     >= `join_fill` AND what is left of the mask is a type face (within `tol`)."""
-    import cv2
-
     out = [np.asarray(m, bool) for m in masks]
     if len(out) < 3:
         return out
@@ -934,14 +941,7 @@ def take_bridging_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Came
         if f is None or f.err <= cat.tol or border_sides(m):
             i += 1
             continue
-        near = cv2.dilate(m.astype(np.uint8), k) > 0
-        pieces = []
-        for j, o in enumerate(out):
-            if j == i or border_sides(o) or not (near & o).any():
-                continue
-            fo = _measure(o, depth, camera, cat, cache)
-            if fo is not None and fo.err > cat.tol and _plane_dist(f.face, o, depth, camera) <= cat.plane_tol:
-                pieces.append(j)
+        pieces = _neighbour_pieces(i, out, k, depth, camera, cat, cache, plane=f.face)
         done = _bridge(m, i, pieces, out, depth, camera, cat, cache) if len(pieces) >= 2 else None
         if done is None:
             i += 1
