@@ -301,8 +301,8 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
             if best is None:
                 continue
             j, fu, eu = best
-            take(i, j, fu, eu, f"joined a {faces[i].face.width * 100:.0f}x{faces[i].face.height * 100:.0f} cm "
-                               f"piece to its neighbour: {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
+            take(i, j, fu, eu, f"joined a {faces[i].face.size_cm} "
+                               f"piece to its neighbour: {fu.face.size_cm}")
             changed = True
             break
         if not changed:      # a cross measured as the whole face, its quarters as pieces
@@ -313,7 +313,7 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                     continue
                 j, fu, eu = g
                 take(i, j, fu, eu, f"joined the pieces of a face cut in several (a tape cross): "
-                                   f"{fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} cm")
+                                   f"{fu.face.size_cm}")
                 changed = True
                 break
     return [m for m, a in zip(masks, alive) if a]
@@ -464,7 +464,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
         return [mask]
     _, axis, p2, a, wa, ha, wb, hb, ea, eb, _ = best
     if notes is not None:
-        notes.append(f"split a {face.width * 100:.0f}x{face.height * 100:.0f} cm face "
+        notes.append(f"split a {face.size_cm} face "
                      f"{'across' if axis == 1 else 'down'} its seam into {wa * 100:.0f}x{ha * 100:.0f} and "
                      f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][2]:.2f}{', depth step' if best[0][1] else ''})")
     return (_split_one(pa, depth, camera, lab, cat, notes, budget - 1, cache, axis if ea > cat.tol else None, others)
@@ -766,10 +766,9 @@ def cut_l_shapes(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat
             continue
         piece, rest, j, fu = joined
         if notes is not None:
-            notes.append(f"cut an L-shaped {f.face.width * 100:.0f}x{f.face.height * 100:.0f} cm mask in two"
+            notes.append(f"cut an L-shaped {f.face.size_cm} mask in two"
                          f"{'' if deg == 0.0 else f' (line turned {deg:+.0f} deg)'}; "
-                         f"a part joined its neighbour into a {fu.face.width * 100:.0f}x{fu.face.height * 100:.0f} "
-                         "cm type face")
+                         f"a part joined its neighbour into a {fu.face.size_cm} type face")
         others[j] = fu.mask
         out = others[:i] + [rest] + others[i:]
         i = 0
@@ -857,10 +856,9 @@ def split_stepped_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Came
         (ja, ua), (jb, ub), axis, step = done
         if notes is not None:
             fa, fb = _measure(ua, depth, camera, cat, cache), _measure(ub, depth, camera, cat, cache)
-            notes.append(f"split a {f.face.width * 100:.0f}x{f.face.height * 100:.0f} cm type-face mask "
+            notes.append(f"split a {f.face.size_cm} type-face mask "
                          f"{'across' if axis == 1 else 'down'} a {step * 100:.1f} cm depth step; its parts "
-                         f"joined their neighbouring pieces into {fa.face.width * 100:.0f}x{fa.face.height * 100:.0f}"
-                         f" and {fb.face.width * 100:.0f}x{fb.face.height * 100:.0f} cm faces")
+                         f"joined their neighbouring pieces into {fa.face.size_cm} and {fb.face.size_cm} faces")
         out = [o for j, o in enumerate(out) if j not in (i, ja, jb)] + [ua, ub]
         i = 0
     return out
@@ -948,9 +946,8 @@ def take_bridging_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Came
             continue
         rest, union, fr, fu = done
         if notes is not None:
-            notes.append(f"gave the part of a {f.face.width * 100:.0f}x{f.face.height * 100:.0f} cm mask inside "
-                         f"{len(pieces)} pieces' rectangle to them: {fu.face.width * 100:.0f}x"
-                         f"{fu.face.height * 100:.0f} and {fr.face.width * 100:.0f}x{fr.face.height * 100:.0f} cm")
+            notes.append(f"gave the part of a {f.face.size_cm} mask inside "
+                         f"{len(pieces)} pieces' rectangle to them: {fu.face.size_cm} and {fr.face.size_cm}")
         out = [o for j, o in enumerate(out) if j != i and j not in pieces] + [rest, union]
         i = 0
     return out

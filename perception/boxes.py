@@ -35,6 +35,11 @@ class FrontFace:
     pixels: int
     rect_px: tuple               # cv2 rotated rect in the image, for the overlay
 
+    @property
+    def size_cm(self) -> str:
+        """"23x25 cm"-style size, for the adjustment notes a person reads."""
+        return f"{self.width * 100:.0f}x{self.height * 100:.0f} cm"
+
     def to_json(self) -> dict:
         return {"center": list(self.center), "width": self.width, "height": self.height,
                 "angle": self.angle, "yaw": self.yaw, "distance": self.distance, "pixels": self.pixels}

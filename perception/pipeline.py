@@ -76,8 +76,8 @@ def _complete_cut_faces(masks: list[np.ndarray], faces: list[FrontFace | None], 
         out[i] = g
         if how is not None:
             what = "the type face" if how == "type" else "at least"
-            done[id(g)] = (f"face cut by the {'/'.join(sides)} image border, seen {f.width * 100:.0f}x"
-                           f"{f.height * 100:.0f} cm, taken as {what} {g.width * 100:.0f}x{g.height * 100:.0f} cm")
+            done[id(g)] = (f"face cut by the {'/'.join(sides)} image border, seen {f.size_cm}, "
+                           f"taken as {what} {g.size_cm}")
     return out, done
 
 

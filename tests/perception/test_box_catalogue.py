@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from perception.box_catalogue import (REFERENCE_TYPES, Catalogue, apply_catalogue, join_pieces,
                                       split_faces)
@@ -131,51 +132,35 @@ def _long_on_long():
     return cap, low, up, rows, cols, tape, mid
 
 
-def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face():
+@pytest.mark.parametrize("ragged", [False, True])
+def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face(ragged):
     from perception.box_catalogue import cut_l_shapes
 
     # the segmenter cut the lower box at its tape (x = 0.10 m) and the upper one along its
-    # middle, then merged the lower one's right end with the upper one's lower strip: an L
+    # middle, then merged the lower one's right end with the upper one's lower strip: an L.
+    # `ragged`: the strip also took a label's lower half with it, so its edge to the rest of its
+    # face is ragged and no straight cut leaves two parts that both fill their rectangles; the
+    # cut at the L's corner (where the width jumps) must still join the strip back
     cap, low, up, rows, cols, tape, mid = _long_on_long()
     low_left, low_right = low & (cols < tape), low & (cols >= tape)
-    up_top, up_bottom = up & (rows < mid), up & (rows >= mid)
-    ell = low_right | up_bottom
-    notes: list[str] = []
-    out = cut_l_shapes([low_left, ell, up_top], cap.depth, cap.camera, Catalogue(), notes)
-    assert len(out) == 3 and any("L-shaped" in n for n in notes), notes
-    # one part joined its own box into a type face, the other is a rectangle of its own box,
-    # and the second join pass (as in apply_catalogue) gives both boxes back whole
-    assert max(mask_iou(o, low) for o in out) > 0.95 or max(mask_iou(o, up) for o in out) > 0.95
-    assert all(max(mask_iou(o & t, o) for t in (low, up)) > 0.98 for o in out)
-    out = join_pieces(out, cap.depth, cap.camera, Catalogue())
-    assert len(out) == 2
-    assert max(mask_iou(o, low) for o in out) > 0.95 and max(mask_iou(o, up) for o in out) > 0.95
-    # nothing to join it with into a type face: the L stays as it is
-    assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
-
-
-def test_l_shaped_mask_with_a_ragged_strip_is_cut_at_its_corner():
-    from perception.box_catalogue import cut_l_shapes
-
-    # as above, but the upper box's strip took a label's lower half with it: its edge to the
-    # rest of its face is ragged (half its width reaches up into the upper half), so no straight cut leaves two
-    # parts that both fill their rectangles; the cut at the L's corner (where the width jumps)
-    # still joins the strip back into the upper face
-    cap, low, up, rows, cols, tape, mid = _long_on_long()
-    uy, ux = np.nonzero(up)
-    label = up & (rows >= mid - 0.4 * np.ptp(uy)) & (cols >= ux.min() + 0.25 * np.ptp(ux)) \
-        & (cols < ux.min() + 0.75 * np.ptp(ux))
-    low_left, low_right = low & (cols < tape), low & (cols >= tape)
-    up_bottom = (up & (rows >= mid)) | label
+    up_bottom = up & (rows >= mid)
+    if ragged:
+        uy, ux = np.nonzero(up)
+        up_bottom |= up & (rows >= mid - 0.4 * np.ptp(uy)) & (cols >= ux.min() + 0.25 * np.ptp(ux)) \
+            & (cols < ux.min() + 0.75 * np.ptp(ux))
     up_top = up & ~up_bottom
     ell = low_right | up_bottom
     notes: list[str] = []
     out = cut_l_shapes([low_left, ell, up_top], cap.depth, cap.camera, Catalogue(), notes)
     assert len(out) == 3 and any("L-shaped" in n for n in notes), notes
+    if not ragged:  # one part joined its own box into a type face, the other is a rectangle of its own box
+        assert max(mask_iou(o, low) for o in out) > 0.95 or max(mask_iou(o, up) for o in out) > 0.95
     assert all(max(mask_iou(o & t, o) for t in (low, up)) > 0.98 for o in out)
+    # the second join pass (as in apply_catalogue) gives both boxes back whole
     out = join_pieces(out, cap.depth, cap.camera, Catalogue())
     assert len(out) == 2
     assert max(mask_iou(o, low) for o in out) > 0.95 and max(mask_iou(o, up) for o in out) > 0.95
+    # nothing to join it with into a type face: the L stays as it is
     assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
 
 
