@@ -17,7 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--distance", type=float, default=None,
                    help="render from the default camera moved back to this many m from the shelf front "
                         "(re-pitched to the same aim point; default 1.05)")
-    p.add_argument("--segmenter", choices=("auto", "depth", "yolo"), default="auto")
+    p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo"), default="auto",
+                   help="auto: depth-and-edge for RGB-D, the photo segmenter for photos without depth")
     p.add_argument("--weights", help="YOLO11n-seg weights for --segmenter yolo/auto")
     p.add_argument("--out", default="perceive-bench", help="folder for report.md and report.json")
 
@@ -55,6 +56,11 @@ def run(args: argparse.Namespace) -> int:
                 report["rcan"] = bench.bench_rcan(rcan, seg)
             else:
                 report["skipped"]["RCAN_scd_samples"] = f"{rcan} not found"
+            tele = root / "telexistence_box_detection"
+            if (tele / "Data").is_dir():
+                report["telexistence"] = bench.bench_telexistence(tele, seg)
+            else:
+                report["skipped"]["telexistence_box_detection"] = f"{tele / 'Data'} not found"
             neura = root / "neura_smart_palletizer"
             if neura.is_dir():
                 report["neura"] = bench.bench_neura(neura, seg)

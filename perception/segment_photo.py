@@ -1,0 +1,570 @@
+"""Cartons in photos without depth: superpixels, a merge tree, and the best cut of it.
+
+With no depth nothing but colour and edges separates two cartons, and the depth-and-edge
+segmenter run on a flat stand-in depth leaves big smooth blobs that span several cartons and
+the background. This segmenter works on what a carton photo does show:
+1. an edge map: colour gradient (Lab) plus thin DARK lines (black-hat: the shadowed seams
+   between cartons), normalised per photo;
+2. superpixels: a watershed of that map from a grid of seeds;
+3. a merge tree: neighbouring regions are joined weakest boundary first (mean edge strength
+   along the common border plus their colour difference; small pieces such as printed letters
+   go first), every join is a candidate region, up to the whole photo;
+4. the best cut of the tree: each candidate scores area x (shape quality - `q0` - `seam_cost`
+   x the strength of the boundary it was joined across); shape quality is how convex the
+   (hole-filled: labels and tape inside belong to it) region is and how well its convex hull
+   fills its min-area rectangle (carton faces are quadrilaterals, a whole carton seen at an
+   angle a hexagon). A region that is too small, too large or spans the photo from border to
+   border (floor, ceiling, racks) scores nothing. The set of disjoint candidates with the
+   highest total is taken (a tree DP), so a region is kept whole only when it beats its parts.
+5. each kept region becomes its convex hull (cartons are convex; hull pixels another kept
+   region holds stay with that region), scaled back to the photo.
+No learned weights; opencv, numpy and scipy only.
+"""
+from __future__ import annotations
+
+import heapq
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PhotoConfig:
+    work_side: int = 480          # px: the photo's long side while segmenting
+    seed_px: int = 10             # px (at work size) between superpixel seeds
+    blur_sigma: float = 1.2
+    seam_px: int = 9              # black-hat window: seams thinner than this count as edges
+    seam_weight: float = 1.0      # weight of the dark-seam map against the colour gradient
+    grad_floor: float = 80.0      # Lab Sobel magnitude that is an edge in any photo
+    seam_floor: float = 20.0      # L units a seam is darker than its surround in any photo
+    colour_weight: float = 0.5    # weight of the mean-colour difference in the merge order
+    small_frac: float = 0.004     # regions below this fraction of the photo merge first
+    q0: float = 0.6              # shape quality a region must beat to count
+    seam_cost: float = 0.5        # penalty per unit of edge strength a region was joined across
+    min_frac: float = 0.003       # smallest carton: fraction of the photo
+    max_frac: float = 0.45        # largest carton: fraction of the photo
+    convex: bool = True           # output each region's convex hull
+    levels: tuple[float, ...] = (0.15, 0.25, 0.35, 0.5)   # edge-map thresholds
+    gaps: tuple[int, ...] = (0, 1, 2, 3)                 # px: seam gaps closed (erosion radius)
+    max_overlap: float = 0.2
+    split_lines: bool = True      # cut a region along a straight edge line that crosses all of it
+    line_edge: float = 0.5        # edge strength of a seam line
+    line_cover: float = 0.85      # share of such a line's length that must be on an edge
+    line_min_part: float = 0.2    # each side of the cut holds at least this share of the region
+    line_max_deg: float = 8.0     # lines within this many degrees of the region's axes
+    area_order: bool = False      # take regions by area x (score - q0 + area_bias), not by score
+    area_bias: float = 0.05
+    nest_max: float = 0.3         # a good region inside another, below this share of it, is a detail of it
+    support_edge: float = 0.3     # edge strength that counts as outline support
+    min_support: float = 0.5      # least share of the outline on an edge
+    support_weight: float = 0.5   # weight of outline support against shape quality in the score
+    tree: bool = True             # add the superpixel merge tree's regions to the candidates
+    split_min_part: float = 0.08  # a part that splits a candidate holds at least this share of it
+    split_margin: float = 0.1     # parts score at least the region's score minus this
+    split_cover: float = 0.45     # parts that cover this share of a candidate split it
+
+    def to_json(self) -> dict:
+        return dict(vars(self))
+
+    @classmethod
+    def from_json(cls, d: dict) -> "PhotoConfig":
+        return cls(**d)
+
+
+@dataclass
+class _Node:
+    area: int
+    bbox: tuple[int, int, int, int]       # y0, x0, y1, x1 (exclusive)
+    leaves: list[int]
+    children: tuple[int, ...] = ()
+    height: float = 0.0                  # edge strength of the boundary it was joined across
+    own: float = 0.0
+    quality: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def edge_map(rgb: np.ndarray, cfg: PhotoConfig) -> np.ndarray:
+    """Per-pixel boundary strength in [0, 1]: colour gradient plus dark thin seams."""
+    import cv2
+
+    img = cv2.GaussianBlur(rgb, (0, 0), cfg.blur_sigma)
+    lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float32)
+    g2 = np.zeros(lab.shape[:2], np.float32)
+    for c, wgt in ((0, 1.0), (1, 2.0), (2, 2.0)):
+        gx = cv2.Sobel(lab[..., c], cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(lab[..., c], cv2.CV_32F, 0, 1, ksize=3)
+        g2 += wgt * (gx * gx + gy * gy)
+    grad = np.sqrt(g2)
+    # normalised per photo (contrast varies with light), but never below what counts as a real
+    # edge: a plain wall's noise stays weak
+    grad /= max(cfg.grad_floor, float(np.percentile(grad, 98)))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.seam_px, cfg.seam_px))
+    seam = cv2.morphologyEx(lab[..., 0], cv2.MORPH_BLACKHAT, k)
+    seam /= max(cfg.seam_floor, float(np.percentile(seam, 98)))
+    return np.clip(np.maximum(grad, cfg.seam_weight * seam), 0.0, 1.0)
+
+
+def superpixels(edges: np.ndarray, spacing: int) -> np.ndarray:
+    """Watershed of the edge map from one seed per `spacing` cell (at the cell's weakest edge)."""
+    from scipy import ndimage
+
+    h, w = edges.shape
+    markers = np.zeros((h, w), np.int32)
+    n = 0
+    for y0 in range(0, h, spacing):
+        for x0 in range(0, w, spacing):
+            cell = edges[y0:y0 + spacing, x0:x0 + spacing]
+            iy, ix = np.unravel_index(int(np.argmin(cell)), cell.shape)
+            n += 1
+            markers[y0 + iy, x0 + ix] = n
+    lab = ndimage.watershed_ift((edges * 255).astype(np.uint8), markers)
+    return lab.astype(np.int32) - 1
+
+
+def _adjacency(lab: np.ndarray, edges: np.ndarray, n: int) -> dict[tuple[int, int], tuple[float, int]]:
+    """(a, b) with a < b -> (sum of edge strength along their border, border length)."""
+    pa = [lab[:, :-1].ravel(), lab[:-1, :].ravel()]
+    pb = [lab[:, 1:].ravel(), lab[1:, :].ravel()]
+    ps = [np.maximum(edges[:, :-1], edges[:, 1:]).ravel(), np.maximum(edges[:-1, :], edges[1:, :]).ravel()]
+    a = np.concatenate(pa)
+    b = np.concatenate(pb)
+    s = np.concatenate(ps)
+    keep = a != b
+    a, b, s = a[keep], b[keep], s[keep]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    code = lo.astype(np.int64) * n + hi
+    uniq, inv = np.unique(code, return_inverse=True)
+    sums = np.bincount(inv, weights=s)
+    cnts = np.bincount(inv)
+    return {(int(c // n), int(c % n)): (float(sm), int(ct)) for c, sm, ct in zip(uniq, sums, cnts)}
+
+
+def split_on_lines(mask: np.ndarray, strong: np.ndarray, cfg: PhotoConfig, depth: int = 0) -> list[np.ndarray]:
+    """Cut `mask` along the straight line of edge pixels (within `line_max_deg` of horizontal
+    or vertical) that crosses it most completely, when that line is >= `line_cover` on an edge
+    and leaves >= `line_min_part` of the area on each side; then the same for each side.
+    Why: two cartons stacked flush make one rectangle; the seam between them is a straight
+    edge right across it, printing and labels rarely are."""
+    if depth == 0:
+        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        if len(rows) == 0:
+            return [mask]
+        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        out = []
+        for part in split_on_lines(mask[y0:y1, x0:x1], strong[y0:y1, x0:x1], cfg, 1):
+            full = np.zeros_like(mask)
+            full[y0:y1, x0:x1] = part
+            out.append(full)
+        return out
+    ys, xs = np.nonzero(mask)
+    n = len(ys)
+    if n < 50 or depth > 4:
+        return [mask]
+    on = strong[ys, xs]
+    best = None
+    for axis in (0, 1):
+        u, v = (ys, xs) if axis == 0 else (xs, ys)       # cut across u = const (+ tilt)
+        vc = float(v.mean())
+        for deg in np.arange(-cfg.line_max_deg, cfg.line_max_deg + 1e-6, 2.0):
+            t = np.tan(np.radians(deg))
+            b = np.round(u - t * (v - vc)).astype(np.int64)
+            b0 = int(b.min())
+            b = b - b0
+            tot = np.bincount(b)
+            hit = np.bincount(b, weights=on)
+            # a seam is 1-3 px wide: take the best of 3 neighbouring bins
+            pad = np.pad(hit, 1)
+            hit3 = np.maximum(np.maximum(pad[:-2], pad[1:-1]), pad[2:])
+            length = np.maximum(tot, 1)
+            frac = hit3 / length
+            cum = np.cumsum(tot) / n
+            ok = (cum >= cfg.line_min_part) & (cum <= 1.0 - cfg.line_min_part) & (tot >= 10)
+            if not ok.any():
+                continue
+            k = int(np.argmax(np.where(ok, frac, -1)))
+            k = max(0, k - 1) + int(np.argmax(hit[max(0, k - 1):k + 2]))   # onto the seam itself
+            if frac[k] >= cfg.line_cover and (best is None or frac[k] > best[0]):
+                best = (float(frac[k]), axis, float(t), vc, k + b0)
+    if best is None:
+        return [mask]
+    _, axis, t, vc, cut = best
+    yy, xx = np.indices(mask.shape)
+    u, v = (yy, xx) if axis == 0 else (xx, yy)
+    side = np.round(u - t * (v - vc)) <= cut
+    out = []
+    for part in (mask & side, mask & ~side):
+        out.extend(split_on_lines(part, strong, cfg, depth + 1))
+    return out
+
+
+class PhotoSegmenter:
+    """Carton masks in an RGB photo (depth ignored); see the module docstring."""
+
+    name = "photo"
+
+    def __init__(self, config: PhotoConfig | None = None):
+        self.config = config or PhotoConfig()
+
+    # ------------------------------------------------------------------
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
+        import cv2
+
+        cfg = self.config
+        rgb = np.asarray(rgb)
+        if rgb.ndim == 2:
+            rgb = np.repeat(rgb[..., None], 3, axis=2)
+        rgb = rgb[..., :3]
+        if rgb.dtype != np.uint8:
+            rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+        H, W = rgb.shape[:2]
+        s = min(1.0, cfg.work_side / max(H, W))
+        small = cv2.resize(rgb, (max(1, round(W * s)), max(1, round(H * s))),
+                           interpolation=cv2.INTER_AREA) if s < 1.0 else rgb
+        regions = self.regions(small)
+        out = []
+        for m in regions:
+            if s < 1.0:
+                m = cv2.resize(m.astype(np.uint8) * 255, (W, H), interpolation=cv2.INTER_LINEAR) > 127
+            if m.any():
+                out.append(m)
+        return out
+
+    def regions(self, rgb: np.ndarray) -> list[np.ndarray]:
+        """Kept regions at the size of `rgb` (the work size)."""
+        cfg = self.config
+        edges = edge_map(rgb, cfg)
+        cands = self.candidates(edges)
+        if cfg.tree:
+            cands += self.tree_candidates(rgb, edges)
+        cands = self.rescore(cands, edges)
+        kept = self._select(cands, edges.shape)
+        if cfg.split_lines:
+            strong = edges >= cfg.line_edge
+            out = []
+            for m in kept:
+                out.extend(split_on_lines(m, strong, cfg))
+            kept = out
+        return kept
+
+    def rescore(self, cands, edges: np.ndarray):
+        """Quality x how much of the region's outline runs along an edge (a seam or a carton's
+        border against the background); a region cut out of one face by printing has less."""
+        import cv2
+
+        cfg = self.config
+        strong = cv2.dilate((edges >= cfg.support_edge).astype(np.uint8), np.ones((5, 5), np.uint8))
+        out = []
+        for q, (y0, x0, y1, x1), f in cands:
+            cnts, _ = cv2.findContours(f.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            if not cnts:
+                continue
+            pts = np.concatenate(cnts)[:, 0, :]
+            sub = strong[y0:y1, x0:x1]
+            support = float(sub[pts[:, 1], pts[:, 0]].mean())
+            if support < cfg.min_support:     # a carton's outline is seen: a seam or its border
+                continue
+            out.append(((1 - cfg.support_weight) * q + cfg.support_weight * support, (y0, x0, y1, x1), f))
+        return out
+
+    def tree_candidates(self, rgb: np.ndarray, edges: np.ndarray):
+        """(quality, bbox, mask in bbox) of every node of the superpixel merge tree."""
+        cfg = self.config
+        h, w = edges.shape
+        total = h * w
+        lab = superpixels(edges, cfg.seed_px)
+        nodes = self._merge_tree(rgb, lab, edges)
+        nl = int(lab.max()) + 1
+        out = []
+        for nd in nodes:
+            if not cfg.min_frac * total <= nd.area <= cfg.max_frac * total:
+                continue
+            y0, x0, y1, x1 = nd.bbox
+            if (x0 <= 1 and x1 >= w - 1) or (y0 <= 1 and y1 >= h - 1):
+                continue
+            lut = np.zeros(nl, np.uint8)
+            lut[nd.leaves] = 1
+            c = self._quality(lut[lab[y0:y1, x0:x1]], cfg.convex)
+            if c is not None:
+                out.append((c[0], (y0, x0, y1, x1), c[1]))
+        return out
+
+    def candidates(self, edges: np.ndarray) -> list[tuple[float, tuple[int, int, int, int], np.ndarray]]:
+        """(quality, bbox, filled mask in bbox) of every low-edge component at every level."""
+        import cv2
+
+        cfg = self.config
+        h, w = edges.shape
+        total = h * w
+        out = []
+        for t in cfg.levels:
+            low = (edges < t).astype(np.uint8)
+            for d in cfg.gaps:
+                k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * d + 1, 2 * d + 1))
+                core = cv2.erode(low, k) if d else low
+                n, lab, st, _ = cv2.connectedComponentsWithStats(core, connectivity=4)
+                for i in range(1, n):
+                    x0, y0, bw, bh, a = (int(v) for v in st[i])
+                    if a < cfg.min_frac * total * 0.5 or a > cfg.max_frac * total:
+                        continue
+                    x1, y1 = x0 + bw, y0 + bh
+                    if (x0 <= 1 and x1 >= w - 1) or (y0 <= 1 and y1 >= h - 1):
+                        continue
+                    pad = d + 1
+                    X0, Y0 = max(0, x0 - pad), max(0, y0 - pad)
+                    X1, Y1 = min(w, x1 + pad), min(h, y1 + pad)
+                    m = (lab[Y0:Y1, X0:X1] == i).astype(np.uint8)
+                    if d:
+                        m = cv2.dilate(m, k)
+                    c = self._quality(m, cfg.convex)
+                    if c is None:
+                        continue
+                    q, filled = c
+                    if filled.sum() < cfg.min_frac * total:
+                        continue
+                    out.append((q, (Y0, X0, Y1, X1), filled))
+        return out
+
+    @staticmethod
+    def _quality(m: np.ndarray, convex: bool = True) -> tuple[float, np.ndarray] | None:
+        """How much the hole-filled region looks like one carton: its IoU with its min-area
+        rectangle, and with its convex hull (a whole carton seen at an angle)."""
+        import cv2
+
+        cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if not cnts:
+            return None
+        cnt = max(cnts, key=cv2.contourArea)
+        filled = np.zeros_like(m)
+        cv2.drawContours(filled, [cnt], -1, 1, -1)
+        fa = float(filled.sum())
+        if fa < 4:
+            return None
+        rect = np.zeros_like(m)
+        cv2.fillPoly(rect, [np.round(cv2.boxPoints(cv2.minAreaRect(cnt))).astype(np.int32)], 1)
+        inter = float(np.logical_and(rect, filled).sum())
+        q_rect = inter / (fa + float(rect.sum()) - inter)
+        hull = cv2.convexHull(cnt)
+        q_hull = fa / max(fa, float(cv2.contourArea(hull)) + 0.5 * cv2.arcLength(hull, True))
+        out = filled.astype(bool)
+        if convex:
+            hm = np.zeros_like(m)
+            cv2.fillPoly(hm, [hull], 1)
+            out = hm > 0
+        return max(q_rect, q_hull - 0.05), out
+
+    def _select(self, cands, shape) -> list[np.ndarray]:
+        """Best score first; a candidate that two or more good candidates split (a seam shows at
+        a stricter level) is dropped, a good one that is not split takes the small ones inside
+        it (labels, tape, print), and one mostly covered by those already taken is dropped."""
+        cfg = self.config
+        h, w = shape
+        good, seen = [], set()
+        for c in sorted((c for c in cands if c[0] >= cfg.q0), key=lambda c: -c[0]):
+            key = (c[1], int(c[2].sum()))                 # the same region from several levels
+            if key not in seen:
+                seen.add(key)
+                good.append(c)
+        if not good:
+            return []
+        q = np.array([c[0] for c in good])
+        bb = np.array([c[1] for c in good])
+        areas = np.array([float(c[2].sum()) for c in good])
+        split = np.array([self._is_split(i, good, q, bb, areas) for i in range(len(good))], bool)
+        for i in np.argsort(-areas, kind="stable"):
+            if split[i]:
+                continue
+            y0, x0 = int(bb[i][0]), int(bb[i][1])
+            f = good[i][2]
+            for j in self._inside(i, bb, areas, ~split & (areas < cfg.nest_max * areas[i])):
+                Y0, X0, Y1, X1 = (int(v) for v in bb[j])
+                if float(np.logical_and(f[Y0 - y0:Y1 - y0, X0 - x0:X1 - x0], good[j][2]).sum()) >= 0.85 * areas[j]:
+                    split[j] = True
+        taken = np.zeros((h, w), bool)
+        out = []
+        for i, (_, (y0, x0, y1, x1), f) in enumerate(good):
+            if split[i]:
+                continue
+            if float(np.logical_and(taken[y0:y1, x0:x1], f).sum()) > cfg.max_overlap * areas[i]:
+                continue
+            full = np.zeros((h, w), bool)
+            full[y0:y1, x0:x1] = f & ~taken[y0:y1, x0:x1]
+            taken |= full
+            out.append(full)
+        return out
+
+    @staticmethod
+    def _inside(i: int, bb: np.ndarray, areas: np.ndarray, allowed: np.ndarray) -> list[int]:
+        """Candidates (among `allowed`) whose bounding box lies in i's."""
+        y0, x0, y1, x1 = bb[i]
+        sel = allowed & (bb[:, 0] >= y0) & (bb[:, 1] >= x0) & (bb[:, 2] <= y1) & (bb[:, 3] <= x1)
+        sel[i] = False
+        return [int(j) for j in np.nonzero(sel)[0]]
+
+    def _is_split(self, i: int, good, q: np.ndarray, bb: np.ndarray, areas: np.ndarray) -> bool:
+        """Whether >= 2 disjoint good candidates, each scoring nearly as well, lie inside
+        candidate i and cover most of it."""
+        cfg = self.config
+        allowed = ((areas < 0.9 * areas[i]) & (areas >= cfg.split_min_part * areas[i])
+                   & (q >= q[i] - cfg.split_margin))
+        if allowed.sum() < 2:
+            return False
+        y0, x0 = int(bb[i][0]), int(bb[i][1])
+        f = good[i][2]
+        cover = np.zeros(f.shape, bool)
+        n_parts = 0
+        for j in self._inside(i, bb, areas, allowed):    # best first: `good` is sorted
+            Y0, X0, Y1, X1 = (int(v) for v in bb[j])
+            g = good[j][2]
+            if float(np.logical_and(f[Y0 - y0:Y1 - y0, X0 - x0:X1 - x0], g).sum()) < 0.85 * areas[j]:
+                continue
+            sub = cover[Y0 - y0:Y1 - y0, X0 - x0:X1 - x0]
+            if float(np.logical_and(sub, g).sum()) > 0.2 * areas[j]:
+                continue
+            sub |= g
+            n_parts += 1
+        return n_parts >= 2 and float(np.logical_and(cover, f).sum()) >= cfg.split_cover * areas[i]
+
+    # ------------------------------------------------------------------
+    def _merge_tree(self, rgb: np.ndarray, lab: np.ndarray, edges: np.ndarray) -> list[_Node]:
+        import cv2
+
+        cfg = self.config
+        h, w = lab.shape
+        n = int(lab.max()) + 1
+        flat = lab.ravel()
+        area = np.bincount(flat, minlength=n).astype(np.int64)
+        col = cv2.cvtColor(cv2.GaussianBlur(rgb, (0, 0), cfg.blur_sigma), cv2.COLOR_RGB2LAB).astype(np.float64)
+        csum = np.stack([np.bincount(flat, weights=col[..., c].ravel(), minlength=n) for c in range(3)], 1)
+        ys, xs = np.indices((h, w))
+        y0 = np.full(n, h, np.int64)
+        x0 = np.full(n, w, np.int64)
+        y1 = np.zeros(n, np.int64)
+        x1 = np.zeros(n, np.int64)
+        np.minimum.at(y0, flat, ys.ravel())
+        np.minimum.at(x0, flat, xs.ravel())
+        np.maximum.at(y1, flat, ys.ravel() + 1)
+        np.maximum.at(x1, flat, xs.ravel() + 1)
+        nodes = [_Node(int(area[i]), (int(y0[i]), int(x0[i]), int(y1[i]), int(x1[i])), [i]) for i in range(n)]
+        colsum = [csum[i] for i in range(n)]
+        nbr: list[dict[int, list[float]]] = [dict() for _ in range(n)]
+        for (a, b), (sm, ct) in _adjacency(lab, edges, n).items():
+            nbr[a][b] = [sm, ct]
+            nbr[b][a] = [sm, ct]
+        small = cfg.small_frac * h * w
+
+        def prio(a: int, b: int) -> float:
+            sm, ct = nbr[a][b]
+            ca = colsum[a] / nodes[a].area
+            cb = colsum[b] / nodes[b].area
+            dc = float(np.linalg.norm(ca - cb)) / 100.0
+            p = sm / ct + cfg.colour_weight * dc
+            return p * min(1.0, min(nodes[a].area, nodes[b].area) / small) ** 0.5
+
+        heap = [(prio(a, b), a, b) for a in range(n) for b in nbr[a] if a < b]
+        heapq.heapify(heap)
+        alive = [True] * n
+        while heap:
+            _, a, b = heapq.heappop(heap)
+            if not (alive[a] and alive[b]):
+                continue
+            sm, ct = nbr[a][b]
+            na, nb = nodes[a], nodes[b]
+            c = len(nodes)
+            bb = (min(na.bbox[0], nb.bbox[0]), min(na.bbox[1], nb.bbox[1]),
+                  max(na.bbox[2], nb.bbox[2]), max(na.bbox[3], nb.bbox[3]))
+            nodes.append(_Node(na.area + nb.area, bb, na.leaves + nb.leaves, (a, b), sm / ct))
+            colsum.append(colsum[a] + colsum[b])
+            alive[a] = alive[b] = False
+            alive.append(True)
+            merged: dict[int, list[float]] = {}
+            for src in (a, b):
+                for k, (s_, c_) in nbr[src].items():
+                    if k in (a, b):
+                        continue
+                    e = merged.setdefault(k, [0.0, 0])
+                    e[0] += s_
+                    e[1] += c_
+                    del nbr[k][src]
+            nbr.append(merged)
+            nbr[a] = {}
+            nbr[b] = {}
+            for k, e in merged.items():
+                nbr[k][c] = e
+                heapq.heappush(heap, (prio(c, k), c, k) if c < k else (prio(k, c), k, c))
+        return nodes
+
+    def _score(self, nodes: list[_Node], lab: np.ndarray) -> None:
+        import cv2
+
+        cfg = self.config
+        h, w = lab.shape
+        total = h * w
+        nl = int(lab.max()) + 1
+        for nd in nodes:
+            nd.own = 0.0
+            if not cfg.min_frac * total <= nd.area <= cfg.max_frac * total:
+                continue
+            y0, x0, y1, x1 = nd.bbox
+            sides = (y0 <= 1) + (x0 <= 1) + (y1 >= h - 1) + (x1 >= w - 1)
+            if sides >= 3 or ((y0 <= 1 and y1 >= h - 1) or (x0 <= 1 and x1 >= w - 1)):
+                continue
+            lut = np.zeros(nl, np.uint8)
+            lut[nd.leaves] = 1
+            m = lut[lab[y0:y1, x0:x1]]
+            cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            if not cnts:
+                continue
+            cnt = max(cnts, key=cv2.contourArea)
+            filled = float(cv2.contourArea(cnt))
+            hull = cv2.convexHull(cnt)
+            ha = float(cv2.contourArea(hull))
+            (_, _), (rw, rh), _ = cv2.minAreaRect(hull)
+            if ha <= 0 or rw * rh <= 0:
+                continue
+            solidity = filled / ha
+            rectfill = ha / (rw * rh)
+            q = solidity * rectfill ** 0.5
+            nd.quality = q
+            nd.extra["hull"] = hull + np.array([[x0, y0]])
+            nd.own = nd.area * (q - cfg.q0 - cfg.seam_cost * nd.height)
+
+    @staticmethod
+    def _best_cut(nodes: list[_Node]) -> list[int]:
+        best = [0.0] * len(nodes)
+        take = [False] * len(nodes)
+        for i, nd in enumerate(nodes):
+            sub = sum(best[c] for c in nd.children)
+            if nd.own > 0 and nd.own > sub:
+                best[i], take[i] = nd.own, True
+            else:
+                best[i] = sub
+        child = {c for nd in nodes for c in nd.children}
+        keep, stack = [], [i for i in range(len(nodes)) if i not in child]
+        while stack:
+            i = stack.pop()
+            if take[i]:
+                keep.append(i)
+            else:
+                stack.extend(nodes[i].children)
+        return keep
+
+    def _masks(self, nodes: list[_Node], keep: list[int], lab: np.ndarray) -> list[np.ndarray]:
+        import cv2
+
+        h, w = lab.shape
+        nl = int(lab.max()) + 1
+        owner = np.full(nl, -1, np.int64)
+        for k, i in enumerate(keep):
+            owner[nodes[i].leaves] = k
+        own_map = owner[lab]
+        out = []
+        for k, i in enumerate(keep):
+            base = own_map == k
+            if self.config.convex and "hull" in nodes[i].extra:
+                hull = np.zeros((h, w), np.uint8)
+                cv2.fillPoly(hull, [nodes[i].extra["hull"].astype(np.int32)], 1)
+                m = base | ((hull > 0) & (own_map < 0))
+            else:
+                m = base
+            out.append(m)
+        return out

@@ -1,0 +1,116 @@
+"""The photo segmenter (no depth) on small carton photos drawn in code."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from perception.bench import match
+from perception.segment_photo import PhotoConfig, PhotoSegmenter, split_on_lines
+
+
+def draw_stack(seed: int, rows: int = 3, cols: int = 3, similar: bool = False,
+               size: tuple[int, int] = (360, 480)) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A photo of a stack of cartons: a wall and a floor behind, `rows` x `cols` carton faces
+    (slightly skewed quadrilaterals) with dark seams between them, white labels with dark
+    print and a tape band on some; returns the RGB image and one true mask per carton."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    img = np.zeros((h, w, 3), np.float32)
+    wall = np.linspace(150, 200, h)[:, None, None] * np.array([0.9, 0.95, 1.0])
+    img[:] = wall
+    floor = int(h * 0.82)
+    img[floor:] = (95, 100, 105)
+    img += rng.normal(0, 3, img.shape)
+    x0, y0 = 50, 40
+    cw, ch = (w - 2 * x0) // cols, (floor - y0) // rows
+    base = np.array([176, 134, 88], np.float32)          # cardboard brown
+    truth = []
+    for r in range(rows):
+        for c in range(cols):
+            tone = base if similar else base * rng.uniform(0.8, 1.15) + rng.uniform(-12, 12, 3)
+            sk = rng.uniform(-3, 3, (4, 2))
+            quad = np.array([[x0 + c * cw + 2, y0 + r * ch + 2], [x0 + (c + 1) * cw - 2, y0 + r * ch + 2],
+                             [x0 + (c + 1) * cw - 2, y0 + (r + 1) * ch - 2], [x0 + c * cw + 2, y0 + (r + 1) * ch - 2]],
+                            np.float64) + sk
+            q = np.round(quad).astype(np.int32)
+            m = np.zeros((h, w), np.uint8)
+            cv2.fillPoly(m, [q], 1)
+            face = m.astype(bool)
+            img[face] = tone + rng.normal(0, 4, (int(face.sum()), 3))
+            cv2.polylines(img, [q], True, (35, 30, 25), 2)   # the shadowed seam
+            lx, ly = int(quad[0, 0] + rng.uniform(0.15, 0.5) * cw), int(quad[0, 1] + rng.uniform(0.2, 0.45) * ch)
+            lw, lh = int(cw * 0.3), int(ch * 0.3)
+            cv2.rectangle(img, (lx, ly), (lx + lw, ly + lh), (235, 235, 230), -1)   # label
+            for k in range(3):
+                cv2.line(img, (lx + 4, ly + 6 + 7 * k), (lx + lw - 6, ly + 6 + 7 * k), (40, 40, 40), 2)
+            if rng.random() < 0.5:                           # printed logo
+                cv2.circle(img, (int(quad[0, 0] + 0.2 * cw), int(quad[0, 1] + 0.75 * ch)), 8, (60, 40, 30), -1)
+            truth.append(face)
+    return np.clip(img, 0, 255).astype(np.uint8), truth
+
+
+def _found(seed: int, **kw) -> tuple[int, int, list[float], int]:
+    rgb, truth = draw_stack(seed, **kw)
+    masks = PhotoSegmenter().segment(rgb, None)
+    pairs = match(masks, truth, 0.5)
+    return len(pairs), len(truth), [v for _, _, v in pairs], len(masks)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_every_carton_of_a_drawn_stack_is_one_mask(seed):
+    matched, n, ious, _ = _found(seed)
+    assert matched == n, (matched, n)
+    assert min(ious) > 0.8, ious      # labels and print inside a face belong to it
+
+
+def test_cartons_of_one_colour_are_kept_apart_by_their_seams():
+    matched, n, ious, _ = _found(3, similar=True, rows=2, cols=3)
+    assert matched == n and min(ious) > 0.8, (matched, n, ious)
+
+
+def test_background_alone_gives_no_carton():
+    rng = np.random.default_rng(0)
+    h, w = 240, 320
+    img = (np.linspace(140, 200, h)[:, None, None] * np.ones((1, w, 3)) + rng.normal(0, 3, (h, w, 3)))
+    img[int(h * 0.8):] = 100
+    masks = PhotoSegmenter().segment(np.clip(img, 0, 255).astype(np.uint8), None)
+    assert masks == [], [int(m.sum()) for m in masks]
+
+
+def test_masks_are_disjoint_full_size_and_the_same_for_the_same_image():
+    rgb, _ = draw_stack(5, size=(720, 960))            # larger than the work size: scaled back
+    a = PhotoSegmenter().segment(rgb, None)
+    b = PhotoSegmenter().segment(rgb, np.ones(rgb.shape[:2], np.float32))   # depth is ignored
+    assert a and all(m.shape == rgb.shape[:2] and m.dtype == bool for m in a)
+    assert np.max(np.sum(a, axis=0)) == 1
+    assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_a_seam_right_across_a_region_splits_it_and_print_does_not():
+    cfg = PhotoConfig()
+    mask = np.zeros((100, 200), bool)
+    mask[10:90, 20:180] = True
+    strong = np.zeros_like(mask)
+    strong[50, 20:180] = True                                        # a seam across it
+    strong[25, 40:110] = True                                        # a line of print: half way
+    parts = split_on_lines(mask, strong, cfg)
+    assert len(parts) == 2 and sorted(int(p.sum()) for p in parts) == [6240, 6560]
+    assert len(split_on_lines(mask, np.zeros_like(mask), cfg)) == 1
+
+
+def test_auto_uses_the_photo_segmenter_for_photos_and_depth_edges_for_rgbd():
+    from perception.errors import PerceptionError
+    from perception.segment import AutoSegmenter, for_capture, load_segmenter
+    from perception.segment_depth import DepthEdgeSegmenter
+
+    seg = AutoSegmenter("photo")
+    assert isinstance(for_capture(seg, has_depth=False), PhotoSegmenter)
+    assert isinstance(for_capture(seg, has_depth=True), DepthEdgeSegmenter)
+    # asked for explicitly, the depth segmenter still runs on photos with its rgb_only settings
+    photo_depth = for_capture(load_segmenter(None, "depth"), has_depth=False)
+    assert isinstance(photo_depth, DepthEdgeSegmenter)
+    assert photo_depth.config.rect_fill == DepthEdgeSegmenter().config.rgb_rect_fill
+    assert isinstance(load_segmenter(None, "photo"), PhotoSegmenter)
+    with pytest.raises(PerceptionError, match="photo"):
+        load_segmenter("w.pt", "photo")
