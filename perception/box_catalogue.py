@@ -46,6 +46,7 @@ class Catalogue:
     join_fill_loose: float = 0.75    # ... or this well when it is a type face within `tol`
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
     row_margin: float = 0.05         # m: a mask this far off every type face may be a row of 3+
+    weak_evidence: float = 0.5       # seam score enough to split such a mask into exactly two type faces
     faces: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -132,14 +133,18 @@ def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                     cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
     """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass,
-    `split_stepped_faces`, then `take_bridging_parts`; returns the masks and their measured faces (None where
+    `split_stepped_faces`, `take_bridging_parts`, then `regroup_pieces`; returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
     notes = notes if notes is not None else []
     masks = [np.asarray(m, bool) for m in masks]
     measured = [_measure(m, depth, camera, cat, cache) for m in masks]
     ok = [f for f in measured if f is not None]
-    share = sum(f.err <= cat.tol for f in ok) / max(len(ok), 1)
+    # by count or by area: a face cut into many pieces (a tape cross) must not outvote the faces
+    # around it
+    area = [float(f.mask.sum()) for f in ok]
+    share = max(sum(f.err <= cat.tol for f in ok) / max(len(ok), 1),
+                sum(a for f, a in zip(ok, area) if f.err <= cat.tol) / max(sum(area), 1.0))
     if share < cat.min_share:
         # not a capture of these box types (another warehouse, real data): leave it alone
         return masks, [None if f is None else f.face for f in measured]
@@ -147,11 +152,16 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     n = len(masks)
     masks = split_faces(masks, depth, camera, rgb, cat, notes, cache=cache)
     k = len(notes)
+    before = {id(m) for m in masks}
     masks = cut_l_shapes(masks, depth, camera, cat, notes, cache)
+    if len(notes) > k:       # an L-cut's rest may be a row of faces the first split saw merged
+        masks = split_faces(masks, depth, camera, rgb, cat, notes, cache=cache,
+                            only={id(m) for m in masks} - before)
     if len(masks) > n or len(notes) > k:     # a cut piece may join its own face's rest      # a row cut into faces may leave a piece of a face beside its rest
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
     masks = split_stepped_faces(masks, depth, camera, cat, notes, cache)
     masks = take_bridging_parts(masks, depth, camera, cat, notes, cache)
+    masks = regroup_pieces(masks, depth, camera, rgb, cat, notes, cache)
     faces = []
     for m in masks:
         f = _measure(m, depth, camera, cat, cache)
@@ -365,9 +375,10 @@ def _joined(a: np.ndarray, b: np.ndarray, face, taken: np.ndarray, depth: np.nda
 
 def split_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                 cat: Catalogue, notes: list[str] | None = None, max_parts: int = 4,
-                cache: dict | None = None) -> list[np.ndarray]:
+                cache: dict | None = None, only: set[int] | None = None) -> list[np.ndarray]:
     """Split a mask that is no type face at the line where it falls into two type faces,
-    when a seam (colour edge line or depth step) runs along that line."""
+    when a seam (colour edge line or depth step) runs along that line; `only`: ids of the
+    masks to look at (the rest are kept as they are)."""
     import cv2
 
     lab = None
@@ -376,6 +387,9 @@ def split_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb:
         lab[..., 1:] = (lab[..., 1:] - 128) * 2
     out: list[np.ndarray] = []
     for m in masks:
+        if only is not None and id(m) not in only:
+            out.append(m)
+            continue
         out.extend(_split_one(np.asarray(m, bool), depth, camera, lab, cat, notes, max_parts, cache,
                               others=masks))
     return out
@@ -428,7 +442,10 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
                 else:
                     wa, wb = p2 - np.quantile(t[a], 0.01), np.quantile(t[~a], 0.99) - p2
                 ea, eb = cat.error(wa, ha), cat.error(wb, hb)
-                if score < 1.0 or min(ea, eb) > cat.tol:
+                # two flush faces of one colour leave only a faint seam: a mask far off every type
+                # face that falls into exactly two type faces there is cut on weaker evidence
+                need = cat.weak_evidence if f.err > cat.row_margin and max(ea, eb) <= cat.tol else 1.0
+                if score < need or min(ea, eb) > cat.tol:
                     continue
                 rest = (wb, hb) if ea <= cat.tol else (wa, ha)
                 # (the weakest case: its type face must match to half the tolerance)
@@ -990,3 +1007,94 @@ def _bridge(m, i, pieces, out, depth, camera, cat, cache):
     if fu is None or fu.err > cat.tol:
         return None
     return rest, union, fr, fu
+
+
+def regroup_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
+                   cat: Catalogue, notes: list[str] | None = None, cache: dict | None = None,
+                   max_group: int = 4) -> list[np.ndarray]:
+    """Re-cut neighbouring masks that are no type faces along the faces' own seams: two stacked
+    cubes, each cut down its vertical tape, whose left halves and right halves merged (two
+    10x40 masks for two 20x20 faces); a face whose tape band gave its halves to the faces
+    above and below.
+
+    For a mask that is no type face and its neighbouring masks on its plane that are no type
+    faces either (a pair first, then all of them, up to `max_group`): their union (with the
+    unclaimed on-plane pixels between them) fills its rectangle >= `join_fill` and is cut by
+    `split_faces`' rule (sides within `join_tol`: masks grown apart measure a little wide) into
+    parts that are ALL type faces within `tol`; the masks become those parts. Nothing is done
+    where a part would be no type face."""
+    import cv2
+
+    out = [np.asarray(m, bool) for m in masks]
+    if len(out) < 2:
+        return out
+    lab = None
+    if rgb is not None:
+        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+        lab[..., 1:] = (lab[..., 1:] - 128) * 2
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    tried: set[frozenset] = set()
+    i = 0
+    while i < len(out):
+        m = out[i]
+        f = _measure(m, depth, camera, cat, cache)
+        if f is None or f.err <= cat.tol or border_sides(m):
+            i += 1
+            continue
+        near = _neighbour_pieces(i, out, k, depth, camera, cat, cache, plane=f.face)
+        groups = [[j] for j in near]
+        if 2 <= len(near) <= max_group - 1:
+            groups.append(near)
+        done = None
+        for g in groups:
+            key = frozenset(id(out[q]) for q in [i] + g)
+            if key in tried:
+                continue
+            tried.add(key)
+            done = _regroup(i, g, out, f, depth, camera, lab, cat, cache)
+            if done is not None:
+                break
+        if done is None:
+            i += 1
+            continue
+        group, parts = done
+        if notes is not None:
+            sizes = [_measure(p, depth, camera, cat, cache).face.size_cm for p in parts]
+            notes.append(f"re-cut {len(group)} masks that are no type faces "
+                         f"({', '.join(_measure(out[q], depth, camera, cat, cache).face.size_cm for q in group)}) "
+                         f"along their seams into {', '.join(sizes)} faces")
+        out = [o for q, o in enumerate(out) if q not in group] + parts
+        i = 0
+    return out
+
+
+def _regroup(i, g, out, f, depth, camera, lab, cat, cache):
+    """(indices of the masks, the type-face parts) when mask i and masks `g` re-cut into type
+    faces only; else None. See `regroup_pieces`."""
+    group = [i] + list(g)
+    rest = np.zeros_like(out[i])
+    for q in g:
+        rest |= out[q]
+    taken = np.zeros_like(out[i])
+    for q, o in enumerate(out):
+        if q not in group:
+            taken |= o
+    union, fill = _joined(out[i], rest, f.face, taken, depth, camera, cat)
+    if fill < cat.join_fill:
+        return None
+    fu = _measure(union, depth, camera, cat, None)
+    if fu is None or fu.err <= cat.tol:
+        return None         # a type face: `join_pieces`' business
+    others = [o for q, o in enumerate(out) if q not in group]
+    # the parts of masks grown apart may measure a little wide: cut at `join_tol`, as for a join,
+    # but keep the cut only when every part is a type face within `tol`
+    from dataclasses import replace
+
+    parts = _split_one(union, depth, camera, lab, replace(cat, tol=cat.join_tol), None, 4, None, None, others)
+    if len(parts) < 2 or len(parts) < len(group) - 1:
+        return None
+    for p in parts:
+        fp = _measure(p, depth, camera, cat, None)
+        if fp is None or fp.err > cat.tol:
+            return None
+    return group, parts

@@ -297,3 +297,107 @@ def test_a_tape_band_merged_with_the_face_above_is_given_back_to_its_face():
     # one piece only (the other taken by the side box's mask): the T is left as it is
     out, _ = apply_catalogue([up | band, left, right | side], cap.depth, cap.camera, cap.rgb, cat)
     assert any(mask_iou(m, up | band) > 0.99 for m in out)
+
+
+def _seam_under(upper: np.ndarray, faces: np.ndarray, rgb: np.ndarray, colour=(150, 115, 80)) -> None:
+    """Paint a 2 px seam line under `upper` over `faces` (where two flush boxes meet)."""
+    rows = np.flatnonzero(upper.any(axis=1))
+    band = np.zeros_like(upper)
+    band[rows[-1]:rows[-1] + 2] = True
+    rgb[band & faces] = colour
+
+
+def test_a_faint_seam_splits_a_mask_into_exactly_two_type_faces():
+    # two flush 31x23 faces of one colour (a 31x46 mask, far off every type face) with a seam one
+    # grey level darker: too faint for a split in general (evidence < 1), enough for one that
+    # leaves exactly two type faces (`weak_evidence`)
+    scene = Scene(Shelf(), (box("low", -0.10, 0.0, 0.31, 0.23), box("high", -0.10, 0.23, 0.31, 0.23),
+                            box("side", 0.25, 0.0, 0.23, 0.25)))
+    cap = cast(scene)
+    low, high, side = _front(cap, 1), _front(cap, 2), _front(cap, 3)
+    rgb = cap.rgb.copy()
+    rgb[low | high] = (180, 140, 95)
+    _seam_under(high, low | high, rgb, (179, 139, 94))
+    notes: list[str] = []
+    out = split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    assert len(out) == 3, notes
+    assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, high) for m in out) > 0.9
+    # the rule off (a seam must score 1): not split; no seam at all: not split either
+    assert len(split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue(weak_evidence=1.0))) == 2
+    rgb[low | high] = (180, 140, 95)
+    assert len(split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue())) == 2
+
+
+def test_the_catalogue_share_is_by_area_so_a_face_in_many_pieces_does_not_switch_it_off():
+    # a 50x17 face cut in four by a tape cross (whose pixels no mask claims) beside one 23x25
+    # face: one type face in five masks (under `min_share` by count), but most of the area
+    scene = Scene(Shelf(), (box("long", -0.2, 0.0, 0.50, 0.17), box("side", 0.25, 0.0, 0.23, 0.25)))
+    cap = cast(scene)
+    lng, side = _front(cap, 1), _front(cap, 2)
+    ys, xs = np.nonzero(lng)
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    rows, cols = np.arange(lng.shape[0])[:, None], np.arange(lng.shape[1])[None, :]
+    cross = lng & ((np.abs(rows - cy) <= 2) | (np.abs(cols - cx) <= 3))
+    quarters = [lng & ~cross & (a * (rows - cy) > 0) & (b * (cols - cx) > 0) for a in (-1, 1) for b in (-1, 1)]
+    notes: list[str] = []
+    out, _ = apply_catalogue(quarters + [side], cap.depth, cap.camera, cap.rgb, Catalogue(), notes)
+    assert len(out) == 2, notes
+    assert max(mask_iou(m, lng) for m in out) > 0.95 and max(mask_iou(m, side) for m in out) > 0.99
+
+
+def test_the_rest_of_an_l_cut_is_split_into_its_row_of_faces():
+    # three flush cubes of one colour (faint seams) merged with the left half of the long box on
+    # the floor beside them: an L that no first split can cut; the L-cut gives the long box its
+    # half back, and the rest (20x60) is then cut into the three cubes
+    scene = Scene(Shelf(), (box("c0", -0.25, 0.0, 0.20, 0.20), box("c1", -0.25, 0.20, 0.20, 0.20),
+                            box("c2", -0.25, 0.40, 0.20, 0.20), box("long", 0.10, 0.0, 0.50, 0.17),
+                            box("o1", 0.0, 0.17, 0.23, 0.25), box("o2", 0.25, 0.17, 0.20, 0.20)))
+    cap = cast(scene)
+    c0, c1, c2, lng, o1, o2 = (_front(cap, k) for k in range(1, 7))
+    stack = c0 | c1 | c2
+    rgb = cap.rgb.copy()
+    rgb[stack] = (180, 140, 95)
+    for upper in (c1, c2):
+        _seam_under(upper, stack, rgb)
+    cols = np.arange(lng.shape[1])[None, :]
+    xs = np.nonzero(lng)[1]
+    cut = int(xs.min() + 0.55 * np.ptp(xs))
+    ell, rest = stack | (lng & (cols < cut)), lng & (cols >= cut)
+    notes: list[str] = []
+    out, _ = apply_catalogue([ell, rest, o1, o2], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    assert any("L-shaped" in n for n in notes), notes
+    assert len(out) == 6, notes
+    for g in (c0, c1, c2, lng, o1, o2):
+        assert max(mask_iou(m, g) for m in out) > 0.9, notes
+
+
+def _halves_of_two_cubes(seam: bool):
+    """Two stacked 20x20 cubes of one colour, each cut down the middle by the segmenter and the
+    halves merged across the cubes' seam (two 10x40 masks), and a 31x25 face beside them."""
+    scene = Scene(Shelf(), (box("low", -0.10, 0.0, 0.20, 0.20), box("up", -0.10, 0.20, 0.20, 0.20),
+                            box("side", 0.22, 0.0, 0.31, 0.25)))
+    cap = cast(scene)
+    low, up, side = (_front(cap, k) for k in (1, 2, 3))
+    rgb = cap.rgb.copy()
+    rgb[low | up] = (180, 140, 95)
+    if seam:
+        _seam_under(up, low | up, rgb)
+    cols = np.arange(low.shape[1])[None, :]
+    cx = int(np.median(np.nonzero(low)[1]))
+    return cap, rgb, low, up, side, (low | up) & (cols < cx), (low | up) & (cols >= cx)
+
+
+def test_masks_that_are_no_type_faces_are_re_cut_along_their_seams_into_type_faces():
+    cap, rgb, low, up, side, left, right = _halves_of_two_cubes(seam=True)
+    cat = Catalogue()
+    assert not cat.matches(*_size(left, cap)) and not cat.matches(*_size(right, cap))
+    notes: list[str] = []
+    out, _ = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat, notes)
+    assert len(out) == 3, notes
+    for g in (low, up, side):
+        assert max(mask_iou(m, g) for m in out) > 0.95, notes
+    assert any("re-cut 2 masks" in n for n in notes), notes
+    # no seam between the cubes: nothing says where to cut, the halves stay
+    cap, rgb, low, up, side, left, right = _halves_of_two_cubes(seam=False)
+    out, _ = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat)
+    assert any(mask_iou(m, left) > 0.99 for m in out) and any(mask_iou(m, right) > 0.99 for m in out)
