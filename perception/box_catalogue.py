@@ -133,7 +133,7 @@ def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                     cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
     """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass,
-    `split_stepped_faces`, `take_bridging_parts`, then `regroup_pieces`; returns the masks and their measured faces (None where
+    `split_stepped_faces`, `take_bridging_parts`, `regroup_pieces` (and a join pass after it); returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
     notes = notes if notes is not None else []
@@ -161,7 +161,10 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
     masks = split_stepped_faces(masks, depth, camera, cat, notes, cache)
     masks = take_bridging_parts(masks, depth, camera, cat, notes, cache)
+    k = len(notes)
     masks = regroup_pieces(masks, depth, camera, rgb, cat, notes, cache)
+    if len(notes) > k:      # a piece beside a re-cut face (a label, a tape quarter) may join it now
+        masks = join_pieces(masks, depth, camera, cat, notes, cache)
     faces = []
     for m in masks:
         f = _measure(m, depth, camera, cat, cache)

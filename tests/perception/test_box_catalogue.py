@@ -401,3 +401,26 @@ def test_masks_that_are_no_type_faces_are_re_cut_along_their_seams_into_type_fac
     cap, rgb, low, up, side, left, right = _halves_of_two_cubes(seam=False)
     out, _ = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat)
     assert any(mask_iou(m, left) > 0.99 for m in out) and any(mask_iou(m, right) > 0.99 for m in out)
+
+
+def test_a_label_beside_re_cut_faces_is_joined_to_its_face_afterwards():
+    # two stacked 23x31 faces cut down the middle, halves merged (two 12x62 masks: no type face,
+    # and too long to be part of one, so the label on the lower face joins neither before)
+    scene = Scene(Shelf(), (box("low", -0.10, 0.0, 0.23, 0.31), box("up", -0.10, 0.31, 0.23, 0.31),
+                            box("side", 0.22, 0.0, 0.31, 0.25)))
+    cap = cast(scene)
+    low, up, side = (_front(cap, k) for k in (1, 2, 3))
+    rgb = cap.rgb.copy()
+    rgb[low | up] = (180, 140, 95)
+    _seam_under(up, low | up, rgb)
+    rows, cols = np.arange(low.shape[0])[:, None], np.arange(low.shape[1])[None, :]
+    ys, xs = np.nonzero(low)
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    left, right = (low | up) & (cols < cx), (low | up) & (cols >= cx)
+    label = low & (np.abs(rows - cy) <= 6) & (cols >= cx) & (cols < cx + 14)
+    notes: list[str] = []
+    out, _ = apply_catalogue([left, right & ~label, label, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    assert len(out) == 3, notes
+    for g in (low, up, side):
+        assert max(mask_iou(m, g) for m in out) > 0.95, notes
+    assert notes[-1].startswith("joined"), notes
