@@ -133,7 +133,8 @@ def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                     cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
     """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass,
-    `split_stepped_faces`, `take_bridging_parts`, `regroup_pieces` (and a join pass after it); returns the masks and their measured faces (None where
+    `split_stepped_faces`, `take_bridging_parts`, `regroup_pieces` (and a join pass after it),
+    then `absorb_enclosed`; returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
     notes = notes if notes is not None else []
@@ -165,6 +166,7 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     masks = regroup_pieces(masks, depth, camera, rgb, cat, notes, cache)
     if len(notes) > k:      # a piece beside a re-cut face (a label, a tape quarter) may join it now
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
+    masks = absorb_enclosed(masks, depth, camera, cat, notes, cache)
     faces = []
     for m in masks:
         f = _measure(m, depth, camera, cat, cache)
@@ -1101,3 +1103,69 @@ def _regroup(i, g, out, f, depth, camera, lab, cat, cache):
         if fp is None or fp.err > cat.tol:
             return None
     return group, parts
+
+
+def absorb_enclosed(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
+                    notes: list[str] | None = None, cache: dict | None = None,
+                    ring_px: int = 3, enclosed: float = 0.75) -> list[np.ndarray]:
+    """Give a piece (no type face) that another mask on its plane surrounds to that mask: a
+    label or a tape band inside a face whose mask is itself a little off its type (it took a
+    strip of the box below), so no join makes a type face of them. A box's face is never
+    inside another box's face on one plane, so the piece needs no type to be explained.
+
+    Surrounded: >= `enclosed` of the `ring_px` ring around the piece (inside the image) is
+    that mask, which is at least twice the piece's area, and the piece lies on its plane."""
+    import cv2
+
+    out = [np.asarray(m, bool) for m in masks]
+    if len(out) < 2:
+        return out
+    k = np.ones((2 * ring_px + 1,) * 2, np.uint8)
+    changed = True
+    while changed:
+        changed = False
+        for i, m in enumerate(out):
+            f = _measure(m, depth, camera, cat, cache)
+            if f is None or f.err <= cat.tol or border_sides(m):
+                continue
+            ring = (cv2.dilate(m.astype(np.uint8), k) > 0) & ~m
+            if not ring.any():
+                continue
+            claimed = np.zeros_like(ring)
+            for j, o in enumerate(out):
+                if j != i:
+                    claimed |= ring & o
+            for j, o in enumerate(out):
+                if j == i or not (ring & o).any() or o.sum() < 2 * m.sum():
+                    continue
+                fo = _measure(o, depth, camera, cat, cache)
+                if fo is None or _plane_dist(fo.face, m, depth, camera) > cat.plane_tol:
+                    continue
+                # the ring that counts: pixels of any mask, or on the mask's plane (a gap to the
+                # background or a box further back around a face's edge does not)
+                n = int((claimed | (ring & _on_plane(fo.face, ring, depth, camera, cat.plane_tol))).sum())
+                if n == 0 or int((ring & o).sum()) < enclosed * n:
+                    continue
+                if notes is not None:
+                    notes.append(f"gave a {f.face.size_cm} piece inside a {fo.face.size_cm} mask to it")
+                out[j] = o | m
+                out.pop(i)
+                changed = True
+                break
+            if changed:
+                break
+    return out
+
+
+def _on_plane(face, where: np.ndarray, depth: np.ndarray, camera: Camera, tol: float) -> np.ndarray:
+    """The pixels of `where` whose depth point lies within `tol` of the plane of `face`."""
+    from perception.boxes import face_axes
+    from perception.geometry import backproject
+
+    out = np.zeros_like(where)
+    ys, xs = np.nonzero(where & np.isfinite(depth) & (depth > 0))
+    if len(xs):
+        p = backproject(camera, xs.astype(np.float64), ys.astype(np.float64), depth[ys, xs].astype(np.float64))
+        near = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1]) <= tol
+        out[ys[near], xs[near]] = True
+    return out

@@ -424,3 +424,29 @@ def test_a_label_beside_re_cut_faces_is_joined_to_its_face_afterwards():
     for g in (low, up, side):
         assert max(mask_iou(m, g) for m in out) > 0.95, notes
     assert notes[-1].startswith("joined"), notes
+
+
+def test_a_piece_inside_a_mask_on_its_plane_is_given_to_it_but_a_box_in_front_is_not():
+    # an upright 17x50 face whose mask also took ~5 cm of the cube below (17x55: no type face, so
+    # no join explains the tape band inside it), and the band as a separate piece
+    from perception.box_catalogue import absorb_enclosed
+
+    cat = Catalogue()
+    scene = Scene(Shelf(), (box("cube", -0.10, 0.0, 0.20, 0.20), box("long", -0.10, 0.20, 0.17, 0.50),
+                            box("side", 0.22, 0.0, 0.31, 0.25),
+                            box("small", -0.10, 0.40, 0.10, 0.06, d=0.05, front=-0.04)))
+    cap = cast(scene)
+    cube, lng, side, small = (_front(cap, k) for k in (1, 2, 3, 4))
+    rows, cols = np.arange(cube.shape[0])[:, None], np.arange(cube.shape[1])[None, :]
+    strip = cube & (rows < np.flatnonzero(cube.any(axis=1))[0] + 15)
+    ys, xs = np.nonzero(lng & (rows > np.flatnonzero(small.any(axis=1))[-1] + 12))
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    band = lng & (np.abs(rows - cy) <= 8) & (np.abs(cols - cx) <= 16)
+    host = (lng | strip) & ~band
+    assert not cat.matches(*_size(host, cap)) and not cat.matches(*_size(band, cap))
+    notes: list[str] = []
+    out = absorb_enclosed([host, band, small, cube & ~strip, side], cap.depth, cap.camera, cat, notes)
+    assert len(out) == 4, notes
+    assert any(mask_iou(m, host | band) > 0.99 for m in out), notes
+    # the small box 4 cm in front of the face, surrounded by it in the image, stays a box
+    assert any(mask_iou(m, small) > 0.99 for m in out), notes
