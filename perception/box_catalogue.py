@@ -1107,14 +1107,16 @@ def _regroup(i, g, out, f, depth, camera, lab, cat, cache):
 
 def absorb_enclosed(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
                     notes: list[str] | None = None, cache: dict | None = None,
-                    ring_px: int = 3, enclosed: float = 0.75) -> list[np.ndarray]:
+                    ring_px: int = 3, enclosed: float = 0.75, surround: float = 0.6) -> list[np.ndarray]:
     """Give a piece (no type face) that another mask on its plane surrounds to that mask: a
     label or a tape band inside a face whose mask is itself a little off its type (it took a
     strip of the box below), so no join makes a type face of them. A box's face is never
     inside another box's face on one plane, so the piece needs no type to be explained.
 
-    Surrounded: >= `enclosed` of the `ring_px` ring around the piece (inside the image) is
-    that mask, which is at least twice the piece's area, and the piece lies on its plane."""
+    Surrounded: >= `enclosed` of the `ring_px` ring around the piece is that mask (counting only
+    ring pixels of masks or on the mask's plane: the gap to the background at a box's edge does
+    not count) and >= `surround` of the whole ring; the mask is at least twice the piece's area,
+    and the piece lies on its plane."""
     import cv2
 
     out = [np.asarray(m, bool) for m in masks]
@@ -1143,8 +1145,11 @@ def absorb_enclosed(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
                     continue
                 # the ring that counts: pixels of any mask, or on the mask's plane (a gap to the
                 # background or a box further back around a face's edge does not)
+                # and the mask itself must lie all round it (a part of a face at its edge, beside
+                # the mask on one side only, is no label)
                 n = int((claimed | (ring & _on_plane(fo.face, ring, depth, camera, cat.plane_tol))).sum())
-                if n == 0 or int((ring & o).sum()) < enclosed * n:
+                hit = int((ring & o).sum())
+                if n == 0 or hit < enclosed * n or hit < surround * int(ring.sum()):
                     continue
                 if notes is not None:
                     notes.append(f"gave a {f.face.size_cm} piece inside a {fo.face.size_cm} mask to it")
