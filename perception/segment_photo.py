@@ -1,86 +1,83 @@
-"""Cartons in photos without depth: superpixels, a merge tree, and the best cut of it.
+"""Cartons in photos without depth: candidate regions from an edge map, carton-shaped ones kept.
 
 With no depth nothing but colour and edges separates two cartons, and the depth-and-edge
 segmenter run on a flat stand-in depth leaves big smooth blobs that span several cartons and
-the background. This segmenter works on what a carton photo does show:
-1. an edge map: colour gradient (Lab) plus thin DARK lines (black-hat: the shadowed seams
-   between cartons), normalised per photo;
-2. superpixels: a watershed of that map from a grid of seeds;
-3. a merge tree: neighbouring regions are joined weakest boundary first (mean edge strength
-   along the common border plus their colour difference; small pieces such as printed letters
-   go first), every join is a candidate region, up to the whole photo;
-4. the best cut of the tree: each candidate scores area x (shape quality - `q0` - `seam_cost`
-   x the strength of the boundary it was joined across); shape quality is how convex the
-   (hole-filled: labels and tape inside belong to it) region is and how well its convex hull
-   fills its min-area rectangle (carton faces are quadrilaterals, a whole carton seen at an
-   angle a hexagon). A region that is too small, too large or spans the photo from border to
-   border (floor, ceiling, racks) scores nothing. The set of disjoint candidates with the
-   highest total is taken (a tree DP), so a region is kept whole only when it beats its parts.
-5. each kept region becomes its convex hull (cartons are convex; hull pixels another kept
-   region holds stay with that region), scaled back to the photo.
-No learned weights; opencv, numpy and scipy only.
+the background. This segmenter works on what a carton photo does show (at `work_side` px):
+1. an edge map: Lab colour gradient plus thin DARK lines (black-hat: the shadowed seams
+   between cartons), normalised per photo but never below an absolute floor (a plain wall's
+   noise is no edge);
+2. candidate regions, from two sources: the connected low-edge components at several edge
+   thresholds (`levels`), each after closing seam gaps of 0-3 px (`gaps`: erode, label,
+   dilate back); and every node of a merge tree of watershed superpixels (neighbours joined
+   weakest mean border first, small pieces such as printed letters early);
+3. a score per candidate: half shape (its hole-filled mask against its min-area rectangle or
+   its convex hull: a face is a quadrilateral, a whole carton seen at an angle a hexagon;
+   labels and tape inside a face are holes and are filled), half outline support (the share
+   of its outline on an edge: a carton's border is seen, a piece cut out of a face by its
+   printing or a patch of wall mostly is not); too small (`min_frac`, the 5th percentile of
+   the tune cartons), too large, or spanning the photo border to border (floor, ceiling,
+   racks): no candidate;
+4. selection, best score first: a candidate that >= 2 disjoint candidates scoring nearly as
+   well split (a seam shows at a stricter level: two cartons) is dropped; one that is not
+   split takes the small good candidates inside it (labels, print); one mostly covered by
+   those already taken is dropped;
+5. each kept region is the convex hull of its candidate (cartons are convex), minus pixels
+   already taken, scaled back to the photo.
+No learned weights; opencv, numpy and scipy. Figures: docs/perception-photos.md.
 """
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
+Candidate = tuple[float, tuple[int, int, int, int], np.ndarray]   # score, (y0, x0, y1, x1), mask in that box
 
 
 @dataclass(frozen=True)
 class PhotoConfig:
+    """Tuned on RCAN 418, 455, 547, 587, 633, 656 only (docs/perception-photos.md)."""
+
     work_side: int = 480          # px: the photo's long side while segmenting
-    seed_px: int = 10             # px (at work size) between superpixel seeds
     blur_sigma: float = 1.2
-    seam_px: int = 9              # black-hat window: seams thinner than this count as edges
-    seam_weight: float = 1.0      # weight of the dark-seam map against the colour gradient
     grad_floor: float = 80.0      # Lab Sobel magnitude that is an edge in any photo
+    seam_px: int = 9              # black-hat window: dark lines thinner than this are seams
     seam_floor: float = 20.0      # L units a seam is darker than its surround in any photo
-    colour_weight: float = 0.5    # weight of the mean-colour difference in the merge order
-    small_frac: float = 0.004     # regions below this fraction of the photo merge first
-    q0: float = 0.6              # shape quality a region must beat to count
-    seam_cost: float = 0.5        # penalty per unit of edge strength a region was joined across
-    min_frac: float = 0.003       # smallest carton: fraction of the photo
-    max_frac: float = 0.45        # largest carton: fraction of the photo
-    convex: bool = True           # output each region's convex hull
-    levels: tuple[float, ...] = (0.15, 0.25, 0.35, 0.5)   # edge-map thresholds
+    seam_weight: float = 1.0      # weight of the dark-seam map against the colour gradient
+    levels: tuple[float, ...] = (0.15, 0.25, 0.35, 0.5)   # edge thresholds for components
     gaps: tuple[int, ...] = (0, 1, 2, 3)                 # px: seam gaps closed (erosion radius)
-    max_overlap: float = 0.2
-    split_lines: bool = True      # cut a region along a straight edge line that crosses all of it
-    line_edge: float = 0.5        # edge strength of a seam line
-    line_cover: float = 0.85      # share of such a line's length that must be on an edge
-    line_min_part: float = 0.2    # each side of the cut holds at least this share of the region
-    line_max_deg: float = 8.0     # lines within this many degrees of the region's axes
-    area_order: bool = False      # take regions by area x (score - q0 + area_bias), not by score
-    area_bias: float = 0.05
-    nest_max: float = 0.3         # a good region inside another, below this share of it, is a detail of it
+    tree: bool = True             # add the superpixel merge tree's regions to the candidates
+    seed_px: int = 10             # px between superpixel seeds
+    colour_weight: float = 0.5    # weight of the mean-colour difference in the merge order
+    small_frac: float = 0.004     # regions below this share of the photo merge first
+    min_frac: float = 0.006       # smallest carton: share of the photo
+    max_frac: float = 0.45        # largest carton: share of the photo
     support_edge: float = 0.3     # edge strength that counts as outline support
     min_support: float = 0.5      # least share of the outline on an edge
-    support_weight: float = 0.5   # weight of outline support against shape quality in the score
-    tree: bool = True             # add the superpixel merge tree's regions to the candidates
-    split_min_part: float = 0.08  # a part that splits a candidate holds at least this share of it
-    split_margin: float = 0.1     # parts score at least the region's score minus this
+    support_weight: float = 0.5   # weight of outline support against shape in the score
+    q0: float = 0.55              # score a region must reach to be a carton
+    split_min_part: float = 0.08  # a part that splits a candidate holds at least this share
+    split_margin: float = 0.1     # and scores at least the candidate's score minus this
     split_cover: float = 0.45     # parts that cover this share of a candidate split it
+    nest_max: float = 0.3         # a good region inside another, below this share of it, is a detail
+    max_overlap: float = 0.2      # a region this much covered by those taken is dropped
 
     def to_json(self) -> dict:
-        return dict(vars(self))
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in vars(self).items()}
 
     @classmethod
     def from_json(cls, d: dict) -> "PhotoConfig":
-        return cls(**d)
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
 @dataclass
 class _Node:
+    """A region of the superpixel merge tree."""
+
     area: int
     bbox: tuple[int, int, int, int]       # y0, x0, y1, x1 (exclusive)
     leaves: list[int]
-    children: tuple[int, ...] = ()
-    height: float = 0.0                  # edge strength of the boundary it was joined across
-    own: float = 0.0
-    quality: float = 0.0
-    extra: dict = field(default_factory=dict)
 
 
 def edge_map(rgb: np.ndarray, cfg: PhotoConfig) -> np.ndarray:
@@ -139,63 +136,6 @@ def _adjacency(lab: np.ndarray, edges: np.ndarray, n: int) -> dict[tuple[int, in
     return {(int(c // n), int(c % n)): (float(sm), int(ct)) for c, sm, ct in zip(uniq, sums, cnts)}
 
 
-def split_on_lines(mask: np.ndarray, strong: np.ndarray, cfg: PhotoConfig, depth: int = 0) -> list[np.ndarray]:
-    """Cut `mask` along the straight line of edge pixels (within `line_max_deg` of horizontal
-    or vertical) that crosses it most completely, when that line is >= `line_cover` on an edge
-    and leaves >= `line_min_part` of the area on each side; then the same for each side.
-    Why: two cartons stacked flush make one rectangle; the seam between them is a straight
-    edge right across it, printing and labels rarely are."""
-    if depth == 0:
-        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-        if len(rows) == 0:
-            return [mask]
-        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-        out = []
-        for part in split_on_lines(mask[y0:y1, x0:x1], strong[y0:y1, x0:x1], cfg, 1):
-            full = np.zeros_like(mask)
-            full[y0:y1, x0:x1] = part
-            out.append(full)
-        return out
-    ys, xs = np.nonzero(mask)
-    n = len(ys)
-    if n < 50 or depth > 4:
-        return [mask]
-    on = strong[ys, xs]
-    best = None
-    for axis in (0, 1):
-        u, v = (ys, xs) if axis == 0 else (xs, ys)       # cut across u = const (+ tilt)
-        vc = float(v.mean())
-        for deg in np.arange(-cfg.line_max_deg, cfg.line_max_deg + 1e-6, 2.0):
-            t = np.tan(np.radians(deg))
-            b = np.round(u - t * (v - vc)).astype(np.int64)
-            b0 = int(b.min())
-            b = b - b0
-            tot = np.bincount(b)
-            hit = np.bincount(b, weights=on)
-            # a seam is 1-3 px wide: take the best of 3 neighbouring bins
-            pad = np.pad(hit, 1)
-            hit3 = np.maximum(np.maximum(pad[:-2], pad[1:-1]), pad[2:])
-            length = np.maximum(tot, 1)
-            frac = hit3 / length
-            cum = np.cumsum(tot) / n
-            ok = (cum >= cfg.line_min_part) & (cum <= 1.0 - cfg.line_min_part) & (tot >= 10)
-            if not ok.any():
-                continue
-            k = int(np.argmax(np.where(ok, frac, -1)))
-            k = max(0, k - 1) + int(np.argmax(hit[max(0, k - 1):k + 2]))   # onto the seam itself
-            if frac[k] >= cfg.line_cover and (best is None or frac[k] > best[0]):
-                best = (float(frac[k]), axis, float(t), vc, k + b0)
-    if best is None:
-        return [mask]
-    _, axis, t, vc, cut = best
-    yy, xx = np.indices(mask.shape)
-    u, v = (yy, xx) if axis == 0 else (xx, yy)
-    side = np.round(u - t * (v - vc)) <= cut
-    out = []
-    for part in (mask & side, mask & ~side):
-        out.extend(split_on_lines(part, strong, cfg, depth + 1))
-    return out
-
 
 class PhotoSegmenter:
     """Carton masks in an RGB photo (depth ignored); see the module docstring."""
@@ -205,8 +145,8 @@ class PhotoSegmenter:
     def __init__(self, config: PhotoConfig | None = None):
         self.config = config or PhotoConfig()
 
-    # ------------------------------------------------------------------
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
+        """One HxW bool mask per carton found, disjoint; `depth` is not used."""
         import cv2
 
         cfg = self.config
@@ -220,9 +160,8 @@ class PhotoSegmenter:
         s = min(1.0, cfg.work_side / max(H, W))
         small = cv2.resize(rgb, (max(1, round(W * s)), max(1, round(H * s))),
                            interpolation=cv2.INTER_AREA) if s < 1.0 else rgb
-        regions = self.regions(small)
         out = []
-        for m in regions:
+        for m in self.regions(small):
             if s < 1.0:
                 m = cv2.resize(m.astype(np.uint8) * 255, (W, H), interpolation=cv2.INTER_LINEAR) > 127
             if m.any():
@@ -236,19 +175,12 @@ class PhotoSegmenter:
         cands = self.candidates(edges)
         if cfg.tree:
             cands += self.tree_candidates(rgb, edges)
-        cands = self.rescore(cands, edges)
-        kept = self._select(cands, edges.shape)
-        if cfg.split_lines:
-            strong = edges >= cfg.line_edge
-            out = []
-            for m in kept:
-                out.extend(split_on_lines(m, strong, cfg))
-            kept = out
-        return kept
+        return self._select(self.rescore(cands, edges), edges.shape)
 
-    def rescore(self, cands, edges: np.ndarray):
-        """Quality x how much of the region's outline runs along an edge (a seam or a carton's
-        border against the background); a region cut out of one face by printing has less."""
+    def rescore(self, cands: list[Candidate], edges: np.ndarray) -> list[Candidate]:
+        """Score = half shape quality, half outline support: the share of the region's outline
+        that runs along an edge (a seam or a carton's border against the background); a piece
+        cut out of one face by its printing, or a patch of wall, has less."""
         import cv2
 
         cfg = self.config
@@ -266,7 +198,7 @@ class PhotoSegmenter:
             out.append(((1 - cfg.support_weight) * q + cfg.support_weight * support, (y0, x0, y1, x1), f))
         return out
 
-    def tree_candidates(self, rgb: np.ndarray, edges: np.ndarray):
+    def tree_candidates(self, rgb: np.ndarray, edges: np.ndarray) -> list[Candidate]:
         """(quality, bbox, mask in bbox) of every node of the superpixel merge tree."""
         cfg = self.config
         h, w = edges.shape
@@ -283,12 +215,12 @@ class PhotoSegmenter:
                 continue
             lut = np.zeros(nl, np.uint8)
             lut[nd.leaves] = 1
-            c = self._quality(lut[lab[y0:y1, x0:x1]], cfg.convex)
+            c = self._quality(lut[lab[y0:y1, x0:x1]])
             if c is not None:
                 out.append((c[0], (y0, x0, y1, x1), c[1]))
         return out
 
-    def candidates(self, edges: np.ndarray) -> list[tuple[float, tuple[int, int, int, int], np.ndarray]]:
+    def candidates(self, edges: np.ndarray) -> list[Candidate]:
         """(quality, bbox, filled mask in bbox) of every low-edge component at every level."""
         import cv2
 
@@ -315,7 +247,7 @@ class PhotoSegmenter:
                     m = (lab[Y0:Y1, X0:X1] == i).astype(np.uint8)
                     if d:
                         m = cv2.dilate(m, k)
-                    c = self._quality(m, cfg.convex)
+                    c = self._quality(m)
                     if c is None:
                         continue
                     q, filled = c
@@ -325,9 +257,10 @@ class PhotoSegmenter:
         return out
 
     @staticmethod
-    def _quality(m: np.ndarray, convex: bool = True) -> tuple[float, np.ndarray] | None:
+    def _quality(m: np.ndarray) -> tuple[float, np.ndarray] | None:
         """How much the hole-filled region looks like one carton: its IoU with its min-area
-        rectangle, and with its convex hull (a whole carton seen at an angle)."""
+        rectangle, and with its convex hull (a whole carton seen at an angle); and the hull,
+        the mask the region is kept as."""
         import cv2
 
         cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
@@ -345,14 +278,11 @@ class PhotoSegmenter:
         q_rect = inter / (fa + float(rect.sum()) - inter)
         hull = cv2.convexHull(cnt)
         q_hull = fa / max(fa, float(cv2.contourArea(hull)) + 0.5 * cv2.arcLength(hull, True))
-        out = filled.astype(bool)
-        if convex:
-            hm = np.zeros_like(m)
-            cv2.fillPoly(hm, [hull], 1)
-            out = hm > 0
-        return max(q_rect, q_hull - 0.05), out
+        hm = np.zeros_like(m)
+        cv2.fillPoly(hm, [hull], 1)
+        return max(q_rect, q_hull - 0.05), hm > 0
 
-    def _select(self, cands, shape) -> list[np.ndarray]:
+    def _select(self, cands: list[Candidate], shape: tuple[int, int]) -> list[np.ndarray]:
         """Best score first; a candidate that two or more good candidates split (a seam shows at
         a stricter level) is dropped, a good one that is not split takes the small ones inside
         it (labels, tape, print), and one mostly covered by those already taken is dropped."""
@@ -426,6 +356,9 @@ class PhotoSegmenter:
 
     # ------------------------------------------------------------------
     def _merge_tree(self, rgb: np.ndarray, lab: np.ndarray, edges: np.ndarray) -> list[_Node]:
+        """Superpixels joined pairwise, weakest border first (mean edge strength along it plus
+        the mean-colour difference; pieces below `small_frac` of the photo first), up to one
+        region: every join is a node."""
         import cv2
 
         cfg = self.config
@@ -467,12 +400,11 @@ class PhotoSegmenter:
             _, a, b = heapq.heappop(heap)
             if not (alive[a] and alive[b]):
                 continue
-            sm, ct = nbr[a][b]
             na, nb = nodes[a], nodes[b]
             c = len(nodes)
             bb = (min(na.bbox[0], nb.bbox[0]), min(na.bbox[1], nb.bbox[1]),
                   max(na.bbox[2], nb.bbox[2]), max(na.bbox[3], nb.bbox[3]))
-            nodes.append(_Node(na.area + nb.area, bb, na.leaves + nb.leaves, (a, b), sm / ct))
+            nodes.append(_Node(na.area + nb.area, bb, na.leaves + nb.leaves))
             colsum.append(colsum[a] + colsum[b])
             alive[a] = alive[b] = False
             alive.append(True)
@@ -492,79 +424,3 @@ class PhotoSegmenter:
                 nbr[k][c] = e
                 heapq.heappush(heap, (prio(c, k), c, k) if c < k else (prio(k, c), k, c))
         return nodes
-
-    def _score(self, nodes: list[_Node], lab: np.ndarray) -> None:
-        import cv2
-
-        cfg = self.config
-        h, w = lab.shape
-        total = h * w
-        nl = int(lab.max()) + 1
-        for nd in nodes:
-            nd.own = 0.0
-            if not cfg.min_frac * total <= nd.area <= cfg.max_frac * total:
-                continue
-            y0, x0, y1, x1 = nd.bbox
-            sides = (y0 <= 1) + (x0 <= 1) + (y1 >= h - 1) + (x1 >= w - 1)
-            if sides >= 3 or ((y0 <= 1 and y1 >= h - 1) or (x0 <= 1 and x1 >= w - 1)):
-                continue
-            lut = np.zeros(nl, np.uint8)
-            lut[nd.leaves] = 1
-            m = lut[lab[y0:y1, x0:x1]]
-            cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            if not cnts:
-                continue
-            cnt = max(cnts, key=cv2.contourArea)
-            filled = float(cv2.contourArea(cnt))
-            hull = cv2.convexHull(cnt)
-            ha = float(cv2.contourArea(hull))
-            (_, _), (rw, rh), _ = cv2.minAreaRect(hull)
-            if ha <= 0 or rw * rh <= 0:
-                continue
-            solidity = filled / ha
-            rectfill = ha / (rw * rh)
-            q = solidity * rectfill ** 0.5
-            nd.quality = q
-            nd.extra["hull"] = hull + np.array([[x0, y0]])
-            nd.own = nd.area * (q - cfg.q0 - cfg.seam_cost * nd.height)
-
-    @staticmethod
-    def _best_cut(nodes: list[_Node]) -> list[int]:
-        best = [0.0] * len(nodes)
-        take = [False] * len(nodes)
-        for i, nd in enumerate(nodes):
-            sub = sum(best[c] for c in nd.children)
-            if nd.own > 0 and nd.own > sub:
-                best[i], take[i] = nd.own, True
-            else:
-                best[i] = sub
-        child = {c for nd in nodes for c in nd.children}
-        keep, stack = [], [i for i in range(len(nodes)) if i not in child]
-        while stack:
-            i = stack.pop()
-            if take[i]:
-                keep.append(i)
-            else:
-                stack.extend(nodes[i].children)
-        return keep
-
-    def _masks(self, nodes: list[_Node], keep: list[int], lab: np.ndarray) -> list[np.ndarray]:
-        import cv2
-
-        h, w = lab.shape
-        nl = int(lab.max()) + 1
-        owner = np.full(nl, -1, np.int64)
-        for k, i in enumerate(keep):
-            owner[nodes[i].leaves] = k
-        own_map = owner[lab]
-        out = []
-        for k, i in enumerate(keep):
-            base = own_map == k
-            if self.config.convex and "hull" in nodes[i].extra:
-                hull = np.zeros((h, w), np.uint8)
-                cv2.fillPoly(hull, [nodes[i].extra["hull"].astype(np.int32)], 1)
-                m = base | ((hull > 0) & (own_map < 0))
-            else:
-                m = base
-            out.append(m)
-        return out

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from perception.bench import match
-from perception.segment_photo import PhotoConfig, PhotoSegmenter, split_on_lines
+from perception.segment_photo import PhotoConfig, PhotoSegmenter, edge_map
 
 
 def draw_stack(seed: int, rows: int = 3, cols: int = 3, similar: bool = False,
@@ -87,16 +87,18 @@ def test_masks_are_disjoint_full_size_and_the_same_for_the_same_image():
     assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
 
 
-def test_a_seam_right_across_a_region_splits_it_and_print_does_not():
-    cfg = PhotoConfig()
-    mask = np.zeros((100, 200), bool)
-    mask[10:90, 20:180] = True
-    strong = np.zeros_like(mask)
-    strong[50, 20:180] = True                                        # a seam across it
-    strong[25, 40:110] = True                                        # a line of print: half way
-    parts = split_on_lines(mask, strong, cfg)
-    assert len(parts) == 2 and sorted(int(p.sum()) for p in parts) == [6240, 6560]
-    assert len(split_on_lines(mask, np.zeros_like(mask), cfg)) == 1
+def test_edge_map_marks_a_dark_seam_and_not_a_plain_wall():
+    rng = np.random.default_rng(1)
+    img = np.full((120, 160, 3), 170.0) + rng.normal(0, 3, (120, 160, 3))
+    img[:, 80:82] = 60                                    # a 2 px dark seam
+    e = edge_map(np.clip(img, 0, 255).astype(np.uint8), PhotoConfig())
+    assert e[:, 79:83].max(axis=1).min() > 0.8            # all along the seam
+    assert np.percentile(e[:, :60], 99) < 0.15            # noise on the wall is no edge
+
+
+def test_config_round_trips_through_json():
+    cfg = PhotoConfig(levels=(0.2, 0.4), q0=0.6)
+    assert PhotoConfig.from_json(cfg.to_json()) == cfg
 
 
 def test_auto_uses_the_photo_segmenter_for_photos_and_depth_edges_for_rgbd():
