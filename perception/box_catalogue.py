@@ -47,14 +47,26 @@ class Catalogue:
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
     row_margin: float = 0.05         # m: a mask this far off every type face may be a row of 3+
     weak_evidence: float = 0.5       # seam score enough to split such a mask into exactly two type faces
+    max_depth: float | None = None   # m: a face whose box is deeper than this cannot face the front
     faces: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         fs = set()
         for t in self.types:
-            for a, b in itertools.permutations(t, 2):
-                fs.add((round(float(a), 4), round(float(b), 4)))
+            for i, j in itertools.permutations(range(3), 2):
+                d = float(t[3 - i - j])
+                if self.max_depth is not None and d > self.max_depth + 1e-9:
+                    continue
+                fs.add((round(float(t[i]), 4), round(float(t[j]), 4)))
         object.__setattr__(self, "faces", tuple(sorted(fs)))
+
+    def within(self, depth: float | None) -> "Catalogue":
+        """Only the faces a box can show in a shelf this deep (its third side fits): in a 30 cm
+        shelf the 50x17x17 box never shows its 17x17 end, so a third of its 17x50 face cut off by
+        tape is no type face."""
+        from dataclasses import replace
+
+        return self if depth is None else replace(self, max_depth=float(depth))
 
     def scaled(self, scale: float) -> "Catalogue":
         """The pixel thresholds at `scale` (masks.pixel_scale: f / depth relative to the tuning

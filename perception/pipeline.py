@@ -130,8 +130,8 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
                           allowed=_inside_shelf(capture.depth, camera, shelf))
     catalogue_notes: list[str] = []
     if catalogue is not None and capture.depth is not None and masks:
-        masks, measured = apply_catalogue(masks, capture.depth, camera, capture.rgb, catalogue.scaled(scale),
-                                          catalogue_notes)
+        masks, measured = apply_catalogue(masks, capture.depth, camera, capture.rgb,
+                                          catalogue.scaled(scale).within(shelf.depth), catalogue_notes)
     else:
         measured = None
     timing["masks"] = time.perf_counter() - t

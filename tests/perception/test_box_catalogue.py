@@ -450,3 +450,30 @@ def test_a_piece_inside_a_mask_on_its_plane_is_given_to_it_but_a_box_in_front_is
     assert any(mask_iou(m, host | band) > 0.99 for m in out), notes
     # the small box 4 cm in front of the face, surrounded by it in the image, stays a box
     assert any(mask_iou(m, small) > 0.99 for m in out), notes
+
+
+def test_faces_of_boxes_deeper_than_the_shelf_are_no_type_faces():
+    # in a 30 cm shelf the 50x17x17 box never shows its 17x17 end (nor the 23x31x25 box its 23x25
+    # face): a 17x50 face cut in three by two tape bands is three pieces to join, not three boxes
+    cat = Catalogue().within(0.30)
+    assert (0.17, 0.17) not in cat.faces and (0.23, 0.25) not in cat.faces
+    assert (0.17, 0.5) in cat.faces and (0.23, 0.31) in cat.faces and (0.2, 0.2) in cat.faces
+    assert Catalogue().within(None) == Catalogue() and (0.17, 0.17) in Catalogue().within(0.6).faces
+    scene = Scene(Shelf(), (box("long", -0.10, 0.0, 0.17, 0.50), box("side", 0.22, 0.0, 0.20, 0.20)))
+    cap = cast(scene)
+    lng, side = _front(cap, 1), _front(cap, 2)
+    rows = np.arange(lng.shape[0])[:, None]
+    ys = np.nonzero(lng)[0]
+    cuts = [int(ys.min() + np.ptp(ys) * f) for f in (1 / 3, 2 / 3)]
+    band = np.zeros_like(lng)
+    for c in cuts:
+        band |= lng & (np.abs(rows - c) <= 2)
+    pieces = [lng & ~band & (rows < cuts[0]), lng & ~band & (rows > cuts[0]) & (rows < cuts[1]),
+              lng & ~band & (rows > cuts[1])]
+    notes: list[str] = []
+    out, _ = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    assert len(out) == 2, notes
+    assert max(mask_iou(m, lng) for m in out) > 0.95 and max(mask_iou(m, side) for m in out) > 0.99
+    # every box shape allowed (a deep shelf): the three 17x17 "end faces" stay three boxes
+    out, _ = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, Catalogue())
+    assert len(out) == 4
