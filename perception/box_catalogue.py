@@ -60,13 +60,14 @@ class Catalogue:
                 fs.add((round(float(t[i]), 4), round(float(t[j]), 4)))
         object.__setattr__(self, "faces", tuple(sorted(fs)))
 
-    def within(self, depth: float | None) -> "Catalogue":
-        """Only the faces a box can show in a shelf this deep (its third side fits): in a 30 cm
-        shelf the 50x17x17 box never shows its 17x17 end, so a third of its 17x50 face cut off by
-        tape is no type face."""
+    def within(self, depth: float | None, overhang: float = 0.05) -> "Catalogue":
+        """Only the faces a box can show in a shelf this deep (its third side fits, sticking out
+        of the front by up to `overhang`, as the planner's shelves allow): in a 30 cm shelf the
+        50x17x17 box never shows its 17x17 end, so a third of its 17x50 face cut off by tape is
+        no type face; the 23x31x25 box may show 23x25 (31 cm deep, 1 cm out)."""
         from dataclasses import replace
 
-        return self if depth is None else replace(self, max_depth=float(depth))
+        return self if depth is None else replace(self, max_depth=float(depth) + overhang)
 
     def scaled(self, scale: float) -> "Catalogue":
         """The pixel thresholds at `scale` (masks.pixel_scale: f / depth relative to the tuning
