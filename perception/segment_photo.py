@@ -61,6 +61,11 @@ class PhotoConfig:
     split_margin: float = 0.1     # and scores at least the candidate's score minus this
     split_cover: float = 0.45     # parts that cover this share of a candidate split it
     nest_max: float = 0.3         # a good region inside another, below this share of it, is a detail
+    split_lines: bool = True      # cut a kept region along a dark seam line right across it
+    line_edge: float = 0.25       # seam strength of such a line
+    line_cover: float = 0.85      # share of the line's length on a seam
+    line_min_part: float = 0.15   # each side of the cut holds at least this share of the region
+    line_max_deg: float = 8.0     # lines within this many degrees of the region's axes
     max_overlap: float = 0.2      # a region this much covered by those taken is dropped
 
     def to_json(self) -> dict:
@@ -80,8 +85,9 @@ class _Node:
     leaves: list[int]
 
 
-def edge_map(rgb: np.ndarray, cfg: PhotoConfig) -> np.ndarray:
-    """Per-pixel boundary strength in [0, 1]: colour gradient plus dark thin seams."""
+def edge_maps(rgb: np.ndarray, cfg: PhotoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(boundary strength, dark-seam strength), both per pixel in [0, 1]: the first is the
+    larger of the colour gradient and the seam map."""
     import cv2
 
     img = cv2.GaussianBlur(rgb, (0, 0), cfg.blur_sigma)
@@ -98,7 +104,12 @@ def edge_map(rgb: np.ndarray, cfg: PhotoConfig) -> np.ndarray:
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.seam_px, cfg.seam_px))
     seam = cv2.morphologyEx(lab[..., 0], cv2.MORPH_BLACKHAT, k)
     seam /= max(cfg.seam_floor, float(np.percentile(seam, 98)))
-    return np.clip(np.maximum(grad, cfg.seam_weight * seam), 0.0, 1.0)
+    return np.clip(np.maximum(grad, cfg.seam_weight * seam), 0.0, 1.0), np.clip(seam, 0.0, 1.0)
+
+
+def edge_map(rgb: np.ndarray, cfg: PhotoConfig) -> np.ndarray:
+    """Per-pixel boundary strength in [0, 1]: colour gradient plus dark thin seams."""
+    return edge_maps(rgb, cfg)[0]
 
 
 def superpixels(edges: np.ndarray, spacing: int) -> np.ndarray:
@@ -137,6 +148,68 @@ def _adjacency(lab: np.ndarray, edges: np.ndarray, n: int) -> dict[tuple[int, in
 
 
 
+def split_on_lines(mask: np.ndarray, strong: np.ndarray, cfg: PhotoConfig, min_pixels: int = 50,
+                   depth: int = 0) -> list[np.ndarray]:
+    """Cut `mask` along the straight line of seam pixels (`strong`: dark thin lines; within
+    `line_max_deg` of horizontal or vertical) that crosses it most completely, when that line
+    is >= `line_cover` on a seam and leaves >= `line_min_part` of the area and at least
+    `min_pixels` on each side; then the same for each side.
+    Why: cartons stacked flush make one rectangle; the seam between them is a dark straight
+    line right across it. Print and labels rarely are, and the edges of a tape band across a
+    face are steps of colour, not dark lines."""
+    if depth == 0:
+        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        if len(rows) == 0:
+            return [mask]
+        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        out = []
+        for part in split_on_lines(mask[y0:y1, x0:x1], strong[y0:y1, x0:x1], cfg, min_pixels, 1):
+            full = np.zeros_like(mask)
+            full[y0:y1, x0:x1] = part
+            out.append(full)
+        return out
+    ys, xs = np.nonzero(mask)
+    n = len(ys)
+    if n < 2 * min_pixels or depth > 8:
+        return [mask]
+    on = strong[ys, xs]
+    best = None
+    for axis in (0, 1):
+        u, v = (ys, xs) if axis == 0 else (xs, ys)       # cut across u = const (+ tilt)
+        vc = float(v.mean())
+        for deg in np.arange(-cfg.line_max_deg, cfg.line_max_deg + 1e-6, 2.0):
+            t = np.tan(np.radians(deg))
+            b = np.round(u - t * (v - vc)).astype(np.int64)
+            b0 = int(b.min())
+            b = b - b0
+            tot = np.bincount(b)
+            hit = np.bincount(b, weights=on)
+            # a seam is 1-3 px wide: take the best of 3 neighbouring bins
+            pad = np.pad(hit, 1)
+            hit3 = np.maximum(np.maximum(pad[:-2], pad[1:-1]), pad[2:])
+            length = np.maximum(tot, 1)
+            frac = hit3 / length
+            cum = np.cumsum(tot) / n
+            least = max(cfg.line_min_part, min_pixels / n)
+            ok = (cum >= least) & (cum <= 1.0 - least) & (tot >= 10)
+            if not ok.any():
+                continue
+            k = int(np.argmax(np.where(ok, frac, -1)))
+            k = max(0, k - 1) + int(np.argmax(hit[max(0, k - 1):k + 2]))   # onto the seam itself
+            if frac[k] >= cfg.line_cover and (best is None or frac[k] > best[0]):
+                best = (float(frac[k]), axis, float(t), vc, k + b0)
+    if best is None:
+        return [mask]
+    _, axis, t, vc, cut = best
+    yy, xx = np.indices(mask.shape)
+    u, v = (yy, xx) if axis == 0 else (xx, yy)
+    side = np.round(u - t * (v - vc)) <= cut
+    out = []
+    for part in (mask & side, mask & ~side):
+        out.extend(split_on_lines(part, strong, cfg, min_pixels, depth + 1))
+    return out
+
+
 class PhotoSegmenter:
     """Carton masks in an RGB photo (depth ignored); see the module docstring."""
 
@@ -171,11 +244,16 @@ class PhotoSegmenter:
     def regions(self, rgb: np.ndarray) -> list[np.ndarray]:
         """Kept regions at the size of `rgb` (the work size)."""
         cfg = self.config
-        edges = edge_map(rgb, cfg)
+        edges, seams = edge_maps(rgb, cfg)
         cands = self.candidates(edges)
         if cfg.tree:
             cands += self.tree_candidates(rgb, edges)
-        return self._select(self.rescore(cands, edges), edges.shape)
+        kept = self._select(self.rescore(cands, edges), edges.shape)
+        if cfg.split_lines:
+            on_seam = seams >= cfg.line_edge
+            least = int(cfg.min_frac * edges.size)
+            kept = [p for m in kept for p in split_on_lines(m, on_seam, cfg, least)]
+        return kept
 
     def rescore(self, cands: list[Candidate], edges: np.ndarray) -> list[Candidate]:
         """Score = half shape quality, half outline support: the share of the region's outline

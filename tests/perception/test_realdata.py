@@ -73,7 +73,7 @@ def test_telexistence_upper_face_polygons_parse_into_masks():
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
 def test_photo_segmenter_recall_over_rcan_and_telexistence():
     """Measured when this was written (docs/perception-photos.md): RCAN tune 39/74 = 0.53,
-    held out 25/77 = 0.32, pooled 64/151 = 0.42 (mean IoU 0.74); telexistence (held out) 1/40.
+    held out 26/77 = 0.34, pooled 65/151 = 0.43 (mean IoU 0.74); telexistence (held out) 2/40.
     The asserts sit just under those (a few cartons of margin)."""
     from perception.bench import bench_rcan, bench_telexistence
     from perception.segment import load_segmenter
@@ -83,13 +83,13 @@ def test_photo_segmenter_recall_over_rcan_and_telexistence():
     assert r["cartons"] == 151
     assert r["subsets"]["tune"]["cartons"] == 74 and r["subsets"]["held_out"]["cartons"] == 77
     assert r["subsets"]["tune"]["recall"] >= 0.47, r["subsets"]
-    assert r["subsets"]["held_out"]["recall"] >= 0.27, r["subsets"]
-    assert r["recall"] >= 0.38, r
+    assert r["subsets"]["held_out"]["recall"] >= 0.28, r["subsets"]
+    assert r["recall"] >= 0.39, r
     assert r["mean_iou_matched"] >= 0.7, r
     assert r["seconds_per_frame_median"] <= 4.0, r      # ~1.2 s at 960 px; a loaded machine is slower
     if TELE.is_dir():
         t = bench_telexistence(TELE, seg, progress=False)
-        assert t["images"] == 3 and t["cartons"] == 40, t
+        assert t["images"] == 3 and t["cartons"] == 40 and t["matched"] >= 1, t
 
 
 @pytest.mark.slow

@@ -50,6 +50,38 @@ def draw_stack(seed: int, rows: int = 3, cols: int = 3, similar: bool = False,
     return np.clip(img, 0, 255).astype(np.uint8), truth
 
 
+def draw_flush_grid(seed: int, rows: int = 4, cols: int = 5, seam: tuple[int, int, int] = (120, 100, 80),
+                    tape: bool = True, size: tuple[int, int] = (480, 640)) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Cartons of one kind packed flush in rows and columns (a pallet seen from above or a
+    full shelf): the same brown, 1 px faint seams, a tape band right across every face at the
+    same height, a label on each."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    img = np.full((h, w, 3), (120, 125, 130), np.float32) + rng.normal(0, 3, (h, w, 3))
+    x0, y0 = 40, 30
+    cw, ch = (w - 2 * x0) // cols, (h - 2 * y0) // rows
+    base = np.array([186, 150, 105], np.float32)
+    truth = []
+    for r in range(rows):
+        for c in range(cols):
+            m = np.zeros((h, w), np.uint8)
+            cv2.rectangle(m, (x0 + c * cw, y0 + r * ch), (x0 + (c + 1) * cw - 1, y0 + (r + 1) * ch - 1), 1, -1)
+            face = m.astype(bool)
+            img[face] = base * rng.uniform(0.95, 1.05) + rng.normal(0, 4, (int(face.sum()), 3))
+            if tape:
+                yy = y0 + r * ch + ch // 2
+                cv2.rectangle(img, (x0 + c * cw, yy - 6), (x0 + (c + 1) * cw, yy + 6), (200, 175, 130), -1)
+            lx, ly = x0 + c * cw + int(rng.uniform(0.1, 0.5) * cw), y0 + r * ch + int(rng.uniform(0.1, 0.25) * ch)
+            cv2.rectangle(img, (lx, ly), (lx + cw // 4, ly + ch // 5), (240, 240, 235), -1)
+            truth.append(face)
+    for r in range(rows + 1):
+        cv2.line(img, (x0, y0 + r * ch), (x0 + cols * cw, y0 + r * ch), seam, 1)
+    for c in range(cols + 1):
+        cv2.line(img, (x0 + c * cw, y0), (x0 + c * cw, y0 + rows * ch), seam, 1)
+    img = cv2.GaussianBlur(img, (0, 0), 0.7)
+    return np.clip(img, 0, 255).astype(np.uint8), truth
+
+
 def _found(seed: int, **kw) -> tuple[int, int, list[float], int]:
     rgb, truth = draw_stack(seed, **kw)
     masks = PhotoSegmenter().segment(rgb, None)
@@ -67,6 +99,23 @@ def test_every_carton_of_a_drawn_stack_is_one_mask(seed):
 def test_cartons_of_one_colour_are_kept_apart_by_their_seams():
     matched, n, ious, _ = _found(3, similar=True, rows=2, cols=3)
     assert matched == n and min(ious) > 0.8, (matched, n, ious)
+
+
+def test_flush_grids_of_one_kind_are_cut_along_their_faint_seams():
+    """No colour step between the cartons, only 1 px seams; the tape bands line up across the
+    whole grid but are no seam (a step of colour, not a dark line). Ten grids of 20: 192 of
+    200 cartons found when this was written (one grid with tape lost 8); asserted >= 180."""
+    found = total = 0
+    ious = []
+    for seed in range(5):
+        for tape in (True, False):
+            rgb, truth = draw_flush_grid(seed, tape=tape)
+            pairs = match(PhotoSegmenter().segment(rgb, None), truth, 0.5)
+            found += len(pairs)
+            total += len(truth)
+            ious += [v for _, _, v in pairs]
+    assert total == 200 and found >= 180, found
+    assert np.median(ious) > 0.85
 
 
 def test_background_alone_gives_no_carton():
