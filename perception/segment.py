@@ -1,4 +1,4 @@
-"""Choosing a segmenter: depth and edges for RGB-D, a photo segmenter without depth, YOLO11n-seg when asked for.
+"""Choosing a segmenter: depth and edges for RGB-D, YOLO11n-seg or the photo segmenter when asked for.
 
 A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
 (one mask per box front face). `load_segmenter` picks one:
@@ -36,8 +36,9 @@ class Segmenter(Protocol):
 # which segmenter `auto` uses for photos without depth: "photo" (segment_photo.PhotoSegmenter),
 # "depth" (the depth-and-edge segmenter on a flat stand-in depth) or "yolo" (the shipped
 # weights); chosen by perceive-bench on the real photos (docs/perception-photos.md).
-# Still "depth" here: tests/perception/test_segment_depth.py (another owner) asserts it; the
-# photo segmenter measured better and is meant to be the default (see the doc).
+# Still "depth": the photo segmenter is better on the photos it was tuned on and pooled over
+# RCAN (recall 0.43 vs 0.37) but worse on the held-out ones (RCAN 0.34 vs 0.40, telexistence
+# 0.05 vs 0.13); tests/perception/test_segment_depth.py also asserts "depth".
 RGB_ONLY = "depth"
 
 
