@@ -480,8 +480,9 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
                     if f.err <= cat.row_margin or not any(
                             cat.composable(rest[0], rest[1], axis, k) for k in range(2, budget)):
                         continue
-                # a depth step is two fronts (a label or tape edge is flat): it beats colour alone
-                key = (max(ea, eb) <= cat.tol, step, score, -max(ea, eb))
+                # a depth step is two fronts (a label or tape edge is flat): it beats colour alone;
+                # a faint seam (under 1, `weak_evidence`) only where no real seam gives a cut
+                key = (score >= 1.0, max(ea, eb) <= cat.tol, step, score, -max(ea, eb))
                 cands_ok.append((key, axis, p2, a, wa, ha, wb, hb, ea, eb, piece))
     best = None
     for c in sorted(cands_ok, key=lambda c: c[0], reverse=True):
@@ -501,7 +502,7 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
     if notes is not None:
         notes.append(f"split a {face.size_cm} face "
                      f"{'across' if axis == 1 else 'down'} its seam into {wa * 100:.0f}x{ha * 100:.0f} and "
-                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][2]:.2f}{', depth step' if best[0][1] else ''})")
+                     f"{wb * 100:.0f}x{hb * 100:.0f} cm (evidence {best[0][3]:.2f}{', depth step' if best[0][2] else ''})")
     return (_split_one(pa, depth, camera, lab, cat, notes, budget - 1, cache, axis if ea > cat.tol else None, others)
             + _split_one(pb, depth, camera, lab, cat, notes, budget - 1, cache, axis if eb > cat.tol else None,
                          others))
