@@ -153,13 +153,7 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     notes = notes if notes is not None else []
     masks = [np.asarray(m, bool) for m in masks]
     measured = [_measure(m, depth, camera, cat, cache) for m in masks]
-    ok = [f for f in measured if f is not None]
-    # by count or by area: a face cut into many pieces (a tape cross) must not outvote the faces
-    # around it
-    area = [float(f.mask.sum()) for f in ok]
-    share = max(sum(f.err <= cat.tol for f in ok) / max(len(ok), 1),
-                sum(a for f, a in zip(ok, area) if f.err <= cat.tol) / max(sum(area), 1.0))
-    if share < cat.min_share:
+    if not _applies(measured, cat):
         # not a capture of these box types (another warehouse, real data): leave it alone
         return masks, [None if f is None else f.face for f in measured]
     masks = join_pieces(masks, depth, camera, cat, notes, cache)
@@ -185,6 +179,24 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
         f = _measure(m, depth, camera, cat, cache)
         faces.append(None if f is None else f.face)
     return masks, faces
+
+
+def _applies(measured: list, cat: Catalogue) -> bool:
+    """Whether at least `min_share` of the measured faces are type faces, by count or by area
+    (a face cut into many pieces by a tape cross must not outvote the faces around it)."""
+    ok = [f for f in measured if f is not None]
+    area = [float(f.mask.sum()) for f in ok]
+    share = max(sum(f.err <= cat.tol for f in ok) / max(len(ok), 1),
+                sum(a for f, a in zip(ok, area) if f.err <= cat.tol) / max(sum(area), 1.0))
+    return share >= cat.min_share
+
+
+def catalogue_applies(faces: list, masks: list[np.ndarray], cat: Catalogue) -> bool:
+    """Whether a capture whose masks measured as `faces` (boxes.FrontFace, None where not
+    measured) shows boxes of these types (see `apply_catalogue`): where it does not (other stock,
+    the neura pallet), a face cut by the image border is not completed to a type face either."""
+    return _applies([None if f is None else _Face(np.asarray(m, bool), f, cat.error(f.width, f.height))
+                     for f, m in zip(faces, masks)], cat)
 
 
 def _coords(face, mask: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ import numpy as np
 
 from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
                               distance_from_box_size, make_valid, measure_front, planar_depth)
-from perception.box_catalogue import Catalogue, apply_catalogue, complete_cut_face
+from perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies, complete_cut_face
 from perception.capture import Capture
 from perception.geometry import check_intrinsics, point_map
 from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
@@ -143,8 +143,10 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     t = time.perf_counter()
     if measured is None or depth is not capture.depth:
         measured = [measure_front(m, depth, camera) for m in masks]
-    measured, completed = _complete_cut_faces(masks, measured, camera,
-                                              catalogue if capture.depth is not None else None)
+    # a face cut by the image border is completed to a type face only in a capture of these types
+    types = catalogue if capture.depth is not None and catalogue is not None and masks and \
+        catalogue_applies(measured, masks, catalogue.within(shelf.depth)) else None
+    measured, completed = _complete_cut_faces(masks, measured, camera, types)
     boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured)
     warnings.extend(w)
     warnings.extend(_border_warnings(boxes, masks))

@@ -57,6 +57,21 @@ def test_without_catalogue_a_cut_face_is_kept_at_least_as_seen():
     assert any(top.id in w and "top image border" in w for w in res.warnings)
 
 
+def test_a_cut_face_is_completed_only_in_a_capture_of_the_catalogue_types():
+    # a catalogue of other stock that holds the long box's 50x17 face but none of the faces below
+    # it: the capture is not of these types (as the neura pallet is not of the default ones), so
+    # the cut face is kept as seen, not completed to 50x17
+    scene = _stack(0.70)
+    cap = cast(scene, noise=0.001)
+    other = Catalogue(types=((0.34, 0.25, 0.20), (0.50, 0.17, 0.17)))
+    res = perceive(cap, DepthEdgeSegmenter(), scene.shelf, catalogue=other)
+    assert len(res.scene.boxes) == 3
+    top = _top(res)
+    assert 0.04 < top.size[2] < 0.08, top.size
+    assert not any("type face" in a for a in res.adjustments), res.adjustments
+    assert any(top.id in w and "top image border" in w for w in res.warnings)
+
+
 def test_no_border_warning_when_everything_is_in_view():
     scene = Scene(Shelf(), (box("c", 0.0, 0.0, 0.40, 0.30, d=0.30),))
     res = perceive(cast(scene, noise=0.001), DepthEdgeSegmenter(), scene.shelf)
