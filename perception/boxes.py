@@ -320,6 +320,37 @@ def _clamp(b: Box, shelf: Shelf, notes: list[str]) -> Box:
     return b
 
 
+# a face may stick out of the shelf by this much (boxes overhang the front, masks bleed a little)
+FRONT_MARGIN = 0.10
+# and stand this far in front of the shelf's front plane before it cannot be on the shelf
+MAX_PROTRUSION = 0.50
+
+
+def not_a_front(f: FrontFace, shelf: Shelf) -> str:
+    """Why a measured face cannot be a box on this shelf ('' when it can).
+
+    A mask of the floor, a wall, a neighbouring bay or (in a photo with a flat stand-in depth) a
+    region near the horizon back-projects to faces metres wide or far away; kept, `make_valid`
+    would stack every other box on top of them.
+    """
+    x, y, z = (float(v) for v in f.center)
+    m = FRONT_MARGIN
+    if not all(math.isfinite(v) for v in (x, y, z, f.width, f.height)):
+        return "not finite"
+    if f.width < 0.02 or f.height < 0.02:
+        return "smaller than 2 cm"
+    if f.width > shelf.width + m or f.height > shelf.height + m:
+        return f"larger than the {shelf.width:.2f}x{shelf.height:.2f} m shelf"
+    if y > shelf.depth + 0.05:
+        return "behind the shelf's back wall"
+    if y < -MAX_PROTRUSION:
+        return f"more than {MAX_PROTRUSION:.2f} m in front of the shelf"
+    if abs(x) - f.width / 2 > shelf.width / 2 + m or z - f.height / 2 > shelf.height + m \
+            or z + f.height / 2 < -m:
+        return "outside the shelf"
+    return ""
+
+
 # --------------------------------------------------------------------------
 def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
                      placeholder: float = 0.25, faces: list[FrontFace | None] | None = None,
@@ -338,9 +369,10 @@ def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera,
         if f is None:
             warnings.append(f"mask {i + 1}: too little valid depth to measure; dropped")
             continue
-        if f.center[1] > shelf.depth + 0.05 or f.width < 0.02 or f.height < 0.02:
-            warnings.append(f"mask {i + 1}: face at y={f.center[1]:.2f} m, {f.width:.3f}x{f.height:.3f} m "
-                            "is not a box front; dropped")
+        why = not_a_front(f, shelf)
+        if why:
+            warnings.append(f"mask {i + 1}: face at x={f.center[0]:.2f} y={f.center[1]:.2f} z={f.center[2]:.2f} m, "
+                            f"{f.width:.3f}x{f.height:.3f} m is not a box front ({why}); dropped")
             continue
         faces.append((f, m))
     faces.sort(key=lambda fm: (round((fm[0].center[2] - fm[0].height / 2) / 0.05), fm[0].center[0]))

@@ -114,3 +114,28 @@ def test_box_measured_partly_inside_the_box_below_rests_on_it():
     placed = {b.id: b for b in out}
     assert placed["b2"].position[2] - 0.08 == pytest.approx(0.29, abs=1e-3)
     assert any("b2" in n and "pushed up" in n for n in notes)
+
+
+def test_faces_that_cannot_be_on_the_shelf_are_dropped_with_the_reason():
+    """A wall, the floor or a region near the horizon in a photo back-projects to faces metres
+    wide or far away; kept, make_valid would stack every other box on top of them."""
+    from perception.boxes import FrontFace, not_a_front
+
+    shelf = Shelf()
+
+    def face(center, w=0.2, h=0.2):
+        return FrontFace(center=center, width=w, height=h, angle=0.0, yaw=0.0, distance=1.0,
+                         pixels=100, rect_px=((0, 0), (1, 1), 0))
+
+    assert not_a_front(face((0.1, 0.02, 0.3)), shelf) == ""
+    assert not_a_front(face((0.0, 0.0, 0.1), w=0.55, h=0.17), shelf) == ""
+    assert "larger than" in not_a_front(face((0.0, 0.1, 0.5), w=13463.9, h=351.1), shelf)
+    assert "larger than" in not_a_front(face((0.0, 0.1, 0.5), w=0.4, h=1.9), shelf)
+    assert "in front of the shelf" in not_a_front(face((0.0, -813.0, 0.3)), shelf)
+    assert "back wall" in not_a_front(face((0.0, 0.6, 0.3)), shelf)
+    assert "outside the shelf" in not_a_front(face((0.9, 0.1, 0.3)), shelf)
+    assert "outside the shelf" in not_a_front(face((0.0, 0.1, 2.2)), shelf)
+    assert "not finite" in not_a_front(face((float("nan"), 0.1, 0.3)), shelf)
+    assert "smaller than" in not_a_front(face((0.0, 0.1, 0.3), w=0.01), shelf)
+    # a box overhanging the side by a few cm stays
+    assert not_a_front(face((0.52, 0.1, 0.3)), shelf) == ""
