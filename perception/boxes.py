@@ -351,6 +351,37 @@ def not_a_front(f: FrontFace, shelf: Shelf) -> str:
     return ""
 
 
+# a box front face, even partly hidden, fills its min-area rectangle this well (rendered tuning
+# sets 700-719, 800-839: every matched mask >= 0.68) ...
+MIN_RECT_FILL = 0.5
+# ... and is no strip thinner than this and this many times as long, unless an image border
+# (top, left, right) cuts it (matched masks there: short side >= 15 cm, long / short <= 3.4)
+STRIP_MAX_SIDE = 0.10
+STRIP_MIN_ASPECT = 5.0
+
+
+def not_a_face(f: FrontFace, mask: np.ndarray) -> str:
+    """Why a mask on the shelf is still no box front ('' when it can be): a ragged region filling
+    its rectangle less than `MIN_RECT_FILL` (the dark edge of a machine base), or a long thin
+    strip not cut by the top/left/right border (pallet boards seen from above, shelf lips)."""
+    import cv2
+
+    from perception.masks import border_sides
+
+    ys, xs = np.nonzero(mask)
+    if len(xs) < 3:
+        return ""
+    (_, _), (rw, rh), _ = cv2.minAreaRect(np.column_stack([xs, ys]).astype(np.float32))
+    fill = len(xs) / max(rw * rh, 1.0)
+    if fill < MIN_RECT_FILL:
+        return f"fills only {fill:.2f} of its rectangle"
+    short, long_ = sorted((f.width, f.height))
+    if short < STRIP_MAX_SIDE and long_ >= STRIP_MIN_ASPECT * short and \
+            not border_sides(mask, sides=("top", "left", "right")):
+        return f"a {long_ * 100:.0f}x{short * 100:.0f} cm strip"
+    return ""
+
+
 # --------------------------------------------------------------------------
 def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
                      placeholder: float = 0.25, faces: list[FrontFace | None] | None = None,
@@ -369,7 +400,7 @@ def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera,
         if f is None:
             warnings.append(f"mask {i + 1}: too little valid depth to measure; dropped")
             continue
-        why = not_a_front(f, shelf)
+        why = not_a_front(f, shelf) or not_a_face(f, m)
         if why:
             warnings.append(f"mask {i + 1}: face at x={f.center[0]:.2f} y={f.center[1]:.2f} z={f.center[2]:.2f} m, "
                             f"{f.width:.3f}x{f.height:.3f} m is not a box front ({why}); dropped")

@@ -82,3 +82,37 @@ def test_rendered_scenes_are_perceived_at_the_measured_accuracy():
     assert s["precision"] >= 0.85, s
     assert s["centre_err_median_m"] <= 0.01 and s["width_err_median_m"] <= 0.01, s
     assert s["height_err_median_m"] <= 0.01 and s["angle_err_median_deg"] <= 2.0, s
+
+
+def test_a_long_thin_strip_is_no_box_front_unless_an_image_border_cuts_it():
+    """A 50x6 cm board (pallet wood, a shelf lip) is dropped with the reason; a box of the same
+    scene stays; the same strip running into the left image border is kept (a face beyond the view)."""
+    from perception.boxes import not_a_face
+
+    scene = Scene(Shelf(), (box("a", -0.20, 0, 0.30, 0.25), box("lip", 0.22, 0.0, 0.50, 0.06)))
+    cap = cast(scene, noise=0.0005)
+    res = perceive(cap, DepthEdgeSegmenter(), scene.shelf)
+    assert len(res.scene.boxes) == 1, res.warnings
+    assert abs(res.scene.boxes[0].size[0] - 0.30) < 0.02
+    assert any("50x6 cm strip" in w for w in res.warnings), res.warnings
+    face = res.faces[0]
+    strip = np.zeros((240, 320), bool)
+    strip[100:110, 40:200] = True
+    thin = replace(face, width=0.50, height=0.06)
+    assert "strip" in not_a_face(thin, strip)
+    at_border = np.zeros_like(strip)
+    at_border[100:110, 0:160] = True
+    assert not_a_face(thin, at_border) == ""
+
+
+def test_a_ragged_region_that_fills_little_of_its_rectangle_is_no_box_front():
+    from perception.boxes import not_a_face
+
+    face = perceive(cast(_scene()), DepthEdgeSegmenter(), Shelf()).faces[0]
+    ragged = np.zeros((240, 320), bool)           # an L of two 12 px arms (fill ~0.2)
+    ragged[40:160, 60:72] = True
+    ragged[148:160, 60:260] = True
+    assert "fills only" in not_a_face(face, ragged)
+    square = np.zeros_like(ragged)
+    square[50:120, 60:140] = True
+    assert not_a_face(face, square) == ""
