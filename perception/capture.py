@@ -55,13 +55,16 @@ class Capture:
         return paths
 
 
-def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: str = "") -> None:
+def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: str = "",
+             camera_origin: str = "") -> None:
+    """`origin`: the file named for image problems; `camera_origin`: for a camera of another size."""
     where = f"{origin}: " if origin else ""
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise PerceptionError(f"{where}RGB image must be HxWx3 uint8, got shape {rgb.shape} {rgb.dtype}")
     h, w = rgb.shape[:2]
     if (camera.width, camera.height) != (w, h):
-        raise PerceptionError(f"{where}camera is {camera.width}x{camera.height} but the RGB image is {w}x{h}")
+        cam_where = f"{camera_origin}: " if camera_origin else where
+        raise PerceptionError(f"{cam_where}camera is {camera.width}x{camera.height} but the RGB image is {w}x{h}")
     if depth is not None:
         if depth.shape != (h, w):
             raise PerceptionError(f"{where}depth image is {depth.shape[1]}x{depth.shape[0]} "
@@ -71,13 +74,25 @@ def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: 
             raise PerceptionError(f"{where}depth image has no valid pixel (all zero or NaN)")
 
 
+def _image_bytes(p: Path) -> np.ndarray:
+    """The file's bytes, refusing a PNG or JPEG cut short (a copy or a download that stopped):
+    OpenCV decodes a truncated JPEG with a grey lower part and only a libjpeg warning."""
+    data = p.read_bytes()
+    if data.startswith(b"\x89PNG") and b"IEND" not in data[-64:]:
+        raise PerceptionError(f"{p}: truncated PNG (no IEND chunk at the end of its {len(data)} bytes)")
+    if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
+        raise PerceptionError(f"{p}: truncated JPEG (no end-of-image marker in its {len(data)} bytes)")
+    return np.frombuffer(data, np.uint8)
+
+
 def read_rgb(path: str | Path) -> np.ndarray:
+    """HxWx3 uint8 RGB; a grey, RGBA or 16-bit image is converted (OpenCV's IMREAD_COLOR)."""
     import cv2
 
     p = Path(path)
     if not p.is_file():
         raise PerceptionError(f"{p}: RGB image not found")
-    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    img = cv2.imdecode(_image_bytes(p), cv2.IMREAD_COLOR)
     if img is None:
         raise PerceptionError(f"{p}: not a readable image (PNG or JPEG expected)")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
@@ -97,18 +112,46 @@ def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
             raise PerceptionError(f"{p}: not a readable .npy depth array ({exc})") from None
         if raw.ndim != 2:
             raise PerceptionError(f"{p}: depth array must be 2-D, got shape {raw.shape}")
+        if raw.dtype.kind not in "fiu":
+            raise PerceptionError(f"{p}: depth array must be numbers (float metres or integer sensor "
+                                  f"units), got dtype {raw.dtype}")
         # float arrays are metres already; integer arrays are sensor units
         depth = raw.astype(np.float32) if raw.dtype.kind == "f" else raw.astype(np.float32) * depth_scale
     else:
-        raw = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        raw = cv2.imdecode(_image_bytes(p), cv2.IMREAD_UNCHANGED)
         if raw is None:
             raise PerceptionError(f"{p}: not a readable depth image (uint16 PNG or .npy expected)")
         if raw.ndim != 2:
             raise PerceptionError(f"{p}: depth image must have one channel, got {raw.shape[2]}")
+        if raw.dtype != np.uint16:
+            raise PerceptionError(f"{p}: depth image must be uint16 (sensor units of depth_scale m), "
+                                  f"got {raw.dtype}")
         depth = raw.astype(np.float32) * depth_scale
-    depth[~np.isfinite(depth)] = 0.0
-    depth[depth < 0] = 0.0
+    neg = np.isfinite(depth) & (depth < 0)
+    if neg.any():
+        raise PerceptionError(f"{p}: {int(neg.sum())} negative depth values (min {float(depth[neg].min()):.3g} m); "
+                              "depth is a distance >= 0, 0 = no data")
+    depth[~np.isfinite(depth)] = 0.0          # NaN / inf: no measurement
     return depth
+
+
+# the median depth of a capture this far from the camera is no shelf a depth sensor sees
+DEPTH_RANGE_M = (0.1, 20.0)
+
+
+def check_depth_units(depth: np.ndarray, depth_scale: float, origin: str, camera_origin: str = "") -> None:
+    """Refuse a depth map in the wrong units: metres stored in a uint16 PNG (all 0-2 units),
+    millimetres in a float .npy, or a camera file whose depth_scale does not fit the sensor."""
+    valid = depth[depth > 0]
+    if not valid.size:
+        return
+    med = float(np.median(valid))
+    lo, hi = DEPTH_RANGE_M
+    if not lo <= med <= hi:
+        cam = f" ({camera_origin})" if camera_origin else ""
+        raise PerceptionError(f"{origin}: median depth {med:.3g} m with depth_scale {depth_scale:g}{cam} is outside "
+                              f"{lo:g}-{hi:g} m; is the depth in other units (metres in a uint16 PNG, "
+                              "millimetres in a float .npy, a wrong depth_scale)?")
 
 
 def load_capture(rgb: str | Path, depth: str | Path | None, camera: str | Path) -> Capture:
@@ -116,7 +159,9 @@ def load_capture(rgb: str | Path, depth: str | Path | None, camera: str | Path) 
     cam = Camera.load(camera)
     img = read_rgb(rgb)
     dep = read_depth(depth, cam.depth_scale) if depth is not None else None
-    validate(img, dep, cam, origin=str(depth or rgb))
+    validate(img, dep, cam, origin=str(depth or rgb), camera_origin=str(camera))
+    if dep is not None:
+        check_depth_units(dep, cam.depth_scale, str(depth), str(camera))
     masks, labels = None, {}
     mpath = Path(rgb).with_name("masks.png")
     jpath = Path(rgb).with_name("masks.json")
@@ -135,4 +180,5 @@ def load_capture_dir(d: str | Path) -> Capture:
     return load_capture(d / "rgb.png", depth, d / "camera.json")
 
 
-__all__ = ["Capture", "load_capture", "load_capture_dir", "read_rgb", "read_depth", "validate"]
+__all__ = ["Capture", "check_depth_units", "load_capture", "load_capture_dir", "read_rgb", "read_depth",
+           "validate"]

@@ -27,6 +27,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", help="JSON with warnings, adjustments, faces and timing")
 
 
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Options that are sizes or distances: finite and > 0 (a scene written with a 0 m wide shelf
+    cannot be loaded again)."""
+    import math
+
+    from perception.errors import PerceptionError
+
+    for flag, vals in (("--front-distance", [args.front_distance] if args.front_distance is not None else []),
+                       ("--box-size", list(args.box_size or [])), ("--shelf", list(args.shelf or []))):
+        bad = [v for v in vals if not (math.isfinite(v) and v > 0)]
+        if bad:
+            raise PerceptionError(f"{flag}: sizes and distances must be finite and > 0 m, got "
+                                  f"{' '.join(f'{v:g}' for v in vals)}")
+
+
+def _write(path: str, what: str, write) -> None:
+    """Run `write()`; a folder that cannot be made or a file that cannot be written is the
+    user's to fix, so it becomes a one-line PerceptionError naming the file."""
+    import cv2
+
+    from perception.errors import PerceptionError
+
+    try:
+        ok = write()
+    except (OSError, cv2.error) as exc:
+        why = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[-1]
+        raise PerceptionError(f"{path}: cannot write the {what} ({why})") from None
+    if ok is False:
+        raise PerceptionError(f"{path}: cannot write the {what} (an existing folder and a .png name expected)")
+
+
 def run(args: argparse.Namespace) -> int:
     import cv2
 
@@ -36,23 +67,26 @@ def run(args: argparse.Namespace) -> int:
     from perception.scene import Shelf, write_json
     from perception.segment import load_segmenter
 
-    if args.front_distance is not None and args.front_distance <= 0:
-        raise PerceptionError(f"--front-distance must be > 0 m, got {args.front_distance}")
+    _check_numbers(args)
+    if args.weights and not str(args.weights).lower().endswith(".pt"):
+        raise PerceptionError(f"{args.weights}: --weights must be a YOLO11n-seg .pt checkpoint "
+                              "(as `shelfpick train-seg` writes)")
+    if args.masks and not str(args.masks).lower().endswith(".png"):
+        raise PerceptionError(f"{args.masks}: --masks must be a .png file (uint16 labels; JPEG cannot hold them)")
     kind = "yolo" if args.weights and args.segmenter == "auto" else args.segmenter
     capture = load_capture(args.rgb, args.depth, args.camera)
     seg = load_segmenter(args.weights, kind)
     shelf = Shelf(*args.shelf) if args.shelf else Shelf()
     result = perceive(capture, seg, shelf, front_distance=args.front_distance,
                       box_size=tuple(args.box_size) if args.box_size else None, origin=args.camera)
-    result.scene.save(args.out)
+    _write(args.out, "scene", lambda: result.scene.save(args.out))
     if args.overlay:
-        if not cv2.imwrite(args.overlay, cv2.cvtColor(result.overlay, cv2.COLOR_RGB2BGR)):
-            raise PerceptionError(f"{args.overlay}: cannot write the overlay image")
+        _write(args.overlay, "overlay image",
+               lambda: cv2.imwrite(args.overlay, cv2.cvtColor(result.overlay, cv2.COLOR_RGB2BGR)))
     if args.masks:
-        if not cv2.imwrite(args.masks, result.masks):
-            raise PerceptionError(f"{args.masks}: cannot write the mask image")
+        _write(args.masks, "mask image", lambda: cv2.imwrite(args.masks, result.masks))
     if args.report:
-        write_json(args.report, result.summary())
+        _write(args.report, "report", lambda: write_json(args.report, result.summary()))
     for w in result.warnings:
         print(f"warning: {w}", file=sys.stderr)
     for a in result.adjustments:

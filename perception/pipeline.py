@@ -93,6 +93,22 @@ def _border_warnings(boxes: list, masks: list[np.ndarray]) -> list[str]:
             for side, ids in by_side.items() if side in where]
 
 
+def looks_away(camera, shelf: Shelf, min_cos: float = 0.2) -> str:
+    """A warning ('' if none) when the camera's optical axis does not point into the shelf
+    (shelf +y): a pose with a sign or axis mixed up sees no shelf, and the scene comes out
+    empty or nonsensical; the user should hear why."""
+    from perception.geometry import pose_matrix
+
+    rot, _ = pose_matrix(camera)
+    c = float(rot[1, 2])
+    if c >= min_cos:
+        return ""
+    import math
+
+    return (f"the camera looks {math.degrees(math.acos(max(-1.0, min(1.0, c)))):.0f} deg away from the shelf's "
+            "depth axis (+y, into the shelf): check its pose.orientation")
+
+
 def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf | None = None, *,
              front_distance: float | None = None, box_size: tuple[float, float] | None = None,
              placeholder: float = 0.25, origin: str = "camera",
@@ -105,6 +121,9 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     shelf = shelf or Shelf()
     camera = capture.camera
     check_intrinsics(camera, capture.shape, origin)
+    away = looks_away(camera, shelf)
+    if away:
+        warnings.append(away)
     seg = segmenter if segmenter is not None else load_segmenter(None, "auto")
     seg = for_capture(seg, capture.depth is not None)
     if hasattr(seg, "bind"):

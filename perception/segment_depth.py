@@ -55,6 +55,19 @@ class DepthEdgeConfig:
     border_min_px: int = 20          # ... when this many of its pixels are there; it is then kept ...
     border_side_m: float = 0.004     # ... down to this thickness (a strip of a face above the view)
     metric_px: bool = True           # line_min scales with f / depth (masks.pixel_scale)
+    fill_hole_px: int = 4            # depth holes of at most this many pixels are filled for segmenting
+
+
+def _small_holes(valid: np.ndarray, max_px: int) -> np.ndarray:
+    """Invalid pixels in 8-connected groups of at most `max_px` pixels."""
+    import cv2
+
+    if max_px <= 0:
+        return np.zeros_like(valid)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats((~valid).astype(np.uint8), connectivity=8)
+    small = stats[:, cv2.CC_STAT_AREA] <= max_px
+    small[0] = False
+    return small[lab]
 
 
 class DepthEdgeSegmenter:
@@ -94,7 +107,10 @@ class DepthEdgeSegmenter:
         d = np.nan_to_num(depth.astype(np.float32), nan=0.0)
         valid = d > 0
         ds = cv2.medianBlur(d, 5)
-        ds[~valid] = 0.0
+        # a hole of a few pixels inside a surface (sensor speckle, an inf or NaN read as no data)
+        # takes the median around it: left as a hole, every one cuts the surface like a depth
+        # jump, and 10% scattered holes left no face at all
+        ds[~valid & ~_small_holes(valid, cfg.fill_hole_px)] = 0.0
         # ---- depth jumps (both sides of the step are boundary)
         thr = cfg.jump_abs + cfg.jump_rel * ds * ds
         jump = np.zeros((h, w), bool)
