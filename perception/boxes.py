@@ -401,6 +401,10 @@ def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera,
             warnings.append(f"mask {i + 1}: too little valid depth to measure; dropped")
             continue
         why = not_a_front(f, shelf) or not_a_face(f, m)
+        if not why and f.center[1] + placeholder < 0.01:
+            # its box (placeholder depth) would lie wholly in front of the shelf: a scene the
+            # format refuses to load (a flat depth 0.5 m from the camera wrote one)
+            why = f"its box, {placeholder:.2f} m deep, would not reach into the shelf"
         if why:
             warnings.append(f"mask {i + 1}: face at x={f.center[0]:.2f} y={f.center[1]:.2f} z={f.center[2]:.2f} m, "
                             f"{f.width:.3f}x{f.height:.3f} m is not a box front ({why}); dropped")

@@ -55,6 +55,9 @@ class Capture:
         return paths
 
 
+MIN_SIDE_PX = 16      # smaller images have no room for the segmenter's 7 px normal stencil
+
+
 def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: str = "",
              camera_origin: str = "") -> None:
     """`origin`: the file named for image problems; `camera_origin`: for a camera of another size."""
@@ -62,6 +65,8 @@ def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: 
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise PerceptionError(f"{where}RGB image must be HxWx3 uint8, got shape {rgb.shape} {rgb.dtype}")
     h, w = rgb.shape[:2]
+    if min(h, w) < MIN_SIDE_PX:
+        raise PerceptionError(f"{where}image is {w}x{h} px; perception needs at least {MIN_SIDE_PX} px a side")
     if (camera.width, camera.height) != (w, h):
         cam_where = f"{camera_origin}: " if camera_origin else where
         raise PerceptionError(f"{cam_where}camera is {camera.width}x{camera.height} but the RGB image is {w}x{h}")

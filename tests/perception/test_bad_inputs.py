@@ -260,3 +260,22 @@ def test_outputs_that_cannot_be_written(cap, capsys, tmp_path):
     assert "ov.txt: cannot write the overlay image" in line
     line = refused(capsys, cap / "rgb.png", cap / "camera.json", cap / "depth.png", "--masks", tmp_path / "m.jpg")
     assert "m.jpg: --masks must be a .png file" in line
+
+
+@pytest.mark.parametrize("w, h", [(1, 1), (2, 2)])
+def test_an_image_of_a_few_pixels_is_refused(tmp_path, capsys, w, h):
+    """1x1 and 2x2 images used to end in a numpy broadcast traceback inside the segmenter."""
+    cv2.imwrite(str(tmp_path / "rgb.png"), np.full((h, w, 3), 128, np.uint8))
+    cv2.imwrite(str(tmp_path / "depth.png"), np.full((h, w), 1000, np.uint16))
+    doc = Camera(w, h, float(w), float(w), w / 2, h / 2).to_json()
+    (tmp_path / "camera.json").write_text(json.dumps(doc))
+    line = refused(capsys, tmp_path / "rgb.png", tmp_path / "camera.json", tmp_path / "depth.png")
+    assert f"depth.png: image is {w}x{h} px; perception needs at least 16 px a side" in line
+
+
+def test_a_flat_depth_in_front_of_the_shelf_gives_no_unloadable_box(cap, capsys):
+    """Depth 0.5 m everywhere (the camera is 1 m from the shelf front): the face's box would lie
+    wholly in front of the shelf; it used to be written into a scene that could not be loaded."""
+    cv2.imwrite(str(cap.parent / "flat.png"), np.full((240, 320), 500, np.uint16))
+    _, err = sane(capsys, cap / "rgb.png", cap / "camera.json", cap.parent / "flat.png", n=0)
+    assert "would not reach into the shelf" in err
