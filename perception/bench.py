@@ -370,7 +370,7 @@ def bench_neura(root: Path, segmenter=None, catalogue=None) -> dict:
     """`catalogue`: the box types perception may assume; None (default) because the pallet's
     cartons (34x25x9.5, 25.5x15.5x10 cm) are not the reference stock. With the default catalogue
     and the floor dropped, its count/area share test passes by chance (24-28 x 14-16 cm pieces
-    near type faces) and it joins and cuts faces wrongly (recall 0.50, precision 0.43, round 10)."""
+    near type faces) and it joins and cuts faces wrongly (recall 0.50, precision 0.55, round 10)."""
     from perception.pipeline import perceive
 
     cap, shelf, sizes = neura_capture(root)
