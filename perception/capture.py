@@ -82,7 +82,12 @@ def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: 
 def _image_bytes(p: Path) -> np.ndarray:
     """The file's bytes, refusing a PNG or JPEG cut short (a copy or a download that stopped):
     OpenCV decodes a truncated JPEG with a grey lower part and only a libjpeg warning."""
-    data = p.read_bytes()
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise PerceptionError(f"{p}: cannot read the file ({exc.strerror or exc})") from None
+    if not data:
+        raise PerceptionError(f"{p}: empty file (0 bytes)")
     if data.startswith(b"\x89PNG") and b"IEND" not in data[-64:]:
         raise PerceptionError(f"{p}: truncated PNG (no IEND chunk at the end of its {len(data)} bytes)")
     if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):

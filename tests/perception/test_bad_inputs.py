@@ -279,3 +279,11 @@ def test_a_flat_depth_in_front_of_the_shelf_gives_no_unloadable_box(cap, capsys)
     cv2.imwrite(str(cap.parent / "flat.png"), np.full((240, 320), 500, np.uint16))
     _, err = sane(capsys, cap / "rgb.png", cap / "camera.json", cap.parent / "flat.png", n=0)
     assert "would not reach into the shelf" in err
+
+
+@pytest.mark.parametrize("which", ["rgb", "depth"])
+def test_an_empty_file_is_refused(cap, capsys, which):
+    (cap.parent / "empty.png").write_bytes(b"")
+    args = (cap.parent / "empty.png", cap / "camera.json", cap / "depth.png") if which == "rgb" else \
+        (cap / "rgb.png", cap / "camera.json", cap.parent / "empty.png")
+    assert "empty.png: empty file (0 bytes)" in refused(capsys, *args)
