@@ -109,7 +109,8 @@ def read_rgb(path: str | Path) -> np.ndarray:
 
 
 def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
-    """Metric depth (float32 metres, 0 = no data) from a uint16 PNG or a .npy file."""
+    """Metric depth (float32 metres, 0 = no data) from a uint16 PNG (65535 = no data too) or a
+    .npy file (float: metres, NaN / inf = no data; integer: sensor units)."""
     import cv2
 
     p = Path(path)
@@ -136,7 +137,9 @@ def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
         if raw.dtype != np.uint16:
             raise PerceptionError(f"{p}: depth image must be uint16 (sensor units of depth_scale m), "
                                   f"got {raw.dtype}")
-        depth = raw.astype(np.float32) * depth_scale
+        # 65535 is the "no return / saturated" code of uint16 depth sensors (the OAK-D capture in
+        # shared/realdata uses it); read as metres it would be a surface 65 m away
+        depth = np.where(raw == np.iinfo(np.uint16).max, 0, raw).astype(np.float32) * depth_scale
     neg = np.isfinite(depth) & (depth < 0)
     if neg.any():
         raise PerceptionError(f"{p}: {int(neg.sum())} negative depth values (min {float(depth[neg].min()):.3g} m); "

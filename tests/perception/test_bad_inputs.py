@@ -287,3 +287,17 @@ def test_an_empty_file_is_refused(cap, capsys, which):
     args = (cap.parent / "empty.png", cap / "camera.json", cap / "depth.png") if which == "rgb" else \
         (cap / "rgb.png", cap / "camera.json", cap.parent / "empty.png")
     assert "empty.png: empty file (0 bytes)" in refused(capsys, *args)
+
+
+def test_65535_in_a_uint16_depth_png_is_no_data(cap, capsys):
+    """The OAK-D convention (shared/realdata/simod...): 65535 = no return. Mostly 65535 is then
+    'no valid pixel' rather than a depth 65 m away."""
+    u = depth_units(cap)
+    u[:, :] = 65535
+    cv2.imwrite(str(cap.parent / "sat.png"), u)
+    assert "sat.png: depth image has no valid pixel" in refused(capsys, cap / "rgb.png", cap / "camera.json",
+                                                                   cap.parent / "sat.png")
+    u = depth_units(cap)
+    u[np.random.default_rng(2).random(u.shape) < 0.05] = 65535
+    cv2.imwrite(str(cap.parent / "sat5.png"), u)
+    sane(capsys, cap / "rgb.png", cap / "camera.json", cap.parent / "sat5.png")
