@@ -25,6 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shelf", type=float, nargs=3, metavar=("WIDTH", "DEPTH", "HEIGHT"),
                    help="shelf interior in metres (default 1.0 0.30 1.60)")
     p.add_argument("--report", help="JSON with warnings, adjustments, faces and timing")
+    p.add_argument("--no-catalogue", action="store_true",
+                   help="the boxes are not of the reference types (carton 23x31x25, cube 20, long 50x17x17 cm): "
+                        "never join or cut faces toward them (other stock, e.g. a pallet of 34x25 cm cartons)")
 
 
 def _check_numbers(args: argparse.Namespace) -> None:
@@ -77,8 +80,9 @@ def run(args: argparse.Namespace) -> int:
     capture = load_capture(args.rgb, args.depth, args.camera)
     seg = load_segmenter(args.weights, kind)
     shelf = Shelf(*args.shelf) if args.shelf else Shelf()
+    extra = {"catalogue": None} if getattr(args, "no_catalogue", False) else {}
     result = perceive(capture, seg, shelf, front_distance=args.front_distance,
-                      box_size=tuple(args.box_size) if args.box_size else None, origin=args.camera)
+                      box_size=tuple(args.box_size) if args.box_size else None, origin=args.camera, **extra)
     _write(args.out, "scene", lambda: result.scene.save(args.out))
     if args.overlay:
         _write(args.overlay, "overlay image",

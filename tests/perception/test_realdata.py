@@ -1,6 +1,7 @@
 """Perception on real captures from ../shared/realdata (never copied into the repo)."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -124,3 +125,29 @@ def test_fit_floor_finds_a_tilted_floor_under_boxes():
     got_n, on = fit_floor(pts, far_share=0.6)
     assert np.degrees(np.arccos(min(1.0, float(got_n @ n)))) < 1.0
     assert abs(float((on - 1.0 * n) @ n)) < 0.01
+
+
+@pytest.mark.skipif(not NEURA.is_dir(), reason=f"real data not found at {NEURA} (see shared/realdata/README.md)")
+def test_perceive_no_catalogue_on_other_stock(tmp_path, capsys):
+    """The neura pallet through `shelfpick perceive`: with the default catalogue its faces are
+    joined and cut toward the reference types (the share test passes by chance once the floor is
+    the back wall); `--no-catalogue` leaves them as measured and finds more of the true boxes."""
+    from console.cli import main
+    from perception.bench import match, neura_capture
+
+    cap, shelf, sizes = neura_capture(NEURA)
+    cap.save(tmp_path / "cap")
+    truth = [cap.masks == k for k in sorted(sizes) if (cap.masks == k).sum() >= 200]
+    found = {}
+    for flag in ([], ["--no-catalogue"]):
+        masks = tmp_path / f"m{len(flag)}.png"
+        rc = main(["perceive", "--rgb", str(tmp_path / "cap/rgb.png"), "--depth", str(tmp_path / "cap/depth.png"),
+                   "--camera", str(tmp_path / "cap/camera.json"), "--out", str(tmp_path / f"s{len(flag)}.json"),
+                   "--masks", str(masks), "--segmenter", "depth",
+                   "--shelf", str(shelf.width), f"{shelf.depth:.4f}", str(shelf.height)] + flag)
+        err = capsys.readouterr().err
+        assert rc == 0, err
+        lab = cv2.imread(str(masks), cv2.IMREAD_UNCHANGED)
+        found[bool(flag)] = (len(match([lab == k for k in np.unique(lab) if k], truth)), err)
+    assert "type face" in found[False][1] and "type face" not in found[True][1]
+    assert found[True][0] >= 10 > found[False][0], (found[True][0], found[False][0])
