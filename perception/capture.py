@@ -69,7 +69,10 @@ def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: 
         raise PerceptionError(f"{where}image is {w}x{h} px; perception needs at least {MIN_SIDE_PX} px a side")
     if (camera.width, camera.height) != (w, h):
         cam_where = f"{camera_origin}: " if camera_origin else where
-        raise PerceptionError(f"{cam_where}camera is {camera.width}x{camera.height} but the RGB image is {w}x{h}")
+        turned = " (turned 90 deg: a portrait photo or an EXIF orientation tag, which OpenCV applies?)" \
+            if (camera.width, camera.height) == (h, w) else ""
+        raise PerceptionError(f"{cam_where}camera is {camera.width}x{camera.height} but the RGB image is "
+                              f"{w}x{h}{turned}")
     if depth is not None:
         if depth.shape != (h, w):
             raise PerceptionError(f"{where}depth image is {depth.shape[1]}x{depth.shape[0]} "

@@ -301,3 +301,9 @@ def test_65535_in_a_uint16_depth_png_is_no_data(cap, capsys):
     u[np.random.default_rng(2).random(u.shape) < 0.05] = 65535
     cv2.imwrite(str(cap.parent / "sat5.png"), u)
     sane(capsys, cap / "rgb.png", cap / "camera.json", cap.parent / "sat5.png")
+
+
+def test_an_rgb_image_turned_90_degrees_says_so(cap, capsys):
+    cv2.imwrite(str(cap.parent / "turned.png"), cv2.rotate(cv2.imread(str(cap / "rgb.png")), cv2.ROTATE_90_CLOCKWISE))
+    line = refused(capsys, cap.parent / "turned.png", cap / "camera.json", cap / "depth.png")
+    assert "camera.json: camera is 320x240 but the RGB image is 240x320 (turned 90 deg" in line
