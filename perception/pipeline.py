@@ -109,18 +109,60 @@ def looks_away(camera, shelf: Shelf, min_cos: float = 0.2) -> str:
             "depth axis (+y, into the shelf): check its pose.orientation")
 
 
+# a larger image is perceived at this many pixels (a 3450x2725 photo took 35 s at full size,
+# 1920x1080 takes ~1.6 s CPU) and its masks scaled back up
+MAX_PIXELS = 1920 * 1080
+
+
+def _scaled_capture(capture: Capture, s: float) -> Capture:
+    """The capture at `s` times its size: RGB by area, depth by nearest pixel (no blending across
+    holes or steps), intrinsics scaled about pixel centres."""
+    import cv2
+    from dataclasses import replace
+
+    h, w = capture.shape
+    sw, sh = max(1, int(w * s)), max(1, int(h * s))
+    kx, ky = sw / w, sh / h
+    c = capture.camera
+    cam = replace(c, width=sw, height=sh, fx=c.fx * kx, fy=c.fy * ky,
+                  cx=(c.cx + 0.5) * kx - 0.5, cy=(c.cy + 0.5) * ky - 0.5)
+    rgb = cv2.resize(capture.rgb, (sw, sh), interpolation=cv2.INTER_AREA)
+    depth = None if capture.depth is None else \
+        cv2.resize(capture.depth, (sw, sh), interpolation=cv2.INTER_NEAREST)
+    return Capture(rgb, depth, cam)
+
+
 def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf | None = None, *,
              front_distance: float | None = None, box_size: tuple[float, float] | None = None,
              placeholder: float = 0.25, origin: str = "camera",
-             catalogue: Catalogue | None = DEFAULT_CATALOGUE) -> Perception:
+             catalogue: Catalogue | None = DEFAULT_CATALOGUE, max_pixels: int = MAX_PIXELS) -> Perception:
     """The scene seen in `capture` (see module docstring). `catalogue`: the box types a face
-    may be (joins pieces and splits merged faces only where it explains them); None: no types."""
+    may be (joins pieces and splits merged faces only where it explains them); None: no types.
+    An image over `max_pixels` is perceived scaled down; its masks and overlay are full size
+    (the faces' `rect_px` stay in the scaled image)."""
     t0 = time.perf_counter()
+    shelf = shelf or Shelf()
+    check_intrinsics(capture.camera, capture.shape, origin)
+    h, w = capture.shape
+    if h * w > max_pixels:
+        import cv2
+        from dataclasses import replace
+
+        small = _scaled_capture(capture, (max_pixels / (h * w)) ** 0.5)
+        res = perceive(small, segmenter, shelf, front_distance=front_distance, box_size=box_size,
+                       placeholder=placeholder, origin=origin, catalogue=catalogue,
+                       max_pixels=small.shape[0] * small.shape[1])   # once: never scaled again
+        labels = cv2.resize(res.masks, (w, h), interpolation=cv2.INTER_NEAREST)
+        t = time.perf_counter()
+        overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in res.scene.boxes if b.mask_label})
+        timing = dict(res.timing, overlay=res.timing.get("overlay", 0.0) + time.perf_counter() - t)
+        timing["total"] = time.perf_counter() - t0
+        note = f"image {w}x{h} perceived at {small.shape[1]}x{small.shape[0]} (over {max_pixels} pixels)"
+        return replace(res, scene=replace(res.scene, camera=capture.camera), masks=labels, overlay=overlay,
+                       warnings=(note,) + res.warnings, timing=timing)
     timing: dict[str, float] = {}
     warnings: list[str] = []
-    shelf = shelf or Shelf()
     camera = capture.camera
-    check_intrinsics(camera, capture.shape, origin)
     away = looks_away(camera, shelf)
     if away:
         warnings.append(away)
