@@ -82,6 +82,25 @@ def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: 
             raise PerceptionError(f"{where}depth image has no valid pixel (all zero or NaN)")
 
 
+def _jpeg_complete(data: bytes) -> bool:
+    """Whether a JPEG that does not END with its end-of-image marker still holds a whole image:
+    cameras and editors append data after the marker (a real RCAN photo carries 9.6 KB), and an
+    embedded EXIF thumbnail has a marker of its own, so the full decode of Pillow (an ultralytics
+    dependency) decides; without Pillow, any marker counts."""
+    try:
+        import io
+
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with ultralytics
+        return b"\xff\xd9" in data
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            im.load()
+        return True
+    except (OSError, SyntaxError, ValueError):
+        return False
+
+
 def _image_bytes(p: Path) -> np.ndarray:
     """The file's bytes, refusing a PNG or JPEG cut short (a copy or a download that stopped):
     OpenCV decodes a truncated JPEG with a grey lower part and only a libjpeg warning."""
@@ -93,7 +112,8 @@ def _image_bytes(p: Path) -> np.ndarray:
         raise PerceptionError(f"{p}: empty file (0 bytes)")
     if data.startswith(b"\x89PNG") and b"IEND" not in data[-64:]:
         raise PerceptionError(f"{p}: truncated PNG (no IEND chunk at the end of its {len(data)} bytes)")
-    if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
+    if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(b"\xff\xd9") \
+            and not _jpeg_complete(data):
         raise PerceptionError(f"{p}: truncated JPEG (no end-of-image marker in its {len(data)} bytes)")
     return np.frombuffer(data, np.uint8)
 

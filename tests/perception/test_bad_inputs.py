@@ -134,6 +134,18 @@ def test_a_truncated_png_or_jpeg_is_refused(cap, capsys, name):
     assert f"cut_{name}: truncated {'JPEG' if name.endswith('jpg') else 'PNG'}" in line
 
 
+def test_a_whole_jpeg_with_data_after_its_end_marker_is_read(cap, capsys):
+    """Cameras and editors append data after the end-of-image marker (a real RCAN photo carries
+    9.6 KB of it); such a file is whole and must not be taken for a truncated one."""
+    ok, buf = cv2.imencode(".jpg", cv2.imread(str(cap / "rgb.png")))
+    assert ok
+    tailed = cap.parent / "tailed.jpg"
+    tailed.write_bytes(buf.tobytes() + b"\x00TRAILER" * 500)
+    from perception.capture import read_rgb
+
+    assert read_rgb(tailed).shape == cv2.imread(str(cap / "rgb.png")).shape
+
+
 @pytest.mark.parametrize("kind", ["rgb16", "rgba", "grey"])
 def test_16_bit_rgba_and_grey_images_are_converted(cap, capsys, kind):
     bgr = cv2.imread(str(cap / "rgb.png"))
