@@ -102,14 +102,20 @@ class Catalogue:
         """Whether a face of this size fits inside some type face (a part of one)."""
         return any(width <= w + self.tol and height <= h + self.tol for w, h in self.faces)
 
-    def composable(self, width: float, height: float, axis: int, parts: int = 2) -> bool:
+    def composable(self, width: float, height: float, axis: int, parts: int = 2,
+                   staggered: bool = False) -> bool:
         """Whether a face of this size is `parts` type faces in a row: stacked (axis 1, heights
-        add up, the widest as wide as it) or side by side (axis 0, widths add up)."""
+        add up, the widest as wide as it) or side by side (axis 0, widths add up).
+        `staggered`: the faces may be offset across the row (a stack of boxes pushed left and
+        right), so the row spans at least its widest face and at most all of them side by side."""
         for combo in itertools.combinations_with_replacement(self.faces, parts):
             along = sum(f[1] if axis == 1 else f[0] for f in combo)
-            across = max(f[0] if axis == 1 else f[1] for f in combo)
+            acr = [f[0] if axis == 1 else f[1] for f in combo]
             total, span = (height, width) if axis == 1 else (width, height)
-            if abs(along - total) <= 1.5 * self.tol and abs(across - span) <= self.tol:
+            if abs(along - total) > 1.5 * self.tol:
+                continue
+            if abs(max(acr) - span) <= self.tol or (
+                    staggered and max(acr) - self.tol <= span <= sum(acr) + self.tol):
                 return True
         return False
 
@@ -146,7 +152,7 @@ def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, cat: Catalogue
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                     cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
     """`join_pieces`, `split_faces`, `cut_l_shapes`, a second join pass,
-    `split_stepped_faces`, `take_bridging_parts`, `regroup_pieces` (and a join pass after it),
+    `split_stepped_faces`, `take_bridging_parts`, `take_stepped_parts`, `regroup_pieces` (and a join pass after it),
     then `absorb_enclosed`; returns the masks and their measured faces (None where
     a mask cannot be measured), so the pipeline need not measure them again."""
     cache: dict = {}
@@ -169,6 +175,7 @@ def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
         masks = join_pieces(masks, depth, camera, cat, notes, cache)
     masks = split_stepped_faces(masks, depth, camera, cat, notes, cache)
     masks = take_bridging_parts(masks, depth, camera, cat, notes, cache)
+    masks = take_stepped_parts(masks, depth, camera, cat, notes, cache)
     k = len(notes)
     masks = regroup_pieces(masks, depth, camera, rgb, cat, notes, cache)
     if len(notes) > k:      # a piece beside a re-cut face (a label, a tape quarter) may join it now
@@ -484,20 +491,28 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
                 piece = ((row_axis in (axis, None)) and max(ea, eb) > cat.tol and cat.fits(*rest)
                          and min(rest) >= 0.05 and min(ea, eb) <= cat.tol / 2)
                 piece = piece and ("row" if row_axis == axis else "pieces")
+                stagger = False
                 if max(ea, eb) > cat.tol and not piece:
                     # one part a type face, the other (budget left) itself two faces in a row
                     # along the same axis: a stack of three flush boxes is cut one seam at a time
                     # (only for a mask far off any type face: a face measured a few cm too
                     # long, labels on it, is not a stack of smaller faces)
-                    if f.err <= cat.row_margin or not any(
-                            cat.composable(rest[0], rest[1], axis, k) for k in range(2, budget)):
+                    if f.err <= cat.row_margin or min(ea, eb) > cat.tol:
                         continue
+                    if not any(cat.composable(rest[0], rest[1], axis, k) for k in range(2, budget)):
+                        # a staircase: faces of one colour stacked with offsets (a real seam
+                        # needed, and kept only if the rest cuts into type faces down to the last)
+                        if score < 1.0 or not any(cat.composable(rest[0], rest[1], axis, k, staggered=True)
+                                                  for k in range(2, budget)):
+                            continue
+                        stagger = True
                 # a depth step is two fronts (a label or tape edge is flat): it beats colour alone;
                 # a faint seam (under 1, `weak_evidence`) only where no real seam gives a cut
                 key = (score >= 1.0, max(ea, eb) <= cat.tol, step, score, -max(ea, eb))
-                cands_ok.append((key, axis, p2, a, wa, ha, wb, hb, ea, eb, piece))
+                cands_ok.append((key, axis, p2, a, wa, ha, wb, hb, ea, eb, piece, stagger))
     best = None
-    for c in sorted(cands_ok, key=lambda c: c[0], reverse=True):
+    staircase = None
+    for c in sorted(cands_ok, key=lambda c: (not c[11],) + c[0], reverse=True):
         pa = np.zeros_like(mask)
         pb = np.zeros_like(mask)
         pa[ys[c[3]], xs[c[3]]] = True
@@ -506,11 +521,25 @@ def _split_one(mask: np.ndarray, depth: np.ndarray, camera: Camera, lab: np.ndar
         if c[10] and not _piece_joins(pa if c[8] > cat.tol else pb, pb if c[8] > cat.tol else pa, others or [],
                                       depth, camera, cat, cache, pieces_only=c[10] == "pieces"):
             continue
+        if c[11]:
+            rest_m = pb if c[8] <= cat.tol else pa
+            sub: list[str] = []
+            parts = _split_one(rest_m, depth, camera, lab, cat, sub, budget - 1, cache, None, others)
+            errs = [_measure(q, depth, camera, cat, cache) for q in parts]
+            if len(parts) < 2 or any(e is None or e.err > cat.tol for e in errs):
+                continue
+            staircase = (pa if c[8] <= cat.tol else pb, parts, sub)
         best = c
         break
     if best is None:
         return [mask]
-    _, axis, p2, a, wa, ha, wb, hb, ea, eb, _ = best
+    _, axis, p2, a, wa, ha, wb, hb, ea, eb, _, _ = best
+    if staircase is not None:
+        if notes is not None:
+            notes.append(f"split a {face.size_cm} staircase of faces {'across' if axis == 1 else 'down'} "
+                         f"its seams into {len(staircase[1]) + 1} type faces")
+            notes.extend(staircase[2])
+        return [staircase[0]] + staircase[1]
     if notes is not None:
         notes.append(f"split a {face.size_cm} face "
                      f"{'across' if axis == 1 else 'down'} its seam into {wa * 100:.0f}x{ha * 100:.0f} and "
@@ -1040,6 +1069,125 @@ def _bridge(m, i, pieces, out, depth, camera, cat, cache):
     return rest, union, fr, fu
 
 
+def take_stepped_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
+                       notes: list[str] | None = None, cache: dict | None = None,
+                       plane_tol: float = 0.006) -> list[np.ndarray]:
+    """Give pieces of a face back the part of another mask that lies on their plane, a depth
+    step away from the rest of that mask: a face cut by a tape band whose part below the band
+    merged with the box beneath it (same colour, a front 1-3 cm nearer or further: under the
+    depth-gap split of `masks.refine`); `take_bridging_parts` misses it because that part lies
+    outside the pieces' rectangle.
+
+    For a mask that is no type face (not cut by the image border) with neighbouring pieces (no
+    type faces) on one plane: its pixels within `plane_tol` of that plane and connected to the
+    pieces go to them, only when what is left of the mask lies off that plane (median distance
+    > `cat.plane_tol`) and is a type face filling its rectangle >= `join_fill`, and the pieces
+    with that part join into a type face filling its rectangle >= `join_fill`."""
+    import cv2
+
+    out = [np.asarray(m, bool) for m in masks]
+    if len(out) < 2:
+        return out
+    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
+    i = 0
+    while i < len(out):
+        m = out[i]
+        f = _measure(m, depth, camera, cat, cache)
+        if f is None or f.err <= cat.tol or border_sides(m):
+            i += 1
+            continue
+        pieces = _neighbour_pieces(i, out, k, depth, camera, cat, cache)
+        done = _stepped_part(m, i, pieces, out, depth, camera, cat, cache, k, plane_tol) if pieces else None
+        if done is None:
+            i += 1
+            continue
+        rest, union, grp, fr, fu, step = done
+        if notes is not None:
+            notes.append(f"gave the part of a {f.face.size_cm} mask {step * 100:.1f} cm off its rest to "
+                         f"{len(grp)} neighbouring piece(s): {fu.face.size_cm} and {fr.face.size_cm}")
+        out = [o for j, o in enumerate(out) if j != i and j not in grp] + [rest, union]
+        i = 0
+    return out
+
+
+def _stepped_part(m, i, pieces, out, depth, camera, cat, cache, kernel, plane_tol):
+    """(rest of m, joined face mask, piece indices, their faces, depth step) or None; see
+    `take_stepped_parts`."""
+    import cv2
+
+    fa = max((_measure(out[j], depth, camera, cat, cache) for j in pieces), key=lambda q: int(q.mask.sum()))
+    grp = [j for j in pieces if _plane_dist(fa.face, out[j], depth, camera) <= cat.plane_tol]
+    gm = np.zeros_like(m)
+    for j in grp:
+        gm |= out[j]
+    grown = True
+    while grown:       # the other pieces of that face: neighbours of the group on its plane
+        grown = False
+        near = cv2.dilate(gm.astype(np.uint8), kernel) > 0
+        for q, oq in enumerate(out):
+            if q == i or q in grp or border_sides(oq) or not (near & oq).any():
+                continue
+            fq = _measure(oq, depth, camera, cat, cache)
+            if fq is None or fq.err <= cat.tol or _plane_dist(fa.face, oq, depth, camera) > cat.plane_tol:
+                continue
+            grp.append(q)
+            gm |= oq
+            grown = True
+    # each pixel to the nearer plane: the pieces' one, or the one of the mask's part off it
+    on = _on_plane(fa.face, m, depth, camera, plane_tol)
+    fr0 = _measure(m & ~on, depth, camera, cat, None)
+    if fr0 is None:
+        return None
+    dp, dr = _plane_res(fa.face, m, depth, camera), _plane_res(fr0.face, m, depth, camera)
+    on = m & (dp <= plane_tol) & (dp + 0.003 < dr)
+    off = m & (dr + 0.003 < dp)
+    # where the two planes cross (a yawed face), neither is nearer: such a pixel goes with the
+    # nearest pixel that is clearly on one of them
+    amb = m & ~on & ~off
+    if amb.any() and on.any() and off.any():
+        d_on = cv2.distanceTransform((~on).astype(np.uint8), cv2.DIST_L2, 3)
+        d_off = cv2.distanceTransform((~off).astype(np.uint8), cv2.DIST_L2, 3)
+        on = on | (amb & (d_on < d_off))
+    on = cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    near = cv2.dilate(gm.astype(np.uint8), kernel) > 0
+    n, lbl = cv2.connectedComponents(on.astype(np.uint8), connectivity=4)
+    touch = np.unique(lbl[near & on])
+    part = np.isin(lbl, touch[touch > 0])
+    part = m & (cv2.morphologyEx(part.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0)
+    rest = m & ~part
+    if part.sum() < 0.05 * m.sum() or rest.sum() < 0.3 * m.sum():
+        return None
+    n, lbl, stats, _ = cv2.connectedComponentsWithStats(rest.astype(np.uint8), connectivity=4)
+    if n > 2:
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        if stats[big, cv2.CC_STAT_AREA] < 0.95 * rest.sum():
+            return None
+        # specks next to the part are its holes; others (on the rest's rim) are dropped
+        specks = rest & (lbl != big)
+        n2, lbl2 = cv2.connectedComponents(specks.astype(np.uint8), connectivity=8)
+        grow = cv2.dilate(part.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        touch = np.unique(lbl2[grow & specks])
+        part |= np.isin(lbl2, touch[touch > 0])
+        rest = lbl == big
+    step = _plane_dist(fa.face, rest, depth, camera)
+    if step <= cat.plane_tol:
+        return None          # no depth step: a label or tape edge, not two fronts
+    fr = _measure(rest, depth, camera, cat, None)
+    if fr is None or fr.err > cat.tol or _rect_fill(rest) < cat.join_fill:
+        return None
+    taken = rest.copy()
+    for q, oq in enumerate(out):
+        if q != i and q not in grp:
+            taken |= oq
+    union, fill = _joined(part, gm, fa.face, taken, depth, camera, cat)
+    if fill < cat.join_fill:
+        return None
+    fu = _measure(union, depth, camera, cat, None)
+    if fu is None or fu.err > cat.tol:
+        return None
+    return rest, union, grp, fr, fu, step
+
+
 def regroup_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
                    cat: Catalogue, notes: list[str] | None = None, cache: dict | None = None,
                    max_group: int = 4) -> list[np.ndarray]:
@@ -1185,6 +1333,20 @@ def absorb_enclosed(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
                 break
             if changed:
                 break
+    return out
+
+
+def _plane_res(face, where: np.ndarray, depth: np.ndarray, camera: Camera) -> np.ndarray:
+    """Per pixel of `where`, the distance (m) of its depth point to the plane of `face`
+    (inf where there is no depth or outside `where`)."""
+    from perception.boxes import face_axes
+    from perception.geometry import backproject
+
+    out = np.full(where.shape, np.inf)
+    ys, xs = np.nonzero(where & np.isfinite(depth) & (depth > 0))
+    if len(xs):
+        p = backproject(camera, xs.astype(np.float64), ys.astype(np.float64), depth[ys, xs].astype(np.float64))
+        out[ys, xs] = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1])
     return out
 
 
