@@ -1079,12 +1079,13 @@ def take_stepped_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Camer
     outside the pieces' rectangle.
 
     For a mask that is no type face (not cut by the image border) with neighbouring pieces (no
-    type faces) on one plane: its pixels within `plane_tol` of that plane and connected to the
-    pieces go to them, only when what is left of the mask lies off that plane (median distance
-    > `cat.plane_tol`) and is a type face filling its rectangle >= `join_fill`, and the pieces
-    with that part join into a type face filling its rectangle >= `join_fill`."""
-    import cv2
-
+    type faces) on one plane (the group grown through the pieces' own neighbours): its pixels
+    within `plane_tol` of that plane and nearer to it than to the plane of the mask's other
+    pixels (where a yawed face's plane crosses it, a pixel goes with its nearest clear
+    neighbour), connected to the pieces, go to them; only when what is left of the mask lies off
+    that plane (median distance > `cat.plane_tol`) and is a type face filling its rectangle >=
+    `join_fill`, and the pieces with that part join into a type face filling its rectangle >=
+    `join_fill`."""
     out = [np.asarray(m, bool) for m in masks]
     if len(out) < 2:
         return out
