@@ -176,7 +176,10 @@ def _perceived_plan(truth, cap, gt, target, task, samples, seed, segmenter) -> d
 
     res = perceive(cap, segmenter, truth.shelf)
     ids = map_ids(res.masks, res.scene, gt)
-    row: dict = {"perceived": len(res.scene.boxes)}
+    # what perception changed (catalogue joins / cuts, settling) and which true box each perceived
+    # box stands for: a failed row can be read without perceiving it again
+    row: dict = {"perceived": len(res.scene.boxes), "adjustments": list(res.adjustments),
+                 "perceived_to_true": dict(ids)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ptarget = None
