@@ -273,21 +273,36 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
         masks[j], faces[j], sides[j], errs[j] = fu.mask, fu, border_sides(fu.mask), eu
         alive[i] = False
 
-    def _group_join(i: int):
+    def _group_join(i: int, extra: int | None = None):
         """A face cut into 3+ pieces (a wide tape cross): no two of them fill a rectangle, but
         mask i (a piece, or the cross itself, which may measure as the whole face) and ALL its
-        on-plane neighbouring pieces do, and make a type face. Returns (j, joined face, error)
-        with the other pieces marked dead, or None."""
+        on-plane neighbouring pieces do, and make a type face. `extra`: one more neighbour that
+        measures as a type face by chance (a quarter of a 50x17 face cut by a tape cross can
+        measure 20x20), counted only within the band the pieces span across it (it may hold a
+        strip of the flush box beside the cut face); the union must then be a type face within
+        `tol`, and one piece is enough. Returns (j, joined face, error) with the other pieces
+        marked dead, or None."""
         near = cv2.dilate(masks[i].astype(np.uint8), k) > 0
         group = [j for j in range(len(masks))
                  if j != i and alive[j] and errs[j] > cat.tol and (near & masks[j]).any()
                  and not ((sides[i] or sides[j]) and not set(sides[i]) & set(sides[j]))
                  and _plane_dist(faces[i].face, masks[j], depth, camera) <= cat.plane_tol]
-        if len(group) < 2:
+        if extra is not None:
+            group.append(extra)
+        if len(group) < (1 if extra is not None else 2):
             return None
         rest = np.zeros_like(masks[i])
         for j in group:
             rest |= masks[j]
+        if extra is not None:
+            # the chance type face may reach past the cut face into the flush box beside it:
+            # it counts only within the band the pieces span across it (on either face axis)
+            rest = _band_trim(masks[i] | rest & ~masks[extra], masks[extra], faces[extra].face, camera)
+            if rest is None:
+                return None
+            for j in group:
+                if j != extra:
+                    rest |= masks[j]
         taken = np.zeros_like(masks[i])
         for q in range(len(masks)):
             if alive[q] and q != i and q not in group:
@@ -299,7 +314,7 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
         if fu is None:
             return None
         eu = err(fu, union, border_sides(union))
-        if eu > cat.join_tol:
+        if eu > (cat.join_tol if extra is None else cat.tol):
             return None
         if errs[i] <= cat.tol and max(abs(fu.face.width - faces[i].face.width),
                                       abs(fu.face.height - faces[i].face.height)) > cat.tol:
@@ -345,6 +360,15 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                     best = (j, fu, eu)
             if best is None:
                 best = _group_join(i)
+            if best is None:       # a piece of the cross that measures as a type face by chance
+                for t in range(len(masks)):
+                    if t == i or not alive[t] or errs[t] > cat.tol or not (near & masks[t]).any() \
+                            or ((sides[i] or sides[t]) and not set(sides[i]) & set(sides[t])) \
+                            or _plane_dist(faces[i].face, masks[t], depth, camera) > cat.plane_tol:
+                        continue
+                    best = _group_join(i, extra=t)
+                    if best is not None:
+                        break
             if best is None:
                 continue
             j, fu, eu = best
@@ -364,6 +388,26 @@ def join_pieces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat:
                 changed = True
                 break
     return [m for m, a in zip(masks, alive) if a]
+
+
+def _band_trim(pieces: np.ndarray, other: np.ndarray, face, camera: Camera, margin: float = 0.01):
+    """`other` cut to the band that `pieces` span along one axis of `face` (the axis that trims
+    less of it: at least 2%, at most a third, a strip sticking out), or None when neither does."""
+    _, _, px, pz = _coords(face, pieces, camera)
+    ys, xs, ox, oz = _coords(face, other, camera)
+    if len(px) < 10 or len(ox) < 10:
+        return None
+    best = None
+    for p, o in ((pz, oz), (px, ox)):
+        lo, hi = np.quantile(p, (0.01, 0.99))
+        keep = (o >= lo - margin) & (o <= hi + margin)
+        if 0.02 * len(o) <= (~keep).sum() <= len(o) / 3 and (best is None or keep.sum() > best.sum()):
+            best = keep
+    if best is None:
+        return None
+    out = np.zeros_like(other)
+    out[ys[best], xs[best]] = True
+    return out
 
 
 def _joined(a: np.ndarray, b: np.ndarray, face, taken: np.ndarray, depth: np.ndarray, camera: Camera,
