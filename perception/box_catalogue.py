@@ -1049,27 +1049,39 @@ def take_bridging_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Came
     plane): the pieces' joint rectangle is their face; the mask's pixels inside it go to the
     pieces only when the pieces and that part join into a type face filling its rectangle
     >= `join_fill` AND what is left of the mask is a type face (within `tol`)."""
+    def attempt(i, m, f, out, k):
+        pieces = _neighbour_pieces(i, out, k, depth, camera, cat, cache, plane=f.face)
+        done = _bridge(m, i, pieces, out, depth, camera, cat, cache) if len(pieces) >= 2 else None
+        if done is None:
+            return None
+        rest, union, fr, fu = done
+        return pieces, rest, union, (f"gave the part of a {f.face.size_cm} mask inside {len(pieces)} pieces' "
+                                     f"rectangle to them: {fu.face.size_cm} and {fr.face.size_cm}")
+
+    return _give_parts(masks, depth, camera, cat, cache, notes, 3, attempt)
+
+
+def _give_parts(masks, depth, camera, cat, cache, notes, least, attempt) -> list[np.ndarray]:
+    """The loop shared by the passes that give part of a non-type mask to neighbouring pieces:
+    for each mask that is no type face and not cut by the image border, `attempt(i, mask, face,
+    masks, kernel)` returns (indices of the pieces it used, what is left of the mask, the joined
+    face, a note) or None; after a change the scan starts again."""
     out = [np.asarray(m, bool) for m in masks]
-    if len(out) < 3:
+    if len(out) < least:
         return out
     k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
     i = 0
     while i < len(out):
         m = out[i]
         f = _measure(m, depth, camera, cat, cache)
-        if f is None or f.err <= cat.tol or border_sides(m):
-            i += 1
-            continue
-        pieces = _neighbour_pieces(i, out, k, depth, camera, cat, cache, plane=f.face)
-        done = _bridge(m, i, pieces, out, depth, camera, cat, cache) if len(pieces) >= 2 else None
+        done = None if f is None or f.err <= cat.tol or border_sides(m) else attempt(i, m, f, out, k)
         if done is None:
             i += 1
             continue
-        rest, union, fr, fu = done
+        used, rest, union, note = done
         if notes is not None:
-            notes.append(f"gave the part of a {f.face.size_cm} mask inside "
-                         f"{len(pieces)} pieces' rectangle to them: {fu.face.size_cm} and {fr.face.size_cm}")
-        out = [o for j, o in enumerate(out) if j != i and j not in pieces] + [rest, union]
+            notes.append(note)
+        out = [o for j, o in enumerate(out) if j != i and j not in used] + [rest, union]
         i = 0
     return out
 
@@ -1130,29 +1142,16 @@ def take_stepped_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Camer
     that plane (median distance > `cat.plane_tol`) and is a type face filling its rectangle >=
     `join_fill`, and the pieces with that part join into a type face filling its rectangle >=
     `join_fill`."""
-    out = [np.asarray(m, bool) for m in masks]
-    if len(out) < 2:
-        return out
-    k = np.ones((2 * cat.max_join_gap_px + 1,) * 2, np.uint8)
-    i = 0
-    while i < len(out):
-        m = out[i]
-        f = _measure(m, depth, camera, cat, cache)
-        if f is None or f.err <= cat.tol or border_sides(m):
-            i += 1
-            continue
+    def attempt(i, m, f, out, k):
         pieces = _neighbour_pieces(i, out, k, depth, camera, cat, cache)
         done = _stepped_part(m, i, pieces, out, depth, camera, cat, cache, k, plane_tol) if pieces else None
         if done is None:
-            i += 1
-            continue
+            return None
         rest, union, grp, fr, fu, step = done
-        if notes is not None:
-            notes.append(f"gave the part of a {f.face.size_cm} mask {step * 100:.1f} cm off its rest to "
-                         f"{len(grp)} neighbouring piece(s): {fu.face.size_cm} and {fr.face.size_cm}")
-        out = [o for j, o in enumerate(out) if j != i and j not in grp] + [rest, union]
-        i = 0
-    return out
+        return grp, rest, union, (f"gave the part of a {f.face.size_cm} mask {step * 100:.1f} cm off its rest "
+                                  f"to {len(grp)} neighbouring piece(s): {fu.face.size_cm} and {fr.face.size_cm}")
+
+    return _give_parts(masks, depth, camera, cat, cache, notes, 2, attempt)
 
 
 def _stepped_part(m, i, pieces, out, depth, camera, cat, cache, kernel, plane_tol):
