@@ -1108,21 +1108,31 @@ def _bridge(m, i, pieces, out, depth, camera, cat, cache):
             return None
         part |= rest & (lbl != big)
         rest = lbl == big
+    fg = _measure(out[pieces[0]], depth, camera, cat, cache)
+    done = _part_to_pieces(rest, part, grp, fg.face, i, pieces, out, depth, camera, cat)
+    if done is None:
+        return None
+    fr, union, fu = done
+    return rest, union, fr, fu
+
+
+def _part_to_pieces(rest, part, grp, face, i, used, out, depth, camera, cat):
+    """(rest's face, the pieces `grp` joined with `part` on `face`, that face) when what is left
+    of mask i is a type face filling its rectangle and the join is a type face too; else None."""
     fr = _measure(rest, depth, camera, cat, None)
     if fr is None or fr.err > cat.tol or _rect_fill(rest) < cat.join_fill:
         return None
-    fg = _measure(out[pieces[0]], depth, camera, cat, cache)
     taken = rest.copy()
     for q, oq in enumerate(out):
-        if q != i and q not in pieces:
+        if q != i and q not in used:
             taken |= oq
-    union, fill = _joined(part, grp, fg.face, taken, depth, camera, cat)
+    union, fill = _joined(part, grp, face, taken, depth, camera, cat)
     if fill < cat.join_fill:
         return None
     fu = _measure(union, depth, camera, cat, None)
     if fu is None or fu.err > cat.tol:
         return None
-    return rest, union, fr, fu
+    return fr, union, fu
 
 
 def take_stepped_parts(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, cat: Catalogue,
@@ -1216,19 +1226,10 @@ def _stepped_part(m, i, pieces, out, depth, camera, cat, cache, kernel, plane_to
     step = _plane_dist(fa.face, rest, depth, camera)
     if step <= cat.plane_tol:
         return None          # no depth step: a label or tape edge, not two fronts
-    fr = _measure(rest, depth, camera, cat, None)
-    if fr is None or fr.err > cat.tol or _rect_fill(rest) < cat.join_fill:
+    done = _part_to_pieces(rest, part, gm, fa.face, i, grp, out, depth, camera, cat)
+    if done is None:
         return None
-    taken = rest.copy()
-    for q, oq in enumerate(out):
-        if q != i and q not in grp:
-            taken |= oq
-    union, fill = _joined(part, gm, fa.face, taken, depth, camera, cat)
-    if fill < cat.join_fill:
-        return None
-    fu = _measure(union, depth, camera, cat, None)
-    if fu is None or fu.err > cat.tol:
-        return None
+    fr, union, fu = done
     return rest, union, grp, fr, fu, step
 
 

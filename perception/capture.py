@@ -85,14 +85,11 @@ def validate(rgb: np.ndarray, depth: np.ndarray | None, camera: Camera, origin: 
 def _jpeg_complete(data: bytes) -> bool:
     """Whether a JPEG that does not END with its end-of-image marker still holds a whole image:
     cameras and editors append data after the marker (a real RCAN photo carries 9.6 KB), and an
-    embedded EXIF thumbnail has a marker of its own, so the full decode of Pillow (an ultralytics
-    dependency) decides; without Pillow, any marker counts."""
-    try:
-        import io
+    embedded EXIF thumbnail has a marker of its own, so Pillow's full decode decides."""
+    import io
 
-        from PIL import Image
-    except ImportError:  # pragma: no cover - Pillow comes with ultralytics
-        return b"\xff\xd9" in data
+    from PIL import Image
+
     try:
         with Image.open(io.BytesIO(data)) as im:
             im.load()
