@@ -49,11 +49,19 @@ def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> 
         ox0, ox1 = min(c[0] for c in cs), max(c[0] for c in cs)
         oz0, oz1 = min(c[2] for c in cs), max(c[2] for c in cs)
         oy0 = min(c[1] for c in cs)
-        if ox0 < x1 - 0.01 and x0 + 0.01 < ox1 and oz0 < z1 - 0.01 and z0 + 0.01 < oz1 and oy0 > face_max_y - 0.005:
-            hi = min(hi, (oy0 - face_max_y) / dy)
+        # only a face really behind this one bounds it: a neighbour in the same column
+        # overlaps by a few mm through tilt or noise, and bounding by it gave 1 cm deep boxes
+        ov = _OCCLUSION_OVERLAP
+        if ox0 < x1 - ov and x0 + ov < ox1 and oz0 < z1 - ov and z0 + ov < oz1 and oy0 > face_max_y - 0.005:
+            bound = (oy0 - face_max_y) / dy
+            if bound >= cfg.min_sample_depth:
+                hi = min(hi, bound)
     hi = max(hi, 0.01)
     lo = min(cfg.min_sample_depth, hi)
     return (lo, hi)
+
+
+_OCCLUSION_OVERLAP = 0.05  # m of face overlap in x and in z before a face counts as behind another
 
 
 def _face(b: Box) -> list:

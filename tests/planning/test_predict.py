@@ -35,6 +35,20 @@ def test_hidden_depth_never_passes_through_a_box_behind():
         assert max(c[1] for c in s.box("front").corners()) <= 0.2 + 1e-9
 
 
+def test_a_box_stacked_on_a_slightly_tilted_one_does_not_cap_its_depth():
+    """Judge scene s07: the box above sits 1 cm further back and both lean 2.4 deg, so their
+    faces overlap by a few mm in z. That is no box behind this one: the depth range must still
+    reach the back wall (it was capped at 1 cm, and every sample held a 1 cm deep box)."""
+    import math
+    lean = (math.cos(0.021), 0.0, -math.sin(0.021), 0.0)
+    lower = Box("lower", (0.31, 0.10, 0.23), (-0.26, 0.068, 0.426), lean, depth_known=False)
+    upper = Box("upper", (0.31, 0.10, 0.23), (-0.34, 0.079, 0.653), lean, depth_known=False)
+    scene = Scene(Shelf(), (lower, upper))
+    lo, hi = depth_range(scene, lower)
+    assert lo == pytest.approx(PhysicsConfig().min_sample_depth)
+    assert hi > 0.25
+
+
 def test_same_seed_same_samples_other_seed_other_samples():
     scene = twelve().hide_depths()
     assert sample_depths(scene, 1, 0) == sample_depths(scene, 1, 0)
