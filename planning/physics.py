@@ -35,6 +35,8 @@ class PhysicsConfig:
     pull_lift: float = 0.006            # m the gripper lifts the box before pulling (capped by the
                                         # free space above it; 0 = drag it on its support)
     lift_time: float = 0.05             # s the lift takes
+    pull_hold: bool = False             # with no lift: the arm holds the box's height (stiff) instead of
+                                        # letting it ride on its support
     pull_timeout: float = 3.0           # s; a box that does not come out by then is stuck
     disturbance: float = 0.002          # m, amplitude of the seeded lateral vibration (x)
     disturbance_force: float = 0.1      # vertical vibration force, in weights of the pulled box
@@ -68,6 +70,12 @@ class PhysicsConfig:
     repair_tolerance: float = 0.02      # m of overlap repaired; more is refused
     repair_min_overlap: float = 0.003   # m; shallower overlaps are resting contact, left to Bullet
     settle_report: float = 0.005        # m a box must move while a new scene settles to be reported
+    # a perceived shelf is measured to about 1 cm per face (docs/physics.md): its sample worlds
+    # repair overlaps up to `prediction_repair_tolerance`, and a box that then moves more than
+    # `stand_tolerance` (or turns more than `stand_rotation`) while settling did not stand as seen
+    prediction_repair_tolerance: float = 0.05   # m
+    stand_tolerance: float = 0.03       # m
+    stand_rotation: float = 8.0         # degrees
     # shelf model
     shelf_top: bool = True
     wall_thickness: float = 0.05
@@ -88,7 +96,8 @@ class PhysicsConfig:
 
     def for_prediction(self) -> "PhysicsConfig":
         """The settings of the Predictor's sample worlds (coarser where accuracy allows)."""
-        return replace(self, solver_iterations=self.prediction_solver_iterations)
+        return replace(self, solver_iterations=self.prediction_solver_iterations,
+                       repair_tolerance=max(self.repair_tolerance, self.prediction_repair_tolerance))
 
     def replace(self, **changes: Any) -> "PhysicsConfig":
         return replace(self, **changes)
@@ -116,5 +125,5 @@ _POSITIVE = {"gravity", "density", "time_step", "solver_iterations", "prediction
              "pull_force_weights", "pull_timeout", "settle_time", "initial_settle_time", "rest_velocity",
              "rest_angular_velocity", "collapse_displacement", "collapse_rotation",
              "collapse_velocity", "collapse_angular_velocity", "collapse_peak_displacement",
-             "collapse_peak_rotation", "repair_tolerance",
+             "collapse_peak_rotation", "repair_tolerance", "stand_tolerance", "stand_rotation",
              "wall_thickness", "min_sample_depth"}

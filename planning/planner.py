@@ -22,6 +22,7 @@ from planning.plan import TASKS, Plan, StepPrediction
 if TYPE_CHECKING:  # pragma: no cover
     from planning.physics import PhysicsConfig
     from planning.predict import Predictor
+    from planning.uncertainty import Uncertainty
 
 PLANNERS = ("physics", "heuristic")
 
@@ -59,12 +60,15 @@ def evaluate_sequence(sequence: tuple[str, ...],
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
               samples: int = 10, seed: int = 0, risk: float = 0.0,
               config: "PhysicsConfig | None" = None, predictor: "Predictor | None" = None,
-              *, budget_s: float | None = None, origin: str = "", workers: int = 1) -> Plan:
+              *, budget_s: float | None = None, origin: str = "", workers: int = 1,
+              model: "Uncertainty | None" = None) -> Plan:
     """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
 
     `predictor` (anything with ``trial(removed, box) -> StepPrediction``) is
     reused when given (the console and the benchmark keep one per scene);
-    otherwise one is built from `scene` with `samples` depth samples and
+    otherwise one is built from `scene` with `samples` draws of what the camera
+    cannot know (`model`, default `Uncertainty()`: depth, mass, friction, face
+    error, the pull) and
     `seed` (over `workers` processes: same plan, less wait), and closed
     afterwards. `budget_s` bounds the physics search; when it runs out the plan says so (``extra["search"]["timed_out"]``).
     """
@@ -79,7 +83,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     own = predictor is None
     if own:
         from planning.predict import Predictor
-        predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers)
+        predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers, model=model)
     try:
         if own and scene.depth_known:
             # the predictor keeps its worlds quiet; with known depths its one world
@@ -129,5 +133,10 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             predictor.close()  # type: ignore[union-attr]
     safe = all(p.risk <= risk for p in predicted)
     search["success_prob"] = success_prob(predicted)
-    return Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed,
-                {"search": search})
+    extra: dict[str, Any] = {"search": search}
+    check = getattr(predictor, "scene_check", None)
+    if isinstance(check, dict):
+        extra["scene_check"] = check
+        # a shelf that does not stand as seen was not observed right: nothing planned on it is safe
+        safe = safe and bool(check.get("stands_as_seen", True))
+    return Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)

@@ -14,14 +14,15 @@ import time
 import warnings
 import zlib
 from collections import Counter
-from dataclasses import replace
-from typing import Sequence
+from dataclasses import dataclass, replace
+from typing import Mapping, Sequence
 
 from perception.errors import SceneError
 from perception.scene import Box, Scene, quat_to_matrix
 from planning.physics import PhysicsConfig
 from planning.plan import StepPrediction
 from planning.sim import ShelfSim, StepResult
+from planning.uncertainty import Uncertainty, draw_config, draw_scene
 
 
 def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> tuple[float, float]:
@@ -108,44 +109,117 @@ def trial_seed(seed: int, sample: int, removed: frozenset[str], box: str) -> int
     return _stable_seed(seed, sample, ",".join(sorted(removed)), box)
 
 
-def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
-                 ranges: dict[str, tuple[float, float]] | None = None) -> ShelfSim:
-    """The settled world of one depth sample; an unstable draw is redrawn (deterministically).
+@dataclass(frozen=True)
+class Draw:
+    """One sample world as built: the world, and what the draws before it contradicted."""
 
-    Redraws reach less and less deep (a box turned in the plane swings its back
-    corners sideways into its neighbours), and the last resort is the scene as
-    perceived, with its placeholder depths, which perception made valid.
+    sim: ShelfSim
+    rejected: tuple[Mapping[str, str], ...] = ()   # per redrawn attempt: box -> what it did
+    stands: bool = True                           # False: no attempt stood as observed
+
+
+def contradictions(sim: ShelfSim, config: PhysicsConfig) -> dict[str, str]:
+    """Boxes of a freshly settled world that did not stand as they were given, with what they did."""
+    out = {}
+    for bid, (d, a) in sim.settle_moves.items():
+        pos = sim.scene.box(bid).position
+        if pos[2] < 0 or pos[1] < -0.3:
+            out[bid] = f"falls off the shelf while settling (moved {d:.2f} m)"
+        elif d > config.stand_tolerance:
+            out[bid] = f"moves {d:.3f} m while settling (more than {config.stand_tolerance:.2f} m)"
+        elif a > config.stand_rotation:
+            out[bid] = f"turns {a:.0f} deg while settling (more than {config.stand_rotation:.0f} deg)"
+    return out
+
+
+_ATTEMPTS = (1.0, 1.0, 1.0, 0.66, 0.33, 0.0)   # reach of each attempt's depth draw, then as perceived
+
+
+def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
+                 ranges: dict[str, tuple[float, float]] | None = None,
+                 model: Uncertainty | None = None) -> Draw:
+    """The settled world of draw `sample`; a draw that does not stand as observed is redrawn.
+
+    A draw contradicts the image when a box moves more than `stand_tolerance` or
+    turns more than `stand_rotation` while it settles, or when its overlaps cannot
+    be repaired. Later attempts reach less deep (a box turned in the plane swings
+    its back corners into its neighbours). When no attempt stands, the attempt
+    that moved the fewest boxes comes back with ``stands=False``: the caller must
+    say so, never plan on it as if it were the shelf.
     """
-    last: Exception | None = None
-    reaches = (1.0, 1.0, 0.66, 0.33, 0.0)
-    for attempt, reach in enumerate(reaches + (None,)):
-        if scene.depth_known or reach is None:
-            sc = scene
-        else:
-            sc = sample_depths(scene, seed, sample + 1000 * attempt, config, reach, ranges)
+    model = model if model is not None else Uncertainty()
+    if scene.depth_known:   # a known shelf is the truth: one world, as given
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sim = ShelfSim(scene, config, local=config.prediction_local)
+        off = contradictions(sim, config)
+        return Draw(sim, (off,) if off else (), not off)
+    rejected: list[dict[str, str]] = []
+    best: ShelfSim | None = None
+    best_off: dict[str, str] = {}
+    ranges = ranges if ranges is not None else depth_ranges(scene, config)
+    as_seen = {b.id: (b.size[1], b.size[1]) for b in scene.boxes if not b.depth_known}
+    for attempt, reach in enumerate(_ATTEMPTS + (None,)):
+        k = sample + 1000 * attempt
+        # the last resort keeps perception's placeholder depths, which perception made valid
+        sc = draw_scene(scene, seed, k, model, as_seen if reach is None else ranges, reach or 0.0)
+        cfg = draw_config(config, seed, k, model)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return ShelfSim(sc, config, local=config.prediction_local)
-        except SceneError as exc:  # this draw does not stand; draw again
-            last = exc
-            if scene.depth_known or reach is None:
-                raise
-    raise SceneError(f"no stable depth sample {sample}: {last}")  # pragma: no cover - loop raises
+                sim = ShelfSim(sc, cfg, local=config.prediction_local)
+        except SceneError as exc:  # overlaps past repair, or a world that never comes to rest
+            rejected.append({"*": str(exc)})
+            continue
+        off = contradictions(sim, config)
+        if not off:
+            if best is not None:
+                best.close()
+            return Draw(sim, tuple(rejected), True)
+        rejected.append(off)
+        if best is None or len(off) < len(best_off):
+            if best is not None:
+                best.close()
+            best, best_off = sim, off
+        else:
+            sim.close()
+    if best is None:
+        raise SceneError(f"no draw of sample {sample} can be built: {rejected[-1].get('*', rejected[-1])}")
+    return Draw(best, tuple(rejected), False)
+
+
+def scene_check(draws: Sequence[Draw]) -> dict:
+    """Whether the observed shelf stands as seen, from the sample worlds' draws.
+
+    A box is a problem when it contradicted the image in every attempt of some
+    sample (no draw of what the camera cannot know makes it stand as seen).
+    """
+    problems: dict[str, str] = {}
+    redrawn = 0
+    for d in draws:
+        redrawn += len(d.rejected)
+        if not d.stands and d.rejected:
+            for bid, what in d.rejected[-1].items():
+                problems.setdefault(bid, what)
+    return {"stands_as_seen": not problems, "redrawn": redrawn,
+            "problems": [{"box": None if b == "*" else b, "what": w} for b, w in sorted(problems.items())]}
 
 
 class _Worlds:
     """Some of the sample worlds (all of them, or one worker's share) and their cached states."""
 
-    def __init__(self, scene: Scene, seed: int, config: PhysicsConfig, indices: Sequence[int]):
+    def __init__(self, scene: Scene, seed: int, config: PhysicsConfig, indices: Sequence[int],
+                 model: Uncertainty | None = None):
         self.seed = seed
         self.local = config.prediction_local
         self.order = {b: i for i, b in enumerate(scene.ids)}
         self.sims: dict[int, ShelfSim] = {}
+        self.draws: dict[int, Draw] = {}
         ranges = depth_ranges(scene, config) if not scene.depth_known else None
         try:
             for i in indices:
-                self.sims[i] = build_sample(scene, seed, i, config, ranges)
+                self.draws[i] = build_sample(scene, seed, i, config, ranges, model)
+                self.sims[i] = self.draws[i].sim
         except BaseException:
             self.close()
             raise
@@ -201,14 +275,14 @@ def _worker(conn) -> None:
         while True:
             msg = conn.recv()
             if msg[0] == "build":
-                _, scene, seed, config, indices = msg
+                _, scene, seed, config, indices, model = msg
                 try:
-                    worlds = _Worlds(scene, seed, config, indices)
+                    worlds = _Worlds(scene, seed, config, indices, model)
                 except BaseException as exc:  # reported to the parent, which raises it
                     worlds = None
                     conn.send(("error", exc))
                     continue
-                conn.send(("ready", {i: sim.scene for i, sim in worlds.sims.items()}))
+                conn.send(("ready", {i: (d.sim.scene, d.rejected, d.stands) for i, d in worlds.draws.items()}))
             elif msg[0] == "pull":
                 _, removed, box, which = msg
                 conn.send(("ok", {i: replace(worlds.pull(i, removed, box), frames=())  # type: ignore[union-attr]
@@ -273,6 +347,15 @@ def _give_back_worker(proc, conn) -> None:
             proc.terminate()
 
 
+@dataclass(frozen=True)
+class _Stub:
+    """A pool worker's `Draw` as the parent sees it (the world stays in the worker)."""
+
+    scene: Scene
+    rejected: tuple
+    stands: bool
+
+
 class Predictor:
     """The planners' oracle: `trial(removed, box) -> StepPrediction` over N depth samples.
 
@@ -287,7 +370,7 @@ class Predictor:
 
     def __init__(self, scene: Scene, samples: int = 10, seed: int = 0,
                  config: PhysicsConfig | None = None, *, early_stop_risk: float | None = None,
-                 workers: int = 1):
+                 workers: int = 1, model: Uncertainty | None = None):
         if samples < 1:
             raise ValueError(f"samples must be >= 1, got {samples}")
         # the sample worlds run the prediction settings (30 solver iterations, see docs/speed.md);
@@ -297,6 +380,7 @@ class Predictor:
         self.seed = int(seed)
         self.samples = samples
         self.early_stop_risk = early_stop_risk
+        self.model = model if model is not None else Uncertainty()
         self._n = samples if not scene.depth_known else 1
         self._order = {b: i for i, b in enumerate(scene.ids)}
         self._local: _Worlds | None = None
@@ -305,8 +389,9 @@ class Predictor:
         t0 = time.perf_counter()
         workers = max(1, min(int(workers), self._n))
         if workers == 1:
-            self._local = _Worlds(scene, self.seed, cfg, range(self._n))
+            self._local = _Worlds(scene, self.seed, cfg, range(self._n), self.model)
             self.sample_scenes = [self._local.sims[i].scene for i in range(self._n)]
+            self.scene_check = scene_check([self._local.draws[i] for i in range(self._n)])
         else:
             self._start_pool(workers)
         self._cache: dict[tuple[frozenset[str], str], StepPrediction] = {}
@@ -319,8 +404,8 @@ class Predictor:
         for share in shares:
             proc, conn = _take_worker()
             self._pool.append((proc, conn, share))
-            conn.send(("build", self.scene, self.seed, self.config, share))
-        scenes: dict[int, Scene] = {}
+            conn.send(("build", self.scene, self.seed, self.config, share, self.model))
+        scenes: dict[int, tuple] = {}
         error: BaseException | None = None
         try:
             for _, conn, _ in self._pool:  # every reply is read, so no pipe keeps a stale one
@@ -336,7 +421,8 @@ class Predictor:
         if error is not None:
             self.close()
             raise error
-        self.sample_scenes = [scenes[i] for i in range(self._n)]
+        self.sample_scenes = [scenes[i][0] for i in range(self._n)]
+        self.scene_check = scene_check([_Stub(*scenes[i]) for i in range(self._n)])  # type: ignore[list-item]
 
     @property
     def worlds(self) -> int:

@@ -208,6 +208,11 @@ class ShelfSim:
             raise SceneError(f"scene does not come to rest within {cfg.initial_settle_time:g} s: "
                              f"box(es) {', '.join(moving)} still moving")
         after = self._raw_poses(self._ids)
+        # how far each box moved and turned while settling, from where it was put (after the
+        # overlap repair): a box that moves far did not stand as it was given (predict.py)
+        self.settle_moves: dict[str, tuple[float, float]] = {
+            bid: (_dist(before[bid][0], after[bid][0]), _rot_angle_deg(before[bid][1], after[bid][1]))
+            for bid in self._ids}
         for bid in self._ids:
             d = _dist(before[bid][0], after[bid][0])
             if d > cfg.settle_report:
@@ -720,7 +725,7 @@ class ShelfSim:
         # free space above it is nil) and is dragged as before, z free.
         lift = self._free_lift(box_id) if cfg.pull_lift > 0 else 0.0
         lift_steps = int(math.ceil(cfg.lift_time / dt)) if lift > 0 else 0
-        joint = p.JOINT_FIXED if lift > 0 else p.JOINT_PRISMATIC
+        joint = p.JOINT_FIXED if (lift > 0 or cfg.pull_hold) else p.JOINT_PRISMATIC
         cid = p.createConstraint(body, -1, -1, -1, joint, [0, 0, 1], list(front_local),
                                  list(front0), [0, 0, 0, 1], list(orn0))
         p.changeConstraint(cid, list(front0), jointChildFrameOrientation=list(orn0),

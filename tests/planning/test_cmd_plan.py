@@ -136,7 +136,7 @@ def test_plan_to_file_heuristic_clear(tmp_path, capsys):
 class _AlwaysCollapses:
     """Stands in for the physics: every pull drops some other box."""
 
-    def __init__(self, scene, samples=10, seed=0, config=None, workers=1):
+    def __init__(self, scene, samples=10, seed=0, config=None, workers=1, model=None):
         self.ids = scene.ids
 
     def trial(self, removed, box):

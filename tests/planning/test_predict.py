@@ -92,7 +92,7 @@ def test_same_seed_same_predictions_whatever_the_call_order():
         b = [p2.trial(r, b) for r, b in reversed(calls)][::-1]
         assert a == b
         assert [x.to_json() for x in p1.results(*calls[2])] == [x.to_json() for x in p2.results(*calls[2])]
-    assert a[1].collapse_prob == 1.0 and a[1].moved[0] == "c3"
+    assert a[1].collapse_prob == 1.0 and "c3" in a[1].moved   # the column above falls
     assert a[3].collapse_prob == 0.0
 
 
