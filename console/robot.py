@@ -18,140 +18,18 @@ plan was made for, so a new capture and plan are needed.
 """
 from __future__ import annotations
 
-import logging
 import math
 import threading
 import time
-from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Callable, Mapping
 from urllib.parse import parse_qs, urlsplit
 
 from perception.errors import ShelfpickError
 from perception.scene import Box, Scene
 from planning.plan import Plan
 
-log = logging.getLogger(__name__)
-
-EVENT_KINDS = ("ack", "done", "error", "aborted", "disconnected")
-REPLAN = "a new capture and plan are needed"
-
-
-class RobotError(ShelfpickError):
-    """A robot spec, transform or connection the user has to fix."""
-
-
-@dataclass(frozen=True)
-class RobotEvent:
-    """One thing the robot reported: `ack` (step accepted), `done`, `error`, `aborted`, `disconnected`."""
-
-    kind: str
-    step: int | None = None
-    box: str | None = None
-    detail: Mapping[str, Any] = field(default_factory=dict)
-
-    def to_json(self) -> dict:
-        return {"kind": self.kind, "step": self.step, "box": self.box, "detail": dict(self.detail)}
-
-
-@dataclass(frozen=True)
-class RobotOutcome:
-    """How a plan run ended.
-
-    `completed`: boxes of this plan the robot has taken out (including those
-    of an earlier run of the same plan hash, which were not re-sent), in plan
-    order. `steps`: one dict per plan step: `step`, `box`, `status`
-    (done | skipped | error | aborted | unknown | not_sent) and `detail`.
-    `ok`: every step done, nothing collapsed, no error.
-    """
-
-    completed: tuple[str, ...]
-    ok: bool
-    error: str | None
-    steps: tuple[dict, ...]
-    plan: str | None = None
-    needs_replan: bool = False
-
-    def to_json(self) -> dict:
-        return {"plan": self.plan, "completed": list(self.completed), "ok": self.ok, "error": self.error,
-                "needs_replan": self.needs_replan, "steps": [dict(s) for s in self.steps]}
-
-
-class RobotDriver(Protocol):
-    name: str
-
-    def execute(self, plan: Plan, scene: Scene, on_event: Callable[[RobotEvent], None],
-                stop: threading.Event) -> RobotOutcome: ...
-
-
-# --------------------------------------------------------------------------
-class StepHistory:
-    """Steps each plan hash has completed (and steps whose outcome is unknown), per robot endpoint.
-
-    Kept process-wide so that a fresh driver object for the same robot (the
-    console builds one per run) still never re-sends a completed step.
-    """
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._done: dict[tuple[str, str], dict[int, str]] = {}
-        self._unknown: dict[tuple[str, str], dict[int, str]] = {}
-
-    def completed(self, endpoint: str, plan_hash: str) -> dict[int, str]:
-        with self._lock:
-            return dict(self._done.get((endpoint, plan_hash), {}))
-
-    def unknown(self, endpoint: str, plan_hash: str) -> dict[int, str]:
-        with self._lock:
-            return dict(self._unknown.get((endpoint, plan_hash), {}))
-
-    def mark_done(self, endpoint: str, plan_hash: str, step: int, box: str) -> None:
-        with self._lock:
-            self._done.setdefault((endpoint, plan_hash), {})[step] = box
-            self._unknown.get((endpoint, plan_hash), {}).pop(step, None)
-
-    def mark_unknown(self, endpoint: str, plan_hash: str, step: int, box: str) -> None:
-        with self._lock:
-            self._unknown.setdefault((endpoint, plan_hash), {})[step] = box
-
-    def settle(self, endpoint: str, plan_hash: str, step: int) -> None:
-        """The robot reported how an in-flight step ended (failed or aborted): no longer unknown."""
-        with self._lock:
-            self._unknown.get((endpoint, plan_hash), {}).pop(step, None)
-
-    def forget(self, endpoint: str | None = None) -> None:
-        """Drop the history (tests; or a robot whose shelf was reset by hand)."""
-        with self._lock:
-            for d in (self._done, self._unknown):
-                for k in [k for k in d if endpoint is None or k[0] == endpoint]:
-                    del d[k]
-
-
-HISTORY = StepHistory()
-
-
-def emit(on_event: Callable[[RobotEvent], None], ev: RobotEvent) -> None:
-    """Report an event; a failing listener (UI, database) must never leave the robot mid-plan."""
-    try:
-        on_event(ev)
-    except Exception:  # noqa: BLE001
-        log.exception("robot event listener failed on %s", ev)
-
-
-def finish(plan: Plan, plan_hash: str, statuses: dict[int, dict], error: str | None,
-           history: StepHistory, endpoint: str) -> RobotOutcome:
-    """Assemble the outcome: per step status, completed boxes in plan order, replan flag."""
-    done = history.completed(endpoint, plan_hash)
-    steps = []
-    for i, box in enumerate(plan.sequence):
-        s = statuses.get(i) or {"step": i, "box": box, "status": "not_sent", "detail": {}}
-        steps.append(s)
-    completed = tuple(plan.sequence[i] for i in sorted(done))
-    ok = error is None and len(done) == len(plan.sequence)
-    if not ok and error is None:
-        error = "the plan did not complete"
-    if not ok and REPLAN not in (error or ""):
-        error = f"{error}; {REPLAN}"
-    return RobotOutcome(completed, ok, error, tuple(steps), plan_hash, needs_replan=not ok)
+from console.robot_types import (EVENT_KINDS, HISTORY, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
+                                 RobotOutcome, StepHistory, emit, finish, query_float)
 
 
 # --------------------------------------------------------------------------
@@ -315,18 +193,6 @@ class SimRobot:
 
 
 # --------------------------------------------------------------------------
-def _query_float(q: dict[str, list[str]], key: str, spec: str, default: float) -> float:
-    if key not in q:
-        return default
-    try:
-        v = float(q[key][-1])
-    except ValueError:
-        raise RobotError(f"robot spec {spec!r}: {key}: expected a number, got {q[key][-1]!r}") from None
-    if not math.isfinite(v) or v < 0:
-        raise RobotError(f"robot spec {spec!r}: {key}: expected a number >= 0, got {q[key][-1]!r}")
-    return v
-
-
 def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDriver:
     """`sim[?delay=S]` or `tcp://HOST:PORT[?transform=FILE|position=..&orientation=..&timeouts]`."""
     parts = urlsplit(spec.strip())
@@ -335,8 +201,8 @@ def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDri
         unknown = set(q) - {"delay", "seed"}
         if unknown:
             raise RobotError(f"robot spec {spec!r}: unknown option {sorted(unknown)[0]!r} (sim takes delay, seed)")
-        s = int(_query_float(q, "seed", spec, seed))
-        return SimRobot(truth, seed=s, step_delay=_query_float(q, "delay", spec, 0.0))
+        s = int(query_float(q, "seed", spec, seed))
+        return SimRobot(truth, seed=s, step_delay=query_float(q, "delay", spec, 0.0))
     if parts.scheme == "tcp":
         from console.robot_tcp import TcpRobot
 
@@ -353,4 +219,4 @@ def __getattr__(name: str) -> Any:  # `from console.robot import TcpRobot` as AR
 
 
 __all__ = ["RobotEvent", "RobotOutcome", "RobotDriver", "RobotError", "SimRobot", "TcpRobot",
-           "StepHistory", "HISTORY", "match_boxes", "open_robot", "REPLAN"]
+           "StepHistory", "HISTORY", "match_boxes", "open_robot", "REPLAN", "EVENT_KINDS"]

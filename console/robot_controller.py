@@ -32,7 +32,7 @@ from dataclasses import replace
 from typing import Any, Iterable
 
 from perception.scene import Scene
-from console.robot_tcp import PROTOCOL, LineConn, ProtocolError, Transform
+from console.robot_tcp import PROTOCOL, FloodError, LineConn, ProtocolError, Transform
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +149,8 @@ class RobotController:
                     break
                 except ProtocolError as exc:
                     self._send(conn, state, {"type": "error", "code": "BAD_REQUEST", "message": str(exc)})
+                    if isinstance(exc, FloodError):
+                        break  # past a cap: the peer is broken or hostile, hang up (a running step stops)
                     continue
                 if msg is None:
                     continue

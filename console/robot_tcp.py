@@ -28,10 +28,17 @@ from perception.errors import FormatError
 from perception.scene import Box, Scene, quat_to_matrix, read_json
 from planning.plan import Plan
 
-from console.robot import (HISTORY, RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish)
+from console.robot_types import (HISTORY, RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
+                                 query_float)
 
 PROTOCOL = "shelfpick.robot/1"
-MAX_LINE = 1 << 20
+MAX_LINE = 1 << 20      # bytes in one line
+MAX_BLANK = 100         # blank lines tolerated on one connection
+MAX_RATE = 200.0        # lines a second a peer may send on average ...
+MAX_BURST = 400         # ... after a burst of this many (a robot sends a few a second)
+MAX_TEXT = 500          # characters of a peer's code/message kept in events and errors
+STEP_REPLIES = frozenset({"ack", "done", "error", "aborted"})
+DISTRUSTED = ("PROTOCOL",)  # link failures after which an unacknowledged step may have moved
 PULL_CLEARANCE = 0.05   # m beyond the shelf's front edge the box's back face is pulled
 ERROR_CODES = ("BAD_REQUEST", "REFUSED", "BUSY", "DUPLICATE_STEP", "NO_BOX_AT_GRASP", "PICK_FAILED",
                "ABORTED", "INTERNAL")
@@ -160,13 +167,45 @@ class ProtocolError(Exception):
     """The peer sent something that is not a protocol message."""
 
 
-class LineConn:
-    """Line-delimited JSON on a socket: send(dict), recv(timeout) -> dict | None (None = nothing yet)."""
+class FloodError(ProtocolError):
+    """The peer went past a cap (line length, blank lines, line rate): the connection is done for."""
 
-    def __init__(self, sock: socket.socket) -> None:
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not JSON")
+
+
+def _parse_message(line: bytes) -> dict:
+    """One protocol message from one line: a JSON object with a string `type`, strict JSON only
+    (no NaN/Infinity; nesting or numbers too big for the parser are refused, never a crash)."""
+    try:
+        msg = json.loads(line, parse_constant=_no_constant)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        raise ProtocolError(f"not JSON: {line[:80]!r} ({str(exc)[:120]})") from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise ProtocolError(f"expected an object with a string 'type', got {line[:80]!r}")
+    return msg
+
+
+class LineConn:
+    """Line-delimited JSON on a socket: send(dict), recv(timeout) -> dict | None (None = nothing yet).
+
+    A peer cannot make it recurse, buffer without bound or spin: a line over
+    MAX_LINE bytes, more than MAX_BLANK blank lines on one connection, or more
+    than MAX_RATE lines a second (beyond a burst of MAX_BURST) is a
+    ProtocolError, which ends the run.
+    """
+
+    def __init__(self, sock: socket.socket, *, max_line: int = MAX_LINE, max_blank: int = MAX_BLANK,
+                 max_rate: float = MAX_RATE, max_burst: int = MAX_BURST) -> None:
         self.sock = sock
         self._buf = b""
         self._send_lock = threading.Lock()
+        self.max_line, self.max_blank = int(max_line), int(max_blank)
+        self.max_rate, self.max_burst = float(max_rate), float(max_burst)
+        self.blank_lines = 0
+        self._tokens = self.max_burst
+        self._refilled = time.monotonic()
 
     def send(self, msg: Mapping[str, Any]) -> None:
         data = (json.dumps(msg, separators=(",", ":")) + "\n").encode()
@@ -174,9 +213,30 @@ class LineConn:
             self.sock.sendall(data)
 
     def recv(self, timeout: float) -> dict | None:
-        """Next message, None if none within `timeout`; ConnectionError on EOF."""
+        """Next message, None if none within `timeout`; ConnectionError on EOF, ProtocolError on abuse."""
         deadline = time.monotonic() + max(timeout, 0.0)
-        while b"\n" not in self._buf:
+        while True:
+            line = self._next_line(deadline)
+            if line is None:
+                return None
+            self._count_line()
+            if line.strip():
+                return _parse_message(line)
+            self.blank_lines += 1
+            if self.blank_lines > self.max_blank:
+                raise FloodError(f"more than {self.max_blank} blank lines")
+
+    def _next_line(self, deadline: float) -> bytes | None:
+        """One raw line (without its newline), None at the deadline."""
+        while True:
+            nl = self._buf.find(b"\n")
+            if nl >= 0:
+                if nl > self.max_line:
+                    raise FloodError(f"line longer than {self.max_line} bytes")
+                line, self._buf = self._buf[:nl], self._buf[nl + 1:]
+                return line
+            if len(self._buf) > self.max_line:
+                raise FloodError(f"line longer than {self.max_line} bytes")
             left = deadline - time.monotonic()
             if left <= 0:
                 return None
@@ -190,18 +250,15 @@ class LineConn:
             if not chunk:
                 raise ConnectionError("connection closed by the peer")
             self._buf += chunk
-            if len(self._buf) > MAX_LINE and b"\n" not in self._buf:
-                raise ProtocolError(f"line longer than {MAX_LINE} bytes")
-        line, self._buf = self._buf.split(b"\n", 1)
-        if not line.strip():
-            return self.recv(max(deadline - time.monotonic(), 0.0))
-        try:
-            msg = json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ProtocolError(f"not JSON: {line[:80]!r} ({exc})") from None
-        if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-            raise ProtocolError(f"expected an object with a string 'type', got {line[:80]!r}")
-        return msg
+
+    def _count_line(self) -> None:
+        """Token bucket over every line received, blank or not."""
+        now = time.monotonic()
+        self._tokens = min(self.max_burst, self._tokens + (now - self._refilled) * self.max_rate)
+        self._refilled = now
+        self._tokens -= 1.0
+        if self._tokens < 0:
+            raise FloodError(f"more than {self.max_rate:g} lines a second (flood)")
 
     def close(self) -> None:
         try:
@@ -281,23 +338,37 @@ class TcpRobot:
                                              "orientation": nums("orientation", 4, [1.0, 0.0, 0.0, 0.0])},
                                             f"robot spec {spec!r}")
         t = Timeouts()
-        from console.robot import _query_float
-
-        t = Timeouts(connect=_query_float(q, "connect_timeout", spec, t.connect),
-                     ack=_query_float(q, "ack_timeout", spec, t.ack),
-                     step=_query_float(q, "step_timeout", spec, t.step),
-                     heartbeat_interval=_query_float(q, "heartbeat", spec, t.heartbeat_interval),
-                     heartbeat_timeout=_query_float(q, "heartbeat_timeout", spec, t.heartbeat_timeout),
-                     abort=_query_float(q, "abort_timeout", spec, t.abort))
+        t = Timeouts(connect=query_float(q, "connect_timeout", spec, t.connect),
+                     ack=query_float(q, "ack_timeout", spec, t.ack),
+                     step=query_float(q, "step_timeout", spec, t.step),
+                     heartbeat_interval=query_float(q, "heartbeat", spec, t.heartbeat_interval),
+                     heartbeat_timeout=query_float(q, "heartbeat_timeout", spec, t.heartbeat_timeout),
+                     abort=query_float(q, "abort_timeout", spec, t.abort))
         return cls(parts.hostname, port, transform, t)
 
-    # ------------------------------------------------------------------ waiting
-    def _wait(self, conn: LineConn, want: set[str], step: int | None, deadline: float,
-              stop: threading.Event | None, what: str) -> dict | str:
-        """Next message of a wanted type for `step`, answering pings and sending ours.
+    # ------------------------------------------------------------------ the wire
+    def _send(self, conn: LineConn, msg: Mapping[str, Any]) -> None:
+        try:
+            conn.send(msg)
+        except OSError as exc:
+            raise _Lost("DISCONNECTED", f"connection lost ({exc})") from None
 
-        Returns the message, or "stop" when `stop` is set. Raises _Lost on a
-        disconnect, heartbeat silence or the deadline.
+    def _recv(self, conn: LineConn, timeout: float) -> dict | None:
+        try:
+            return conn.recv(timeout)
+        except ConnectionError as exc:
+            raise _Lost("DISCONNECTED", str(exc)) from None
+        except ProtocolError as exc:
+            raise _Lost("PROTOCOL", f"robot broke the protocol: {exc}") from None
+
+    def _wait(self, conn: LineConn, want: set[str], deadline: float, stop: threading.Event | None,
+              what: str, expect: tuple[str, int | None, str | None] | None = None) -> dict | str:
+        """The next reply, answering pings and sending ours; "stop" when `stop` is set.
+
+        `expect` = (plan hash, step, box) that a step reply (ack, done, error,
+        aborted) must carry. A step reply that is not in `want` or carries
+        another plan, step or box is a lie or a confusion: _Lost("PROTOCOL").
+        Raises _Lost on a disconnect, heartbeat silence or the deadline too.
         """
         t = self.timeouts
         last_heard = time.monotonic()
@@ -314,29 +385,22 @@ class TcpRobot:
                             f"for {what}")
             if now >= next_ping:
                 seq += 1
-                try:
-                    conn.send({"type": "ping", "seq": seq})
-                except OSError as exc:
-                    raise _Lost("DISCONNECTED", f"connection lost ({exc})") from None
+                self._send(conn, {"type": "ping", "seq": seq})
                 next_ping = now + t.heartbeat_interval
-            try:
-                msg = conn.recv(min(0.05, max(deadline - now, 0.0)))
-            except ConnectionError as exc:
-                raise _Lost("DISCONNECTED", str(exc)) from None
-            except ProtocolError as exc:
-                raise _Lost("PROTOCOL", f"robot sent garbage: {exc}") from None
+            msg = self._recv(conn, min(0.05, max(deadline - now, 0.0)))
             if msg is None:
                 continue
             last_heard = time.monotonic()
             kind = msg["type"]
             if kind == "ping":
-                try:
-                    conn.send({"type": "pong", "seq": msg.get("seq")})
-                except OSError as exc:
-                    raise _Lost("DISCONNECTED", f"connection lost ({exc})") from None
-                continue
-            if kind in want and (step is None or msg.get("step") in (step, None) or kind == "hello"):
+                self._send(conn, {"type": "pong", "seq": msg.get("seq")})
+            elif kind in STEP_REPLIES or kind == "hello":
+                if kind not in want:
+                    raise _Lost("PROTOCOL", f"robot sent {kind!r} while the console waited for {what}")
+                if expect is not None:
+                    check_reply(msg, *expect)
                 return msg
+            # pong and unknown types: the robot is alive; the line rate cap bounds them
 
     # ------------------------------------------------------------------ run
     def execute(self, plan: Plan, scene: Scene, on_event: Callable[[RobotEvent], None],
@@ -360,129 +424,222 @@ class TcpRobot:
             return finish(plan, h, statuses, None, self.history, ep)
         for i in todo:  # every box must be in the scene before anything moves
             scene.require(plan.sequence[i], "plan")
-        t = self.timeouts
         try:
-            sock = socket.create_connection((self.host, self.port), timeout=t.connect)
+            sock = socket.create_connection((self.host, self.port), timeout=self.timeouts.connect)
         except OSError as exc:
             msg = f"cannot connect to the robot at {self.name} ({exc})"
             emit(on_event, RobotEvent("disconnected", None, None, {"code": "CONNECT", "message": msg}))
             return finish(plan, h, statuses, msg, self.history, ep)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         conn = LineConn(sock)
-        error: str | None = None
-        current: int | None = None   # acknowledged, not yet done: its outcome is unknown if the link drops
-        pending: int | None = None   # sent, not yet acknowledged
+        run = _Run(plan, h, scene, on_event, stop, statuses)
         try:
-            conn.send({"type": "hello", "protocol": PROTOCOL, "client": "shelfpick",
-                       "plan": h, "steps": len(plan.sequence)})
-            hello = self._wait(conn, {"hello", "error"}, None, time.monotonic() + t.ack, None, "hello")
-            if isinstance(hello, dict) and hello["type"] == "error":
-                raise _Lost(str(hello.get("code", "REFUSED")), f"robot refused the session: "
-                            f"{hello.get('message', '')}")
-            if isinstance(hello, dict) and hello.get("protocol") != PROTOCOL:
-                raise _Lost("PROTOCOL", f"robot speaks {hello.get('protocol')!r}, expected {PROTOCOL!r}")
-            self.robot_info = dict(hello) if isinstance(hello, dict) else {}
-            for i in todo:
-                box_id = plan.sequence[i]
-                if stop.is_set():
-                    error = self._abort(conn, h, None, "stop requested", on_event, i, box_id, statuses)
-                    break
-                msg = step_message(h, i, scene.box(box_id), scene, self.transform)
-                pending = i  # sent, not acknowledged: the robot must not move before its ack
-                conn.send(msg)
-                reply = self._wait(conn, {"ack", "error"}, i, time.monotonic() + t.ack, stop, f"ack of step {i + 1}")
-                if reply == "stop":
-                    # the step may or may not have been taken up: ask the robot to abort it
-                    error = self._abort(conn, h, i, "stop requested", on_event, i, box_id, statuses)
-                    break
-                if reply["type"] == "error":
-                    error = self._step_error(reply, i, box_id, on_event, statuses)
-                    pending = None  # refused before acknowledging: nothing moved
-                    break
-                pending, current = None, i
-                self.history.mark_unknown(ep, h, i, box_id)
-                emit(on_event, RobotEvent("ack", i, box_id, {k: v for k, v in reply.items()
-                                                              if k not in ("type", "plan", "step")}))
-                reply = self._wait(conn, {"done", "error"}, i, time.monotonic() + t.step, stop,
-                                   f"completion of step {i + 1}")
-                if reply == "stop":
-                    error = self._abort(conn, h, i, "stop requested", on_event, i, box_id, statuses)
-                    break
-                if reply["type"] == "error":
-                    error = self._step_error(reply, i, box_id, on_event, statuses)
-                    self._settle_unknown(ep, h, i)  # the robot says it failed: not done, not in flight
-                    current = None
-                    break
-                detail = dict(reply.get("detail") or {})
-                self.history.mark_done(ep, h, i, box_id)
-                current = None
-                emit(on_event, RobotEvent("done", i, box_id, detail))
-                statuses[i] = {"step": i, "box": box_id, "status": "done", "detail": detail}
-                if detail.get("collapsed"):
-                    error = f"step {i + 1} ({box_id}): the robot reports collapsed boxes: " \
-                            f"{', '.join(map(str, detail['collapsed']))}"
-                    break
-            else:
-                try:
-                    conn.send({"type": "bye", "plan": h})
-                except OSError:
-                    pass
+            error = self._session(conn, run, todo)
         except _Lost as exc:
-            if pending is not None and pending not in statuses:
-                statuses[pending] = {"step": pending, "box": plan.sequence[pending], "status": "unacknowledged",
-                                     "detail": {"code": exc.code, "message": str(exc)}}
-            if current is not None and current not in statuses:
-                statuses[current] = {"step": current, "box": plan.sequence[current], "status": "unknown",
-                                     "detail": {"code": exc.code, "message": str(exc)}}
-            else:
-                current = None
-            emit(on_event, RobotEvent("disconnected", current, plan.sequence[current] if current is not None
-                                      else None, {"code": exc.code, "message": str(exc)}))
-            error = f"robot link lost ({exc.code}): {exc}" + (
-                f"; step {current + 1} ({plan.sequence[current]}) was in flight, its outcome is unknown"
-                if current is not None else "")
+            error = self._lost(run, exc)
         except OSError as exc:
-            emit(on_event, RobotEvent("disconnected", current, None, {"code": "DISCONNECTED", "message": str(exc)}))
+            emit(on_event, RobotEvent("disconnected", run.current, None,
+                                      {"code": "DISCONNECTED", "message": str(exc)}))
             error = f"robot link lost: {exc}"
         finally:
             conn.close()
         return finish(plan, h, statuses, error, self.history, ep)
 
-    def _settle_unknown(self, ep: str, h: str, i: int) -> None:
-        self.history.settle(ep, h, i)
+    def _session(self, conn: LineConn, run: "_Run", todo: list[int]) -> str | None:
+        """Handshake, then the steps in order; the first error, stop or lie ends it (returns why)."""
+        self._send(conn, {"type": "hello", "protocol": PROTOCOL, "client": "shelfpick",
+                          "plan": run.hash, "steps": len(run.plan.sequence)})
+        hello = self._wait(conn, {"hello", "error"}, time.monotonic() + self.timeouts.ack, run.stop, "hello")
+        if hello == "stop":
+            i, box = todo[0], run.plan.sequence[todo[0]]
+            emit(run.on_event, RobotEvent("aborted", i, box, {"reason": "stop requested"}))
+            run.statuses[i] = {"step": i, "box": box, "status": "aborted", "detail": {"reason": "stop requested"}}
+            return f"stopped by request before step {i + 1} ({box})"
+        assert isinstance(hello, dict)
+        if hello["type"] == "error":
+            raise _Lost("REFUSED", f"robot refused the session: {clip(hello.get('code', 'REFUSED'))} "
+                        f"{clip(hello.get('message', ''))}".rstrip())
+        if hello.get("protocol") != PROTOCOL:
+            raise _Lost("PROTOCOL", f"robot speaks {clip(hello.get('protocol'))!r}, expected {PROTOCOL!r}")
+        self.robot_info = dict(hello)
+        for i in todo:
+            error = self._step(conn, run, i)
+            if error is not None:
+                return error
+        try:
+            conn.send({"type": "bye", "plan": run.hash})
+        except OSError:
+            pass
+        return None
 
-    def _step_error(self, reply: dict, i: int, box: str, on_event: Callable[[RobotEvent], None],
-                    statuses: dict[int, dict]) -> str:
-        code = str(reply.get("code", "ERROR"))
-        message = str(reply.get("message", ""))
-        detail = {"code": code, "message": message, **(reply.get("detail") or {})}
-        emit(on_event, RobotEvent("error", i, box, detail))
-        statuses[i] = {"step": i, "box": box, "status": "error", "detail": detail}
+    def _step(self, conn: LineConn, run: "_Run", i: int) -> str | None:
+        """Send step `i`, wait for its ack and its done; None when it is done and nothing fell."""
+        box_id = run.plan.sequence[i]
+        if run.stop.is_set():
+            return self._abort(conn, run, None, i)
+        msg = step_message(run.hash, i, run.scene.box(box_id), run.scene, self.transform)
+        run.pending = i  # sent, not acknowledged: the robot must not move before its ack
+        self._send(conn, msg)
+        expect = (run.hash, i, box_id)
+        reply = self._wait(conn, {"ack", "error"}, time.monotonic() + self.timeouts.ack, run.stop,
+                           f"ack of step {i + 1}", expect)
+        if reply == "stop":  # the step may or may not have been taken up: ask the robot to abort it
+            return self._abort(conn, run, i, i)
+        assert isinstance(reply, dict)
+        if reply["type"] == "error":
+            run.pending = None  # refused before acknowledging: nothing moved
+            return self._step_error(reply, run, i)
+        run.pending, run.current = None, i
+        self.history.mark_unknown(self.name, run.hash, i, box_id)
+        emit(run.on_event, RobotEvent("ack", i, box_id, {k: v for k, v in reply.items()
+                                                         if k not in ("type", "plan", "step", "box")}))
+        reply = self._wait(conn, {"done", "error"}, time.monotonic() + self.timeouts.step, run.stop,
+                           f"completion of step {i + 1}", expect)
+        if reply == "stop":
+            return self._abort(conn, run, i, i)
+        assert isinstance(reply, dict)
+        if reply["type"] == "error":
+            self.history.settle(self.name, run.hash, i)  # the robot says it failed: not done, not in flight
+            run.current = None
+            return self._step_error(reply, run, i)
+        detail = self._done(run, i, reply)
+        fallen = collapsed_ids(detail)
+        if fallen:
+            return f"step {i + 1} ({box_id}): the robot reports collapsed boxes: {', '.join(fallen)}"
+        return None
+
+    def _done(self, run: "_Run", i: int, reply: Mapping[str, Any]) -> dict:
+        """Record step `i` as done (the history first: nothing after it can lose the finished box)."""
+        box = run.plan.sequence[i]
+        self.history.mark_done(self.name, run.hash, i, box)
+        run.current = None
+        detail = reply_detail(reply.get("detail"))
+        run.statuses[i] = {"step": i, "box": box, "status": "done", "detail": detail}
+        emit(run.on_event, RobotEvent("done", i, box, detail))
+        return detail
+
+    def _lost(self, run: "_Run", exc: _Lost) -> str:
+        """The link failed, went silent or the peer broke the protocol: say which step is unknown."""
+        plan, ep = run.plan, self.name
+        if exc.code in DISTRUSTED and run.pending is not None:
+            # a peer that lies or garbles may have moved without its ack: the step is unknown, never re-sent
+            self.history.mark_unknown(ep, run.hash, run.pending, plan.sequence[run.pending])
+            run.current, run.pending = run.pending, None
+        info = {"code": exc.code, "message": str(exc)}
+        if run.pending is not None and run.pending not in run.statuses:
+            run.statuses[run.pending] = {"step": run.pending, "box": plan.sequence[run.pending],
+                                         "status": "unacknowledged", "detail": info}
+        current = run.current
+        if current is not None and current not in run.statuses:
+            run.statuses[current] = {"step": current, "box": plan.sequence[current], "status": "unknown",
+                                     "detail": info}
+        else:
+            current = None
+        emit(run.on_event, RobotEvent("disconnected", current,
+                                      plan.sequence[current] if current is not None else None, info))
+        what = "robot broke the protocol" if exc.code in DISTRUSTED else "robot link lost"
+        return f"{what} ({exc.code}): {exc}" + (
+            f"; step {current + 1} ({plan.sequence[current]}) was in flight, its outcome is unknown"
+            if current is not None else "")
+
+    def _step_error(self, reply: Mapping[str, Any], run: "_Run", i: int) -> str:
+        box = run.plan.sequence[i]
+        code = clip(reply.get("code", "ERROR"), 60)
+        message = clip(reply.get("message", ""))
+        detail = {**reply_detail(reply.get("detail")), "code": code, "message": message}
+        emit(run.on_event, RobotEvent("error", i, box, detail))
+        run.statuses[i] = {"step": i, "box": box, "status": "error", "detail": detail}
         return f"robot error at step {i + 1} ({box}): {code}" + (f": {message}" if message else "")
 
-    def _abort(self, conn: LineConn, h: str, step: int | None, reason: str,
-               on_event: Callable[[RobotEvent], None], i: int, box: str, statuses: dict[int, dict]) -> str:
-        """Tell the robot to stop; wait briefly for `aborted` (or a `done` that beat the abort)."""
+    def _abort(self, conn: LineConn, run: "_Run", step: int | None, i: int, reason: str = "stop requested") -> str:
+        """Tell the robot to stop; wait briefly for `aborted` (or a `done` that beat the abort).
+
+        `step`: the step sent (None: nothing sent yet). A sent step whose abort
+        is not confirmed may have moved: it is unknown, and the plan is blocked.
+        """
+        box = run.plan.sequence[i]
+        want = {"aborted", "done", "error"} if step is not None else {"aborted", "error"}
         try:
-            conn.send({"type": "abort", "plan": h, "step": step, "reason": reason})
-            reply = self._wait(conn, {"aborted", "done", "error"}, step,
-                               time.monotonic() + self.timeouts.abort, None, "abort confirmation")
-        except (_Lost, OSError) as exc:
-            reply = {"type": "aborted", "detail": {"unconfirmed": str(exc)}}
+            self._send(conn, {"type": "abort", "plan": run.hash, "step": step, "reason": reason})
+            reply = self._wait(conn, want, time.monotonic() + self.timeouts.abort, None, "abort confirmation",
+                               (run.hash, step, box if step is not None else None))
+        except _Lost as exc:
+            reply, unconfirmed = None, f"{exc.code}: {exc}"
         if isinstance(reply, dict) and step is not None and (
                 reply["type"] == "done" or (reply["type"] == "aborted" and reply.get("completed") is True)):
-            detail = dict(reply.get("detail") or {})
-            self.history.mark_done(self.name, h, step, box)
-            emit(on_event, RobotEvent("done", step, box, detail))
-            statuses[step] = {"step": step, "box": box, "status": "done", "detail": detail}
+            self._done(run, step, reply)
             return f"stopped by request after step {step + 1} ({box})"
+        if reply is None and step is not None:
+            self.history.mark_unknown(self.name, run.hash, step, box)
+            run.current = None
+            info = {"reason": reason, "unconfirmed": unconfirmed}
+            emit(run.on_event, RobotEvent("aborted", i, box, info))
+            run.statuses[i] = {"step": i, "box": box, "status": "unknown", "detail": info}
+            return (f"stopped by request at step {i + 1} ({box}); the robot did not confirm the abort "
+                    f"({unconfirmed}), so that step's outcome is unknown")
         if step is not None:
-            self._settle_unknown(self.name, h, step)
-        emit(on_event, RobotEvent("aborted", i, box, {"reason": reason,
-                                                      **(reply.get("detail") or {} if isinstance(reply, dict) else {})}))
-        statuses[i] = {"step": i, "box": box, "status": "aborted", "detail": {"reason": reason}}
+            self.history.settle(self.name, run.hash, step)
+            run.current = run.pending = None
+        detail = reply_detail(reply.get("detail")) if isinstance(reply, dict) else {}
+        emit(run.on_event, RobotEvent("aborted", i, box, {**detail, "reason": reason}))
+        run.statuses[i] = {"step": i, "box": box, "status": "aborted", "detail": {"reason": reason}}
         return f"stopped by request at step {i + 1} ({box})"
 
 
-__all__ = ["TcpRobot", "Transform", "Timeouts", "LineConn", "ProtocolError", "PROTOCOL", "ERROR_CODES",
-           "grasp_for", "step_message"]
+# --------------------------------------------------------------------------
+@dataclass
+class _Run:
+    """One plan run over one connection: what was sent, what is acknowledged, per-step statuses."""
+
+    plan: Plan
+    hash: str
+    scene: Scene
+    on_event: Callable[[RobotEvent], None]
+    stop: threading.Event
+    statuses: dict[int, dict]
+    pending: int | None = None   # sent, not yet acknowledged
+    current: int | None = None   # acknowledged, not yet done: unknown if the link drops
+
+
+def clip(value: Any, n: int = MAX_TEXT) -> str:
+    """A peer's text, as text, at most `n` characters (it is shown and stored, never interpreted)."""
+    s = value if isinstance(value, str) else json.dumps(value, default=str)
+    return s if len(s) <= n else s[:n] + "..."
+
+
+def reply_detail(value: Any) -> dict:
+    """A reply's `detail` as a dict: an object is kept; a string, number or list goes under `text`."""
+    if value is None:
+        return {}
+    if isinstance(value, Mapping):
+        return {str(k): v for k, v in value.items()}
+    return {"text": clip(value)}
+
+
+def collapsed_ids(detail: Mapping[str, Any]) -> list[str]:
+    """Boxes a `done` detail says collapsed: a list, or one id given on its own."""
+    c = detail.get("collapsed")
+    if not c:
+        return []
+    return [clip(x, 80) for x in c] if isinstance(c, list) else [clip(c, 80)]
+
+
+def check_reply(msg: Mapping[str, Any], plan_hash: str, step: int | None, box: str | None) -> None:
+    """A step reply must name the plan, the step (an integer; none for an abort before any step)
+    and, when it names a box, the step's box; anything else is _Lost("PROTOCOL")."""
+    kind = msg["type"]
+    if msg.get("plan") != plan_hash:
+        raise _Lost("PROTOCOL", f"{kind!r} names plan {clip(msg.get('plan'), 80)}, not {plan_hash}")
+    s = msg.get("step")
+    if step is None:
+        if s is not None:
+            raise _Lost("PROTOCOL", f"{kind!r} names step {clip(s, 80)}, but no step was sent")
+    elif type(s) is not int or s != step:
+        what = "no step" if s is None else f"step {clip(s, 80)}"
+        raise _Lost("PROTOCOL", f"{kind!r} names {what}, expected step {step}")
+    if box is not None and "box" in msg and msg["box"] != box:
+        raise _Lost("PROTOCOL", f"{kind!r} for step {step} names box {clip(msg['box'], 80)}, expected {box!r}")
+
+
+__all__ = ["TcpRobot", "Transform", "Timeouts", "LineConn", "ProtocolError", "FloodError", "PROTOCOL",
+           "ERROR_CODES", "grasp_for", "step_message", "check_reply", "reply_detail", "clip"]

@@ -253,3 +253,20 @@ def test_controller_as_a_separate_process(tmp_path: Path) -> None:
         proc.wait(10)
     assert out.completed == ("b0", "b1", "b2") and "REFUSED" in out.error
     assert [e.kind for e in events][-1] == "error"
+
+
+def test_controller_hangs_up_on_a_flooding_console_and_serves_the_next() -> None:
+    """5,000 blank lines to the reference controller: one BAD_REQUEST, then it closes that
+    connection (no recursion, no endless error replies); a fresh connection is served."""
+    with RobotController() as ctl:
+        sock = socket.create_connection(ctl.address, timeout=2)
+        conn = LineConn(sock)
+        sock.sendall(b"\n" * 5000)
+        err = conn.recv(2)
+        assert err["type"] == "error" and err["code"] == "BAD_REQUEST" and "blank lines" in err["message"]
+        with pytest.raises(ConnectionError):
+            for _ in range(10):
+                conn.recv(2)
+        conn.close()
+        out, _ = run(driver(ctl), clear_plan(("b0",)), row_scene())
+    assert out.ok and out.completed == ("b0",)
