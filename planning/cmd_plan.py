@@ -64,7 +64,11 @@ def run(args: argparse.Namespace) -> int:
     if search.get("timed_out"):
         _warn(f"the planning budget of {args.budget:g} s ran out; the plan is the best "
               "found so far, not a complete search")
-    if not plan.safe:
+    check = plan.extra.get("scene_check", {})
+    for prob in check.get("problems", []):
+        who = f"box {prob['box']}" if prob.get("box") else "the scene"
+        _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
+    if not plan.safe and plan.predicted:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
         step = plan.predicted[worst]
         moved = ", ".join(step.moved) or "nothing named"

@@ -76,6 +76,7 @@ class PhysicsConfig:
     prediction_repair_tolerance: float = 0.05   # m
     stand_tolerance: float = 0.03       # m
     stand_rotation: float = 8.0         # degrees
+    stand_nudge: float = 0.5            # rad/s of the knock a standing shelf must survive (ShelfSim.nudge)
     # shelf model
     shelf_top: bool = True
     wall_thickness: float = 0.05

@@ -442,6 +442,31 @@ class ShelfSim:
                 return True
         return False
 
+    def nudge(self, spin: float) -> dict[str, tuple[float, float]]:
+        """How far (m, deg) each box ends up after a small knock, the world put back after.
+
+        Every box on the shelf is set turning at `spin` rad/s about a horizontal axis
+        (alternating x and y from box to box), then the world settles. A box at rest in
+        a stable pose rocks back; one balanced on an edge (an unstable equilibrium the
+        solver would otherwise keep forever) falls over.
+        """
+        p = self._p
+        ids = self.present()
+        before = self._raw_poses(ids)
+        snap = self.snapshot()
+        t = self.sim_time
+        try:
+            for i, bid in enumerate(ids):
+                axis = (spin, 0.0, 0.0) if i % 2 else (0.0, spin, 0.0)
+                p.resetBaseVelocity(self._body[bid], [0.0, 0.0, 0.0], list(axis))
+            self._settle(self.config.settle_time)
+            after = self._raw_poses(ids)
+        finally:
+            self.restore(snap)
+            self.forget(snap)
+            self.sim_time = t
+        return {b: (_dist(before[b][0], after[b][0]), _rot_angle_deg(before[b][1], after[b][1])) for b in ids}
+
     def idle(self, seconds: float) -> dict[str, float]:
         """Let the world run untouched; how far (m) each box on the shelf moved.
 

@@ -1,0 +1,56 @@
+"""A shelf that cannot stand as observed is reported, never planned on as if it were the shelf."""
+from __future__ import annotations
+
+import json
+import math
+
+from console.cli import main
+from perception.scene import Box, Scene, Shelf
+from planning.planner import make_plan
+from tests.planning.sim_scenes import cube, stacked
+
+
+def _floating() -> Scene:
+    """`f` is seen 30 cm above the floor with nothing under it."""
+    return Scene(Shelf(), (cube("a", -0.3, 0.1), cube("f", 0.2, 0.4))).hide_depths()
+
+
+def _on_its_edge() -> Scene:
+    """A cube balanced on one edge (turned 45 deg about the pull axis): it cannot stand so."""
+    q = (math.cos(math.pi / 8), 0.0, math.sin(math.pi / 8), 0.0)
+    h = 0.1 * math.sqrt(2)
+    return Scene(Shelf(), (Box("edge", (0.2, 0.2, 0.2), (0.0, 0.12, h), q), cube("a", -0.3, 0.1))).hide_depths()
+
+
+def test_a_floating_box_makes_the_plan_unsafe_and_names_the_box():
+    plan = make_plan(_floating(), "extract", "a", samples=2, seed=0)
+    check = plan.extra["scene_check"]
+    assert check["stands_as_seen"] is False and not plan.safe
+    assert [p["box"] for p in check["problems"]] == ["f"]
+    assert "moves 0.3" in check["problems"][0]["what"]
+    assert check["redrawn"] >= 2   # every draw of both samples was tried again
+
+
+def test_a_cube_balanced_on_its_edge_is_reported():
+    plan = make_plan(_on_its_edge(), "extract", "a", samples=2, seed=0)
+    check = plan.extra["scene_check"]
+    assert not check["stands_as_seen"] and not plan.safe
+    assert [p["box"] for p in check["problems"]] == ["edge"]
+    assert "falls over at a small knock" in check["problems"][0]["what"]
+
+
+def test_a_shelf_that_stands_says_so():
+    plan = make_plan(stacked().hide_depths(), "extract", "c", samples=2, seed=0)
+    assert plan.extra["scene_check"] == {"stands_as_seen": True, "redrawn": 0, "problems": []}
+    assert plan.safe and plan.sequence == ("c",)
+
+
+def test_the_command_line_warns_and_writes_the_check_into_the_plan(tmp_path, capsys):
+    path = tmp_path / "floating.json"
+    _floating().save(path)
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(path), "--target", "a", "--samples", "2", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "does not stand as observed: box f moves 0.3" in err
+    doc = json.loads(out.read_text())
+    assert doc["safe"] is False and doc["scene_check"]["problems"][0]["box"] == "f"
