@@ -15,7 +15,7 @@ from typing import Mapping
 
 import numpy as np
 
-from perception.errors import PerceptionError
+from perception.errors import FormatError, PerceptionError
 from perception.scene import Camera, read_json, write_json
 
 
@@ -187,6 +187,26 @@ def check_depth_units(depth: np.ndarray, depth_scale: float, origin: str, camera
                               "millimetres in a float .npy, a wrong depth_scale)?")
 
 
+# a depth map with fewer than FLAT_SHARE of its valid pixels off its median by FLAT_STEP_M shows no
+# shelf: boxes, gaps, the back wall and the floor all make depth steps of centimetres
+FLAT_STEP_M = 0.01
+FLAT_SHARE = 0.005
+
+
+def check_depth_structure(depth: np.ndarray, origin: str) -> None:
+    """Refuse a flat depth map (one constant value, a wall, a sensor that returns its default):
+    segmenting its RGB edges on one plane gives boxes that are not there."""
+    valid = depth[depth > 0]
+    if valid.size < 2:
+        return
+    med = float(np.median(valid))
+    off = float(np.mean(np.abs(valid - med) > FLAT_STEP_M))
+    if off < FLAT_SHARE:
+        raise PerceptionError(f"{origin}: depth is flat: {100 * (1 - off):.1f}% of valid pixels within "
+                              f"{FLAT_STEP_M * 100:g} cm of {med:.3f} m, no shelf structure; give a real depth "
+                              "capture, or perceive without --depth (--front-distance or --box-size)")
+
+
 def load_capture(rgb: str | Path, depth: str | Path | None, camera: str | Path) -> Capture:
     """Load the files of one capture; errors name the file that is wrong."""
     cam = Camera.load(camera)
@@ -199,11 +219,38 @@ def load_capture(rgb: str | Path, depth: str | Path | None, camera: str | Path) 
     mpath = Path(rgb).with_name("masks.png")
     jpath = Path(rgb).with_name("masks.json")
     if mpath.is_file() and jpath.is_file():
-        import cv2
-
-        masks = cv2.imread(str(mpath), cv2.IMREAD_UNCHANGED)
-        labels = {int(k): v for k, v in read_json(jpath).items()}
+        masks = read_masks(mpath, img.shape[:2])
+        labels = read_labels(jpath)
     return Capture(img, dep, cam, masks, labels)
+
+
+def read_masks(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The ground-truth label image beside a rendered capture: one channel, the RGB's size."""
+    import cv2
+
+    raw = cv2.imdecode(_image_bytes(path), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.ndim != 2 or raw.shape != tuple(shape):
+        got = "not a readable image" if raw is None else f"shape {raw.shape}"
+        raise PerceptionError(f"{path}: mask image must be one channel of {shape[1]}x{shape[0]} px, got {got}")
+    return raw
+
+
+def read_labels(path: Path) -> dict[int, str]:
+    """`masks.json`: mask label (a decimal integer 1-65535, as a JSON key) -> box id."""
+    import re
+
+    doc = read_json(path)
+    if not isinstance(doc, dict):
+        raise FormatError(str(path), "", f"expected an object of mask label -> box id, got {type(doc).__name__}")
+    labels: dict[int, str] = {}
+    for k, v in doc.items():
+        key = k if len(k) <= 40 else k[:40] + "..."
+        if not re.fullmatch(r"[0-9]{1,5}", k) or not 0 < int(k) < 65536:
+            raise FormatError(str(path), repr(key), f"expected a mask label (an integer 1-65535), got {key!r}")
+        if not isinstance(v, str) or not v:
+            raise FormatError(str(path), k, f"expected a box id (a non-empty string), got {v!r:.60}")
+        labels[int(k)] = v
+    return labels
 
 
 def load_capture_dir(d: str | Path) -> Capture:
@@ -213,5 +260,5 @@ def load_capture_dir(d: str | Path) -> Capture:
     return load_capture(d / "rgb.png", depth, d / "camera.json")
 
 
-__all__ = ["Capture", "check_depth_units", "load_capture", "load_capture_dir", "read_rgb", "read_depth",
-           "validate"]
+__all__ = ["Capture", "check_depth_structure", "check_depth_units", "load_capture", "load_capture_dir",
+           "read_labels", "read_masks", "read_rgb", "read_depth", "validate"]

@@ -64,7 +64,7 @@ def _write(path: str, what: str, write) -> None:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from perception.capture import load_capture
+    from perception.capture import check_depth_structure, load_capture
     from perception.errors import PerceptionError
     from perception.pipeline import perceive
     from perception.scene import Shelf, write_json
@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         raise PerceptionError(f"{args.masks}: --masks must be a .png file (uint16 labels; JPEG cannot hold them)")
     kind = "yolo" if args.weights and args.segmenter == "auto" else args.segmenter
     capture = load_capture(args.rgb, args.depth, args.camera)
+    if capture.depth is not None:
+        check_depth_structure(capture.depth, str(args.depth))
     seg = load_segmenter(args.weights, kind)
     shelf = Shelf(*args.shelf) if args.shelf else Shelf()
     extra = {"catalogue": None} if getattr(args, "no_catalogue", False) else {}

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -69,19 +71,102 @@ def _obj(value: Any, origin: str, fld: str) -> Mapping:
     return value
 
 
-def read_json(path: str | Path) -> Any:
-    """Read a JSON file; missing, unreadable or malformed files raise FormatError."""
-    p = Path(path)
+MAX_JSON_BYTES = 64 << 20   # a scene of 500 boxes is ~150 KB; a plan or camera far less
+MAX_JSON_DEPTH = 32         # our documents nest 4 levels; extra keys may add a few
+MAX_INT_DIGITS = 20         # an integer field (width, mask label) never needs more
+MAX_BOXES = 500             # boxes in one scene: a shelf holds tens; planning is exponential beyond
+
+
+class _Odd:
+    """A JSON token kept for the validating walk to name with its field: NaN/Infinity, a huge integer."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def __repr__(self) -> str:
+        return self.text if len(self.text) <= 24 else f"{self.text[:12]}...({len(self.text)} digits)"
+
+
+def _parse_int(text: str) -> int | _Odd:
+    return int(text) if len(text.lstrip("-")) <= MAX_INT_DIGITS else _Odd(text)
+
+
+def _parse_float(text: str) -> float | _Odd:
+    v = float(text)
+    return v if math.isfinite(v) else _Odd(text)
+
+
+def _open_regular(p: Path) -> bytes:
+    """The bytes of a regular file; a FIFO, device or folder is refused before it is read (a FIFO
+    would block, a device never end)."""
     try:
-        text = p.read_text(encoding="utf-8")
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         raise FormatError(str(p), "", "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FormatError(str(p), "", f"cannot read file ({exc.__class__.__name__}: {exc})") from None
+    except OSError as exc:
+        raise FormatError(str(p), "", f"cannot read file ({exc.__class__.__name__}: {exc.strerror})") from None
     try:
-        return json.loads(text)
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                    else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "a socket")
+            raise FormatError(str(p), "", f"{kind}, not a regular file")
+        if st.st_size > MAX_JSON_BYTES:
+            raise FormatError(str(p), "", f"{st.st_size} bytes; a document is at most {MAX_JSON_BYTES} bytes")
+        with os.fdopen(fd, "rb", closefd=True) as f:
+            fd = -1
+            return f.read(MAX_JSON_BYTES + 1)
+    except OSError as exc:
+        raise FormatError(str(p), "", f"cannot read file ({exc.__class__.__name__}: {exc.strerror})") from None
+    finally:
+        if fd >= 0:
+            os.close(fd)
+
+
+def _index(item: Any, i: int) -> str:
+    """How a field path names a list item: `id=b3` for a box (as the validators do), else its index."""
+    bid = item.get("id") if isinstance(item, dict) else None
+    return f"id={bid}" if isinstance(bid, str) and bid and len(bid) <= 40 else str(i)
+
+
+def _check_tree(doc: Any, origin: str) -> None:
+    """Walk the parsed document without recursion: too deep, NaN/Infinity or a huge integer
+    anywhere (extra keys included) is refused naming its field."""
+    todo: list[tuple[Any, str, int]] = [(doc, "", 0)]
+    while todo:
+        node, path, depth = todo.pop()
+        if isinstance(node, _Odd):
+            what = "a finite number" if not node.text.lstrip("-").isdigit() else \
+                f"an integer of at most {MAX_INT_DIGITS} digits"
+            raise FormatError(origin, path or "document", f"expected {what}, got {node!r}")
+        if depth > MAX_JSON_DEPTH:
+            where = path if len(path) <= 80 else f"{path[:40]}...{path[-30:]}"
+            raise FormatError(origin, where, f"nested deeper than {MAX_JSON_DEPTH} levels")
+        if isinstance(node, dict):
+            todo.extend((v, f"{path}.{k}" if path else str(k), depth + 1) for k, v in node.items())
+        elif isinstance(node, list):
+            todo.extend((v, f"{path}[{_index(v, i)}]", depth + 1) for i, v in enumerate(node))
+
+
+def read_json(path: str | Path) -> Any:
+    """Read a JSON file; a missing, unreadable, special (FIFO, device) or malformed file, nesting
+    deeper than MAX_JSON_DEPTH, NaN/Infinity or a huge number raise FormatError naming the field."""
+    p = Path(path)
+    data = _open_regular(p)
+    if len(data) > MAX_JSON_BYTES:
+        raise FormatError(str(p), "", f"more than {MAX_JSON_BYTES} bytes; a document is smaller")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(str(p), "", f"cannot read file (not UTF-8 text: byte {exc.start})") from None
+    try:
+        doc = json.loads(text, parse_int=_parse_int, parse_float=_parse_float, parse_constant=_Odd)
     except json.JSONDecodeError as exc:
         raise FormatError(str(p), "", f"malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except RecursionError:
+        raise FormatError(str(p), "document", f"nested deeper than {MAX_JSON_DEPTH} levels") from None
+    _check_tree(doc, str(p))
+    return doc
 
 
 def write_json(path: str | Path, doc: Any) -> None:
@@ -349,6 +434,8 @@ class Scene:
         raw = _req(doc, "boxes", origin)
         if not isinstance(raw, list):
             raise FormatError(origin, "boxes", f"expected a list, got {type(raw).__name__}")
+        if len(raw) > MAX_BOXES:
+            raise FormatError(origin, "boxes", f"{len(raw)} boxes; a scene holds at most {MAX_BOXES}")
         boxes = [Box.from_json(b, origin, f"boxes[{i}]") for i, b in enumerate(raw)]
         seen: set[str] = set()
         for b in boxes:

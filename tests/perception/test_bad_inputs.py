@@ -285,12 +285,35 @@ def test_an_image_of_a_few_pixels_is_refused(tmp_path, capsys, w, h):
     assert f"depth.png: image is {w}x{h} px; perception needs at least 16 px a side" in line
 
 
-def test_a_flat_depth_in_front_of_the_shelf_gives_no_unloadable_box(cap, capsys):
-    """Depth 0.5 m everywhere (the camera is 1 m from the shelf front): the face's box would lie
-    wholly in front of the shelf; it used to be written into a scene that could not be loaded."""
-    cv2.imwrite(str(cap.parent / "flat.png"), np.full((240, 320), 500, np.uint16))
-    _, err = sane(capsys, cap / "rgb.png", cap / "camera.json", cap.parent / "flat.png", n=0)
-    assert "would not reach into the shelf" in err
+@pytest.mark.parametrize("units, noise", [(500, 0), (1040, 0), (1300, 0), (1040, 3)])
+def test_a_flat_depth_is_refused_not_turned_into_boxes(cap, capsys, units, noise):
+    """A constant (or near-constant, +-3 mm) depth has no shelf in it: segmenting the RGB's edges on
+    one plane gave 12 boxes with exit 0 (issue 10); at 0.5 m the faces were also outside the shelf."""
+    rng = np.random.default_rng(0)
+    d = np.full((240, 320), units, np.float64) + rng.integers(-noise, noise + 1, (240, 320))
+    d[::17, ::13] = 0  # a few holes do not make structure
+    cv2.imwrite(str(cap.parent / "flat.png"), d.astype(np.uint16))
+    line = refused(capsys, cap / "rgb.png", cap / "camera.json", cap.parent / "flat.png")
+    assert "flat.png: depth is flat" in line and f"of {units / 1000:.3f} m" in line
+
+
+def test_masks_json_with_bad_keys_or_values(cap, capsys, tmp_path):
+    """masks.json beside a rendered capture: a non-integer key was a ValueError traceback."""
+    import shutil
+
+    d = tmp_path / "cap"
+    shutil.copytree(cap, d)
+    masks = json.loads((d / "masks.json").read_text())
+    for doc, says in [({"x": "a"}, "masks.json: 'x': expected a mask label (an integer 1-65535), got 'x'"),
+                      ({"1.5": "a"}, "got '1.5'"), ({"0": "a"}, "got '0'"), ({"99999": "a"}, "got '99999'"),
+                      ({"1": 7}, "masks.json: 1: expected a box id (a non-empty string), got 7"),
+                      ([1, 2], "masks.json: expected an object of mask label -> box id, got list")]:
+        (d / "masks.json").write_text(json.dumps(doc))
+        assert says in refused(capsys, d / "rgb.png", d / "camera.json", d / "depth.png")
+    (d / "masks.json").write_text(json.dumps(masks))
+    cv2.imwrite(str(d / "masks.png"), np.zeros((10, 10), np.uint16))
+    assert "masks.png: mask image must be one channel of 320x240 px, got shape (10, 10)" in \
+        refused(capsys, d / "rgb.png", d / "camera.json", d / "depth.png")
 
 
 @pytest.mark.parametrize("which", ["rgb", "depth"])
