@@ -118,17 +118,15 @@ class Draw:
     stands: bool = True                           # False: no attempt stood as observed
 
 
-def contradictions(sim: ShelfSim, config: PhysicsConfig) -> dict[str, str]:
+def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> dict[str, str]:
     """Boxes of a freshly settled world that did not stand as they were given, with what they did.
 
     Standing still is not enough: a box balanced on an edge stays put in a solver
     that nothing disturbs, so the settled world also takes a small knock
-    (`ShelfSim.nudge`), and a box that then falls did not stand either.
+    (`ShelfSim.nudge`), and a box that then falls did not stand either (only a
+    world that settled is knocked: the knock costs a settle).
     """
     out = {}
-    for bid, (d, a) in sim.nudge(config.stand_nudge).items():
-        if d > config.stand_tolerance or a > config.stand_rotation:
-            out[bid] = f"falls over at a small knock (moved {d:.2f} m, turned {a:.0f} deg): it cannot stand as seen"
     for bid, (d, a) in sim.settle_moves.items():
         pos = sim.scene.box(bid).position
         if pos[2] < 0 or pos[1] < -0.3:
@@ -137,6 +135,11 @@ def contradictions(sim: ShelfSim, config: PhysicsConfig) -> dict[str, str]:
             out[bid] = f"moves {d:.3f} m while settling (more than {config.stand_tolerance:.2f} m)"
         elif a > config.stand_rotation:
             out[bid] = f"turns {a:.0f} deg while settling (more than {config.stand_rotation:.0f} deg)"
+    if out or knock is False:
+        return out
+    for bid, (d, a) in sim.nudge(config.stand_nudge).items():
+        if d > config.stand_tolerance or a > config.stand_rotation:
+            out[bid] = f"falls over at a small knock (moved {d:.2f} m, turned {a:.0f} deg): it cannot stand as seen"
     return out
 
 
@@ -145,7 +148,7 @@ _ATTEMPTS = (1.0, 1.0, 1.0, 0.66, 0.33, 0.0)   # reach of each attempt's depth d
 
 def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
                  ranges: dict[str, tuple[float, float]] | None = None,
-                 model: Uncertainty | None = None) -> Draw:
+                 model: Uncertainty | None = None, known: frozenset[str] = frozenset()) -> Draw:
     """The settled world of draw `sample`; a draw that does not stand as observed is redrawn.
 
     A draw contradicts the image when a box moves more than `stand_tolerance` or
@@ -153,7 +156,9 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     be repaired. Later attempts reach less deep (a box turned in the plane swings
     its back corners into its neighbours). When no attempt stands, the attempt
     that moved the fewest boxes comes back with ``stands=False``: the caller must
-    say so, never plan on it as if it were the shelf.
+    say so, never plan on it as if it were the shelf. Boxes in `known` already
+    failed every attempt of an earlier sample: a draw in which only they
+    contradict the image is not drawn again (each attempt costs a whole world).
     """
     model = model if model is not None else Uncertainty()
     if scene.depth_known:   # a known shelf is the truth: one world, as given
@@ -180,10 +185,12 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
             rejected.append({"*": str(exc)})
             continue
         off = contradictions(sim, config)
-        if not off:
+        if not off or (known and set(off) <= known):
             if best is not None:
                 best.close()
-            return Draw(sim, tuple(rejected), True)
+            if off:
+                rejected.append(off)
+            return Draw(sim, tuple(rejected), not off)
         rejected.append(off)
         if best is None or len(off) < len(best_off):
             if best is not None:
@@ -194,6 +201,13 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     if best is None:
         raise SceneError(f"no draw of sample {sample} can be built: {rejected[-1].get('*', rejected[-1])}")
     return Draw(best, tuple(rejected), False)
+
+
+def not_standing(draw: Draw) -> frozenset[str]:
+    """The boxes that contradicted the image in every attempt of this draw."""
+    if draw.stands or not draw.rejected:
+        return frozenset()
+    return frozenset(b for b in draw.rejected[-1] if b != "*")
 
 
 def scene_check(draws: Sequence[Draw]) -> dict:
@@ -217,7 +231,8 @@ class _Worlds:
     """Some of the sample worlds (all of them, or one worker's share) and their cached states."""
 
     def __init__(self, scene: Scene, seed: int, config: PhysicsConfig, indices: Sequence[int],
-                 model: Uncertainty | None = None):
+                 model: Uncertainty | None = None, known: frozenset[str] = frozenset()):
+        """`known`: the boxes that did not stand in sample 0 (found here when 0 is in `indices`)."""
         self.seed = seed
         self.local = config.prediction_local
         self.order = {b: i for i, b in enumerate(scene.ids)}
@@ -225,9 +240,12 @@ class _Worlds:
         self.draws: dict[int, Draw] = {}
         ranges = depth_ranges(scene, config) if not scene.depth_known else None
         try:
-            for i in indices:
-                self.draws[i] = build_sample(scene, seed, i, config, ranges, model)
-                self.sims[i] = self.draws[i].sim
+            for i in indices:   # sample 0 first: the others learn from it what does not stand
+                self.draws[i] = d = build_sample(scene, seed, i, config, ranges, model,
+                                                 frozenset() if i == 0 else known)
+                self.sims[i] = d.sim
+                if i == 0:
+                    known = not_standing(d)
         except BaseException:
             self.close()
             raise
@@ -283,9 +301,9 @@ def _worker(conn) -> None:
         while True:
             msg = conn.recv()
             if msg[0] == "build":
-                _, scene, seed, config, indices, model = msg
+                _, scene, seed, config, indices, model, known = msg
                 try:
-                    worlds = _Worlds(scene, seed, config, indices, model)
+                    worlds = _Worlds(scene, seed, config, indices, model, known)
                 except BaseException as exc:  # reported to the parent, which raises it
                     worlds = None
                     conn.send(("error", exc))
@@ -408,11 +426,18 @@ class Predictor:
                       "screens": 0, "pulls": 0, "trial_s": 0.0, "workers": workers}
 
     def _start_pool(self, workers: int) -> None:
+        # what does not stand in sample 0 is what the other samples need not redraw for;
+        # found here, before the workers start, so every worker count gives the same worlds
+        known: frozenset[str] = frozenset()
+        if not self.scene.depth_known:
+            first = build_sample(self.scene, self.seed, 0, self.config, None, self.model)
+            known = not_standing(first)
+            first.sim.close()
         shares = [list(range(k, self._n, workers)) for k in range(workers)]
         for share in shares:
             proc, conn = _take_worker()
             self._pool.append((proc, conn, share))
-            conn.send(("build", self.scene, self.seed, self.config, share, self.model))
+            conn.send(("build", self.scene, self.seed, self.config, share, self.model, known))
         scenes: dict[int, tuple] = {}
         error: BaseException | None = None
         try:
