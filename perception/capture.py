@@ -212,7 +212,9 @@ def load_capture(rgb: str | Path, depth: str | Path | None, camera: str | Path) 
     cam = Camera.load(camera)
     img = read_rgb(rgb)
     dep = read_depth(depth, cam.depth_scale) if depth is not None else None
-    validate(img, dep, cam, origin=str(depth or rgb), camera_origin=str(camera))
+    validate(img, None, cam, origin=str(rgb), camera_origin=str(camera))  # the RGB's faults name the RGB
+    if dep is not None:
+        validate(img, dep, cam, origin=str(depth), camera_origin=str(camera))
     if dep is not None:
         check_depth_units(dep, cam.depth_scale, str(depth), str(camera))
     masks, labels = None, {}

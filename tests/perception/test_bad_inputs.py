@@ -282,7 +282,7 @@ def test_an_image_of_a_few_pixels_is_refused(tmp_path, capsys, w, h):
     doc = Camera(w, h, float(w), float(w), w / 2, h / 2).to_json()
     (tmp_path / "camera.json").write_text(json.dumps(doc))
     line = refused(capsys, tmp_path / "rgb.png", tmp_path / "camera.json", tmp_path / "depth.png")
-    assert f"depth.png: image is {w}x{h} px; perception needs at least 16 px a side" in line
+    assert f"rgb.png: image is {w}x{h} px; perception needs at least 16 px a side" in line
 
 
 @pytest.mark.parametrize("units, noise", [(500, 0), (1040, 0), (1300, 0), (1040, 3)])
