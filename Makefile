@@ -9,7 +9,20 @@ export YOLO_VERBOSE := 0
 export YOLO_CONFIG_DIR := $(CURDIR)/.yolo
 export MPLBACKEND := Agg
 
-.PHONY: run test test-all bench perceive-bench clean-venv
+# the browser tests drive Debian's chromium (tests/console/test_browser.py); BROWSER_TESTS=0 leaves them out
+CHROMIUM := /usr/bin/chromium
+BROWSER_TESTS ?= 1
+ifeq ($(BROWSER_TESTS),0)
+BROWSER_DEPS :=
+TEST_MARKS := not slow and not browser
+ALL_MARKS := not browser
+else
+BROWSER_DEPS := browser-deps
+TEST_MARKS := not slow
+ALL_MARKS :=
+endif
+
+.PHONY: run test test-all bench perceive-bench clean-venv browser-deps
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -22,11 +35,25 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/shelfpick console --source demo
 
-test: $(STAMP)
-	$(BIN)/python -m pytest -q
+test: $(STAMP) $(BROWSER_DEPS)
+	$(BIN)/python -m pytest -q -m "$(TEST_MARKS)"
 
-test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -m ""
+test-all: $(STAMP) $(BROWSER_DEPS)
+	$(BIN)/python -m pytest -q -m "$(ALL_MARKS)"
+
+# as .ci/run does: install chromium when missing and we are root; otherwise say what to do
+browser-deps:
+	@if [ -x $(CHROMIUM) ]; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  echo "make: installing Debian's chromium for the browser tests (apt-get install chromium)"; \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-get update -qq && apt-get install -y -qq chromium >/dev/null \
+	    || { echo "make: apt-get could not install chromium; install it, or run 'make test BROWSER_TESTS=0'" >&2; exit 1; }; \
+	else \
+	  echo "make: the browser tests need Debian's chromium at $(CHROMIUM): run 'sudo apt-get install -y chromium'" \
+	       "and 'make test' again, or 'make test BROWSER_TESTS=0' to run everything else" >&2; \
+	  exit 1; \
+	fi
 
 clean-venv:
 	rm -rf $(VENV)
