@@ -19,14 +19,42 @@ import os
 import time
 from dataclasses import dataclass, field, asdict
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
 
 from perception.errors import FormatError, ShelfpickError
+from perception.scene import quat_to_matrix
+
+if TYPE_CHECKING:  # pragma: no cover
+    from perception.scene import Scene
+    from planning.physics import PhysicsConfig
 
 RECORDS = "records.jsonl"
 RUN_META = "run.json"
 # fields of a record that are measurements of the machine, not results
 TIMING_KEYS = ("plan_s", "setup_s", "exec_wall_s", "exhaustive_s", "worker")
+
+
+@dataclass(frozen=True)
+class TruthModel:
+    """How the bench's truth differs from what the planner is given and assumes (docs/bench.md).
+
+    The planner sees front faces only (depth unknown, no masses) with `noise` m of
+    perception error on each front-face centre and size; the plan runs on the true
+    shelf with true masses and a physics drawn per scene: another friction, a pull of
+    another speed and force limit, without the planner's lift.
+    """
+
+    noise: float = 0.01                                   # m, sd per axis of a front face's centre and size
+    mass: tuple[float, float] = (0.3, 5.0)                # kg per box (kept where the scene gives one)
+    friction: tuple[float, float] = (0.5, 0.9)
+    pull_speed: tuple[float, float] = (0.15, 0.35)        # m/s (the planner assumes 0.5)
+    pull_force: tuple[float, float] = (100.0, 200.0)      # N
+    pull_lift: float = 0.0                                # m: a drag, no lift
+    stand_tolerance: float = 0.015                        # m a true box may move while the truth settles
+    draws: int = 6                                        # truth draws tried before a scene is given up
+
+    def to_json(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 @dataclass(frozen=True)
@@ -40,10 +68,14 @@ class BenchConfig:
     # what an operator waits for. True: one Predictor per scene shared by all its targets
     # (faster throughput; later targets reuse cached trials, so plan_s understates latency).
     shared_predictor: bool = False
+    # the truth plans are judged on: a perturbed one (default), or None for the planner's own
+    # world (depths hidden, nothing else differs: the old bench, which flatters the planner)
+    truth: TruthModel | None = TruthModel()
 
     def to_json(self) -> dict:
         d = asdict(self)
         d["planners"] = list(self.planners)
+        d["truth"] = None if self.truth is None else self.truth.to_json()
         return d
 
 
@@ -80,61 +112,175 @@ class Job:
 
 
 # --------------------------------------------------------------------------
-# the work itself (runs in a worker)
-def run_scene(job: Job) -> list[dict]:
-    """Plan and execute every pending target of one scene; one record per target."""
+# the truth: what the camera gives the planner, and the shelf the plan really meets
+def observe(truth: "Scene", noise: float, seed: int, placeholder: float = 0.10) -> "Scene":
+    """Front faces only: depth unknown (a placeholder), no masses, `noise` m of error
+    (normal, per axis) on each front face's centre and on its width and height."""
+    import numpy as np
+    from dataclasses import replace
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for b in truth.boxes:
+        hidden = b.with_depth(placeholder)
+        if noise > 0:
+            r = np.array(quat_to_matrix(b.orientation))
+            dc = rng.normal(0.0, noise, 3)
+            dw, dh = rng.normal(0.0, noise, 2)
+            front = np.array(hidden.front_center) + dc
+            size = (max(0.05, b.size[0] + dw), placeholder, max(0.05, b.size[2] + dh))
+            pos = front + r[:, 1] * placeholder / 2
+            hidden = replace(hidden, size=size, position=tuple(float(v) for v in pos))
+        out.append(replace(hidden, mass=None, depth_known=False))
+    return truth.with_boxes(out)
+
+
+def draw_truth(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "PhysicsConfig"]:
+    """True masses (where the scene has none) and a truth physics, drawn from `seed`."""
+    import numpy as np
+    from dataclasses import replace
+
+    from planning.physics import PhysicsConfig
+
+    rng = np.random.default_rng(seed)
+    boxes = [b if b.mass is not None else replace(b, mass=round(float(rng.uniform(*model.mass)), 3))
+             for b in truth.boxes]
+    config = PhysicsConfig(lateral_friction=float(rng.uniform(*model.friction)),
+                           pull_speed=float(rng.uniform(*model.pull_speed)),
+                           pull_force=float(rng.uniform(*model.pull_force)),
+                           pull_lift=model.pull_lift)
+    return truth.with_boxes(boxes), config
+
+
+def stands(scene: "Scene", config: "PhysicsConfig", tolerance: float) -> str | None:
+    """None when every box stays within `tolerance` of its place while the shelf settles and
+    then rests 0.5 s under `config`; else which box moved and how far (not a truth)."""
     import warnings
 
+    from planning.sim import ShelfSim
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            sim = ShelfSim(scene, config)
+        except ShelfpickError as exc:
+            return str(exc)
+    try:
+        gone = set(scene.ids) - set(sim.present())
+        if gone:
+            return f"{sorted(gone)} left the shelf"
+        after = {b.id: b.position for b in sim.scene.boxes}
+        drift = sim.idle(0.5)
+    finally:
+        sim.close()
+    moved = {b.id: math.dist(b.position, after[b.id]) + drift.get(b.id, 0.0) for b in scene.boxes}
+    worst = max(moved, key=moved.get)
+    if moved[worst] > tolerance:
+        return f"{worst} moved {moved[worst] * 100:.1f} cm"
+    return None
+
+
+def true_world(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "PhysicsConfig", int]:
+    """A truth draw under which the shelf stands as it is (redrawn otherwise); (scene, physics, draw).
+    SceneError when no draw of `model.draws` stands: the scene is no truth for this model."""
+    from perception.errors import SceneError
+
+    why = ""
+    for k in range(model.draws):
+        scene, config = draw_truth(truth, model, derive_seed(seed, "truth", k))
+        why = stands(scene, config, model.stand_tolerance) or ""
+        if not why:
+            return scene, config, k
+    raise SceneError(f"the shelf does not stand under any of {model.draws} truth draws (last: {why})")
+
+
+# --------------------------------------------------------------------------
+# the work itself (runs in a worker)
+def _worlds(job: Job) -> tuple["Scene", "Scene", "PhysicsConfig | None", dict]:
+    """(what the planner is given, the truth it is judged on, the truth physics, record fields)."""
     from perception.scene import Scene
+
+    cfg = job.config
+    truth = Scene.from_json(job.doc, job.name)
+    if cfg.truth is None:
+        return truth.hide_depths(), truth, None, {}
+    world, physics, draw = true_world(truth, cfg.truth, derive_seed(cfg.seed, job.name, "truth"))
+    seen = observe(world, cfg.truth.noise, derive_seed(cfg.seed, job.name, "observe"))
+    info = {"truth": {"draw": draw, "friction": round(physics.lateral_friction, 4),
+                      "pull_speed": round(physics.pull_speed, 4), "pull_force": round(physics.pull_force, 2),
+                      "masses": [b.mass for b in world.boxes]}}
+    return seen, world, physics, info
+
+
+def _plan_and_run(job: Job, seen: "Scene", truth: "Scene", physics: "PhysicsConfig | None",
+                  target: str, planner: str, shared: Any, seed: int) -> dict:
+    """One planner on one target: plan on what was seen (timed), execute on the truth."""
     from planning.execute import execute_plan
     from planning.planner import make_plan
     from planning.predict import Predictor
 
     cfg = job.config
-    truth = Scene.from_json(job.doc, job.name)
-    kind = scene_kind(job.doc, job.name)
-    hidden = truth.hide_depths()
     plan_seed = derive_seed(cfg.seed, job.name, "plan")
-    records = []
+    t1 = time.perf_counter()
+    try:
+        predictor = shared or Predictor(seen, samples=cfg.samples, seed=plan_seed)
+        try:
+            plan = make_plan(seen, "extract", target, planner, cfg.samples, plan_seed, predictor=predictor)
+        finally:
+            if shared is None:
+                predictor.close()
+    except ShelfpickError as exc:  # the seen shelf cannot stand: no plan, so not safe and not ok
+        return {"sequence": [], "safe": False, "predicted_risk": 1.0, "ok": False, "extracted": False,
+                "collapsed": [], "removed": 0, "mean_disp": 0.0, "error": str(exc)[:300],
+                "plan_s": time.perf_counter() - t1, "exec_wall_s": 0.0}
+    plan_s = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    ex = execute_plan(truth, plan.sequence, seed=seed, config=physics)
+    steps = ex.steps
+    return {"sequence": list(plan.sequence), "safe": plan.safe, "predicted_risk": round(plan.risk, 6),
+            "step_risk": [round(p.risk, 4) for p in plan.predicted],
+            "step_collapsed": [bool(st.collapsed) for st in steps],
+            "ok": bool(ex.ok), "extracted": bool(steps and steps[-1].extracted),
+            "collapsed": sorted({b for st in steps for b in st.collapsed}),
+            "removed": len(plan.sequence), "mean_disp": round(ex.mean_displacement(), 6),
+            "plan_s": plan_s, "exec_wall_s": time.perf_counter() - t2}
+
+
+def run_scene(job: Job) -> list[dict]:
+    """Plan and execute every pending target of one scene; one record per target."""
+    import warnings
+
+    from perception.errors import SceneError
+    from planning.predict import Predictor
+
+    cfg = job.config
+    base = {"scene": job.name, "kind": scene_kind(job.doc, job.name), "scene_sha": scene_sha(job.doc),
+            "n_boxes": len(job.doc.get("boxes", []))}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        try:
+            seen, truth, physics, info = _worlds(job)
+        except SceneError as exc:  # no truth: recorded (and counted) apart, never as a plan's failure
+            return [dict(base, key=f"{job.name}:{t}", target=t, planners={}, no_truth=str(exc)[:300])
+                    for t in job.targets]
         t0 = time.perf_counter()
-        shared = Predictor(hidden, samples=cfg.samples, seed=plan_seed) if cfg.shared_predictor else None
+        plan_seed = derive_seed(cfg.seed, job.name, "plan")
+        shared = Predictor(seen, samples=cfg.samples, seed=plan_seed) if cfg.shared_predictor else None
         setup_s = time.perf_counter() - t0
         exhaustive = None
         if len(truth.boxes) <= cfg.exhaustive_max_boxes:
             from planning.exhaustive import min_removals, true_scene_oracle
-            exhaustive = (min_removals, true_scene_oracle(truth, derive_seed(cfg.seed, job.name, "exhaustive")))
+            exhaustive = (min_removals, true_scene_oracle(truth, derive_seed(cfg.seed, job.name, "exhaustive"),
+                                                          config=physics))
+        records = []
         try:
             for target in job.targets:
-                rec: dict[str, Any] = {"key": f"{job.name}:{target}", "scene": job.name, "kind": kind,
-                                       "scene_sha": scene_sha(job.doc),
-                                       "n_boxes": len(truth.boxes), "target": target,
-                                       "seed": derive_seed(cfg.seed, job.name, target),
-                                       "setup_s": setup_s, "planners": {}}
+                seed = derive_seed(cfg.seed, job.name, target)
+                rec: dict[str, Any] = dict(base, key=f"{job.name}:{target}", target=target, seed=seed,
+                                           setup_s=setup_s, planners={}, **info)
                 for planner in cfg.planners:
-                    t1 = time.perf_counter()
-                    predictor = shared or Predictor(hidden, samples=cfg.samples, seed=plan_seed)
-                    try:
-                        plan = make_plan(hidden, "extract", target, planner, cfg.samples, plan_seed,
-                                         predictor=predictor)
-                    finally:
-                        if shared is None:
-                            predictor.close()
-                    plan_s = time.perf_counter() - t1
-                    t2 = time.perf_counter()
-                    ex = execute_plan(truth, plan.sequence, seed=rec["seed"])
-                    steps = ex.steps
-                    rec["planners"][planner] = {
-                        "sequence": list(plan.sequence), "safe": plan.safe,
-                        "predicted_risk": round(plan.risk, 6),
-                        "ok": bool(ex.ok),
-                        "extracted": bool(steps and steps[-1].extracted),
-                        "collapsed": sorted({b for s in steps for b in s.collapsed}),
-                        "removed": len(plan.sequence),
-                        "mean_disp": round(ex.mean_displacement(), 6),
-                        "plan_s": plan_s, "exec_wall_s": time.perf_counter() - t2,
-                    }
+                    rec["planners"][planner] = _plan_and_run(job, seen, truth, physics, target, planner,
+                                                             shared, seed)
                 if exhaustive is not None:
                     t3 = time.perf_counter()
                     best = exhaustive[0](truth.ids, target, exhaustive[1], max_boxes=max(len(truth.ids), 1))
@@ -373,7 +519,8 @@ def _mean(values: Sequence[float]) -> float | None:
 
 def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
     """Per planner and kind (and 'all'): success, removals, robot time, planning time, displacement."""
-    records = sorted(records, key=lambda r: r["key"])  # same sums in the same order, however it ran
+    all_records = sorted(records, key=lambda r: r["key"])  # same sums in the same order, however it ran
+    records = [r for r in all_records if not r.get("no_truth")]
     kinds = sorted({r["kind"] for r in records})
     groups = {k: [r for r in records if r["kind"] == k] for k in kinds}
     if len(kinds) > 1:
@@ -394,6 +541,9 @@ def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
                 "plan_p50_s": _pct([p["plan_s"] for p in rows], 0.5),
                 "plan_p90_s": _pct([p["plan_s"] for p in rows], 0.9),
                 "mean_disp_per_step_m": _mean([p["mean_disp"] for p in rows]),
+                "declared_safe": sum(bool(p.get("safe")) for p in rows),
+                "declared_safe_collapsed": sum(bool(p.get("safe")) and not p["ok"] for p in rows),
+                "plan_errors": sum("error" in p for p in rows),
             }
         pa, bh = table[kind].get("physics"), table[kind].get("heuristic")
         if pa and bh:
@@ -408,6 +558,7 @@ def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
     exh: dict[str, Any] = {"tasks": len(small), "max_boxes": config.exhaustive_max_boxes}
     if small:
         feas = [r for r in small if r["exhaustive"]["feasible"]]
+        infeasible = [r for r in small if not r["exhaustive"]["feasible"]]
         exh["feasible_rate"] = len(feas) / len(small)
         exh["feasible_tasks"] = len(feas)
         for planner in config.planners:
@@ -416,18 +567,40 @@ def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
                 continue
             ok = [r for r in rows if r["planners"][planner]["ok"]]
             exh[planner] = {
+                "infeasible_flagged": sum(not r["planners"][planner].get("safe", True)
+                                          for r in infeasible if planner in r["planners"]),
+                "infeasible_tasks": len(infeasible),
                 "success_rate_on_feasible": len(ok) / len(rows),
                 "mean_gap_removals": _mean([r["planners"][planner]["removed"] - r["exhaustive"]["min_removals"]
                                             for r in ok]),
                 "optimal_rate": (sum(r["planners"][planner]["removed"] == r["exhaustive"]["min_removals"]
                                      for r in ok) / len(ok)) if ok else None,
             }
+    no_truth = [r for r in all_records if r.get("no_truth")]
     return {"format": "shelfpick.bench-results/1", "config": config.to_json(), "table": table,
-            "exhaustive": exh, "scenes": len({r["scene"] for r in records}), "tasks": len(records)}
+            "exhaustive": exh, "scenes": len({r["scene"] for r in records}), "tasks": len(records),
+            "no_truth": {"tasks": len(no_truth), "scenes": sorted({r["scene"] for r in no_truth})}}
 
 
 def _f(v: Any, fmt: str = "{:.2f}") -> str:
     return "-" if v is None else fmt.format(v)
+
+
+def _share(k: int | None, n: int | None) -> str:
+    return "-" if not n else f"{k}/{n} ({100 * (k or 0) / n:.0f}%)"
+
+
+def _truth_line(truth: dict | None) -> str:
+    """One sentence on what the plans were judged against."""
+    if not truth:
+        return ("Plans made with depths hidden, executed on the true scene in the planner's own physics "
+                "(`--truth nominal`: flatters the planner).")
+    return (f"Plans made from front faces only ({truth['noise'] * 100:g} cm perception error, depth and mass "
+            f"unknown), executed on the true shelf with true masses {truth['mass'][0]:g}-{truth['mass'][1]:g} kg, "
+            f"friction {truth['friction'][0]:g}-{truth['friction'][1]:g}, a pull at "
+            f"{truth['pull_speed'][0]:g}-{truth['pull_speed'][1]:g} m/s limited to "
+            f"{truth['pull_force'][0]:g}-{truth['pull_force'][1]:g} N, lift {truth['pull_lift'] * 1000:g} mm "
+            "(drawn per scene).")
 
 
 def to_markdown(summary: dict) -> str:
@@ -435,10 +608,11 @@ def to_markdown(summary: dict) -> str:
     lines = [f"# shelfpick bench: {summary['scenes']} scenes, {summary['tasks']} tasks",
              "",
              f"planners {', '.join(cfg['planners'])}; {cfg['samples']} depth samples; seed {cfg['seed']}; "
-             f"robot time {cfg['robot_time']} s per removed box. Plans made with depths hidden, executed on the true scene.",
+             f"robot time {cfg['robot_time']} s per removed box. {_truth_line(cfg.get('truth'))}",
              "",
-             "| kind | planner | tasks | success | boxes removed | exec time (s) | plan p50 (s) | plan p90 (s) | displacement/step (mm) |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "| kind | planner | tasks | success | boxes removed | exec time (s) | plan p50 (s) | plan p90 (s) "
+             "| displacement/step (mm) | declared safe, collapsed | no plan |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for kind, rows in summary["table"].items():
         for planner, r in rows.items():
             if planner == "relative":
@@ -446,7 +620,8 @@ def to_markdown(summary: dict) -> str:
             lines.append(f"| {kind} | {planner} | {r['tasks']} | {_f(r['success_rate'] * 100, '{:.1f}%')} | "
                          f"{_f(r['mean_removed'])} | {_f(r['mean_exec_time_s'], '{:.1f}')} | "
                          f"{_f(r['plan_p50_s'], '{:.3f}')} | {_f(r['plan_p90_s'], '{:.3f}')} | "
-                         f"{_f(None if r['mean_disp_per_step_m'] is None else r['mean_disp_per_step_m'] * 1000, '{:.1f}')} |")
+                         f"{_f(None if r['mean_disp_per_step_m'] is None else r['mean_disp_per_step_m'] * 1000, '{:.1f}')} | "
+                         f"{_share(r.get('declared_safe_collapsed'), r.get('declared_safe'))} | {r.get('plan_errors', 0)} |")
     rel = [(k, v["relative"]) for k, v in summary["table"].items() if "relative" in v]
     if rel:
         lines += ["", "Physics-aware relative to the height heuristic (efficiency = (T_bh - T_pa) / T_pa):", "",
@@ -458,13 +633,19 @@ def to_markdown(summary: dict) -> str:
     if e.get("tasks"):
         lines += ["", f"Exhaustive search on the true scene (scenes of <= {e['max_boxes']} boxes, {e['tasks']} tasks): "
                   f"a collapse-free order exists for {_f(e['feasible_rate'] * 100, '{:.1f}%')} ({e['feasible_tasks']} tasks).", "",
-                  "| planner | success on feasible tasks | mean gap to the minimum (successes) | optimal |",
-                  "|---|---:|---:|---:|"]
+                  "| planner | success on feasible tasks | mean gap to the minimum (successes) | optimal "
+                  "| unsolvable flagged unsafe |",
+                  "|---|---:|---:|---:|---:|"]
         for p in cfg["planners"]:
             if p in e:
                 r = e[p]
                 lines.append(f"| {p} | {_f(r['success_rate_on_feasible'] * 100, '{:.1f}%')} | "
-                             f"{_f(r['mean_gap_removals'])} | {_f(None if r['optimal_rate'] is None else r['optimal_rate'] * 100, '{:.1f}%')} |")
+                             f"{_f(r['mean_gap_removals'])} | {_f(None if r['optimal_rate'] is None else r['optimal_rate'] * 100, '{:.1f}%')} "
+                             f"| {r.get('infeasible_flagged', 0)}/{r.get('infeasible_tasks', 0)} |")
+    nt = summary.get("no_truth") or {}
+    if nt.get("tasks"):
+        lines += ["", f"Not judged: {nt['tasks']} tasks on {len(nt['scenes'])} scenes that stand under no truth "
+                  f"draw ({', '.join(nt['scenes'][:8])}{' ...' if len(nt['scenes']) > 8 else ''})."]
     run = summary.get("run")
     if run:
         lines += ["", f"Run: {run['mode']}, {run['new_tasks']} new tasks in {run['wall_s']} s "

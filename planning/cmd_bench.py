@@ -1,5 +1,6 @@
-"""`shelfpick bench SCENES_DIR`: every box of every scene is the target once; both planners plan
-with depths hidden and their plans run on the true scene (serial, local workers or Ray; resumable)."""
+"""`shelfpick bench SCENES_DIR`: every box of every scene is the target once; both planners plan on
+what a camera gives (front faces with perception error) and their plans run on a truth that differs
+(true masses, friction, another pull): serial, local workers or Ray; resumable."""
 from __future__ import annotations
 
 import argparse
@@ -20,6 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exhaustive-max-boxes", type=int, default=8,
                         help="exhaustive search over removal orders on scenes up to this size (default 8; 0: off)")
     parser.add_argument("--robot-time", type=float, default=12.5, help="robot seconds per removed box (default 12.5)")
+    parser.add_argument("--truth", choices=("perturbed", "nominal"), default="perturbed",
+                        help="perturbed (default): the planner sees front faces with perception error, the plan "
+                             "runs on true masses, friction and another pull; nominal: the planner's own world "
+                             "with depths hidden (flatters the planner)")
+    parser.add_argument("--noise", type=float, default=0.01,
+                        help="perception error on each front face's centre and size, m (default 0.01; perturbed only)")
     parser.add_argument("--shared-predictor", action="store_true",
                         help="one Predictor per scene for all its targets (faster; planning times then "
                              "exclude its build and reuse cached trials)")
@@ -29,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     import math
 
     from perception.errors import FormatError
-    from planning.bench import BenchConfig, run_bench
+    from planning.bench import BenchConfig, TruthModel, run_bench
 
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     for p in planners:
@@ -45,8 +52,11 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("--limit", "", f"expected a positive number, got {args.limit!r}")
     if not math.isfinite(args.robot_time) or args.robot_time <= 0:
         raise FormatError("--robot-time", "", f"expected a positive number of seconds, got {args.robot_time!r}")
+    if not math.isfinite(args.noise) or not 0.0 <= args.noise <= 0.1:
+        raise FormatError("--noise", "", f"expected metres in [0, 0.1], got {args.noise!r}")
+    truth = TruthModel(noise=args.noise) if args.truth == "perturbed" else None
     config = BenchConfig(planners, args.samples, args.seed, max(0, args.exhaustive_max_boxes), args.robot_time,
-                         shared_predictor=args.shared_predictor)
+                         shared_predictor=args.shared_predictor, truth=truth)
     summary = run_bench(args.scenes, args.out, config, workers=args.workers, ray_address=args.ray,
                         limit=args.limit)
     from planning.bench import to_markdown
