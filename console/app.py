@@ -10,7 +10,6 @@ connected view at once.
 """
 from __future__ import annotations
 
-import html
 import threading
 import time
 import traceback
@@ -19,22 +18,54 @@ from typing import Any
 import numpy as np
 
 from console import scene_view as sv
-from console.workflow import PLANNERS, SECONDS_PER_BOX, State, Workflow, WorkflowError
+from console.workflow import PLANNERS, SECONDS_PER_BOX, State, Workflow, WorkflowError, problem_text
 from perception.errors import ShelfpickError
 
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
 PLACEHOLDER = np.full((48, 64, 3), 220, dtype=np.uint8)
+MIN_PASSPHRASE = 12          # characters, when the console listens beyond this machine
+MAX_SHOWN = 500              # characters of any outside text shown in the page
 
 
 class ConsoleError(ShelfpickError):
     """A console start-up setting the user must change."""
 
 
-def check_host(host: str, passphrase_set: bool) -> None:
-    """Listening beyond this machine requires a supervisor passphrase chosen by a person."""
-    if host not in LOCAL_HOSTS and not passphrase_set:
+def check_host(host: str, passphrase: str | None) -> None:
+    """Listening beyond this machine requires a supervisor passphrase chosen by a person,
+    at least MIN_PASSPHRASE characters that are not all blank."""
+    if host in LOCAL_HOSTS:
+        return
+    if not passphrase:
         raise ConsoleError(f"--host {host}: listening on a non-local address needs a supervisor "
                            "passphrase (--supervisor-passphrase or SHELFPICK_SUPERVISOR_PASSPHRASE)")
+    if len(passphrase.strip()) < MIN_PASSPHRASE:
+        raise ConsoleError(f"--supervisor-passphrase: at least {MIN_PASSPHRASE} characters (not counting "
+                           f"blanks at the ends) when listening on {host}, got {len(passphrase.strip())}")
+
+
+def md(value: Any) -> str:
+    """Outside text (robot messages, names, reasons, box ids, file names) as literal markdown text.
+
+    viser renders markdown with raw HTML enabled and unsanitised, so every
+    ASCII punctuation character becomes a numeric character reference: no
+    tag, link, image, emphasis or table cell can start inside it, and the
+    browser shows exactly the characters that came in. Line breaks and
+    control characters become spaces; long text is clipped.
+    """
+    s = "" if value is None else str(value)
+    if len(s) > MAX_SHOWN:
+        s = s[:MAX_SHOWN] + "..."
+    out = []
+    for ch in s:
+        o = ord(ch)
+        if o < 32 or o == 127 or 0x2028 <= o <= 0x2029:
+            out.append(" ")
+        elif ch.isascii() and not ch.isalnum() and ch != " ":
+            out.append(f"&#{o};")
+        else:
+            out.append(ch)
+    return "".join(out)
 
 
 def _pct(p: float) -> str:
@@ -44,7 +75,7 @@ def _pct(p: float) -> str:
 def results_markdown(state: State) -> str:
     """The two plans side by side."""
     if state.planning:
-        return f"**Planning…** {html.escape(state.progress_text)}"
+        return f"**Planning…** {md(state.progress_text)}"
     if not state.plans:
         return "_No plans yet. Select a target, then press `Plan extraction` or `Plan clearance`._"
     cols = [p for p in PLANNERS if p in state.plans]
@@ -53,16 +84,24 @@ def results_markdown(state: State) -> str:
     def row(name: str, fn) -> None:
         rows.append(f"| {name} | " + " | ".join(fn(state.plans[c]) for c in cols) + " |")
 
-    row("sequence", lambda e: " → ".join(e.plan.sequence) or "—")
+    row("sequence", lambda e: " → ".join(md(b) for b in e.plan.sequence) or "—")
     row("boxes removed", lambda e: str(len(e.plan.sequence)))
     row("collapse risk per step", lambda e: ", ".join(
-        f"{p.box} {_pct(p.collapse_prob)}" for p in e.plan.predicted) or "—")
+        f"{md(p.box)} {_pct(p.collapse_prob)}" for p in e.plan.predicted) or "—")
     row("max risk", lambda e: _pct(e.plan.risk))
     row("predicted safe", lambda e: "yes" if e.plan.safe else "**NO**")
+    row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
+        if e.scene_problems else "stands as seen")
     row(f"est. execution ({SECONDS_PER_BOX:g} s/box)", lambda e: f"{e.est_seconds:.1f} s")
     row("planning time", lambda e: f"{_planning_seconds(e.plan):.2f} s")
-    row("plan hash", lambda e: f"`{e.hash}`")
-    return "\n".join(rows)
+    row("plan hash", lambda e: f"`{md(e.hash)}`")
+    out = "\n".join(rows)
+    if state.scene_problems:
+        out += "\n\n**⚠ The shelf does not stand as seen** (no plan on it is safe):\n" + "\n".join(
+            f"- {md(problem_text(p))}" for p in state.scene_problems)
+    if state.repairs:
+        out += "\n\n_Perceived scene adjusted by the physics:_ " + "; ".join(md(r) for r in state.repairs)
+    return out
 
 
 def _planning_seconds(plan: Any) -> float:
@@ -72,33 +111,49 @@ def _planning_seconds(plan: Any) -> float:
 
 
 def robot_markdown(state: State) -> str:
-    lines = [f"**Robot:** {state.robot}"]
+    lines = [f"**Robot:** {md(state.robot)}"]
     for ev in state.robot_events[-8:]:
         step = f" step {ev.step + 1}" if isinstance(ev.step, int) else ""
-        lines.append(f"- {ev.kind}{step}" + (f" `{ev.box}`" if ev.box else ""))
+        note = ""
+        if ev.kind in ("error", "disconnected", "aborted") and ev.detail:
+            note = ": " + md(ev.detail.get("message") or ev.detail.get("reason") or ev.detail.get("code") or "")
+        lines.append(f"- {md(ev.kind)}{step}" + (f" {md(ev.box)}" if ev.box else "") + note)
     out = state.outcome
     if out is not None:
         lines.append(f"\n**Outcome:** {'success' if out.ok else 'not completed'}; "
-                     f"completed: {', '.join(out.completed) or 'none'}"
-                     + (f"; error: {out.error}" if out.error else ""))
+                     f"completed: {', '.join(md(b) for b in out.completed) or 'none'}"
+                     + (f"; error: {md(out.error)}" if out.error else ""))
     return "\n".join(lines)
 
 
 def status_markdown(state: State, viewer: str = "") -> str:
     parts = []
+    if state.audit:
+        parts.append(f"**⛔ AUDIT: {md(state.audit)}**")
+    for note in state.recovered:
+        parts.append(f"**⚠ {md(note)}**")
     if state.error:
-        parts.append(f"**⚠ {html.escape(state.error)}**")
+        parts.append(f"**⚠ {md(state.error)}**")
     if state.message:
-        parts.append(html.escape(state.message))
-    head = f"Source `{state.source}`"
+        parts.append(md(state.message))
+    head = f"Source {md(state.source)}"
     if state.session_id is not None:
         head += f" · session {state.session_id}"
     if state.target:
-        head += f" · target **{state.target}**"
+        head += f" · target **{md(state.target)}**"
     parts.append(head + (f" · {viewer}" if viewer else ""))
     for w in state.warnings[:3]:
-        parts.append(f"_perception: {html.escape(str(w))}_")
+        parts.append(f"_perception: {md(w)}_")
     return "\n\n".join(parts)
+
+
+def decisions_markdown(decisions: Any, key: str = "plan") -> str:
+    """Supervisors' decisions; names and reasons are outside text."""
+    return "\n".join(
+        f"- {md(d['decision'])} `{md(d.get(key))}` by {md(d.get('who'))}"
+        + (f" at {md(d['at'])}" if isinstance(d.get("at"), str) else "")
+        + (f": {md(d['reason'])}" if d.get("reason") else "")
+        for d in decisions)
 
 
 class ClientView:
@@ -117,6 +172,7 @@ class ClientView:
         self.playing = False
         self.replay: Any = None
         self.last_sessions_key: Any = None
+        self.client_key = f"browser-{getattr(client, 'client_id', id(client))}"   # for the throttle
         self._build()
 
     # ----------------------------------------------------------------- build
@@ -205,22 +261,32 @@ class ClientView:
             raise WorkflowError("no plan to decide on: plan first")
         return entry
 
+    def _take_passphrase(self) -> str:
+        """The typed passphrase, and the field cleared at once: every use needs it typed again."""
+        given = self.passphrase.value
+        self.passphrase.value = ""
+        return given
+
     def _approve(self, event: Any) -> None:
+        given = self._take_passphrase()
+
         def go() -> None:
             entry = self._entry_for_approval()
-            self.wf.approve(entry.hash, self.passphrase.value, self.who.value.strip() or "supervisor",
-                            accept_risk=bool(self.accept_risk.value))
+            self.wf.approve(entry.hash, given, self.who.value.strip() or "supervisor",
+                            accept_risk=bool(self.accept_risk.value), client=self.client_key)
             self.accept_risk.value = False
             self.wf.execute()
         self._do(event, go)
 
     def _reject(self, event: Any) -> None:
+        given = self._take_passphrase()
+
         def go() -> None:
             if not self.reason.value.strip():
                 raise WorkflowError("Reject needs a reason: type it in `Reject reason`")
             entry = self._entry_for_approval()
-            self.wf.reject(entry.hash, self.passphrase.value, self.who.value.strip() or "supervisor",
-                           self.reason.value)
+            self.wf.reject(entry.hash, given, self.who.value.strip() or "supervisor",
+                           self.reason.value, client=self.client_key)
             self.reason.value = ""
         self._do(event, go)
 
@@ -272,9 +338,9 @@ class ClientView:
             scene = self._scene()
             sv.apply_keyframe(self.client, self.nodes, fr, scene.shelf, None)
             nsteps = max(k.step for k in self.frames) + 1
-            txt = f"Step {fr.step + 1}/{nsteps}: pulling **{fr.box}** · t = {fr.t:.2f} s"
+            txt = f"Step {fr.step + 1}/{nsteps}: pulling **{md(fr.box)}** · t = {fr.t:.2f} s"
             if fr.collapsed:
-                txt += f" · **collapsed: {', '.join(fr.collapsed)}**"
+                txt += f" · **collapsed: {', '.join(md(b) for b in fr.collapsed)}**"
             self.prev_info.content = txt
 
     def _play(self) -> None:
@@ -353,10 +419,7 @@ class ClientView:
             b.disabled = state.planning
         self.robot_md.content = robot_markdown(state)
         self.sup_info.content = self._supervisor_text(state)
-        self.decisions_md.content = "\n".join(
-            f"- {d['decision']} `{d['plan']}` by {html.escape(str(d['who']))}"
-            + (f": {html.escape(str(d['reason']))}" if d.get("reason") else "")
-            for d in state.decisions) or "_No decisions for this capture._"
+        self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
         key = (state.session_id, state.robot, len(state.decisions), state.plans is not None and len(state.plans))
         if key != self.last_sessions_key:
             self.last_sessions_key = key
@@ -389,8 +452,12 @@ class ClientView:
         lines = ["Pending plans for this capture:"]
         for name, e in state.plans.items():
             mark = " ✅ approved" if state.approved == e.hash else ""
-            lines.append(f"- **{name}** `{e.hash}`: {' → '.join(e.plan.sequence)} "
-                         f"(max risk {_pct(e.plan.risk)}){mark}")
+            lines.append(f"- **{md(name)}** `{md(e.hash)}`: {' → '.join(md(b) for b in e.plan.sequence)} "
+                         f"(max risk {_pct(e.plan.risk)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}")
+        if state.scene_problems:
+            lines.append("\n**⚠ The shelf does not stand as seen:** " + "; ".join(
+                md(problem_text(p)) for p in state.scene_problems)
+                + ". Approving needs `Accept predicted risk`.")
         lines.append("\n`Approve` sends the chosen plan to the robot at once.")
         return "\n".join(lines)
 
@@ -399,13 +466,13 @@ class ClientView:
         try:
             rows = self.wf.store.list_sessions()
         except Exception as exc:  # noqa: BLE001 - DB locked/unreadable
-            self.sessions_md.content = f"**⚠ database: {html.escape(str(exc))}**"
+            self.sessions_md.content = f"**⚠ database: {md(exc)}**"
             return
         rows = sorted(rows, key=lambda r: -int(r["id"]))
         lines = ["| id | started | source | boxes | task | status |", "|---|---|---|---|---|---|"]
         for r in rows[:12]:
-            lines.append(f"| {r['id']} | {_fmt_time(r.get('started'))} | {r.get('source', '')} | "
-                         f"{r.get('n_boxes', '')} | {r.get('task') or ''} | {r.get('status') or ''} |")
+            lines.append(f"| {md(r['id'])} | {md(_fmt_time(r.get('started')))} | {md(r.get('source', ''))} | "
+                         f"{md(r.get('n_boxes', ''))} | {md(r.get('task') or '')} | {md(r.get('status') or '')} |")
         self.sessions_md.content = "\n".join(lines) if rows else "_No sessions yet._"
         opts = tuple(str(r["id"]) for r in rows) or ("—",)
         cur = self.session_pick.value
@@ -445,7 +512,9 @@ class ClientView:
 
 
 def record_view(rec: Any) -> dict:
-    """A stored `SessionRecord` in the shape a view draws: images, scene, plans, decisions, outcome."""
+    """A stored `SessionRecord` in the shape a view draws: images, scene, plans, decisions, outcome.
+
+    Everything in it came from the database, so all of it is outside text (md)."""
     from console.workflow import PlanEntry, State
 
     plans: dict[str, dict] = {}
@@ -453,35 +522,27 @@ def record_view(rec: Any) -> dict:
     for pr in rec.plans:                       # later plans of a planner replace earlier ones
         plans[pr.plan.planner] = {"plan": pr.plan, "preview": pr.preview or (), "hash": pr.hash}
         entries[pr.plan.planner] = PlanEntry(pr.plan, pr.hash, ())
-    plans_md = results_markdown(State(plans=entries)) if entries else "_No plans in this session._"
-    lines = [f"### Session {rec.id}", f"started {rec.started} · source `{rec.source}` · "
-             f"status **{rec.status}** · {rec.n_boxes} boxes" + (f" · {rec.task}" if rec.task else "")]
+    problems = next((PlanEntry(pr.plan, pr.hash).scene_problems for pr in reversed(rec.plans)
+                     if pr.plan.planner == "physics"), ())
+    repairs = tuple(next((pr.plan.extra.get("repairs") or () for pr in reversed(rec.plans)
+                          if pr.plan.planner == "physics"), ()))
+    plans_md = results_markdown(State(plans=entries, scene_problems=problems, repairs=repairs)) \
+        if entries else "_No plans in this session._"
+    lines = [f"### Session {md(rec.id)}", f"started {md(rec.started)} · source {md(rec.source)} · "
+             f"status **{md(rec.status)}** · {rec.n_boxes} boxes" + (f" · {md(rec.task)}" if rec.task else "")]
     if rec.missing_files:
-        lines.append(f"**⚠ missing files:** {', '.join(rec.missing_files)}")
+        lines.append(f"**⚠ missing files:** {', '.join(md(f) for f in rec.missing_files)}")
     lines.append("\n**Decisions**")
-    lines += [f"- {d['decision']} `{d['plan_hash']}` by {html.escape(str(d['who']))} at {d['at']}"
-              + (f": {html.escape(str(d['reason']))}" if d.get("reason") else "") for d in rec.decisions] \
-        or ["- none"]
+    lines.append(decisions_markdown(rec.decisions, key="plan_hash") or "- none")
     refused = [e for e in rec.robot_events if e["kind"] == "auth_refused"]
     if refused:
         lines.append(f"- {len(refused)} attempt(s) refused: wrong supervisor passphrase")
+    stops = [e for e in rec.robot_events if e["kind"] == "stop"]
+    for e in stops:
+        lines.append(f"- `Stop robot` pressed by {md((e.get('detail') or {}).get('who'))} at {md(e['at'])}")
     out = rec.outcome
     if out:
-        lines.append("\n**Robot outcome vs prediction**")
-        lines.append(f"{'success' if out.get('ok') else 'not completed'} ({out.get('planner', '?')} plan "
-                     f"`{out.get('plan', '')}`); completed: {', '.join(out.get('completed') or []) or 'none'}"
-                     + (f"; error: {html.escape(str(out['error']))}" if out.get("error") else ""))
-        pred = {}
-        for p in plans.values():
-            if p["hash"] == out.get("plan"):
-                pred = {s.box: s for s in p["plan"].predicted}
-        lines.append("\n| step | box | predicted collapse | actual |\n|---|---|---|---|")
-        for i, box in enumerate(out.get("sequence") or []):
-            st = (out.get("steps") or [])[i] if i < len(out.get("steps") or []) else None
-            actual = _actual_text(st) if st is not None else ("not run" if box not in (out.get("completed") or [])
-                                                              else "done")
-            p = pred.get(box)
-            lines.append(f"| {i + 1} | {box} | {_pct(p.collapse_prob) if p else '—'} | {actual} |")
+        lines += _outcome_lines(out, plans)
     else:
         lines.append("\n_The robot did not run in this session._")
     target = None
@@ -493,14 +554,38 @@ def record_view(rec: Any) -> dict:
             "target": target, "plans": plans, "plans_md": plans_md, "summary_md": "\n".join(lines)}
 
 
+def _outcome_lines(out: dict, plans: dict) -> list[str]:
+    head = ("success" if out.get("ok") else "interrupted (the console stopped)" if out.get("interrupted")
+            else "stopped" if out.get("stopped") else "not completed")
+    lines = ["\n**Robot outcome vs prediction**",
+             f"{head} ({md(out.get('planner', '?'))} plan `{md(out.get('plan', ''))}`); completed: "
+             f"{', '.join(md(b) for b in out.get('completed') or []) or 'none'}"
+             + (f"; error: {md(out['error'])}" if out.get("error") else "")]
+    pred = {}
+    for p in plans.values():
+        if p["hash"] == out.get("plan"):
+            pred = {s.box: s for s in p["plan"].predicted}
+    lines.append("\n| step | box | predicted collapse | actual |\n|---|---|---|---|")
+    steps = out.get("steps") or []
+    for i, box in enumerate(out.get("sequence") or []):
+        st = steps[i] if i < len(steps) else None
+        actual = _actual_text(st) if st is not None else ("not run" if box not in (out.get("completed") or [])
+                                                          else "done")
+        p = pred.get(box)
+        lines.append(f"| {i + 1} | {md(box)} | {_pct(p.collapse_prob) if p else '—'} | {md(actual)} |")
+    return lines
+
+
 def _actual_text(step: Any) -> str:
     if not isinstance(step, dict):
         return str(step)
     bits = []
+    if step.get("status") in ("unknown", "error", "aborted", "not_sent", "skipped"):
+        bits.append(str(step["status"]))
     if "extracted" in step:
         bits.append("extracted" if step["extracted"] else "NOT extracted")
     if step.get("collapsed"):
-        bits.append("collapsed: " + ", ".join(step["collapsed"]))
+        bits.append("collapsed: " + ", ".join(map(str, step["collapsed"])))
     if step.get("error"):
         bits.append(f"error: {step['error']}")
     return "; ".join(bits) or "done"
@@ -517,7 +602,8 @@ class ConsoleApp:
 
     def __init__(self, workflow: Workflow, host: str = "127.0.0.1", port: int = 8080,
                  passphrase_set: bool = True, verbose: bool = False) -> None:
-        check_host(host, passphrase_set)
+        # passphrase_set: a person chose the workflow's passphrase (a generated one is for localhost)
+        check_host(host, workflow._passphrase if passphrase_set else None)
         import viser
 
         self.workflow = workflow
@@ -584,4 +670,5 @@ class ConsoleApp:
         self.server.stop()
 
 
-__all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "results_markdown"]
+__all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "md", "results_markdown", "robot_markdown",
+           "status_markdown", "decisions_markdown", "record_view", "MIN_PASSPHRASE"]

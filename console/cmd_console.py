@@ -19,8 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="session database (default ./data/shelfpick.db, as `shelfpick sessions`)")
     p.add_argument("--robot", default="sim", help="sim | tcp://HOST:PORT (default sim)")
     p.add_argument("--supervisor-passphrase", default=None,
-                   help=f"passphrase for Approve/Reject (or env {ENV_PASSPHRASE}); "
-                        "generated and printed when unset on a local address")
+                   help=f"passphrase for Approve/Reject (or env {ENV_PASSPHRASE}); at least 12 characters "
+                        "on a non-local --host; generated and printed when unset on a local address")
     p.add_argument("--samples", type=int, default=10, help="depth samples per prediction (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed for the source, planners and robot (default 0)")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
@@ -41,7 +41,7 @@ def build(args: argparse.Namespace):
     if args.samples < 1:
         raise ShelfpickError(f"--samples: must be >= 1, got {args.samples}")
     given = args.supervisor_passphrase or os.environ.get(ENV_PASSPHRASE) or ""
-    check_host(args.host, bool(given))
+    check_host(args.host, given or None)
     if not (args.robot == "sim" or args.robot.startswith("sim?") or args.robot.startswith("tcp://")):
         raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {args.robot!r}")
 
@@ -53,8 +53,7 @@ def build(args: argparse.Namespace):
     passphrase = given or secrets.token_urlsafe(9)
     source = open_source(args.source, seed=args.seed)
     db = Path(args.db) if args.db else DEFAULT_DB
-    db.parent.mkdir(parents=True, exist_ok=True)
-    store = SessionStore(db)
+    store = SessionStore(db)          # a folder it cannot make, a file not ours: StoreError, one line
     spec = args.robot
     open_robot(spec, truth=None, seed=args.seed) if spec.startswith("sim") else None  # validates options
 
@@ -75,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
           flush=True)
     if not given:
         print(f"supervisor passphrase (generated for this run): {passphrase}", flush=True)
+    for note in wf.state.recovered:
+        print(f"recovered: {note}", flush=True)
     if not args.no_capture:
         wf.capture()
         st = wf.state

@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
     db = Path(args.db) if args.db else DEFAULT_DB
     if not db.is_file():
         raise StoreError(f"{db}: no session database here (pass --db PATH)")
-    with SessionStore(db) as store:
+    with SessionStore(db, readonly=True) as store:      # replaying never writes to the archive
         rec = store.load_session(args.id)
     try:
         out = export_html(rec, args.html)

@@ -28,7 +28,8 @@ def run(args: argparse.Namespace) -> int:
     db = Path(args.db) if args.db else DEFAULT_DB
     if not db.is_file():
         raise StoreError(f"{db}: no session database here (start `shelfpick console`, or pass --db PATH)")
-    with SessionStore(db) as store:
+    # read-only: an archive on a read-only disk lists; a SQLite file that is not ours is refused untouched
+    with SessionStore(db, readonly=True) as store:
         rows = store.list_sessions()
     if args.json:
         print(json.dumps(rows, indent=2))

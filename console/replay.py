@@ -197,7 +197,9 @@ def _animation(scene: Scene, plan: Any, preview: list | None, anim_id: str) -> s
     at_risk = {m for p in plan.predicted for m in p.moved if p.collapse_prob > 0}
     data = json.dumps({"keys": [{"label": k["label"], "polys": {b: [[x, -z] for x, z in poly]
                                                                   for b, poly in k["polys"].items()}}
-                                for k in keys]}, separators=(",", ":")).replace("</", "<\\/")
+                                for k in keys]}, separators=(",", ":"))
+    # outside text (box ids) inside a <script> element: no "<" at all, so no tag can end or open it
+    data = data.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
     return (f'<div class="animbox">{_svg(scene, keys, anim_id, plan.target, at_risk)}'
             f'<div class="controls"><button type="button" id="{anim_id}-play">Play</button>'
             f'<input type="range" id="{anim_id}-scrub" min="0" max="{len(keys) - 1}" value="0" step="1">'
@@ -223,6 +225,7 @@ def _plan_card(pr: Any, rec: SessionRecord, idx: int, approved: set[str]) -> str
     plan_s = timing.get("total", timing.get("planning", sum(v for v in timing.values()
                                                              if isinstance(v, (int, float)))))
     badge = ' <span class="ok">approved</span>' if pr.hash in approved else ""
+    check = _scene_check(plan)
     return (f'<div class="card"><h3>{_e(plan.planner)} plan{badge}</h3>'
             f'<p class="small">hash <code>{_e(pr.hash)}</code> · {_e(plan.task)}'
             f'{(" " + _e(plan.target)) if plan.target else ""} · '
@@ -231,8 +234,24 @@ def _plan_card(pr: Any, rec: SessionRecord, idx: int, approved: set[str]) -> str
             f'estimated execution: <b>{len(plan.sequence) * SECONDS_PER_BOX:.0f} s</b> · '
             f'planning time: <b>{float(plan_s or 0.0):.2f} s</b></p>'
             f'<table><tr><th>step</th><th>box</th><th>collapse</th><th>collision</th><th>expected to move</th></tr>'
-            f'{"".join(rows)}</table>'
+            f'{"".join(rows)}</table>{check}'
             f'<h4>Predicted outcome (front view)</h4>{_animation(rec.scene, plan, pr.preview, f"anim{idx}")}</div>')
+
+
+def _scene_check(plan: Any) -> str:
+    """What the planner found does not stand as seen, and what the physics adjusted (escaped)."""
+    extra = dict(getattr(plan, "extra", None) or {})
+    check = extra.get("scene_check") or {}
+    out = ""
+    if isinstance(check, Mapping) and not check.get("stands_as_seen", True):
+        items = "".join(f'<li>{_e("box " + str(p.get("box")) if p.get("box") else "the scene")} '
+                        f'{_e(p.get("what", ""))}</li>' for p in check.get("problems") or [] if isinstance(p, Mapping))
+        out += (f'<p class="err"><b>The shelf does not stand as seen</b>: no plan on it is safe.</p>'
+                f'<ul class="scene-problems">{items}</ul>')
+    repairs = extra.get("repairs") or []
+    if repairs:
+        out += f'<p class="small">perceived scene adjusted by the physics: {_e("; ".join(map(str, repairs)))}</p>'
+    return out
 
 
 def _outcome(rec: SessionRecord) -> str:
@@ -261,7 +280,8 @@ def _outcome(rec: SessionRecord) -> str:
                     f'<td>{_e(", ".join(p.moved)) if p and p.moved else ""}</td>'
                     f'<td>{_e(status)}</td><td>{_e(", ".join(map(str, actual_collapse))) or "none"}</td>'
                     f'<td>{max_disp * 100:.1f} cm</td><td>{_e(det.get("message", ""))}</td></tr>')
-    head = ("success" if out.get("ok") else "not completed")
+    head = ("success" if out.get("ok") else "interrupted: the console stopped during the run"
+            if out.get("interrupted") else "stopped by Stop robot" if out.get("stopped") else "not completed")
     return (f'<p><b>{head}</b> · plan <code>{_e(plan_hash)}</code> ({_e(out.get("planner", "?"))}) · completed: '
             f'{_e(", ".join(out.get("completed") or [])) or "none"}'
             + (f'<br><span class="err">{_e(out.get("error"))}</span>' if out.get("error") else "") + "</p>"

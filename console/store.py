@@ -31,7 +31,9 @@ from perception.scene import Scene
 from planning.plan import Plan
 
 DEFAULT_DB = Path("data") / "shelfpick.db"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2          # 2: the runs table (which console runs which plan, for crash recovery)
+OUR_TABLES = {"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes"}
+ROBOT_KINDS = ("start", "ack", "done", "error", "aborted", "disconnected", "unknown")
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -91,6 +93,16 @@ CREATE TABLE IF NOT EXISTS outcomes (
     at TEXT NOT NULL,
     outcome TEXT NOT NULL
 );
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    session_id INTEGER NOT NULL REFERENCES sessions(id),
+    plan_hash TEXT NOT NULL,
+    decision_id INTEGER REFERENCES decisions(id),
+    owner TEXT NOT NULL,             -- host:pid:token of the console that runs it
+    started TEXT NOT NULL,
+    ended TEXT,
+    result TEXT                      -- done | stopped | failed | interrupted
+);
 CREATE INDEX IF NOT EXISTS plans_session ON plans(session_id);
 CREATE INDEX IF NOT EXISTS decisions_session ON decisions(session_id);
 CREATE INDEX IF NOT EXISTS events_session ON robot_events(session_id);
@@ -98,7 +110,37 @@ CREATE INDEX IF NOT EXISTS events_session ON robot_events(session_id);
 
 
 class StoreError(ShelfpickError):
-    """The session database cannot be opened or written (locked, read-only, corrupt)."""
+    """The session database cannot be opened or written (locked, read-only, full, corrupt)."""
+
+
+# the consoles of this process that hold a store open: their runs are alive, whatever the pid says
+_LIVE_OWNERS: set[str] = set()
+_OWNERS_LOCK = threading.Lock()
+
+
+def _owner_alive(owner: str) -> bool:
+    """Is the console that started a run still running? (host:pid:token; another host: assume yes)."""
+    import os
+    import socket
+
+    host, _, rest = owner.partition(":")
+    pid_s, _, _token = rest.partition(":")
+    if host != socket.gethostname():
+        return True
+    try:
+        pid = int(pid_s)
+    except ValueError:
+        return False
+    if pid == os.getpid():
+        with _OWNERS_LOCK:
+            return owner in _LIVE_OWNERS
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def utc_now() -> str:
@@ -155,6 +197,9 @@ def _explain(exc: sqlite3.Error, path: Path) -> str:
     if "readonly" in low or "read-only" in low or "unable to open" in low or "permission" in low:
         return (f"{path}: database cannot be written ({msg}); check the file and folder "
                 f"permissions or use another --db")
+    if "full" in low:
+        return (f"{path}: database or disk is full ({msg}); free space or use another --db; "
+                f"nothing was recorded")
     if "not a database" in low or "malformed" in low:
         return f"{path}: not a shelfpick session database or corrupt ({msg})"
     return f"{path}: database error ({exc.__class__.__name__}: {msg})"
@@ -163,20 +208,41 @@ def _explain(exc: sqlite3.Error, path: Path) -> str:
 class SessionStore:
     """The session log of one console (thread safe; every write committed at once)."""
 
-    def __init__(self, path: str | Path, *, timeout: float = 5.0) -> None:
+    def __init__(self, path: str | Path, *, timeout: float = 5.0, readonly: bool = False,
+                 max_pages: int | None = None) -> None:
+        """Open (and, for writing, create) the session log at `path`.
+
+        `readonly`: list and load only, nothing is written (an archive on a
+        read-only disk, `shelfpick sessions`, `shelfpick replay`); the file
+        must exist. A SQLite file that is not a shelfpick session log is
+        refused either way, before anything is written to it. `max_pages`
+        caps the database size in pages (a quota; a write beyond it fails
+        as on a full disk).
+        """
+        import os
+        import secrets
+        import socket
+
         self.path = Path(path)
         self.files_root = self.path.with_name(self.path.name + ".files")
+        self.readonly = bool(readonly)
         self._lock = threading.RLock()
+        self.owner = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(4)}"
+        if self.path.exists() and self.path.is_dir():
+            raise StoreError(f"{self.path}: is a folder, expected a database file")
+        if self.readonly:
+            self._db = self._open_readonly()
+            return
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise StoreError(f"{self.path}: cannot create the database folder ({exc})") from None
-        if self.path.exists() and self.path.is_dir():
-            raise StoreError(f"{self.path}: is a folder, expected a database file")
         if self.path.exists() and not self.path.stat().st_mode & 0o222:
             # honour a file marked read-only even when running as root (root ignores modes)
             raise StoreError(f"{self.path}: database cannot be written (file is read-only, mode "
                              f"{self.path.stat().st_mode & 0o777:o}); make it writable or use another --db")
+        if self.path.exists() and self.path.stat().st_size > 0:
+            self._open_readonly().close()      # ours? (refused before anything is written to it)
         try:
             self._db = sqlite3.connect(str(self.path), timeout=timeout, isolation_level=None,
                                        check_same_thread=False)
@@ -189,8 +255,48 @@ class SessionStore:
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
             self._create_schema()
+            if max_pages is not None:
+                self._db.execute(f"PRAGMA max_page_count={int(max_pages)}")
         except sqlite3.Error as exc:
             raise StoreError(_explain(exc, self.path)) from None
+        with _OWNERS_LOCK:
+            _LIVE_OWNERS.add(self.owner)
+
+    def _open_readonly(self) -> sqlite3.Connection:
+        """A connection that cannot write; refuses a file that is not a shelfpick session log."""
+        if not self.path.is_file():
+            raise StoreError(f"{self.path}: no session database here (pass --db PATH)")
+        db = None
+        last: sqlite3.Error | None = None
+        # mode=ro reads the WAL too; immutable=1 for a folder where not even the -shm can be made
+        for query in ("mode=ro", "mode=ro&immutable=1"):
+            try:
+                db = sqlite3.connect(f"{self.path.resolve().as_uri()}?{query}", uri=True,
+                                     isolation_level=None, check_same_thread=False)
+                db.row_factory = sqlite3.Row
+                tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+                break
+            except sqlite3.Error as exc:
+                last = exc
+                if db is not None:
+                    db.close()
+                db = None
+        if db is None:
+            raise StoreError(_explain(last, self.path)) from None  # type: ignore[arg-type]
+        version = None
+        if "meta" in tables:
+            row = db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
+            version = row[0] if row else None
+        if version is None or not {"sessions", "decisions", "robot_events"} <= tables:
+            db.close()
+            other = ", ".join(sorted(tables - OUR_TABLES)[:5]) or "none of ours"
+            raise StoreError(f"{self.path}: not a shelfpick session database (tables: {other}); "
+                             f"nothing was written to it; pass another --db")
+        if not str(version).isdigit() or int(version) > SCHEMA_VERSION:
+            db.close()
+            raise StoreError(f"{self.path}: meta.schema: session database version {version!r} is newer "
+                             f"than this shelfpick ({SCHEMA_VERSION}); use a newer shelfpick")
+        return db
 
     # ------------------------------------------------------------------ plumbing
     def _create_schema(self) -> None:
@@ -203,6 +309,8 @@ class SessionStore:
                         cur.execute(stmt)
                 cur.execute("INSERT OR IGNORE INTO meta(key, value) VALUES ('schema', ?)",
                             (str(SCHEMA_VERSION),))
+                cur.execute("UPDATE meta SET value=? WHERE key='schema' AND CAST(value AS INTEGER) < ?",
+                            (str(SCHEMA_VERSION), SCHEMA_VERSION))   # 1 -> 2: the runs table, added above
                 cur.execute("COMMIT")
             except BaseException:
                 if self._db.in_transaction:
@@ -211,6 +319,8 @@ class SessionStore:
 
     def _write(self, fn) -> Any:
         """Run fn(cursor) inside BEGIN IMMEDIATE ... COMMIT under the lock; map errors."""
+        if self.readonly:
+            raise StoreError(f"{self.path}: opened read-only, nothing can be recorded")
         with self._lock:
             try:
                 cur = self._db.cursor()
@@ -241,6 +351,8 @@ class SessionStore:
         return str(self._read("PRAGMA journal_mode")[0][0]).lower()
 
     def close(self) -> None:
+        with _OWNERS_LOCK:
+            _LIVE_OWNERS.discard(self.owner)
         with self._lock:
             try:
                 self._db.close()
@@ -343,29 +455,140 @@ class SessionStore:
 
     def add_robot_event(self, session_id: int, plan_hash: str, kind: str, step: int | None = None,
                         box: str | None = None, detail: dict | None = None) -> int:
+        """One robot event (or `auth_refused`, `stop`); robot kinds mark the session executing."""
         def fn(cur: sqlite3.Cursor) -> int:
             self._require_session(cur, session_id)
-            cur.execute("INSERT INTO robot_events(session_id, plan_hash, at, kind, step, box, detail) "
-                        "VALUES (?,?,?,?,?,?,?)",
-                        (session_id, plan_hash, utc_now(), kind, step, box,
-                         json.dumps(detail, default=_jsonable) if detail is not None else None))
-            eid = int(cur.lastrowid)
-            cur.execute("UPDATE sessions SET status='executing' WHERE id=? AND status NOT IN ('done', 'failed')",
-                        (session_id,))
-            return eid
+            return self._insert_event(cur, session_id, plan_hash, kind, step, box, detail)
 
         return self._write(fn)
 
-    def set_outcome(self, session_id: int, outcome: dict) -> None:
+    def _insert_event(self, cur: sqlite3.Cursor, session_id: int, plan_hash: str, kind: str,
+                      step: int | None, box: str | None, detail: dict | None) -> int:
+        cur.execute("INSERT INTO robot_events(session_id, plan_hash, at, kind, step, box, detail) "
+                    "VALUES (?,?,?,?,?,?,?)",
+                    (session_id, plan_hash, utc_now(), kind, step, box,
+                     json.dumps(detail, default=_jsonable) if detail is not None else None))
+        eid = int(cur.lastrowid)
+        if kind in ROBOT_KINDS:
+            cur.execute("UPDATE sessions SET status='executing' WHERE id=? AND status NOT IN "
+                        "('done', 'failed', 'stopped', 'interrupted')", (session_id,))
+        return eid
+
+    def start_run(self, session_id: int, plan_hash: str, decision_id: int | None, detail: dict) -> int:
+        """Commit that this console starts running an approved plan (before the robot moves).
+
+        The `start` event and the run row go in one transaction; the run row
+        says which console owns the run, so that a restart can tell a run
+        that died with its console (kill -9, power) from one still going.
+        """
+        def fn(cur: sqlite3.Cursor) -> int:
+            self._require_session(cur, session_id)
+            open_run = cur.execute("SELECT id FROM runs WHERE session_id=? AND ended IS NULL",
+                                   (session_id,)).fetchone()
+            if open_run is not None:
+                raise StoreError(f"{self.path}: session {session_id} already has a run in progress "
+                                 f"(run {open_run[0]})")
+            cur.execute("INSERT INTO runs(session_id, plan_hash, decision_id, owner, started) VALUES (?,?,?,?,?)",
+                        (session_id, plan_hash, decision_id, self.owner, utc_now()))
+            rid = int(cur.lastrowid)
+            self._insert_event(cur, session_id, plan_hash, "start", None, None, {**detail, "run": rid})
+            return rid
+
+        return self._write(fn)
+
+    def set_outcome(self, session_id: int, outcome: dict, run_id: int | None = None) -> None:
+        """The run's outcome; the session's status says done, stopped, interrupted or failed."""
         ok = bool(outcome.get("ok"))
+        status = ("done" if ok else "interrupted" if outcome.get("interrupted")
+                  else "stopped" if outcome.get("stopped") else "failed")
 
         def fn(cur: sqlite3.Cursor) -> None:
             self._require_session(cur, session_id)
             cur.execute("INSERT OR REPLACE INTO outcomes(session_id, at, outcome) VALUES (?,?,?)",
                         (session_id, utc_now(), json.dumps(outcome, default=_jsonable)))
-            cur.execute("UPDATE sessions SET status=? WHERE id=?", ("done" if ok else "failed", session_id))
+            cur.execute("UPDATE sessions SET status=? WHERE id=?", (status, session_id))
+            if run_id is not None:
+                cur.execute("UPDATE runs SET ended=?, result=? WHERE id=?", (utc_now(), status, run_id))
 
         self._write(fn)
+
+    def step_states(self, session_id: int, plan_hash: str) -> dict[int, tuple[str, str | None]]:
+        """step -> (state, box) from the robot events of this session's runs of this plan.
+
+        state: `in_flight` (acknowledged, not finished), `done`, `failed`,
+        `aborted` or `unknown` (in flight when the link or the console died).
+        This is what "never re-send a step" is keyed by: session (one capture)
+        and plan, stored, so it holds after a restart.
+        """
+        rows = self._read("SELECT kind, step, box, detail FROM robot_events WHERE session_id=? AND "
+                          "plan_hash=? AND step IS NOT NULL ORDER BY id", (session_id, plan_hash))
+        out: dict[int, tuple[str, str | None]] = {}
+        for r in rows:
+            kind, step = r["kind"], int(r["step"])
+            prev = out.get(step, ("", None))[0]
+            if kind == "ack":
+                state = "in_flight"
+            elif kind == "done":
+                state = "done"
+            elif kind == "error":
+                state = "failed" if prev != "done" else "done"
+            elif kind == "aborted":
+                unconfirmed = "unconfirmed" in (json.loads(r["detail"]) if r["detail"] else {})
+                state = "unknown" if unconfirmed and prev != "done" else (prev if prev == "done" else "aborted")
+            elif kind in ("disconnected", "unknown"):
+                state = "unknown" if prev != "done" else "done"
+            else:
+                continue
+            out[step] = (state, r["box"])
+        return out
+
+    def recover_interrupted(self) -> list[dict]:
+        """Runs whose console died (kill -9, power cut) while executing: mark them interrupted.
+
+        The step that was acknowledged but not finished gets an `unknown`
+        event (the robot may have moved it or not); the session gets an
+        outcome saying so and the status `interrupted`. Runs of a console that
+        is still alive are left alone. Returns one dict per recovered run.
+        """
+        if self.readonly:
+            return []
+        runs = self._read("SELECT * FROM runs WHERE ended IS NULL ORDER BY id")
+        found = []
+        for run in runs:
+            if _owner_alive(run["owner"]):
+                continue
+            found.append(self._interrupt(run))
+        return found
+
+    def _interrupt(self, run: sqlite3.Row) -> dict:
+        sid, h = int(run["session_id"]), run["plan_hash"]
+        states = self.step_states(sid, h)
+        plan_row = self._read("SELECT plan FROM plans WHERE session_id=? AND hash=? ORDER BY id DESC LIMIT 1",
+                              (sid, h))
+        sequence = json.loads(plan_row[0]["plan"]).get("sequence", []) if plan_row else []
+        reason = "the console stopped (crash or kill) while this step was in flight; its outcome is unknown"
+        unknown = [(i, box) for i, (st, box) in sorted(states.items()) if st == "in_flight"]
+        steps = []
+        for i, box in enumerate(sequence):
+            st = states.get(i, ("not_sent", box))[0]
+            steps.append({"step": i, "box": box, "status": "unknown" if st == "in_flight" else st,
+                          "detail": {"reason": reason} if st == "in_flight" else {}})
+        done = [box for i, box in enumerate(sequence) if states.get(i, ("",))[0] == "done"]
+        err = "the console stopped during execution (crash or kill)" + (
+            "; step " + ", ".join(f"{i + 1} ({b})" for i, b in unknown) + ": outcome unknown" if unknown else "")
+        outcome = {"plan": h, "sequence": sequence, "completed": done, "ok": False, "stopped": False,
+                   "interrupted": True, "error": err, "steps": steps}
+
+        def fn(cur: sqlite3.Cursor) -> None:
+            for i, box in unknown:
+                self._insert_event(cur, sid, h, "unknown", i, box, {"reason": reason})
+            cur.execute("INSERT OR IGNORE INTO outcomes(session_id, at, outcome) VALUES (?,?,?)",
+                        (sid, utc_now(), json.dumps(outcome)))
+            cur.execute("UPDATE sessions SET status='interrupted' WHERE id=?", (sid,))
+            cur.execute("UPDATE runs SET ended=?, result='interrupted' WHERE id=?", (utc_now(), run["id"]))
+
+        self._write(fn)
+        return {"session": sid, "plan": h, "unknown": unknown, "completed": done}
 
     # ------------------------------------------------------------------ reads
     def list_sessions(self) -> list[dict]:
@@ -445,4 +668,5 @@ def _jsonable(obj: Any) -> Any:
     return str(obj)
 
 
-__all__ = ["SessionStore", "SessionRecord", "PlanRecord", "StoreError", "DEFAULT_DB", "utc_now"]
+__all__ = ["SessionStore", "SessionRecord", "PlanRecord", "StoreError", "DEFAULT_DB", "SCHEMA_VERSION",
+           "utc_now"]

@@ -2,17 +2,23 @@
 
 The viser app is a thin view over this object. viser runs callbacks on a
 thread pool, so two browsers can press buttons at the same moment: every
-state change happens under one lock, and the slow parts (planning, the robot)
-run on background threads that re-check, when they finish, that the capture
-they worked on is still the current one. Every decision and every robot event
-goes to the session store; a store failure (locked or read-only database)
-becomes a message in the state, never a dead server.
+state change happens under one lock, and the slow parts (capture, planning,
+the robot) run outside it, guarded by flags taken under it. docs/console.md
+draws the states and transitions; tests/console/test_safety_*.py drive each.
 
 Safety rules kept here, not in the page:
+- one run lock, taken by an approval and held until its run ends (or Stop
+  withdraws it): while it is held nothing captures, plans, approves again or
+  changes the target, and one Stop reaches the run that holds it;
 - only the exact plan (content hash) approved for the exact current capture
-  reaches the robot; a new capture invalidates pending approvals;
-- approving and rejecting need the supervisor passphrase; a wrong one is
-  refused and recorded;
+  (its session, one per capture) reaches the robot; a new capture or target
+  drops the plans;
+- audit first: an approval counts once its decision is committed, the robot
+  starts once its run is committed, and a robot event that cannot be
+  committed stops the run at once; the page says so until the next capture;
+- approving and rejecting need the supervisor passphrase; wrong tries are
+  throttled per browser and overall, and every refusal reads the same;
+- "never re-send a step" is keyed by session and plan, from the database;
 - after the robot ran (completed, stopped, failed or disconnected) the shelf
   has changed: a new capture and plan are needed before anything else runs.
 """
@@ -27,6 +33,7 @@ from typing import Any, Callable, Mapping
 
 PLANNERS = ("physics", "heuristic")
 SECONDS_PER_BOX = 12.5  # estimated robot time per removed box (pull, place, return)
+AUTH_REFUSED = "wrong supervisor passphrase, or too many attempts: wait a moment and try again (recorded)"
 
 
 class WorkflowError(Exception):
@@ -45,6 +52,11 @@ class PlanEntry:
     def est_seconds(self) -> float:
         return SECONDS_PER_BOX * len(self.plan.sequence)
 
+    @property
+    def scene_problems(self) -> tuple[dict, ...]:
+        """What the planner found does not stand as seen (plan.extra["scene_check"])."""
+        return scene_problems(self.plan)
+
 
 @dataclass(frozen=True, eq=False)
 class State:
@@ -62,15 +74,21 @@ class State:
     target: str | None = None
     task: str | None = None
     plans: Mapping[str, PlanEntry] = field(default_factory=dict)
+    capturing: bool = False
     planning: bool = False
     progress: float = 0.0
     progress_text: str = ""
     approved: str | None = None    # hash of the approved plan for this capture
+    approval: Mapping[str, Any] | None = None   # plan, session, capture, who, decision id
     decisions: tuple[dict, ...] = ()
     robot: str = "idle"            # idle | running | stopping | done | stopped | failed
     robot_events: tuple[Any, ...] = ()
     outcome: Any = None            # console.robot.RobotOutcome
     needs_recapture: bool = False
+    scene_problems: tuple[dict, ...] = ()   # {"box", "what"}: the shelf does not stand as seen
+    repairs: tuple[str, ...] = ()  # what the physics moved to make the perceived scene valid
+    audit: str | None = None       # a record that could not be committed (persists until a capture is)
+    recovered: tuple[str, ...] = ()  # runs found interrupted at start-up (crash, kill -9)
     message: str = ""
     error: str | None = None
 
@@ -80,9 +98,93 @@ class State:
                 return e
         return None
 
+    @property
+    def phase(self) -> str:
+        """The state machine's state (docs/console.md)."""
+        if self.robot in ("running", "stopping"):
+            return self.robot
+        if self.approved is not None:
+            return "approved"
+        if self.capturing:
+            return "capturing"
+        if self.planning:
+            return "planning"
+        if self.needs_recapture:
+            return "finished"
+        if self.plans:
+            return "planned"
+        return "captured" if self.scene is not None else "empty"
+
 
 RobotFactory = Callable[[Any, int], Any]   # (truth Scene | None, seed) -> RobotDriver
 Listener = Callable[[State], None]
+
+
+class Throttle:
+    """Wrong passphrases slow everybody down: per browser and overall, with doubling waits.
+
+    After `client_free` wrong tries in a row a browser waits
+    `client_base * 2**(n-1)` s (at most `client_max`) before its next try is
+    even compared (a typo costs nothing); after `global_free`
+    wrong tries in a row from anywhere, every browser waits
+    `global_base * 2**(k)` s (at most `global_max`). A right passphrase resets
+    the caller's count and the overall one.
+    """
+
+    def __init__(self, client_free: int = 2, client_base: float = 0.5, client_max: float = 60.0,
+                 global_free: int = 5,
+                 global_base: float = 0.5, global_max: float = 300.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.client_free, self.client_base, self.client_max = client_free, client_base, client_max
+        self.global_free, self.global_base, self.global_max = global_free, global_base, global_max
+        self.clock = clock
+        self.lock = threading.Lock()
+        self._fails: dict[str, int] = {}
+        self._until: dict[str, float] = {}
+        self._global_fails = 0
+        self._global_until = 0.0
+        self.throttled = 0           # tries refused without being compared
+
+    def check(self, client: str, compare: Callable[[], bool]) -> bool | None:
+        """True: right; False: wrong (compared); None: refused unseen (too soon). Atomic per try."""
+        with self.lock:
+            now = self.clock()
+            if now < self._until.get(client, 0.0) or now < self._global_until:
+                self.throttled += 1
+                return None
+            if compare():
+                self._fails.pop(client, None)
+                self._until.pop(client, None)
+                self._global_fails = 0
+                return True
+            n = self._fails[client] = self._fails.get(client, 0) + 1
+            if n > self.client_free:
+                self._until[client] = now + min(self.client_base * 2 ** (n - 1 - self.client_free),
+                                                self.client_max)
+            self._global_fails += 1
+            k = self._global_fails - self.global_free
+            if k >= 0:
+                self._global_until = now + min(self.global_base * 2 ** k, self.global_max)
+            return False
+
+
+@dataclass(eq=False)
+class _Run:
+    """The run lock: one approval of one plan for one capture, until its run ends."""
+
+    plan_hash: str
+    entry: PlanEntry
+    session_id: int
+    gen: int
+    who: str
+    stop: threading.Event = field(default_factory=threading.Event)
+    decision_id: int | None = None   # set once the approval is committed
+    started: bool = False            # execute() took it
+    thread: threading.Thread | None = None
+    stopped_by: str | None = None
+    audit_failed: str | None = None  # a robot event that could not be committed: the run was stopped
+    scene: Any = None                # the perceived and (demo) true scene of the approved capture
+    truth: Any = None
 
 
 class Workflow:
@@ -90,7 +192,7 @@ class Workflow:
 
     def __init__(self, source: Any, store: Any, robot_factory: RobotFactory,
                  supervisor_passphrase: str, samples: int = 10, seed: int = 0,
-                 segmenter: Any = None, workers: int = 1) -> None:
+                 segmenter: Any = None, workers: int = 1, throttle: Throttle | None = None) -> None:
         if not supervisor_passphrase:
             raise ValueError("a supervisor passphrase is required")
         self.source = source
@@ -101,18 +203,39 @@ class Workflow:
         self.seed = int(seed)
         self.segmenter = segmenter
         self.workers = max(1, int(workers))     # processes for the depth samples (same plans for any count)
+        self.throttle = throttle or Throttle()
         self._lock = threading.RLock()
         self._state = State(source=getattr(source, "name", str(source)))
         self._listeners: list[Listener] = []
         self._generation = 0                # bumped by every capture
+        self._capturing = False
         self._plan_thread: threading.Thread | None = None
-        self._robot_thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._run: _Run | None = None        # the run lock
+        self._last_run: _Run | None = None
+        self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced
         self._notify_cv = threading.Condition()
         self._pending: State | None = None
         threading.Thread(target=self._notify_loop, name="shelfpick-notify", daemon=True).start()
+        self._recover()
+
+    def _recover(self) -> None:
+        """Runs left open by a console that died (kill -9): interrupted, in-flight steps unknown."""
+        recover = getattr(self.store, "recover_interrupted", None)
+        if recover is None:
+            return
+        try:
+            found = recover()
+        except Exception as exc:  # noqa: BLE001 - sqlite3, StoreError alike
+            self._state = replace(self._state, audit=f"database: could not check for interrupted runs: {exc}")
+            return
+        notes = []
+        for r in found:
+            unknown = ", ".join(f"step {i + 1} ({b})" for i, b in r["unknown"])
+            notes.append(f"session {r['session']} was interrupted while the robot ran (the console stopped); "
+                         + (f"{unknown}: outcome unknown, check the shelf" if unknown else "no step was in flight"))
+        self._state = replace(self._state, recovered=tuple(notes))
 
     # ------------------------------------------------------------------ state
     @property
@@ -157,28 +280,55 @@ class Workflow:
                 except Exception:  # noqa: BLE001 - a broken view must not break the workflow
                     traceback.print_exc()
 
+    def _audit_failed(self, what: str, exc: BaseException) -> str:
+        """A record could not be committed: say so in the page until a capture is recorded again."""
+        msg = f"database: could not record {what}: {exc}"
+        self._set(audit=msg)
+        return msg
+
     def _record(self, what: str, fn: Callable, *args: Any, **kw: Any) -> Any:
-        """Call the store; a database fault becomes a message, the session goes on."""
+        """Call the store for a record nothing waits on; a fault is shown (persistently), not raised."""
         try:
             return fn(*args, **kw)
         except Exception as exc:  # noqa: BLE001 - sqlite3, OSError, ShelfpickError alike
-            msg = f"database: could not record {what}: {exc}"
-            with self._lock:
-                self._state = replace(self._state, error=msg)
+            self._audit_failed(what, exc)
             return None
 
     def _refuse(self, msg: str) -> None:
         self._set(error=msg)
         raise WorkflowError(msg)
 
+    def _held(self, action: str) -> None:
+        """Refuse `action` while the run lock is held (an approval pending, or the robot running)."""
+        run = self._run
+        if run is None:
+            return
+        if run.started:
+            self._refuse(f"{action} refused: the robot is running; press `Stop robot` or wait")
+        self._refuse(f"{action} refused: plan {run.plan_hash} is approved for this capture and about to "
+                     f"run; press `Stop robot` to withdraw the approval")
+
     # ---------------------------------------------------------------- capture
     def capture(self) -> State:
-        """New capture -> perception -> new session. Invalidates plans and approvals."""
+        """New capture -> perception -> new session. Drops plans; refused while a run holds the lock."""
         with self._lock:
-            if self._state.robot in ("running", "stopping"):
-                self._refuse("the robot is running: press `Stop robot` or wait before capturing")
+            if self._capturing:
+                self._refuse("capture refused: a capture is already running")
+            self._held("capture")
+            self._capturing = True
             self._generation += 1
-        self._set(message="capturing...", error=None)
+            gen = self._generation
+            self._set(capturing=True, plans={}, approved=None, approval=None, planning=False,
+                      message="capturing...", error=None)
+        try:
+            return self._capture(gen)
+        finally:
+            with self._lock:
+                self._capturing = False
+                if self._state.capturing:
+                    self._set(capturing=False)
+
+    def _capture(self, gen: int) -> State:
         try:
             frame = self.source.capture()
         except Exception as exc:  # noqa: BLE001 - camera faults are shown, not raised
@@ -197,38 +347,54 @@ class Workflow:
             return self._capture_failed(f"perception: {exc}", frame=frame)
         scene = perception.scene
         info = {"frame": frame.name, **_summary(perception)}
-        sid = self._record("the session", self.store.new_session, self._state.source,
-                           frame.capture, scene, frame.truth, perception.overlay, info)
-        err = self.state.error if sid is None else None
+        audit = None
+        try:
+            sid = self.store.new_session(self._state.source, frame.capture, scene, frame.truth,
+                                         perception.overlay, info)
+        except Exception as exc:  # noqa: BLE001
+            sid = None
+            audit = (f"database: could not record this capture ({exc}); nothing can be approved or run "
+                     f"until a capture is recorded")
+        err = audit
         if not scene.boxes:
             err = "perception found no boxes in this capture: check the camera and the shelf, then capture again"
         target = scene.ids[-1] if scene.boxes else None
-        return self._set(session_id=sid, frame_name=frame.name, capture=frame.capture,
-                         overlay=perception.overlay, scene=scene, truth=frame.truth,
-                         warnings=tuple(perception.warnings), target=target, task=None,
-                         plans={}, planning=False, progress=0.0, progress_text="",
-                         approved=None, decisions=(), robot="idle", robot_events=(),
-                         outcome=None, needs_recapture=False, error=err,
-                         message=f"captured {frame.name}: {len(scene.boxes)} boxes"
-                                 + (f" (session {sid})" if sid is not None else ""))
+        with self._lock:
+            return self._set(session_id=sid, frame_name=frame.name, capture=frame.capture,
+                             overlay=perception.overlay, scene=scene, truth=frame.truth,
+                             warnings=tuple(perception.warnings), target=target, task=None,
+                             plans={}, capturing=False, planning=False, progress=0.0, progress_text="",
+                             approved=None, approval=None, decisions=(), robot="idle", robot_events=(),
+                             outcome=None, needs_recapture=False, scene_problems=(), repairs=(),
+                             audit=audit, error=err,
+                             message=f"captured {frame.name}: {len(scene.boxes)} boxes"
+                                     + (f" (session {sid})" if sid is not None else ""))
 
     def _capture_failed(self, msg: str, frame: Any = None) -> State:
         return self._set(capture=frame.capture if frame else None, overlay=None, scene=None,
-                         truth=None, plans={}, approved=None, decisions=(), target=None,
-                         robot="idle", robot_events=(), outcome=None, planning=False,
-                         session_id=None, message="", error=msg)
+                         truth=None, plans={}, approved=None, approval=None, decisions=(), target=None,
+                         robot="idle", robot_events=(), outcome=None, planning=False, capturing=False,
+                         scene_problems=(), repairs=(), session_id=None, message="", error=msg)
 
     # ----------------------------------------------------------------- target
     def select_target(self, box_id: str) -> State:
+        """A new target drops the plans made for the old one (they are no longer approvable)."""
         with self._lock:
-            scene = self._state.scene
-            if scene is None:
+            st = self._state
+            if st.scene is None:
                 self._refuse("no capture yet: press `Capture` first")
-            if box_id not in scene.ids:
-                self._refuse(f"unknown box id {box_id!r}; the scene has {', '.join(scene.ids) or 'no boxes'}")
-            if box_id == self._state.target:
-                return self._state
-        return self._set(target=box_id, message=f"target: {box_id}", error=None)
+            if box_id not in st.scene.ids:
+                self._refuse(f"unknown box id {box_id!r}; the scene has {', '.join(st.scene.ids) or 'no boxes'}")
+            if box_id == st.target:
+                return st
+            self._held("changing the target")
+            if self._capturing:
+                self._refuse("changing the target refused: a capture is running")
+            if st.planning:
+                self._refuse(f"changing the target refused: planning for {st.target} is running; wait for it")
+            note = f"; the plans for {st.target} are dropped, plan again" if st.plans else ""
+            return self._set(target=box_id, plans={}, approved=None, approval=None, task=None,
+                             scene_problems=(), repairs=(), error=None, message=f"target: {box_id}{note}")
 
     # --------------------------------------------------------------- planning
     def plan(self, task: str, wait: bool = False) -> State:
@@ -237,14 +403,15 @@ class Workflow:
             self._refuse(f"unknown task {task!r}; expected extract or clear")
         with self._lock:
             st = self._state
+            if self._capturing:
+                self._refuse("planning refused: a capture is running")
+            self._held("planning")
             if st.scene is None or not st.scene.boxes:
                 self._refuse("nothing to plan: capture a shelf with boxes first")
             if st.needs_recapture:
                 self._refuse("the shelf has changed since this capture: press `Capture` again")
             if st.planning or (self._plan_thread is not None and self._plan_thread.is_alive()):
                 self._refuse("planning is already running; wait for it to finish")
-            if st.robot in ("running", "stopping"):
-                self._refuse("the robot is running")
             if task == "extract" and st.target is None:
                 self._refuse("select a target box first")
             target = st.target if task == "extract" else None
@@ -252,12 +419,13 @@ class Workflow:
             scene, sid = st.scene, st.session_id
             self._plan_thread = threading.Thread(target=self._plan_worker, name="shelfpick-plan",
                                                  args=(gen, scene, sid, task, target), daemon=True)
-        self._set(planning=True, task=task, plans={}, approved=None, progress=0.0,
-                  progress_text="starting", error=None,
-                  message=f"planning {task}" + (f" {target}" if target else "") + "...")
-        self._plan_thread.start()
+            self._set(planning=True, task=task, plans={}, approved=None, approval=None, progress=0.0,
+                      progress_text="starting", scene_problems=(), repairs=(), error=None,
+                      message=f"planning {task}" + (f" {target}" if target else "") + "...")
+            thread = self._plan_thread
+        thread.start()
         if wait:
-            self._plan_thread.join()
+            thread.join()
         return self.state
 
     def wait_planning(self, timeout: float | None = None) -> State:
@@ -268,56 +436,32 @@ class Workflow:
 
     def _progress(self, gen: int, frac: float, text: str) -> None:
         with self._lock:
-            if gen != self._generation:
-                return
-        self._set(progress=frac, progress_text=text)
+            if gen == self._generation:
+                self._set(progress=frac, progress_text=text)
 
     def _plan_worker(self, gen: int, scene: Any, sid: int | None, task: str, target: str | None) -> None:
         predictor = None
         try:
-            from planning.planner import make_plan
             from planning.predict import Predictor
 
             self._progress(gen, 0.05, f"building {self.samples} depth samples")
             t_setup = time.perf_counter()
             predictor = Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers)
             t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
-            entries: dict[str, PlanEntry] = {}
-            n = len(PLANNERS)
-            for i, planner in enumerate(PLANNERS):
-                self._progress(gen, 0.1 + 0.85 * i / n, f"{planner} planner: searching")
-                t0 = time.perf_counter()
-                plan = make_plan(scene, task, target, planner=planner, samples=self.samples,
-                                 seed=self.seed, predictor=predictor)
-                timing = dict(plan.timing)
-                timing.setdefault("planning_s", time.perf_counter() - t0)
-                if planner == "physics":
-                    timing["setup_s"] = timing.get("setup_s", 0.0) + t_setup
-                plan = replace(plan, timing=timing)
-                self._progress(gen, 0.1 + 0.85 * (i + 0.6) / n, f"{planner} planner: recording preview")
-                preview = tuple(predictor.preview(plan.sequence, 0)) if plan.sequence else ()
-                entries[planner] = PlanEntry(plan, plan.content_hash(), preview)
-            with self._lock:
-                if gen != self._generation:
-                    return  # a new capture arrived meanwhile: these plans are for the old shelf
+            repairs = tuple(str(r) for r in getattr((predictor.sims or [None])[0], "repairs", ()) or ())
+            entries = {p: self._one_plan(gen, i, p, scene, task, target, predictor, t_setup, repairs)
+                       for i, p in enumerate(PLANNERS)}
             for e in entries.values():
-                self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid, e.plan,
-                             [_step_json(r) for r in e.preview]) if sid is not None else None
-            phys = entries["physics"].plan
-            err = self.state.error
-            if not phys.safe:
-                err = (f"no safe plan: the least risky sequence still has a predicted collapse "
-                       f"risk of {100 * phys.risk:.0f}%; a supervisor may approve it only by "
-                       f"accepting that risk. Or rearrange the shelf and capture again")
-            self._set(plans=entries, planning=False, progress=1.0, progress_text="done", error=err,
-                      message="plans ready: compare them, preview, then a supervisor approves one")
+                if sid is not None:
+                    self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid, e.plan,
+                                 [_step_json(r) for r in e.preview])
+            self._plans_ready(gen, entries, repairs)
         except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
             traceback.print_exc()
             with self._lock:
-                stale = gen != self._generation
-            if not stale:
-                self._set(planning=False, progress=0.0, progress_text="failed",
-                          error=f"planning failed: {exc}")
+                if gen == self._generation:
+                    self._set(planning=False, progress=0.0, progress_text="failed",
+                              error=f"planning failed: {exc}")
         finally:
             if predictor is not None:
                 try:
@@ -328,162 +472,325 @@ class Workflow:
                 if self._state.planning and gen != self._generation:
                     self._state = replace(self._state, planning=False)
 
+    def _one_plan(self, gen: int, i: int, planner: str, scene: Any, task: str, target: str | None,
+                  predictor: Any, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
+        from planning.planner import make_plan
+
+        n = len(PLANNERS)
+        self._progress(gen, 0.1 + 0.85 * i / n, f"{planner} planner: searching")
+        t0 = time.perf_counter()
+        plan = make_plan(scene, task, target, planner=planner, samples=self.samples,
+                         seed=self.seed, predictor=predictor)
+        timing = dict(plan.timing)
+        timing.setdefault("planning_s", time.perf_counter() - t0)
+        if planner == "physics":
+            timing["setup_s"] = timing.get("setup_s", 0.0) + t_setup
+        extra = dict(plan.extra)
+        if repairs:
+            extra["repairs"] = list(repairs)       # stored with the plan, shown in the replay
+        plan = replace(plan, timing=timing, extra=extra)
+        self._progress(gen, 0.1 + 0.85 * (i + 0.6) / n, f"{planner} planner: recording preview")
+        preview = tuple(predictor.preview(plan.sequence, 0)) if plan.sequence else ()
+        return PlanEntry(plan, plan.content_hash(), preview)
+
+    def _plans_ready(self, gen: int, entries: dict[str, PlanEntry], repairs: tuple[str, ...]) -> None:
+        phys = entries["physics"].plan
+        problems = scene_problems(phys)
+        with self._lock:
+            if gen != self._generation:
+                return  # a new capture arrived meanwhile: these plans are for the old shelf
+            err = None
+            if problems:
+                err = ("the shelf does not stand as seen: " + "; ".join(problem_text(p) for p in problems)
+                       + ". No plan on it is safe: check the shelf and capture again, or a supervisor "
+                         "approves only by accepting the predicted risk")
+            elif not phys.safe:
+                err = (f"no safe plan: the least risky sequence still has a predicted collapse "
+                       f"risk of {100 * phys.risk:.0f}%; a supervisor may approve it only by "
+                       f"accepting that risk. Or rearrange the shelf and capture again")
+            self._set(plans=entries, planning=False, progress=1.0, progress_text="done", error=err,
+                      scene_problems=problems, repairs=repairs,
+                      message="plans ready: compare them, preview, then a supervisor approves one")
+
     # ------------------------------------------------------------- supervisor
-    def _check_passphrase(self, plan_hash: str, passphrase: str, who: str, action: str) -> None:
-        ok = hmac.compare_digest((passphrase or "").encode(), self._passphrase.encode())
-        if not ok:
-            st = self.state
+    def _authenticate(self, plan_hash: str, passphrase: str, who: str, action: str, client: str) -> None:
+        """Throttled passphrase check; every refusal reads the same, wrong or too soon."""
+        secret = self._passphrase.encode()
+        given = (passphrase or "").encode()
+        verdict = self.throttle.check(client, lambda: hmac.compare_digest(given, secret))
+        if verdict:
+            return
+        st = self.state
+        if verdict is False:
             if st.session_id is not None:
                 # the store's decisions are approve/reject only: a refused attempt is an event
                 self._record("the refused attempt", self.store.add_robot_event, st.session_id, plan_hash,
                              "auth_refused", None, None,
-                             {"who": who or "?", "action": action, "reason": "wrong supervisor passphrase"})
-            self._set(decisions=st.decisions + ({"decision": "refused", "plan": plan_hash, "who": who,
-                                                 "reason": f"{action}: wrong passphrase",
-                                                 "at": time.time()},))
-            self._refuse(f"{action} refused: wrong supervisor passphrase (recorded)")
+                             {"who": who or "?", "action": action, "client": client,
+                              "reason": "wrong supervisor passphrase",
+                              "throttled_so_far": self.throttle.throttled})
+            with self._lock:
+                self._set(decisions=self._state.decisions + (
+                    {"decision": "refused", "plan": plan_hash, "who": who,
+                     "reason": f"{action}: wrong passphrase", "at": time.time()},))
+        self._refuse(f"{action} refused: {AUTH_REFUSED}")
 
-    def _current_entry(self, plan_hash: str, action: str) -> PlanEntry:
-        st = self.state
+    def _decidable(self, plan_hash: str, action: str) -> tuple[PlanEntry, int]:
+        """What every decision needs, checked before the passphrase (so no refusal tells it was right)."""
+        st = self._state
+        if self._capturing:
+            self._refuse(f"{action} refused: a capture is running")
         if st.planning:
             self._refuse(f"{action} refused: planning is still running")
         entry = st.plan_by_hash(plan_hash)
         if entry is None:
             self._refuse(f"{action} refused: plan {plan_hash} is not a plan for the current capture")
-        return entry
+        if st.session_id is None:
+            self._refuse(f"{action} refused: this capture has no session record ({st.audit or 'database'}); "
+                         f"capture again once the database can be written")
+        return entry, st.session_id
 
     def approve(self, plan_hash: str, passphrase: str, who: str = "supervisor",
-                accept_risk: bool = False) -> State:
-        """Approve exactly this plan for exactly the current capture.
+                accept_risk: bool = False, client: str = "local") -> State:
+        """Approve exactly this plan for exactly the current capture; takes the run lock.
 
-        A plan predicted unsafe (the least risky one when no safe plan exists)
-        needs `accept_risk`: the supervisor says in so many words that they
-        take the predicted risk, and the decision records it.
+        A plan predicted unsafe (the least risky one when no safe plan exists,
+        or any plan on a shelf that does not stand as seen) needs
+        `accept_risk`. The approval counts once its decision is committed; of
+        two supervisors approving at once exactly one gets it.
         """
-        self._check_passphrase(plan_hash, passphrase, who, "approval")
+        who = (who or "supervisor")[:80]
         with self._lock:
-            entry = self._current_entry(plan_hash, "approval")
-            st = self._state
-            if st.needs_recapture:
+            entry, sid = self._decidable(plan_hash, "approval")
+            if self._state.needs_recapture:
                 self._refuse("approval refused: the shelf has changed, capture and plan again")
-            if st.robot in ("running", "stopping"):
-                self._refuse("approval refused: the robot is running")
-            risk_note = None
-            if not entry.plan.safe:
-                risk = f"{100 * entry.plan.risk:.0f}%"
-                if not accept_risk:
-                    self._refuse(f"approval refused: the {entry.plan.planner} plan is predicted unsafe "
-                                 f"(collapse risk up to {risk}); tick 'Accept predicted risk' to approve it anyway")
-                risk_note = f"accepted predicted risk {risk}"
-            sid = st.session_id
-        if sid is not None:
-            self._record("the approval", self.store.add_decision, sid, plan_hash, "approve", who, risk_note)
+            self._held("approval")
+            risk_note = self._risk_note(entry, accept_risk)
+        self._authenticate(plan_hash, passphrase, who, "approval", client)
+        with self._lock:   # the state may have moved while the passphrase was checked
+            entry, sid = self._decidable(plan_hash, "approval")
+            self._held("approval")
+            run = self._run = _Run(plan_hash, entry, sid, self._generation, who)
+            self._live_stops.add(run.stop)
+        try:
+            run.decision_id = self.store.add_decision(sid, plan_hash, "approve", who, risk_note)
+        except Exception as exc:  # noqa: BLE001 - audit first: an unrecorded approval is no approval
+            with self._lock:
+                self._release(run)
+            msg = self._audit_failed("the approval", exc)
+            self._refuse(f"approval refused: the decision could not be recorded, nothing will run ({msg})")
         with self._lock:
-            if self._state.plan_by_hash(plan_hash) is None:   # a capture raced us
-                self._refuse("approval refused: a new capture arrived")
+            if self._run is not run:     # Stop withdrew it while it was being recorded
+                self._refuse("approval withdrawn: `Stop robot` was pressed while it was being recorded")
             dec = {"decision": "approve", "plan": plan_hash, "planner": entry.plan.planner,
                    "who": who, "reason": risk_note, "at": time.time()}
-            return self._set(approved=plan_hash, decisions=self._state.decisions + (dec,), error=None,
-                             message=f"{who} approved the {entry.plan.planner} plan {plan_hash}")
+            approval = {"plan": plan_hash, "session": sid, "capture": self._state.frame_name,
+                        "who": who, "decision": run.decision_id}
+            return self._set(approved=plan_hash, approval=approval, decisions=self._state.decisions + (dec,),
+                             error=None, message=f"{who} approved the {entry.plan.planner} plan {plan_hash}")
 
-    def reject(self, plan_hash: str, passphrase: str, who: str = "supervisor", reason: str = "") -> State:
+    def _risk_note(self, entry: PlanEntry, accept_risk: bool) -> str | None:
+        if entry.plan.safe:
+            return None
+        risk = f"{100 * entry.plan.risk:.0f}%"
+        why = (f"the shelf does not stand as seen ({len(entry.scene_problems)} problem(s))"
+               if entry.scene_problems else f"collapse risk up to {risk}")
+        if not accept_risk:
+            self._refuse(f"approval refused: the {entry.plan.planner} plan is predicted unsafe "
+                         f"({why}); tick 'Accept predicted risk' to approve it anyway")
+        return f"accepted predicted risk {risk}" + (
+            f"; scene problems: {'; '.join(problem_text(p) for p in entry.scene_problems)}"
+            if entry.scene_problems else "")
+
+    def _release(self, run: _Run) -> None:
+        """Give the run lock back (under self._lock)."""
+        if self._run is run:
+            self._run = None
+        self._live_stops.discard(run.stop)
+
+    def reject(self, plan_hash: str, passphrase: str, who: str = "supervisor", reason: str = "",
+               client: str = "local") -> State:
+        """Reject a plan; rejecting the approved plan before it runs withdraws the approval."""
         if not (reason or "").strip():
             self._refuse("reject needs a reason")
-        self._check_passphrase(plan_hash, passphrase, who, "rejection")
+        who, reason = (who or "supervisor")[:80], reason.strip()[:500]
         with self._lock:
-            entry = self._current_entry(plan_hash, "rejection")
-            sid = self._state.session_id
-        if sid is not None:
-            self._record("the rejection", self.store.add_decision, sid, plan_hash, "reject", who, reason.strip())
+            entry, sid = self._decidable(plan_hash, "rejection")
+            if self._run is not None and self._run.started:
+                self._refuse("rejection refused: the robot is running; press `Stop robot`")
+        self._authenticate(plan_hash, passphrase, who, "rejection", client)
         with self._lock:
+            run = self._run
+            if run is not None and run.plan_hash == plan_hash and not run.started:
+                self._release(run)
+            elif run is not None and run.started:
+                self._refuse("rejection refused: the robot is running; press `Stop robot`")
             dec = {"decision": "reject", "plan": plan_hash, "planner": entry.plan.planner,
-                   "who": who, "reason": reason.strip(), "at": time.time()}
+                   "who": who, "reason": reason, "at": time.time()}
             approved = None if self._state.approved == plan_hash else self._state.approved
-            return self._set(approved=approved, decisions=self._state.decisions + (dec,), error=None,
-                             message=f"{who} rejected the {entry.plan.planner} plan: {reason.strip()}")
+            self._set(approved=approved, approval=None if approved is None else self._state.approval,
+                      decisions=self._state.decisions + (dec,), error=None,
+                      message=f"{who} rejected the {entry.plan.planner} plan: {reason}")
+        self._record("the rejection", self.store.add_decision, sid, plan_hash, "reject", who, reason)
+        return self.state
 
     # ------------------------------------------------------------------ robot
     def execute(self, wait: bool = False) -> State:
-        """Send the approved plan to the robot on a background thread."""
+        """Send the approved plan to the robot on a background thread, once its start is committed."""
         with self._lock:
-            st = self._state
-            if st.approved is None:
+            run, st = self._run, self._state
+            if run is None or st.approved is None:
                 self._refuse("nothing approved: a supervisor must approve a plan first")
-            entry = st.plan_by_hash(st.approved)
-            if entry is None:
-                self._refuse("the approved plan is not for the current capture")
-            if st.robot in ("running", "stopping"):
+            if run.started:
                 self._refuse("the robot is already running")
-            if st.needs_recapture:
-                self._refuse("the shelf has changed: capture and plan again")
-            self._stop = threading.Event()
-            gen, sid, scene, truth = self._generation, st.session_id, st.scene, st.truth
-            self._robot_thread = threading.Thread(target=self._robot_worker, name="shelfpick-robot",
-                                                  args=(gen, sid, entry, scene, truth, self._stop),
-                                                  daemon=True)
-            # the approval is used up: re-running would re-send completed steps
-            self._state = replace(self._state, approved=None)
-        self._set(robot="running", robot_events=(), outcome=None, error=None,
-                  message=f"robot: executing the {entry.plan.planner} plan {entry.hash}")
-        self._robot_thread.start()
+            if run.decision_id is None or st.approved != run.plan_hash:
+                self._refuse("the approval is still being recorded; try again in a moment")
+            if (run.session_id != st.session_id or run.gen != self._generation
+                    or st.plan_by_hash(run.plan_hash) is None or st.needs_recapture):
+                self._release(run)
+                self._refuse("the approved plan is not for the current capture")
+            run.started = True       # the approval is used up: re-running would re-send steps
+            run.scene, run.truth = st.scene, st.truth
+            self._set(approved=None, robot="running", robot_events=(), outcome=None, error=None,
+                      message=f"robot: starting the {run.entry.plan.planner} plan {run.plan_hash}")
+        try:
+            done = self._steps_before(run)
+            rid = self.store.start_run(run.session_id, run.plan_hash, run.decision_id,
+                                       {"sequence": list(run.entry.plan.sequence), "who": run.who})
+        except Exception as exc:  # noqa: BLE001 - audit first: no committed start, no motion
+            msg = exc.args[0] if isinstance(exc, WorkflowError) else self._audit_failed("the robot start", exc)
+            with self._lock:
+                self._release(run)
+                self._set(robot="idle", approval=None)
+            self._refuse(f"robot not started: {msg}")
+        run.thread = threading.Thread(target=self._robot_worker, name="shelfpick-robot",
+                                      args=(run, rid, done), daemon=True)
+        with self._lock:
+            self._last_run = run
+        run.thread.start()
         if wait:
-            self._robot_thread.join()
+            run.thread.join()
         return self.state
 
+    def _steps_before(self, run: _Run) -> dict[int, str]:
+        """Steps of this plan this session already ran (from the database): done ones are skipped,
+        an unknown one refuses this plan for this capture only."""
+        states = self.store.step_states(run.session_id, run.plan_hash) if hasattr(self.store, "step_states") else {}
+        for i, (state, box) in sorted(states.items()):
+            if state in ("unknown", "in_flight"):
+                raise WorkflowError(f"step {i + 1} ({box}) of plan {run.plan_hash} has an unknown outcome "
+                                    f"for this capture, so this plan is not sent again; capture again to "
+                                    f"see the shelf as it is now")
+        return {i: box for i, (state, box) in states.items() if state == "done" and box is not None}
+
     def wait_robot(self, timeout: float | None = None) -> State:
-        t = self._robot_thread
-        if t is not None:
-            t.join(timeout)
+        run = self._last_run
+        if run is not None and run.thread is not None:
+            run.thread.join(timeout)
         return self.state
 
     def stop(self, who: str = "operator") -> State:
-        """Abort the remaining steps at once (the driver checks the event between and within steps)."""
+        """Stop reaches every run: it aborts a running one and withdraws an approval not yet run."""
         with self._lock:
-            running = self._state.robot == "running"
-            self._stop.set()
-        if not running:
-            return self._set(message="robot is not running")
-        return self._set(robot="stopping", message=f"{who} pressed Stop robot: aborting remaining steps")
+            for ev in list(self._live_stops):
+                ev.set()
+            run = self._run
+            if run is not None:
+                run.stopped_by = who
+            if run is None:
+                st = self._set(message="robot is not running")
+            elif run.started:
+                st = self._set(robot="stopping", message=f"{who} pressed Stop robot: aborting remaining steps")
+            else:
+                self._release(run)
+                st = self._set(approved=None, approval=None,
+                               message=f"{who} pressed Stop robot: the approval of plan {run.plan_hash} "
+                                       f"is withdrawn; nothing was sent")
+        if run is not None:
+            self._record("the stop", self.store.add_robot_event, run.session_id, run.plan_hash, "stop",
+                         None, None, {"who": who, "running": run.started})
+        return st
 
-    def _robot_worker(self, gen: int, sid: int | None, entry: PlanEntry, scene: Any, truth: Any,
-                      stop: threading.Event) -> None:
-        h = entry.hash
-
-        def on_event(ev: Any) -> None:
-            if sid is not None:
-                self._record("a robot event", self.store.add_robot_event, sid, h, ev.kind,
-                             ev.step, ev.box, dict(ev.detail) if ev.detail else None)
-            with self._lock:
-                events = self._state.robot_events + (ev,)
-            self._set(robot_events=events, message=f"robot: {ev.kind}"
-                      + (f" step {ev.step + 1 if isinstance(ev.step, int) else ev.step}" if ev.step is not None else "")
-                      + (f" ({ev.box})" if ev.box else ""))
-
+    def _robot_worker(self, run: _Run, run_id: int, done_before: dict[int, str]) -> None:
+        outcome, err = None, None
         try:
-            robot = self.robot_factory(truth, self.seed)
-            if sid is not None:
-                self._record("the robot start", self.store.add_robot_event, sid, h, "start", None, None,
-                             {"robot": getattr(robot, "name", "?"), "sequence": list(entry.plan.sequence)})
-            outcome = robot.execute(entry.plan, scene, on_event, stop)
+            robot = self.robot_factory(run.truth, self.seed)
+            _seed_history(robot, run.plan_hash, done_before)
+            if run.stop.is_set():
+                err = "robot: stopped before the first step"
+            else:
+                self._set(message=f"robot: executing the {run.entry.plan.planner} plan {run.plan_hash}")
+                outcome = robot.execute(run.entry.plan, run.scene, self._on_event(run), run.stop)
+                err = None if outcome.ok else f"robot: {outcome.error or 'the plan did not succeed'}"
         except Exception as exc:  # noqa: BLE001 - robot refused / unreachable
             traceback.print_exc()
-            outcome = None
             err = f"robot: {exc}"
-        else:
-            err = None if outcome.ok else f"robot: {outcome.error or 'the plan did not succeed'}"
-        out_doc = _outcome_json(outcome, err, entry, stop.is_set())
-        if sid is not None:
-            self._record("the outcome", self.store.set_outcome, sid, out_doc)
-        if stop.is_set() and (outcome is None or not outcome.ok):
-            status, msg = "stopped", "robot stopped"
-        elif outcome is not None and outcome.ok:
+        finally:
+            self._finish(run, run_id, outcome, err)
+
+    def _on_event(self, run: _Run) -> Callable[[Any], None]:
+        def on_event(ev: Any) -> None:
+            try:
+                self.store.add_robot_event(run.session_id, run.plan_hash, ev.kind, ev.step, ev.box,
+                                           dict(ev.detail) if ev.detail else None)
+            except Exception as exc:  # noqa: BLE001 - audit first: no record, no further motion
+                run.stop.set()
+                run.audit_failed = self._audit_failed(f"a robot event ({ev.kind})", exc) + "; the robot was stopped"
+            with self._lock:
+                events = self._state.robot_events + (ev,)
+                step = f" step {ev.step + 1}" if isinstance(ev.step, int) else ""
+                self._set(robot_events=events, message=f"robot: {ev.kind}{step}" + (f" ({ev.box})" if ev.box else ""))
+        return on_event
+
+    def _finish(self, run: _Run, run_id: int, outcome: Any, err: str | None) -> None:
+        stop_asked = run.stop.is_set()
+        ok = outcome is not None and outcome.ok
+        if stop_asked and not ok:
+            status, msg = "stopped", (f"robot stopped ({run.stopped_by} pressed Stop robot)" if run.stopped_by
+                                      else "robot stopped")
+        elif ok:
             status, msg = "done", "robot finished the plan"
         else:
             status, msg = "failed", "robot stopped on an error"
+        if run.audit_failed:
+            status, err = "stopped", run.audit_failed
+        out_doc = _outcome_json(outcome, err, run.entry, stop_asked, run.stopped_by)
+        self._record("the outcome", self.store.set_outcome, run.session_id, out_doc, run_id)
         done = ", ".join(outcome.completed) if outcome is not None and outcome.completed else "none"
         msg += f"; completed steps: {done}. Capture and plan again before the next run."
-        self._set(robot=status, outcome=outcome, needs_recapture=True, message=msg,
-                  error=err if status != "stopped" else None)
+        with self._lock:
+            self._release(run)
+            self._set(robot=status, outcome=outcome, needs_recapture=True, approval=None, message=msg,
+                      error=err if status != "stopped" or run.audit_failed else None)
+
+
+def _seed_history(robot: Any, plan_hash: str, done: dict[int, str]) -> None:
+    """The driver's step history for this run: what this session already did, nothing else.
+
+    The drivers keep a process-wide history keyed by plan hash alone; a new
+    capture with the same sequence is a new run, so each run gets a fresh one.
+    """
+    if not hasattr(robot, "history"):
+        return
+    from console.robot_types import StepHistory
+
+    hist = StepHistory()
+    for i, box in done.items():
+        hist.mark_done(getattr(robot, "name", ""), plan_hash, i, box)
+    robot.history = hist
+
+
+def scene_problems(plan: Any) -> tuple[dict, ...]:
+    """plan.extra["scene_check"]["problems"] when the shelf does not stand as seen, else ()."""
+    check = (getattr(plan, "extra", None) or {}).get("scene_check") or {}
+    if not isinstance(check, Mapping) or check.get("stands_as_seen", True):
+        return ()
+    probs = check.get("problems") or [{"box": None, "what": "does not stand as seen"}]
+    return tuple({"box": p.get("box"), "what": str(p.get("what", ""))} for p in probs if isinstance(p, Mapping))
+
+
+def problem_text(p: Mapping[str, Any]) -> str:
+    return (f"box {p['box']}" if p.get("box") else "the scene") + f" {p.get('what', '')}".rstrip()
 
 
 def _summary(perception: Any) -> dict:
@@ -501,15 +808,19 @@ def _step_json(result: Any) -> dict:
         return result.to_json()
 
 
-def _outcome_json(outcome: Any, err: str | None, entry: PlanEntry, stopped: bool) -> dict:
+def _outcome_json(outcome: Any, err: str | None, entry: PlanEntry, stopped: bool,
+                  stopped_by: str | None = None) -> dict:
     doc: dict[str, Any] = {"plan": entry.hash, "planner": entry.plan.planner,
                            "sequence": list(entry.plan.sequence), "stopped": stopped}
+    if stopped_by:
+        doc["stopped_by"] = stopped_by
     if outcome is not None:
-        doc.update({"completed": list(outcome.completed), "ok": bool(outcome.ok), "error": outcome.error,
+        doc.update({"completed": list(outcome.completed), "ok": bool(outcome.ok), "error": outcome.error or err,
                     "steps": [dict(s) for s in outcome.steps]})
     else:
         doc.update({"completed": [], "ok": False, "error": err, "steps": []})
     return doc
 
 
-__all__ = ["Workflow", "WorkflowError", "State", "PlanEntry", "PLANNERS", "SECONDS_PER_BOX"]
+__all__ = ["Workflow", "WorkflowError", "State", "PlanEntry", "Throttle", "PLANNERS", "SECONDS_PER_BOX",
+           "AUTH_REFUSED", "scene_problems", "problem_text"]

@@ -1,6 +1,7 @@
 """The viser layer without a browser: host policy, the plan table, replay records, preview timelines."""
 from __future__ import annotations
 
+import html
 import urllib.request
 
 import numpy as np
@@ -26,10 +27,14 @@ def test_non_local_host_needs_a_passphrase():
     from console.app import ConsoleError, check_host
     from console.cli import main
 
-    check_host("127.0.0.1", False)
-    check_host("0.0.0.0", True)
+    check_host("127.0.0.1", None)
+    check_host("127.0.0.1", "a")                       # local: any passphrase
+    check_host("0.0.0.0", "correct horse battery")
     with pytest.raises(ConsoleError, match="0.0.0.0.*passphrase"):
-        check_host("0.0.0.0", False)
+        check_host("0.0.0.0", None)
+    for short in ("a", " ", "            ", "eleven char"):
+        with pytest.raises(ConsoleError, match="at least 12 characters"):
+            check_host("0.0.0.0", short)
     assert main(["console", "--host", "0.0.0.0", "--port", "0"]) == 2
 
 
@@ -89,7 +94,7 @@ def test_app_serves_and_replays_a_stored_session(tmp_path):
     view = record_view(store.load_session(sid))
     assert view["rgb"].shape == cap.rgb.shape and view["scene"].ids == ("b0",)
     assert set(view["plans"]) == {"physics", "heuristic"} and view["target"] == "b0"
-    md = view["summary_md"]
+    md = html.unescape(view["summary_md"])      # what the browser shows (outside text is entity-escaped)
     assert f"approve `{h}` by sue" in md and "completed: b1" in md and "collapsed: b3" in md
     assert "| 2 | b0 | 0% |" in md
 

@@ -160,7 +160,7 @@ def test_read_only_database_is_a_clear_error(tmp_path: Path) -> None:
 def test_immutable_database_file_is_a_clear_error(tmp_path: Path) -> None:
     """A file the OS refuses to write (chattr +i stops even root), not just a mode bit."""
     db = tmp_path / "i.db"
-    sqlite3.connect(db).execute("CREATE TABLE x(a)").connection.close()
+    SessionStore(db).close()
     if subprocess.run(["chattr", "+i", str(db)], capture_output=True).returncode != 0:
         pytest.skip("chattr +i not permitted here (the mode-bit test above covers read-only files)")
     try:
@@ -173,7 +173,7 @@ def test_immutable_database_file_is_a_clear_error(tmp_path: Path) -> None:
 def test_unwritable_wal_is_a_clear_error(tmp_path: Path) -> None:
     """SQLite itself fails (the -wal file cannot be created): the message still names the file."""
     db = tmp_path / "w.db"
-    sqlite3.connect(db).execute("CREATE TABLE x(a)").connection.close()
+    SessionStore(db).close()
     (tmp_path / "w.db-wal").mkdir()
     with pytest.raises(StoreError, match=r"w\.db: "):
         SessionStore(db)

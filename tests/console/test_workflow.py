@@ -128,6 +128,8 @@ def test_full_cycle_records_everything(make_wf):
 
 
 def test_new_capture_invalidates_approval(make_wf):
+    """An approval holds the run lock: a capture is refused until Stop withdraws it; after the
+    new capture the old plan is not approvable."""
     from console.workflow import WorkflowError
 
     wf = make_wf()
@@ -135,6 +137,10 @@ def test_new_capture_invalidates_approval(make_wf):
     old = st.plans["physics"].hash
     wf.approve(old, PASS, "sue")
     assert wf.state.approved == old
+    with pytest.raises(WorkflowError, match="capture refused: plan .* is approved"):
+        wf.capture()
+    wf.stop("op")
+    assert wf.state.approved is None and "withdrawn" in wf.state.message
     wf.capture()
     st = wf.state
     assert st.approved is None and not st.plans
