@@ -14,7 +14,7 @@ import time
 import warnings
 import zlib
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 from perception.errors import SceneError
@@ -116,6 +116,7 @@ class Draw:
     sim: ShelfSim
     rejected: tuple[Mapping[str, str], ...] = ()   # per redrawn attempt: box -> what it did
     stands: bool = True                           # False: no attempt stood as observed
+    off: Mapping[str, str] = field(default_factory=dict)  # what the returned world contradicts
 
 
 def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> dict[str, str]:
@@ -166,7 +167,7 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
             warnings.simplefilter("ignore")
             sim = ShelfSim(scene, config, local=config.prediction_local)
         off = contradictions(sim, config)
-        return Draw(sim, (off,) if off else (), not off)
+        return Draw(sim, (off,) if off else (), not off, off)
     rejected: list[dict[str, str]] = []
     best: ShelfSim | None = None
     best_off: dict[str, str] = {}
@@ -190,7 +191,7 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
                 best.close()
             if off:
                 rejected.append(off)
-            return Draw(sim, tuple(rejected), not off)
+            return Draw(sim, tuple(rejected), not off, off)
         rejected.append(off)
         if best is None or len(off) < len(best_off):
             if best is not None:
@@ -200,31 +201,32 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
             sim.close()
     if best is None:
         raise SceneError(f"no draw of sample {sample} can be built: {rejected[-1].get('*', rejected[-1])}")
-    return Draw(best, tuple(rejected), False)
+    return Draw(best, tuple(rejected), False, best_off)
 
 
 def not_standing(draw: Draw) -> frozenset[str]:
-    """The boxes that contradicted the image in every attempt of this draw."""
-    if draw.stands or not draw.rejected:
-        return frozenset()
-    return frozenset(b for b in draw.rejected[-1] if b != "*")
+    """The boxes that contradict the image in the world this draw settled on."""
+    return frozenset() if draw.stands else frozenset(b for b in draw.off if b != "*")
 
 
 def scene_check(draws: Sequence[Draw]) -> dict:
     """Whether the observed shelf stands as seen, from the sample worlds' draws.
 
-    A box is a problem when it contradicted the image in every attempt of some
-    sample (no draw of what the camera cannot know makes it stand as seen).
+    A box is a problem when no attempt of a sample made it stand, in at least
+    half of the samples: then no plausible draw of what the camera cannot know
+    explains the image. (A box that fails in one sample of ten is explained by
+    the others; that sample's world is the attempt that contradicts least.)
     """
-    problems: dict[str, str] = {}
+    fails: dict[str, list[str]] = {}
     redrawn = 0
     for d in draws:
         redrawn += len(d.rejected)
-        if not d.stands and d.rejected:
-            for bid, what in d.rejected[-1].items():
-                problems.setdefault(bid, what)
+        for bid in not_standing(d):
+            fails.setdefault(bid, []).append(d.off[bid])
+    problems = {b: whats[0] for b, whats in fails.items() if 2 * len(whats) >= len(draws)}
     return {"stands_as_seen": not problems, "redrawn": redrawn,
-            "problems": [{"box": None if b == "*" else b, "what": w} for b, w in sorted(problems.items())]}
+            "samples_not_standing": sum(1 for d in draws if not d.stands),
+            "problems": [{"box": b, "what": w} for b, w in sorted(problems.items())]}
 
 
 class _Worlds:
@@ -308,7 +310,8 @@ def _worker(conn) -> None:
                     worlds = None
                     conn.send(("error", exc))
                     continue
-                conn.send(("ready", {i: (d.sim.scene, d.rejected, d.stands) for i, d in worlds.draws.items()}))
+                conn.send(("ready", {i: (d.sim.scene, d.rejected, d.stands, d.off)
+                                     for i, d in worlds.draws.items()}))
             elif msg[0] == "pull":
                 _, removed, box, which = msg
                 conn.send(("ok", {i: replace(worlds.pull(i, removed, box), frames=())  # type: ignore[union-attr]
@@ -380,6 +383,7 @@ class _Stub:
     scene: Scene
     rejected: tuple
     stands: bool
+    off: Mapping[str, str]
 
 
 class Predictor:

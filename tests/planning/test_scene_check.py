@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import math
 
 from console.cli import main
@@ -27,7 +28,7 @@ def test_a_floating_box_makes_the_plan_unsafe_and_names_the_box():
     check = plan.extra["scene_check"]
     assert check["stands_as_seen"] is False and not plan.safe
     assert [p["box"] for p in check["problems"]] == ["f"]
-    assert "moves 0.3" in check["problems"][0]["what"]
+    assert re.match(r"moves 0\.(29|30)\d m while settling", check["problems"][0]["what"])
     assert check["redrawn"] >= 2   # every draw of both samples was tried again
 
 
@@ -41,7 +42,8 @@ def test_a_cube_balanced_on_its_edge_is_reported():
 
 def test_a_shelf_that_stands_says_so():
     plan = make_plan(stacked().hide_depths(), "extract", "c", samples=2, seed=0)
-    assert plan.extra["scene_check"] == {"stands_as_seen": True, "redrawn": 0, "problems": []}
+    check = plan.extra["scene_check"]
+    assert check["stands_as_seen"] and check["problems"] == [] and check["samples_not_standing"] == 0
     assert plan.safe and plan.sequence == ("c",)
 
 
@@ -51,6 +53,6 @@ def test_the_command_line_warns_and_writes_the_check_into_the_plan(tmp_path, cap
     out = tmp_path / "plan.json"
     assert main(["plan", str(path), "--target", "a", "--samples", "2", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "does not stand as observed: box f moves 0.3" in err
+    assert re.search(r"does not stand as observed: box f moves 0\.(29|30)\d m", err)
     doc = json.loads(out.read_text())
     assert doc["safe"] is False and doc["scene_check"]["problems"][0]["box"] == "f"
