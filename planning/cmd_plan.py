@@ -22,9 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="highest acceptable collapse probability per step (default 0: no sample collapses)")
     parser.add_argument("--budget", type=float, default=None, metavar="SECONDS",
                         help="time budget of the physics search (default: none)")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="processes over the depth samples (default 1; 2 on a 2-core machine is about "
-                             "twice as fast, same plan)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="processes over the sample worlds (default: 2 where the machine has 2 cores "
+                             "or more, else 1; the same plan whatever the count)")
     parser.add_argument("--out", default=None, help="write the plan here (default: stdout)")
 
 
@@ -43,6 +43,9 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
+    if args.workers is None:
+        import os
+        args.workers = 2 if (os.cpu_count() or 1) >= 2 else 1
     if args.workers < 1:
         raise FormatError("", "--workers", f"expected a positive integer, got {args.workers}")
     if args.budget is not None and not args.budget > 0:
