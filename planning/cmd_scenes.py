@@ -1,4 +1,5 @@
-"""`shelfpick scenes`: write seeded synthetic shelves (structured or unstructured) as scene files."""
+"""`shelfpick scenes`: write seeded synthetic shelves (structured, unstructured, or a stack kind
+where highest-first collapses often) as scene files, settled with their true masses."""
 from __future__ import annotations
 
 import argparse
@@ -31,12 +32,20 @@ def scene_seed(seed: int, index: int) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kind", choices=("structured", "unstructured"), required=True)
+    parser.add_argument("--kind", choices=("structured", "unstructured", "proud", "bridge", "lean", "overhang"),
+                        required=True,
+                        help="structured / unstructured stacks, or one where highest-first collapses often: "
+                             "proud (boxes 1-6 cm proud of the front carrying others), bridge (long boxes "
+                             "across two supports), lean (a long box leaning on a stack), overhang (turned, "
+                             "shifted columns)")
     parser.add_argument("--count", type=int, default=20, help="number of scenes (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--boxes", default=None,
                         help="boxes per scene, MIN-MAX or N (default: 8-14 drawn per scene)")
+    parser.add_argument("--masses", action=argparse.BooleanOptionalAction, default=None,
+                        help="true per-box masses drawn in 0.3-5 kg (default: on for proud, bridge, lean, "
+                             "overhang; off for structured and unstructured, which keep the method's density)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         n = None
         if rng_range is not None:
             n = int(np.random.default_rng([s & 0xFFFFFFFF, 7]).integers(rng_range[0], rng_range[1] + 1))
-        scene = generate(args.kind, s, n)
+        scene = generate(args.kind, s, n, masses=args.masses)
         scene.save(out / f"{args.kind}-{args.seed}-{i:04d}.json")
     print(f"wrote {args.count} {args.kind} scenes to {out}")
     return 0

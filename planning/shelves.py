@@ -10,6 +10,14 @@ next attempt (derived from the same seed) is tried. Same seed, same scene.
 Box types (cm, width x depth x height along the shelf's x, y, z): 23x31x25,
 20x20x20, 50x17x17 lying, and 50x17x17 standing (17 wide, 50 tall; only in
 unstructured stacks, where it leans against a stack or a side wall).
+
+Besides `structured` and `unstructured`, four kinds where the highest-first
+baseline collapses often (HARD_KINDS, docs/bench.md): `proud` (columns where
+half the boxes stick 1-6 cm out of the shelf front, carrying set-back boxes),
+`bridge` (piles with up to three long boxes across two supports), `lean` (columns
+and a long box leaning on a box that reaches above it), `overhang` (turned,
+shifted columns at any size). These carry true masses (0.3-5 kg per box) and are
+settled with them: every shelf written is at rest, a truth.
 """
 from __future__ import annotations
 
@@ -23,8 +31,14 @@ import numpy as np
 from perception.errors import SceneError, ShelfpickError
 from perception.scene import BOX_TYPES, Box, Scene, Shelf, quat_to_matrix
 
-Kind = Literal["structured", "unstructured"]
-KINDS: tuple[str, ...] = ("structured", "unstructured")
+Kind = Literal["structured", "unstructured", "proud", "bridge", "lean", "overhang"]
+# the last four are stacks where the highest-first baseline collapses often (docs/bench.md):
+# boxes proud of the front carrying others, long boxes bridging two supports, boxes leaning on a
+# stack, boxes turned and shifted over the one below
+KINDS: tuple[str, ...] = ("structured", "unstructured", "proud", "bridge", "lean", "overhang")
+HARD_KINDS: tuple[str, ...] = KINDS[2:]
+MASS_RANGE = (0.3, 5.0)              # kg, true masses drawn per box (the hard kinds; --masses)
+PROUD_RANGE = (0.01, 0.06)           # m a proud box's front face sticks out of the shelf front
 
 SHELF = Shelf(1.0, 0.30, 1.60)
 STANDING_LONG = (0.17, 0.17, 0.50)
@@ -301,7 +315,8 @@ def _intervals(rng: np.random.Generator, cols: list[tuple[float, float, float]],
     return out
 
 
-def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool) -> list[_Placed]:
+def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool,
+             proud: float = 0.0) -> list[_Placed]:
     """Rows and columns: columns of one box type stacked bottom-up, the lowest filled first.
 
     Structured: upright boxes, a little x jitter, front faces sticking out by
@@ -339,7 +354,7 @@ def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool)
             if spare >= left - 1 and _room(u, tops[ci], cap) > 0:
                 t = u
                 cols[ci] = u   # the column goes on with the narrower type (a wide box would not rest on it)
-        p = _place_in_column(lay, rng, t, spans[ci], below[ci], unstructured)
+        p = _place_in_column(lay, rng, t, spans[ci], below[ci], unstructured, proud)
         if p is None:
             tops[ci] = 9.0  # nothing more fits on this column
             continue
@@ -351,9 +366,16 @@ def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool)
 
 
 def _place_in_column(lay: _Layout, rng: np.random.Generator, t: tuple[float, float, float],
-                     span: tuple[float, float], under: _Placed | None, turn: bool) -> _Placed | None:
-    """One box on a column: random front offset (kept over the box below), jitter or turn and shift."""
+                     span: tuple[float, float], under: _Placed | None, turn: bool,
+                     proud: float = 0.0) -> _Placed | None:
+    """One box on a column: random front offset (kept over the box below), jitter or turn and shift.
+    With `proud` > 0 that share of boxes sticks 1-6 cm out of the shelf front, and a box on a
+    proud one sits further back (its centre still over the box below)."""
     shelf = lay.shelf
+    if proud > 0.0:
+        p = _place_proud(lay, rng, t, span, under, proud)
+        if p is not None:
+            return p
     for attempt in range(10):
         last = attempt == 9
         yaw = 0.0
@@ -390,6 +412,27 @@ def _place_in_column(lay: _Layout, rng: np.random.Generator, t: tuple[float, flo
     return None
 
 
+def _place_proud(lay: _Layout, rng: np.random.Generator, t: tuple[float, float, float],
+                 span: tuple[float, float], under: _Placed | None, share: float) -> _Placed | None:
+    """An upright box whose front sticks out of the shelf (with chance `share`), or, on a box that
+    does, one set back over it: heavy loads on a ledge the camera sees only from the front."""
+    shelf = lay.shelf
+    cx = (span[0] + span[1]) / 2
+    for _ in range(6):
+        if under is not None and under.position[1] - under.size[1] / 2 < 0.0:
+            # on a proud box: set back, its centre 1-4 cm behind the centre of the box below
+            cy = under.position[1] + float(rng.uniform(0.01, 0.04))
+            cy = min(cy, shelf.depth - GAP - t[1] / 2)
+        elif rng.random() < share:
+            cy = -float(rng.uniform(*PROUD_RANGE)) + t[1] / 2
+        else:
+            return None
+        p = lay.upright(t, cx + float(rng.uniform(-0.004, 0.004)), cy, 0.0, min_support=0.5)
+        if p is not None:
+            return p
+    return None
+
+
 def _lean(lay: _Layout, rng: np.random.Generator, shelf: Shelf) -> _Placed | None:
     """A standing 50 cm box leaning sideways against a side wall or a stack taller than its contact."""
     w, d, h = STANDING_LONG
@@ -410,24 +453,56 @@ def _lean(lay: _Layout, rng: np.random.Generator, shelf: Shelf) -> _Placed | Non
         walls.append(q.position[0] - side * q.size[0] / 2)
     rng.shuffle(walls)
     for xw in walls:
-        xw = float(xw) - side * (GAP + 0.001)   # keep the clearance the overlap test asks for
-        # pivot (lowest edge on the floor) sits h sin(phi) away from the wall
-        pivot_x = xw - side * h * math.sin(phi)
-        rot = _axis_quat((0.0, 1.0, 0.0), side * phi)
-        r = np.array(quat_to_matrix(rot))
-        # lowest corner in local coordinates: (side * w/2, -h/2)
-        local = np.array([side * w / 2, 0.0, -h / 2])
-        centre = np.array([pivot_x, cy, GAP]) - r @ local
-        p = _Placed((w, d, h), tuple(float(v) for v in centre), rot, leaning=True)
-        # the floor under the pivot must be empty and inside the shelf
-        if not lay.fits_shelf(p) or lay.collides(p):
+        p = _leaning_at(lay, float(xw), side, phi, cy)
+        if p is not None:
+            return p
+    return None
+
+
+def _leaning_at(lay: _Layout, xw: float, side: int, phi: float, cy: float) -> _Placed | None:
+    """The standing long box leaning by `phi` towards `side` with its top edge on the wall at x = xw."""
+    w, d, h = STANDING_LONG
+    xw = xw - side * (GAP + 0.001)   # keep the clearance the overlap test asks for
+    # pivot (lowest edge on the floor) sits h sin(phi) away from the wall
+    pivot_x = xw - side * h * math.sin(phi)
+    rot = _axis_quat((0.0, 1.0, 0.0), side * phi)
+    r = np.array(quat_to_matrix(rot))
+    # lowest corner in local coordinates: (side * w/2, -h/2)
+    local = np.array([side * w / 2, 0.0, -h / 2])
+    centre = np.array([pivot_x, cy, GAP]) - r @ local
+    p = _Placed((w, d, h), tuple(float(v) for v in centre), rot, leaning=True)
+    # the floor under the pivot must be empty and inside the shelf
+    if not lay.fits_shelf(p) or lay.collides(p):
+        return None
+    mask = lay.footprint(pivot_x, cy, 0.02, d, 0.0)
+    if mask.any() and lay.height[mask].max() > 1e-6:
+        return None
+    if cy - d / 2 < -0.02:  # the pivot edge must stand on the floor, not in front of it
+        return None
+    return p
+
+
+def _lean_on_stack(lay: _Layout, rng: np.random.Generator, side: int) -> _Placed | None:
+    """A long box leaning (18-40 deg) on the side of a box that reaches 5 cm below the contact and
+    above the leaning box's top: highest-first takes that box first and the leaning box falls far."""
+    w, d, h = STANDING_LONG
+    options = []
+    for q in lay.placed:
+        if q.leaning or abs(q.orientation[3]) > 1e-6:
             continue
-        mask = lay.footprint(pivot_x, cy, 0.02, d, 0.0)
-        if mask.any() and lay.height[mask].max() > 1e-6:
-            continue
-        if cy - d / 2 < -0.02:  # the pivot edge must stand on the floor, not in front of it
-            continue
-        return p
+        bottom, top = q.position[2] - q.size[2] / 2, q.position[2] + q.size[2] / 2
+        for deg in range(18, 41):
+            phi = math.radians(deg)
+            contact = GAP + h * math.cos(phi)
+            if contact - 0.05 >= bottom and contact + w * math.sin(phi) + 0.02 <= top:
+                options.append((q, phi))
+    for i in rng.permutation(len(options))[:12]:
+        q, phi = options[int(i)]
+        y0, y1 = q.position[1] - q.size[1] / 2, q.position[1] + q.size[1] / 2
+        cy = float(rng.uniform(y0 + d / 2, max(y0 + d / 2, y1 - d / 2)))
+        p = _leaning_at(lay, q.position[0] - side * q.size[0] / 2, side, phi, cy)
+        if p is not None:
+            return p
     return None
 
 
@@ -472,9 +547,10 @@ def _landing_spots(lay: _Layout, rng: np.random.Generator, t: tuple[float, float
     return out
 
 
-def _scattered(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+def _scattered(rng: np.random.Generator, n: int, shelf: Shelf, bridges: int = 0) -> list[_Placed]:
     """Random piles for small scenes: random types and turns, each box dropped where it lands low
-    (now and then on top of a pile: overhangs), long boxes bridging two tops, a leaning box."""
+    (now and then on top of a pile: overhangs), long boxes bridging two tops, a leaning box.
+    `bridges` > 0 asks for that many bridges instead of the usual chance of one."""
     lay = _Layout(shelf)
     types = list(BOX_TYPES.values())
     cap = SHELF.height - 0.05
@@ -482,22 +558,25 @@ def _scattered(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
     # it needs free floor: mostly first (against a side wall), else later against a stack if there is room
     lean_from = 0 if rng.random() < 0.6 else int(rng.integers(1, max(2, n // 2)))
     want_bridge = rng.random() < 0.6
+    n_lean, n_bridge = int(want_lean), int(want_bridge)
+    if bridges:
+        n_bridge = bridges
     stuck = 0
     while len(lay.placed) < n and stuck < 40:
         k = len(lay.placed)
-        if want_lean and k >= lean_from:
+        if n_lean and k >= lean_from:
             p = _lean(lay, rng, shelf)
             if p is not None:
                 lay.add(p)
-                want_lean = False
+                n_lean -= 1
                 continue
             if k > lean_from + 3:
-                want_lean = False
-        if want_bridge and k >= 2:
+                n_lean = 0
+        if n_bridge and k >= 2:
             p = _bridge(lay, rng)
             if p is not None and p.position[2] + p.size[2] / 2 <= cap:
                 lay.add(p)
-                want_bridge = False
+                n_bridge -= 1
                 continue
         t = types[int(rng.integers(len(types)))]
         yaw = float(rng.uniform(-0.35, 0.35)) if rng.random() < 0.6 else 0.0
@@ -554,6 +633,37 @@ def _structured(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]
     return _columns(rng, n, shelf, unstructured=False)
 
 
+LEAN_ROOM = 0.42   # m of floor kept free beside the columns for a leaning box
+
+
+def _leaning_on_columns(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+    """Columns on the left of the shelf, and a standing long box leaning on the rightmost one
+    against a box that reaches above it: highest-first takes that box first and drops it."""
+    from dataclasses import replace
+
+    part = Shelf(shelf.width - LEAN_ROOM, shelf.depth, shelf.height)
+    dx = -LEAN_ROOM / 2
+    lay = _Layout(shelf)
+    for p in _columns(rng, n - 1, part, unstructured=False):
+        hull = None if p.hull is None else p.hull - np.outer(p.hull[:, 0], [0.0, 0.0, dx])
+        lay.add(replace(p, position=(p.position[0] + dx, p.position[1], p.position[2]), hull=hull))
+    lean = _lean_on_stack(lay, rng, side=-1)
+    if lean is not None:
+        lay.add(lean)
+    return lay.placed
+
+
+def _hard(kind: str, rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+    """The stacks where highest-first collapses often (HARD_KINDS)."""
+    if kind == "proud":
+        return _columns(rng, n, shelf, unstructured=False, proud=0.5)
+    if kind == "bridge":
+        return _scattered(rng, n, shelf, bridges=3)
+    if kind == "lean":
+        return _leaning_on_columns(rng, n, shelf)
+    return _columns(rng, n, shelf, unstructured=True)   # overhang: turned, shifted columns at any size
+
+
 def _cap(n: int) -> float:
     """Highest top a box may reach: small scenes stay low, large ones use the shelf's height."""
     return 1.3 if n <= 16 else SHELF.height - 0.05
@@ -568,7 +678,8 @@ def _order(boxes: list[Box]) -> list[Box]:
     return sorted(boxes, key=key)
 
 
-def layout(kind: str, seed: int, n_boxes: int | None = None, attempt: int = 0) -> Scene:
+def layout(kind: str, seed: int, n_boxes: int | None = None, attempt: int = 0,
+           mass_range: tuple[float, float] | None = None) -> Scene:
     """The geometric placement alone (not settled): what `generate` hands to the simulation."""
     if kind not in KINDS:
         raise ShelfpickError(f"kind: expected one of {', '.join(KINDS)}, got {kind!r}")
@@ -576,11 +687,25 @@ def layout(kind: str, seed: int, n_boxes: int | None = None, attempt: int = 0) -
     n = int(rng.integers(8, 15)) if n_boxes is None else int(n_boxes)
     if not 1 <= n <= MAX_BOXES:
         raise ShelfpickError(f"n_boxes: expected 1..{MAX_BOXES}, got {n_boxes!r}")
-    placed = (_structured if kind == "structured" else _unstructured)(rng, n, SHELF)
+    if kind in HARD_KINDS:
+        placed = _hard(kind, rng, n, SHELF)
+    else:
+        placed = (_structured if kind == "structured" else _unstructured)(rng, n, SHELF)
     boxes = _order([p.box("_") for p in placed])
-    boxes = [Box(f"b{i}", b.size, b.position, b.orientation) for i, b in enumerate(boxes)]
+    masses = _masses(mass_range, len(boxes), seed, kind, attempt)
+    boxes = [Box(f"b{i}", b.size, b.position, b.orientation, m) for i, (b, m) in enumerate(zip(boxes, masses))]
     return Scene(SHELF, tuple(boxes), source={"generator": "shelfpick.shelves", "kind": kind,
                                                "seed": int(seed), "attempt": attempt, "n_boxes": n})
+
+
+def _masses(mass_range: tuple[float, float] | None, n: int, seed: int, kind: str,
+            attempt: int) -> list[float | None]:
+    """True masses, uniform in `mass_range` (kg) from their own stream (the layout is the same with
+    or without them); None each when no range is given (the method's density decides)."""
+    if mass_range is None:
+        return [None] * n
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, KINDS.index(kind), attempt, 7919])
+    return [round(float(m), 3) for m in rng.uniform(mass_range[0], mass_range[1], n)]
 
 
 def _settle(scene: Scene) -> Scene:
@@ -620,15 +745,20 @@ def _settle(scene: Scene) -> Scene:
     return settled
 
 
-def generate(kind: str, seed: int, n_boxes: int | None = None, *, settle: bool = True) -> Scene:
+def generate(kind: str, seed: int, n_boxes: int | None = None, *, settle: bool = True,
+             masses: bool | None = None) -> Scene:
     """A settled synthetic shelf, ids b0..bN-1 bottom-up then left to right. Same seed, same scene.
 
     Attempts whose layout cannot take all the boxes, or which do not settle
-    calmly, are dropped; the next attempt is derived from the same seed.
+    calmly (with their masses), are dropped; the next attempt is derived from the same seed.
+    `masses`: true per-box masses drawn in MASS_RANGE; default (None) for the hard kinds only,
+    so the structured and unstructured shelves stay what they were.
     """
+    with_masses = kind in HARD_KINDS if masses is None else bool(masses)
+    mass_range = MASS_RANGE if with_masses else None
     last = ""
     for attempt in range(MAX_ATTEMPTS):
-        scene = layout(kind, seed, n_boxes, attempt)
+        scene = layout(kind, seed, n_boxes, attempt, mass_range)
         want = scene.source["n_boxes"]
         if len(scene.boxes) != want:
             last = f"only {len(scene.boxes)} of {want} boxes fit"
@@ -641,7 +771,8 @@ def generate(kind: str, seed: int, n_boxes: int | None = None, *, settle: bool =
             last = str(exc)
             continue
         boxes = _order(list(settled.boxes))
-        rename = [Box(f"b{i}", b.size, b.position, b.orientation) for i, b in enumerate(boxes)]
+        mass = {b.id: b.mass for b in scene.boxes}
+        rename = [Box(f"b{i}", b.size, b.position, b.orientation, mass[b.id]) for i, b in enumerate(boxes)]
         return Scene(SHELF, tuple(rename), source=scene.source)
     raise SceneError(f"no {kind} shelf with {n_boxes} boxes for seed {seed} after "
                      f"{MAX_ATTEMPTS} attempts (last: {last})")
