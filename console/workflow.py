@@ -213,6 +213,7 @@ class Workflow:
         self._run: _Run | None = None        # the run lock
         self._last_run: _Run | None = None
         self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
+        self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced
         self._notify_cv = threading.Condition()
@@ -452,9 +453,10 @@ class Workflow:
             entries = {p: self._one_plan(gen, i, p, scene, task, target, predictor, t_setup, repairs)
                        for i, p in enumerate(PLANNERS)}
             for e in entries.values():
-                if sid is not None:
-                    self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid, e.plan,
-                                 [_step_json(r) for r in e.preview])
+                if sid is not None and self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid,
+                                                    e.plan, [_step_json(r) for r in e.preview]) is not None:
+                    with self._lock:
+                        self._recorded.add((sid, e.hash))
             self._plans_ready(gen, entries, repairs)
         except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
             traceback.print_exc()
@@ -548,6 +550,9 @@ class Workflow:
         if st.session_id is None:
             self._refuse(f"{action} refused: this capture has no session record ({st.audit or 'database'}); "
                          f"capture again once the database can be written")
+        if (st.session_id, plan_hash) not in self._recorded:
+            self._refuse(f"{action} refused: plan {plan_hash} was not recorded ({st.audit or 'database'}); "
+                         f"plan again once the database can be written")
         return entry, st.session_id
 
     def approve(self, plan_hash: str, passphrase: str, who: str = "supervisor",
