@@ -217,3 +217,68 @@ def test_bench_cli_bad_input(tmp_path: Path, capsys) -> None:
     assert main(["bench", str(tmp_path), "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err
     assert "bad.json" in err and "size" in err
+
+
+# --------------------------------------------------------------------------
+# the perturbed truth (issue 9): what the planner sees, and the shelf it really meets
+def test_observe_gives_front_faces_only_with_seeded_error() -> None:
+    from planning.bench import observe
+
+    truth = _tiny_scene("structured", True).with_boxes(
+        [Box(b.id, b.size, b.position, b.orientation, 2.0) for b in _tiny_scene("structured", True).boxes])
+    exact = observe(truth, 0.0, 1)
+    for t, o in zip(truth.boxes, exact.boxes):
+        assert o.mass is None and not o.depth_known and o.size[1] == pytest.approx(0.10)
+        assert o.front_center == pytest.approx(t.front_center)           # the face is kept exactly
+        assert o.size[0] == t.size[0] and o.size[2] == t.size[2]
+    a, b, c = observe(truth, 0.01, 1), observe(truth, 0.01, 1), observe(truth, 0.01, 2)
+    assert a.to_json() == b.to_json() and a.to_json() != c.to_json()
+    err = [abs(x - y) for t, o in zip(truth.boxes, a.boxes) for x, y in zip(t.front_center, o.front_center)]
+    assert 0.0 < max(err) < 0.05
+
+
+def test_truth_draw_is_seeded_keeps_given_masses_and_drags() -> None:
+    from planning.bench import TruthModel, draw_truth
+
+    scene = _tiny_scene("structured", True)
+    scene = scene.with_boxes([Box(b.id, b.size, b.position, b.orientation, 4.0 if b.id == "b0" else None)
+                              for b in scene.boxes])
+    model = TruthModel()
+    world, physics = draw_truth(scene, model, 7)
+    assert world.boxes[0].mass == 4.0
+    assert all(0.3 <= b.mass <= 5.0 for b in world.boxes[1:])
+    assert 0.5 <= physics.lateral_friction <= 0.9 and 0.15 <= physics.pull_speed <= 0.35
+    assert 100 <= physics.pull_force <= 200 and physics.pull_lift == 0.0
+    again, physics2 = draw_truth(scene, model, 7)
+    assert again.to_json() == world.to_json() and physics2 == physics
+    assert draw_truth(scene, model, 8)[1] != physics
+
+
+def test_true_world_refuses_a_shelf_that_cannot_stand() -> None:
+    from perception.errors import SceneError
+    from planning.bench import TruthModel, true_world
+
+    _, _, draw = true_world(_tiny_scene("structured", True), TruthModel(), 3)
+    assert draw == 0
+    # a cube hanging 15 cm over the edge of the one below it falls whatever the draw
+    tipping = Scene(SHELF, (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),
+                            Box("b1", (0.2, 0.2, 0.2), (0.15, 0.1, 0.301))))
+    with pytest.raises(SceneError, match="does not stand under any of 2 truth draws"):
+        true_world(tipping, TruthModel(draws=2), 3)
+
+
+def test_report_counts_declared_safe_collapses_and_scenes_without_truth() -> None:
+    recs = [_rec("a:b0", "proud", (True, 1, 0.1), (False, 3, 0.0), exh=False),
+            _rec("a:b1", "proud", (False, 2, 0.3), (True, 4, 0.0), exh=1),
+            {"key": "c:b0", "scene": "c", "kind": "lean", "target": "b0", "planners": {}, "no_truth": "b1 moved"}]
+    for r in recs[:2]:
+        r["planners"]["physics"]["safe"] = True
+        r["planners"]["heuristic"]["safe"] = False
+    s = summarize(recs, BenchConfig(robot_time=10.0))
+    assert s["tasks"] == 2 and s["no_truth"] == {"tasks": 1, "scenes": ["c"]}
+    assert s["table"]["proud"]["physics"]["declared_safe"] == 2
+    assert s["table"]["proud"]["physics"]["declared_safe_collapsed"] == 1
+    assert s["exhaustive"]["heuristic"]["infeasible_flagged"] == 1
+    assert s["exhaustive"]["physics"]["infeasible_flagged"] == 0
+    md = to_markdown(s)
+    assert "1/2 (50%)" in md and "Not judged: 1 tasks on 1 scenes" in md and "perception error" in md

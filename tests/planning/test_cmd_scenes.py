@@ -36,3 +36,26 @@ def test_demo_shelves_load() -> None:
     for f in files:
         s = Scene.load(f)
         assert 5 <= len(s.boxes) <= 14
+
+
+def test_scenes_cli_hard_kind_has_masses_and_can_drop_them(tmp_path: Path) -> None:
+    assert main(["scenes", "--kind", "proud", "--count", "1", "--seed", "2", "--out", str(tmp_path / "a"),
+                 "--boxes", "8"]) == 0
+    scene = Scene.load(tmp_path / "a" / "proud-2-0000.json")
+    assert scene.source["kind"] == "proud" and len(scene.boxes) == 8
+    assert all(0.3 <= b.mass <= 5.0 for b in scene.boxes)
+    assert main(["scenes", "--kind", "proud", "--count", "1", "--seed", "2", "--out", str(tmp_path / "b"),
+                 "--boxes", "8", "--no-masses"]) == 0
+    assert all(b.mass is None for b in Scene.load(tmp_path / "b" / "proud-2-0000.json").boxes)
+    assert main(["scenes", "--kind", "structured", "--count", "1", "--seed", "2", "--out", str(tmp_path / "c"),
+                 "--boxes", "8", "--masses"]) == 0
+    assert all(b.mass is not None for b in Scene.load(tmp_path / "c" / "structured-2-0000.json").boxes)
+
+
+def test_scenes_cli_unknown_kind(tmp_path: Path, capsys) -> None:
+    import pytest
+
+    with pytest.raises(SystemExit) as exc:
+        main(["scenes", "--kind", "tower", "--count", "1", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "tower" in capsys.readouterr().err

@@ -121,3 +121,64 @@ def test_generated_shelves_are_at_rest() -> None:
     with ShelfSim(scene) as sim:
         drift = sim.idle(1.0)
     assert max(drift.values()) < 0.01, drift
+
+
+# --------------------------------------------------------------------------
+# the kinds where highest-first collapses often (issue 9)
+@pytest.mark.parametrize("kind", ["proud", "bridge", "lean", "overhang"])
+def test_hard_kinds_are_seeded_valid_with_true_masses(kind: str) -> None:
+    a = generate(kind, 3, 9)
+    assert a.to_json() == generate(kind, 3, 9).to_json()
+    assert len(a.boxes) == 9 and a.source["kind"] == kind
+    assert all(0.3 <= b.mass <= 5.0 for b in a.boxes)
+    assert len({b.mass for b in a.boxes}) > 1
+    Scene.from_json(a.to_json(), "generated")
+    _check_geometry(a)
+
+
+def test_proud_boxes_stick_out_and_carry_others() -> None:
+    carried = 0
+    for seed in (0, 1):
+        scene = generate("proud", seed, 10)
+        for b in scene.boxes:
+            front = b.front_center[1]
+            if -0.065 <= front <= -0.008:
+                zt = b.top_z
+                carried += any(abs(o.position[2] - o.size[2] / 2 - zt) < 0.015
+                               and abs(o.position[0] - b.position[0]) < 0.05 for o in scene.boxes)
+    assert carried >= 2
+
+
+def test_lean_kind_leans_on_a_box_that_reaches_above_it() -> None:
+    scene = generate("lean", 0, 10)
+    lean = [b for b in scene.boxes if abs(b.orientation[2]) > 0.1]
+    assert len(lean) == 1 and tuple(round(v, 3) for v in lean[0].size) == STANDING_LONG
+    # highest-first takes a box above the leaning one's top first: the one it leans on among them
+    higher = [b for b in scene.boxes if b.top_z > lean[0].top_z + 0.01]
+    assert any(b.position[2] - b.size[2] / 2 < lean[0].top_z - 0.05 for b in higher)
+
+
+def test_bridge_and_overhang_kinds() -> None:
+    assert sum(_bridges(layout("bridge", seed, 10, mass_range=(0.3, 5.0))) for seed in (0, 1, 2)) >= 2
+    scene = layout("overhang", 1, 10)
+    assert sum(abs(b.orientation[3]) > 0.02 for b in scene.boxes) >= 3
+
+
+def test_masses_are_opt_in_for_the_method_kinds() -> None:
+    plain = generate("structured", 5, 8)
+    assert all(b.mass is None for b in plain.boxes)
+    heavy = generate("structured", 5, 8, masses=True)
+    assert all(0.3 <= b.mass <= 5.0 for b in heavy.boxes)
+    # masses come from their own stream: the same layout
+    assert [b.position for b in layout("structured", 5, 8).boxes] == \
+        [b.position for b in layout("structured", 5, 8, 0, (0.3, 5.0)).boxes]
+    assert all(b.mass is None for b in generate("lean", 0, 9, masses=False).boxes)
+
+
+def test_hard_shelves_are_at_rest_with_their_masses() -> None:
+    from planning.sim import ShelfSim
+
+    scene = generate("proud", 2, 10)
+    with ShelfSim(scene) as sim:
+        drift = sim.idle(1.0)
+    assert max(drift.values()) < 0.01, drift
