@@ -1,0 +1,82 @@
+"""benchmarks/judge_report.py: the report's arithmetic on hand-made rows, and one real task judged
+by the independent judge (../shared/judge, imported at run time) with both engines."""
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+JUDGE = ROOT.parent / "shared" / "judge"
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("judge_report", ROOT / "benchmarks" / "judge_report.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+jr = _module()
+
+
+def _row(scene, risks, collapses, ok, safe, min_removals=None, exhaustive=False, planner="physics"):
+    return {"key": f"0|{planner}|{scene}:b0", "scene": scene, "target": "b0", "kind": "structured", "noise": 0.0,
+            "planner": planner, "exhaustive": exhaustive, "min_removals": min_removals, "plan_s": 0.5,
+            "sequence": [f"b{i}" for i in range(len(risks))], "declared_safe": safe, "step_risk": risks,
+            "judges": {"pybullet": {"ok": ok, "step_collapse": collapses},
+                       "mujoco": {"ok": not ok, "step_collapse": collapses}}}
+
+
+def test_reliability_counts_steps_up_to_the_first_collapse() -> None:
+    rows = [_row("s00", [0.0, 0.1, 0.5, 0.0], [False, True, True, False], False, False),
+            _row("s01", [0.0, 0.03], [False, False], True, True)]
+    rel = {b["bin"]: b for b in jr.reliability(rows, "pybullet")}
+    assert rel["0"]["steps"] == 2 and rel["0"]["collapses"] == 0          # s00 step 0, s01 step 0
+    assert rel["(0, 0.05]"]["steps"] == 1 and rel["(0, 0.05]"]["observed"] == 0.0
+    assert rel["(0.05, 0.1]"]["steps"] == 1 and rel["(0.05, 0.1]"]["observed"] == 1.0
+    assert rel["(0.4, 1]"]["steps"] == 0                                   # after the first collapse: left out
+    assert [jr.risk_bin(r) for r in (0.0, 1e-9, 0.05, 0.051, 0.2, 0.4, 0.41, 1.0)] == [0, 1, 1, 2, 3, 4, 5, 5]
+
+
+def test_summary_figures_as_evaluate_prints_them() -> None:
+    rows = [_row("s00", [0.0], [False], True, True, min_removals=1, exhaustive=True),
+            _row("s01", [0.0, 0.2], [False, True], False, True, min_removals=1, exhaustive=True),
+            _row("s02", [0.3], [True], False, False, exhaustive=True),
+            _row("u00", [0.0, 0.0, 0.0], [False] * 3, True, False)]
+    s = jr.engine_summary(rows, "pybullet")
+    assert (s["ok"], s["tasks"], s["solvable_ok"], s["solvable"]) == (2, 4, 1, 2)
+    assert (s["declared_safe_collapsed"], s["declared_safe"]) == (1, 2)
+    assert (s["unsolvable_flagged"], s["unsolvable"]) == (1, 1)
+    assert s["removed"] == 1.0 and s["removed_ratio"] == 1.0
+    line = jr.evaluate_line("physics", 0.0, "pybullet", s)
+    assert line == ("physics, noise 0.0 cm, pybullet judge: ok 2/4; exhaustively solvable tasks ok 1/2, removing "
+                    "1.00 vs minimum 1.00; declared safe but collapsed 1/2; unsolvable tasks flagged unsafe 1/1")
+    assert jr.engine_agreement(rows) == {"plans": 4, "pybullet_only": 2, "mujoco_only": 2}
+
+
+def test_bad_arguments_exit_2(capsys) -> None:
+    assert jr.main(["--noise", "x"]) == 2
+    assert "--noise" in capsys.readouterr().err
+    assert jr.main(["--judge-dir", str(ROOT)]) == 2
+    assert "--judge-dir" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
+def test_one_task_judged_by_both_engines(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    out = tmp_path / "rows.jsonl"
+    args = ["--judge-dir", str(JUDGE), "--tasks", "s00:b5", "--planners", "heuristic", "--engine", "both",
+            "--out", str(out)]
+    assert jr.main(args) == 0
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(rows) == 1 and rows[0]["key"] == "0|heuristic|s00:b5"
+    assert set(rows[0]["judges"]) == {"pybullet", "mujoco"}
+    assert len(rows[0]["step_risk"]) == len(rows[0]["sequence"]) == len(rows[0]["judges"]["pybullet"]["step_collapse"])
+    assert out.with_suffix(".md").read_text().count("heuristic, noise 0.0 cm") == 2
+    assert out.with_suffix(".png").stat().st_size > 1000
+    # resumed: nothing left to run, the same rows
+    assert jr.main(args + ["--resume"]) == 0
+    assert [json.loads(line) for line in out.read_text().splitlines()] == rows
