@@ -43,6 +43,7 @@ class HonestPeer:
     def __init__(self, script: Callable[[int, int], str] | None = None, step_time: float = 0.0) -> None:
         self.script = script or (lambda c, s: "ok")
         self.step_time = step_time
+        self.message = "not now"                        # the text of a refusal (may carry markup)
         self.steps: list[tuple[int, str, int]] = []     # (connection, plan, step) as received
         self.performed: list[tuple[str, int]] = []      # (plan, step) acknowledged = the robot moved
         self.lock = threading.Lock()
@@ -85,7 +86,7 @@ class HonestPeer:
                     what = self.script(idx, m["step"])
                     key = {"plan": m["plan"], "step": m["step"], "box": m["box"]}
                     if what == "refuse":
-                        send({"type": "error", **key, "code": "REFUSED", "message": "not now"})
+                        send({"type": "error", **key, "code": "REFUSED", "message": self.message})
                         continue
                     send({"type": "ack", **key})
                     with self.lock:

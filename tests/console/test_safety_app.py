@@ -1,0 +1,164 @@
+"""The viser layer as a hostile peer would meet it: outside text arrives as literal text (never
+markup) in every view and in the HTML replay; the passphrase field is cleared after every use; two
+supervisors and five viewers at once on one real viser server. Real workflow, SQLite, TCP robot."""
+from __future__ import annotations
+
+import html
+import re
+import threading
+import time
+from html.parser import HTMLParser
+
+import pytest
+
+from safety_kit import HonestPeer, fault, judge_session  # noqa: F401
+from test_workflow import PASS, CodeShelfSource, small_scene
+
+MARKUP = ('<iframe src="javascript:alert(1)"></iframe><script>alert(2)</script>'
+          '![x](http://evil.example/pixel.png) [click](http://evil.example/) **bold** | cell |')
+
+
+def literal(md: str, text: str) -> bool:
+    """`text` shows as is (entities decoded) and no markup character of it reaches the markdown raw."""
+    return text in html.unescape(md) and not re.search(r"<(iframe|script)|\]\(http|!\[", md)
+
+
+@pytest.fixture
+def app(tmp_path):
+    from console.app import ClientView, ConsoleApp
+    from console.robot import open_robot
+    from console.store import SessionStore
+    from console.workflow import Workflow
+
+    peer = HonestPeer(script=lambda conn, step: "refuse" if step == 1 else "ok")
+    store = SessionStore(tmp_path / "app.sqlite")
+    wf = Workflow(CodeShelfSource(small_scene()), store,
+                  lambda truth, seed: open_robot(peer.url, truth=truth, seed=seed), PASS, samples=2)
+    a = ConsoleApp(wf, port=0)
+    # seven views on the real server, as seven browsers would get (server-wide GUI handles)
+    views = [ClientView(a, a.server) for _ in range(7)]
+    for i, v in enumerate(views):
+        v.client_key = f"browser-{i}"
+        a.views[1000 + i] = v
+    yield a, wf, views, peer
+    a.stop()
+    store.close()
+    peer.close()
+
+
+def settle(wf, views, timeout=10.0):
+    """Wait until every view drew the latest state."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = wf.state.version
+        time.sleep(0.2)
+        if wf.state.version == v:
+            return
+    raise AssertionError("the state kept changing")
+
+
+def test_outside_text_is_literal_in_every_view_and_supervisors_race(app, monkeypatch):
+    a, wf, views, peer = app
+    # the supervisors' names and a perception note are hostile; the robot refuses step 2
+    peer.message = MARKUP                                      # the robot's refusal text is hostile too
+    st = wf.capture()
+    wf._set(warnings=(MARKUP,))
+    wf.plan("clear", wait=True)
+    sups = views[:2]
+    for v, name in zip(sups, ("<img src=x onerror=alert(5)>", "[ann](http://evil.example/)")):
+        v.who.value = name
+        v.passphrase.value = PASS
+        v.approve_plan.value = "physics"
+    fault(2)
+    go = threading.Barrier(2)
+    ts = [threading.Thread(target=lambda v=v: (go.wait(), v._approve(None))) for v in sups]
+    [t.start() for t in ts]
+    [t.join(30) for t in ts]
+    wf.wait_robot(30)
+    settle(wf, views)
+    rec = wf.store.load_session(st.session_id)
+    approved = [d for d in rec.decisions if d["decision"] == "approve"]
+    assert len(approved) == 1                                  # exactly one approval stored, and it ran
+    assert [e["kind"] for e in rec.robot_events if e["kind"] == "start"] == ["start"]
+    assert all(v.passphrase.value == "" for v in sups)         # the field never keeps it
+    assert wf.state.robot == "failed"
+    for v in views:                                            # five viewers and both supervisors
+        assert literal(v.status.content, MARKUP)
+        assert literal(v.decisions_md.content, approved[0]["who"])
+        assert literal(v.robot_md.content, MARKUP)
+
+
+def test_robot_error_markup_is_literal_text(app):
+    a, wf, views, peer = app
+    from console.app import robot_markdown, status_markdown
+    from console.robot import RobotEvent, RobotOutcome
+    from console.workflow import State
+
+    st = State(robot="failed", robot_events=(RobotEvent("error", 1, "b<1>", {"message": MARKUP}),),
+               outcome=RobotOutcome(("b0",), False, MARKUP, ()), error=f"robot: {MARKUP}", message=MARKUP,
+               source="files:<x>", target="[t](http://e/)")
+    fault()
+    assert literal(robot_markdown(st), MARKUP) and literal(status_markdown(st), MARKUP)
+    assert "b<1>" in html.unescape(robot_markdown(st)) and "<1>" not in robot_markdown(st)
+
+
+def test_passphrase_is_cleared_even_when_refused(app):
+    a, wf, views, peer = app
+    v = views[0]
+    wf.capture()
+    wf.plan("clear", wait=True)
+    v.passphrase.value = "wrong wrong wrong"
+    v._approve(None)
+    assert v.passphrase.value == ""
+    v.passphrase.value = PASS
+    v.reason.value = ""
+    v._reject(None)                                            # refused (no reason): still cleared
+    assert v.passphrase.value == ""
+
+
+class _Tags(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[str] = []
+        self.text: list[str] = []
+        self.img_src: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+        if tag == "img":
+            self.img_src.append(dict(attrs).get("src") or "")
+
+    def handle_data(self, data):
+        self.text.append(data)
+
+
+def test_replay_shows_outside_text_literally(tmp_path):
+    """Supervisor names, reasons, robot error text and scene-check notes stored in a session come
+    back in the HTML replay as text: no iframe, no extra script, no image from outside."""
+    from console.replay import render_html
+    from console.store import SessionStore
+    from planning.plan import Plan, StepPrediction
+
+    from test_store import tiny_capture, tiny_scene
+
+    store = SessionStore(tmp_path / "r.sqlite")
+    sid = store.new_session(MARKUP, tiny_capture(), tiny_scene(), None, None, {"warnings": [MARKUP]})
+    plan = Plan("extract", "b0", "physics", ("b2", "b0"), (StepPrediction("b2"), StepPrediction("b0")), False,
+                {}, 0, {"scene_check": {"stands_as_seen": False, "problems": [{"box": "b2", "what": MARKUP}]}})
+    h = store.add_plan(sid, plan)
+    store.add_decision(sid, h, "approve", MARKUP, MARKUP)
+    store.add_robot_event(sid, h, "error", 0, "b2", {"message": MARKUP})
+    store.set_outcome(sid, {"plan": h, "sequence": ["b2", "b0"], "ok": False, "error": MARKUP, "completed": [],
+                            "steps": [{"step": 0, "box": "b2", "status": "error", "detail": {"message": MARKUP}}]})
+    page = render_html(store.load_session(sid))
+    p = _Tags()
+    p.feed(page)
+    fault()
+    assert "iframe" not in p.tags and p.tags.count("script") == 2   # the plan's JSON data + our code
+    assert all(src.startswith("data:image/png") for src in p.img_src)  # only the capture images
+    text = "".join(p.text)
+    assert text.count(MARKUP) >= 5 and "The shelf does not stand as seen" in text
+    from console.app import record_view
+    view = record_view(store.load_session(sid))
+    assert literal(view["summary_md"], MARKUP) and literal(view["plans_md"], MARKUP)
+    store.close()
