@@ -517,6 +517,34 @@ def _mean(values: Sequence[float]) -> float | None:
     return sum(values) / len(values) if values else None
 
 
+def _exhaustive_summary(records: Sequence[dict], config: BenchConfig) -> dict:
+    """On scenes small enough for the exhaustive search: is the task solvable on the truth, and
+    per planner its success there, its gap to the minimum and the unsolvable tasks it flagged."""
+    small = [r for r in records if r.get("exhaustive")]
+    exh: dict[str, Any] = {"tasks": len(small), "max_boxes": config.exhaustive_max_boxes}
+    if small:
+        feas = [r for r in small if r["exhaustive"]["feasible"]]
+        infeasible = [r for r in small if not r["exhaustive"]["feasible"]]
+        exh["feasible_rate"] = len(feas) / len(small)
+        exh["feasible_tasks"] = len(feas)
+        for planner in config.planners:
+            rows = [r for r in feas if planner in r["planners"]]
+            if not rows:
+                continue
+            ok = [r for r in rows if r["planners"][planner]["ok"]]
+            exh[planner] = {
+                "infeasible_flagged": sum(not r["planners"][planner].get("safe", True)
+                                          for r in infeasible if planner in r["planners"]),
+                "infeasible_tasks": len(infeasible),
+                "success_rate_on_feasible": len(ok) / len(rows),
+                "mean_gap_removals": _mean([r["planners"][planner]["removed"] - r["exhaustive"]["min_removals"]
+                                            for r in ok]),
+                "optimal_rate": (sum(r["planners"][planner]["removed"] == r["exhaustive"]["min_removals"]
+                                     for r in ok) / len(ok)) if ok else None,
+            }
+    return exh
+
+
 def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
     """Per planner and kind (and 'all'): success, removals, robot time, planning time, displacement."""
     all_records = sorted(records, key=lambda r: r["key"])  # same sums in the same order, however it ran
@@ -553,29 +581,7 @@ def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
                 "success_rate_gain": pa["success_rate"] - bh["success_rate"],
                 "efficiency": (t_bh - t_pa) / t_pa if t_pa else None,
             }
-    # exhaustive ground truth on small scenes
-    small = [r for r in records if r.get("exhaustive")]
-    exh: dict[str, Any] = {"tasks": len(small), "max_boxes": config.exhaustive_max_boxes}
-    if small:
-        feas = [r for r in small if r["exhaustive"]["feasible"]]
-        infeasible = [r for r in small if not r["exhaustive"]["feasible"]]
-        exh["feasible_rate"] = len(feas) / len(small)
-        exh["feasible_tasks"] = len(feas)
-        for planner in config.planners:
-            rows = [r for r in feas if planner in r["planners"]]
-            if not rows:
-                continue
-            ok = [r for r in rows if r["planners"][planner]["ok"]]
-            exh[planner] = {
-                "infeasible_flagged": sum(not r["planners"][planner].get("safe", True)
-                                          for r in infeasible if planner in r["planners"]),
-                "infeasible_tasks": len(infeasible),
-                "success_rate_on_feasible": len(ok) / len(rows),
-                "mean_gap_removals": _mean([r["planners"][planner]["removed"] - r["exhaustive"]["min_removals"]
-                                            for r in ok]),
-                "optimal_rate": (sum(r["planners"][planner]["removed"] == r["exhaustive"]["min_removals"]
-                                     for r in ok) / len(ok)) if ok else None,
-            }
+    exh = _exhaustive_summary(records, config)
     no_truth = [r for r in all_records if r.get("no_truth")]
     return {"format": "shelfpick.bench-results/1", "config": config.to_json(), "table": table,
             "exhaustive": exh, "scenes": len({r["scene"] for r in records}), "tasks": len(records),
