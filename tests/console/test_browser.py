@@ -86,8 +86,14 @@ def until(cond, timeout: float = 30.0, what: str = "condition"):
 
 
 def wait_text(page, text: str, timeout: float = 30.0) -> None:
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     page.bring_to_front()
-    page.wait_for_function("t => document.body.innerText.includes(t)", arg=text, timeout=timeout * 1000)
+    try:
+        page.wait_for_function("t => document.body.innerText.includes(t)", arg=text, timeout=timeout * 1000)
+    except PlaywrightTimeout:
+        shown = " | ".join(ln for ln in page.evaluate("document.body.innerText").splitlines() if ln.strip())
+        raise AssertionError(f"the page never showed {text!r}; it shows: {shown[:1500]}") from None
 
 
 def open_page(context, app):
@@ -131,10 +137,16 @@ def canvas_box(page) -> dict:
 
 
 def click_box_in_3d(page, view, box) -> None:
-    """Click the middle of the box's front face where this browser's camera shows it.
+    """Click the middle of the box's front face where this browser's camera shows it, once the
+    browser shows a clickable box there.
 
     The camera pose is the one the browser reports (orbit state), projected with the
-    canvas size, so the camera is left where the person put it.
+    canvas size, so the camera is left where the person put it. The server has sent the
+    box before the browser draws it: viser applies scene messages at its next animation
+    frame and the pose in the frame after, so a click aimed as soon as the server has sent
+    the box can land on an empty canvas and is lost (1 run in 4). A person clicks what
+    they see: hover until the canvas shows the hand cursor (a clickable node under the
+    pointer), then press.
     """
     import numpy as np
 
@@ -154,9 +166,33 @@ def click_box_in_3d(page, view, box) -> None:
     x = cb["x"] + (1 + ndc_x) * cb["width"] / 2
     y = cb["y"] + (1 - ndc_y) * cb["height"] / 2
     mark("projected")
-    page.mouse.move(x, y)
+    hover_until_clickable(page, x, y)
     page.mouse.down()
     page.mouse.up()
+
+
+def hover_until_clickable(page, x: float, y: float, timeout: float = 15.0) -> None:
+    """Move the pointer to (x, y) until the 3D canvas shows viser's hand cursor there.
+
+    The pointer is moved by a pixel and back on each try: three.js finds what is under
+    the pointer on pointer moves only, so a box drawn after the pointer arrived needs one.
+    """
+    page.bring_to_front()
+    end = time.monotonic() + timeout
+    tries = 0
+    while True:
+        page.mouse.move(x + (tries % 2), y)
+        tries += 1
+        cursor = page.evaluate("""([x, y]) => {
+            const el = document.elementFromPoint(x, y);
+            return el && el.tagName === "CANVAS" ? getComputedStyle(el).cursor : "not the canvas";
+        }""", [x + ((tries - 1) % 2), y])
+        if cursor == "pointer":
+            break
+        assert time.monotonic() < end, f"no clickable box under the pointer at ({x:.0f}, {y:.0f}): {cursor}"
+        time.sleep(0.05)
+    page.mouse.move(x, y)
+    mark(f"hand cursor after {tries} pointer moves")
 
 
 def fill_text(page, label: str, value: str) -> None:
@@ -165,6 +201,15 @@ def fill_text(page, label: str, value: str) -> None:
     field = page.locator(f'xpath=//label[text()="{label}"]/ancestor::div[contains(@class,"mantine-Flex-root")][1]//input')
     field.fill(value)
     field.evaluate("e => e.blur()")
+
+
+def tick(page, label: str) -> None:
+    """Tick a checkbox found, like fill_text's input, in its label's row."""
+    page.bring_to_front()
+    box = page.locator(f'xpath=//label[text()="{label}"]/ancestor::div[contains(@class,"mantine-Flex-root")][1]'
+                       '//input[@type="checkbox"]')
+    if not box.is_checked():
+        box.check(force=True)
 
 
 def bottom_left(scene) -> str:
@@ -214,6 +259,9 @@ def test_operator_plans_approves_executes_and_replays(browser, console, tmp_path
         press(page, "Supervisor", role="tab")
         fill_text(page, "Passphrase", PASS)
         until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
+        if not phys.plan.safe:  # with 2 depth samples the plan may carry a predicted risk: accept it
+            tick(page, "Accept predicted risk")
+            until(lambda: view.accept_risk.value, 10, "risk accepted")
         press(page, "Approve")
         st = until(lambda: wf.state.robot in ("done", "failed", "stopped") and wf.state, 60, "robot run")
         # the physics plan reached the robot; what the robot then did is the true shelf's business
@@ -260,6 +308,9 @@ def test_operator_cannot_approve_supervisor_sees_plan_live(browser, console):
         press(op, "Supervisor", role="tab")
         fill_text(op, "Passphrase", "let me in")
         until(lambda: op_view.passphrase.value == "let me in", 10, "operator typed")
+        if not phys.plan.safe:  # else the refusal is about the risk, before any passphrase check
+            tick(op, "Accept predicted risk")
+            until(lambda: op_view.accept_risk.value, 10, "risk accepted")
         press(op, "Approve")
         wait_text(op, "wrong supervisor passphrase")
         assert wf.state.approved is None and wf.state.robot == "idle"
@@ -267,6 +318,9 @@ def test_operator_cannot_approve_supervisor_sees_plan_live(browser, console):
 
         fill_text(sup, "Passphrase", PASS)
         until(lambda: sup_view.passphrase.value == PASS, 10, "supervisor typed")
+        if not phys.plan.safe:
+            tick(sup, "Accept predicted risk")
+            until(lambda: sup_view.accept_risk.value, 10, "risk accepted")
         press(sup, "Approve")
         st = until(lambda: wf.state.robot in ("done", "failed", "stopped") and wf.state, 60, "robot run")
         assert st.outcome is not None and st.outcome.plan == phys.hash
