@@ -74,8 +74,9 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
     """Each box coloured by id, labelled, with hidden target/risk shells that follow it."""
     colors = colors_for(scene.ids)
     out: dict[str, BoxNodes] = {}
-    for b in scene.boxes:
-        base = f"{prefix}/{b.id}"
+    for i, b in enumerate(scene.boxes):
+        # nodes are named by position, not id: an id from a scene file is outside text ("a/label", "..")
+        base = f"{prefix}/{i}"
         handle = scene_api.add_box(base, color=colors[b.id], dimensions=tuple(b.size),
                                    position=tuple(b.position), wxyz=tuple(b.orientation),
                                    cast_shadow=False, receive_shadow=False)

@@ -162,3 +162,18 @@ def test_replay_shows_outside_text_literally(tmp_path):
     view = record_view(store.load_session(sid))
     assert literal(view["summary_md"], MARKUP) and literal(view["plans_md"], MARKUP)
     store.close()
+
+
+def test_box_ids_from_a_scene_file_do_not_name_scene_nodes(app):
+    """Ids are outside text: 'a/label' or '..' must not land on another box's node."""
+    from console.scene_view import draw_boxes
+    from perception.scene import Box, Scene, Shelf
+
+    a, wf, views, peer = app
+    scene = Scene(Shelf(), (Box("a", (0.2, 0.2, 0.2), (-0.3, 0.1, 0.1)),
+                            Box("a/label", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),
+                            Box("..", (0.2, 0.2, 0.2), (0.3, 0.1, 0.1))))
+    fault()
+    nodes = draw_boxes(a.server.scene, scene)
+    names = {n.box.name for n in nodes.values()} | {n.label.name for n in nodes.values()}
+    assert set(nodes) == {"a", "a/label", ".."} and len(names) == 6
