@@ -10,6 +10,7 @@ connected view at once.
 """
 from __future__ import annotations
 
+import re
 import threading
 import time
 import traceback
@@ -25,6 +26,8 @@ LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
 PLACEHOLDER = np.full((48, 64, 3), 220, dtype=np.uint8)
 MIN_PASSPHRASE = 12          # characters, when the console listens beyond this machine
 MAX_SHOWN = 500              # characters of any outside text shown in the page
+WORD_JOINER = "\u2060"
+_AUTOLINK = re.compile(r"(?i)(?:https?|ftp|mailto|xmpp)(?=:)|www(?=\.)")   # what remark-gfm links
 
 
 class ConsoleError(ShelfpickError):
@@ -51,11 +54,15 @@ def md(value: Any) -> str:
     ASCII punctuation character becomes a numeric character reference: no
     tag, link, image, emphasis or table cell can start inside it, and the
     browser shows exactly the characters that came in. Line breaks and
-    control characters become spaces; long text is clipped.
+    control characters become spaces; long text is clipped. remark-gfm turns
+    URLs and e-mail addresses in decoded text into links, so an invisible
+    word joiner (U+2060) goes before the ":" of a scheme, the "." of "www."
+    and every "@": the text reads the same and links nowhere.
     """
     s = "" if value is None else str(value)
     if len(s) > MAX_SHOWN:
         s = s[:MAX_SHOWN] + "..."
+    s = _AUTOLINK.sub(lambda m: m.group(0) + WORD_JOINER, s).replace("@", WORD_JOINER + "@")
     out = []
     for ch in s:
         o = ord(ch)
