@@ -169,3 +169,14 @@ def test_a_database_path_that_cannot_exist_is_one_line(cmd, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/proc/nope/x.db" in err[0] and "Traceback" not in err[0]
+
+
+@pytest.mark.parametrize("pw", ["a", " ", "short pass  "])
+def test_a_short_passphrase_beyond_localhost_refuses_to_start(pw, capsys, tmp_path):
+    fault()
+    argv = ["console", "--host", "0.0.0.0", "--port", "0", "--no-capture", "--supervisor-passphrase", pw,
+            "--db", str(tmp_path / "p.db")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "at least 12 characters" in err[0]
+    assert not (tmp_path / "p.db").exists()              # refused before anything was opened
