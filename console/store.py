@@ -9,8 +9,16 @@ relative to the database's folder.
 
 viser runs callbacks on a thread pool, so one connection is shared behind a
 lock (`check_same_thread=False`). A database that is locked by another
-process or cannot be written raises `StoreError` with the path and the cause;
-the caller keeps its in-memory session and tells the user.
+process, full or cannot be written raises `StoreError` with the path and the
+cause; the workflow then refuses what needed the record (audit first).
+
+`readonly=True` (`shelfpick sessions`, `shelfpick replay`) never writes: a
+read-only archive lists and replays. A SQLite file that is not a shelfpick
+session log is refused in either mode before anything is written to it.
+The `runs` table says which console runs which plan: after a console died
+mid-run (kill -9), `recover_interrupted` marks the run interrupted and the
+acknowledged step unknown; `step_states` is "never re-send a step", keyed by
+session (one capture) and plan hash.
 """
 from __future__ import annotations
 
