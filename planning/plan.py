@@ -131,7 +131,12 @@ class Plan:
         timing = doc.get("timing", {})
         if not isinstance(timing, Mapping):
             raise FormatError(origin, "timing", f"expected an object, got {timing!r}")
+        for k, v in timing.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise FormatError(origin, f"timing.{k}", f"expected a number of seconds, got {v!r}")
         seed = doc.get("seed")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise FormatError(origin, "seed", f"expected an integer, got {seed!r}")
         known = {"format", "task", "target", "planner", "sequence", "predicted", "safe", "timing", "seed"}
         extra = {k: v for k, v in doc.items() if k not in known}
         return cls(task, target, planner, tuple(seq), predicted, safe, dict(timing), seed, extra)

@@ -44,3 +44,13 @@ def test_check_against_names_unknown_ids():
     plan = Plan("clear", None, "heuristic", ("b1", "b9"))
     with pytest.raises(FormatError, match=r"sequence\[1\]: unknown box id 'b9'"):
         plan.check_against(("b1", "b2"), "plan.json")
+
+
+@pytest.mark.parametrize("field, value", [("seed", "zero"), ("seed", 1.5), ("seed", True),
+                                          ("timing", {"planning_s": "fast"}), ("timing", {"x": None})])
+def test_a_plan_with_a_bad_seed_or_timing_names_the_field(field, value):
+    doc = {"format": "shelfpick.plan/1", "task": "extract", "target": "a", "planner": "physics",
+           "sequence": ["a"], field: value}
+    with pytest.raises(FormatError) as exc:
+        Plan.from_json(doc, "p.json")
+    assert exc.value.field.startswith(field)
