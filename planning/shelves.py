@@ -316,7 +316,7 @@ def _intervals(rng: np.random.Generator, cols: list[tuple[float, float, float]],
 
 
 def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool,
-             proud: float = 0.0) -> list[_Placed]:
+             proud: float = 0.0, cap: float | None = None) -> list[_Placed]:
     """Rows and columns: columns of one box type stacked bottom-up, the lowest filled first.
 
     Structured: upright boxes, a little x jitter, front faces sticking out by
@@ -325,7 +325,7 @@ def _columns(rng: np.random.Generator, n: int, shelf: Shelf, unstructured: bool,
     boxes turn in-plane and shift sideways over the box below (overhangs).
     Never short of room: the columns are drawn to hold n boxes.
     """
-    cap = _cap(n)
+    cap = _cap(n) if cap is None else cap
     slack = 0.03 if unstructured else 0.0
     cols = _draw_columns(rng, n, shelf, cap, slack)
     spans = _intervals(rng, cols, shelf, "columns" if unstructured else "gaps")
@@ -638,16 +638,19 @@ LEAN_ROOM = 0.42   # m of floor kept free beside the columns for a leaning box
 
 def _leaning_on_columns(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
     """Columns on the left of the shelf, and a standing long box leaning on the rightmost one
-    against a box that reaches above it: highest-first takes that box first and drops it."""
+    against a box that reaches above it (highest-first takes that box first); where the columns
+    offer none, against the wall or any stack tall enough."""
     from dataclasses import replace
 
     part = Shelf(shelf.width - LEAN_ROOM, shelf.depth, shelf.height)
     dx = -LEAN_ROOM / 2
     lay = _Layout(shelf)
-    for p in _columns(rng, n - 1, part, unstructured=False):
+    # up to the shelf's top: 13 boxes must fit in the narrower width
+    for p in _columns(rng, n - 1, part, unstructured=False, cap=shelf.height - 0.05):
         hull = None if p.hull is None else p.hull - np.outer(p.hull[:, 0], [0.0, 0.0, dx])
         lay.add(replace(p, position=(p.position[0] + dx, p.position[1], p.position[2]), hull=hull))
-    lean = _lean_on_stack(lay, rng, side=-1)
+    # columns that offer no such box: it leans on the wall or the stack as in unstructured piles
+    lean = _lean_on_stack(lay, rng, side=-1) or _lean(lay, rng, shelf)
     if lean is not None:
         lay.add(lean)
     return lay.placed
