@@ -628,6 +628,11 @@ def to_markdown(summary: dict) -> str:
                          f"{_f(r['plan_p50_s'], '{:.3f}')} | {_f(r['plan_p90_s'], '{:.3f}')} | "
                          f"{_f(None if r['mean_disp_per_step_m'] is None else r['mean_disp_per_step_m'] * 1000, '{:.1f}')} | "
                          f"{_share(r.get('declared_safe_collapsed'), r.get('declared_safe'))} | {r.get('plan_errors', 0)} |")
+    hf = [(k, v["heuristic"]) for k, v in summary["table"].items() if "heuristic" in v]
+    if hf:
+        lines += ["", "Highest-first fails on: " + ", ".join(
+            f"{k} {r['tasks'] - round(r['success_rate'] * r['tasks'])}/{r['tasks']} "
+            f"({_f((1 - r['success_rate']) * 100, '{:.0f}%')})" for k, r in hf) + "."]
     rel = [(k, v["relative"]) for k, v in summary["table"].items() if "relative" in v]
     if rel:
         lines += ["", "Physics-aware relative to the height heuristic (efficiency = (T_bh - T_pa) / T_pa):", "",

@@ -282,3 +282,4 @@ def test_report_counts_declared_safe_collapses_and_scenes_without_truth() -> Non
     assert s["exhaustive"]["physics"]["infeasible_flagged"] == 0
     md = to_markdown(s)
     assert "1/2 (50%)" in md and "Not judged: 1 tasks on 1 scenes" in md and "perception error" in md
+    assert "Highest-first fails on: proud 1/2 (50%)." in md
