@@ -118,6 +118,10 @@ class Draw:
     stands: bool = True                           # False: no attempt stood as observed
     off: Mapping[str, str] = field(default_factory=dict)  # what the returned world contradicts
 
+    @property
+    def repairs(self) -> tuple[str, ...]:
+        return self.sim.repairs
+
 
 def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> dict[str, str]:
     """Boxes of a freshly settled world that did not stand as they were given, with what they did.
@@ -226,7 +230,9 @@ def scene_check(draws: Sequence[Draw]) -> dict:
     problems = {b: whats[0] for b, whats in fails.items() if 2 * len(whats) >= len(draws)}
     return {"stands_as_seen": not problems, "redrawn": redrawn,
             "samples_not_standing": sum(1 for d in draws if not d.stands),
-            "problems": [{"box": b, "what": w} for b, w in sorted(problems.items())]}
+            "problems": [{"box": b, "what": w} for b, w in sorted(problems.items())],
+            # what the first sample world had to repair (overlaps pushed apart, boxes settled)
+            "repairs": list(draws[0].repairs) if draws else []}
 
 
 class _Worlds:
@@ -310,7 +316,7 @@ def _worker(conn) -> None:
                     worlds = None
                     conn.send(("error", exc))
                     continue
-                conn.send(("ready", {i: (d.sim.scene, d.rejected, d.stands, d.off)
+                conn.send(("ready", {i: (d.sim.scene, d.rejected, d.stands, d.off, d.repairs)
                                      for i, d in worlds.draws.items()}))
             elif msg[0] == "pull":
                 _, removed, box, which = msg
@@ -384,6 +390,7 @@ class _Stub:
     rejected: tuple
     stands: bool
     off: Mapping[str, str]
+    repairs: tuple[str, ...]
 
 
 class Predictor:

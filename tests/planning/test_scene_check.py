@@ -56,3 +56,12 @@ def test_the_command_line_warns_and_writes_the_check_into_the_plan(tmp_path, cap
     assert re.search(r"does not stand as observed: box f moves 0\.(29|30)\d m", err)
     doc = json.loads(out.read_text())
     assert doc["safe"] is False and doc["scene_check"]["problems"][0]["box"] == "f"
+
+
+def test_the_check_is_the_same_whatever_the_worker_count():
+    """The pool keeps its worlds in worker processes; the check (repairs included) comes back all the same."""
+    scene = Scene(Shelf(), (cube("a", -0.3, 0.1), cube("b", -0.3, 0.28), cube("f", 0.2, 0.4))).hide_depths()
+    one = make_plan(scene, "extract", "a", samples=2, seed=1, workers=1).extra["scene_check"]
+    two = make_plan(scene, "extract", "a", samples=2, seed=1, workers=2).extra["scene_check"]
+    assert one == two and [p["box"] for p in one["problems"]] == ["f"]
+    assert any("'b'" in r for r in one["repairs"])   # b overlapped a by 2 cm and was lifted
