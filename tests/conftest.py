@@ -12,3 +12,16 @@ os.environ.setdefault("YOLO_CONFIG_DIR", str(ROOT / ".yolo"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 REALDATA = ROOT.parent / "shared" / "realdata"
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """Print the console's safety tally (tests/console/safety_kit.py) at the end of a run that
+    injected any fault: faults injected, unapproved/unrecorded steps, stops that did not stop.
+    (Here, not in tests/console/conftest.py: two conftest modules shadow each other's imports.)"""
+    import sys
+
+    kit = sys.modules.get("safety_kit")
+    if kit is not None and kit.TALLY["faults"]:
+        terminalreporter.write_line(
+            "console fault injection: {faults} faults injected, {unapproved} robot steps ran unapproved, "
+            "{unrecorded} unrecorded, {stops} stops of which {stops_not_stopping} did not stop".format(**kit.TALLY))
