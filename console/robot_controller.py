@@ -6,6 +6,12 @@ integration replaces the body of `_perform` with motion commands; everything
 else (framing, acks, heartbeats, aborts, duplicate refusal) is what such an
 integration needs to get right, and the console's tests run against it.
 
+"Already done" is keyed by the console's run id (`run` in `hello` and each
+`step`), the plan hash and the step: a new capture's run of the same plan is
+a new run and is executed; the same step twice within one run is refused
+with DUPLICATE_STEP. A console that sends no `run` gets the old keying by
+plan hash and step.
+
 It can act on a "truth" scene in its own `ShelfSim`: the grasp point it
 receives (robot base frame) is mapped back through the inverse shelf-to-robot
 transform and the box whose front face is there is pulled out, so what the
@@ -71,7 +77,7 @@ class RobotController:
         self._sim: Any = None
         self._received: list[dict] = []
         self._executed: list[tuple[str, int, str]] = []
-        self._done_keys: set[tuple[str, int]] = set()
+        self._done_keys: set[tuple[str | None, str, int]] = set()   # (run id, plan hash, step)
         self._n_done = 0
         self._conns: set[socket.socket] = set()
         self._server = _Server((host, port), _Handler, bind_and_activate=True)
@@ -140,7 +146,7 @@ class RobotController:
         with self._lock:
             self._conns.add(sock)
         conn = LineConn(sock)
-        state = {"hung": False, "busy": False, "abort": None, "step": None, "closed": False}
+        state = {"hung": False, "busy": False, "abort": None, "step": None, "closed": False, "run": None}
         try:
             while not state["closed"]:
                 try:
@@ -181,6 +187,11 @@ class RobotController:
                 self._send(conn, state, {"type": "error", "code": "BAD_REQUEST",
                                          "message": f"unsupported protocol {msg.get('protocol')!r}"})
                 return
+            if "run" in msg and not _run_id_ok(msg["run"]):
+                self._send(conn, state, {"type": "error", "code": "BAD_REQUEST",
+                                         "message": f"run must be a string of 1-{MAX_RUN_ID} characters"})
+                return
+            state["run"] = msg.get("run")
             self._send(conn, state, {"type": "hello", "protocol": PROTOCOL, "robot": self.name,
                                      "executes": "truth-sim" if self.truth is not None else "acknowledge"})
         elif kind == "ping":
@@ -193,8 +204,9 @@ class RobotController:
             if state["busy"] and state["abort"] is not None:
                 state["abort"].set()  # the worker answers `aborted` (or `done` if it already finished)
             else:  # nothing running; say whether that step had already finished
+                key = (msg.get("run", state["run"]), msg.get("plan"), msg.get("step"))
                 with self._lock:
-                    finished = (msg.get("plan"), msg.get("step")) in self._done_keys
+                    finished = key in self._done_keys
                 self._send(conn, state, {"type": "aborted", "plan": msg.get("plan"), "step": msg.get("step"),
                                          "completed": finished})
         elif kind == "bye":
@@ -213,6 +225,10 @@ class RobotController:
             problem = "step needs grasp.point and grasp.approach as 3 numbers"
         elif not isinstance(msg.get("pull_distance"), (int, float)) or not 0 < msg["pull_distance"] < 2.0:
             problem = f"pull_distance must be in (0, 2) m, got {msg.get('pull_distance')!r}"
+        elif "run" in msg and not _run_id_ok(msg["run"]):
+            problem = f"run must be a string of 1-{MAX_RUN_ID} characters"
+        elif state["run"] is not None and msg.get("run", state["run"]) != state["run"]:
+            problem = "step names another run than this connection's hello"
         if problem:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step, "code": "BAD_REQUEST",
                                      "message": problem})
@@ -221,11 +237,12 @@ class RobotController:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step, "code": "BUSY",
                                      "message": f"step {state['step']} is still running"})
             return
+        run = msg.get("run", state["run"])
         with self._lock:
-            dup = (plan, step) in self._done_keys
+            dup = (run, plan, step) in self._done_keys
         if dup:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step, "code": "DUPLICATE_STEP",
-                                     "message": f"step {step} of plan {plan} was already executed"})
+                                     "message": f"step {step} of plan {plan} was already executed in run {run}"})
             return
         if step in self.refuse_steps:
             self._send(conn, state, {"type": "error", "plan": plan, "step": step, "code": "REFUSED",
@@ -237,7 +254,7 @@ class RobotController:
         self._send(conn, state, {"type": "ack", "plan": plan, "step": step, "box": box})
         abort = threading.Event()
         state["abort"], state["step"], state["busy"] = abort, step, True
-        threading.Thread(target=self._run_step, args=(conn, state, msg, abort),
+        threading.Thread(target=self._run_step, args=(conn, state, {**msg, "run": run}, abort),
                          name=f"robot-step-{step}", daemon=True).start()
 
     def _run_step(self, conn: LineConn, state: dict, msg: dict, abort: threading.Event) -> None:
@@ -259,7 +276,7 @@ class RobotController:
             return
         with self._lock:
             self._executed.append((plan, step, box))
-            self._done_keys.add((plan, step))
+            self._done_keys.add((msg["run"], plan, step))
             self._n_done += 1
             n_done = self._n_done
         if self.drop_during == step:
@@ -302,6 +319,13 @@ class RobotController:
             return False, {"code": "PICK_FAILED", "message": f"box did not come out ({res.note or 'stuck'})",
                            **detail}
         return True, detail
+
+
+MAX_RUN_ID = 200  # characters of a run id
+
+
+def _run_id_ok(v: Any) -> bool:
+    return isinstance(v, str) and 0 < len(v) <= MAX_RUN_ID
 
 
 def _vec3(v: Any) -> bool:

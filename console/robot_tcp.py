@@ -11,6 +11,10 @@ error stops the sequence; steps that were confirmed `done` are remembered per
 plan hash and never sent again; a step that was in flight when the link
 dropped is `unknown` and blocks that plan for good (a new capture and plan
 are needed: the shelf may have changed).
+
+Every run carries a `run` id in `hello` and each `step`: the robot keys "this
+step was already done" by run and step, so a new capture's run of the same
+plan hash is executed while a repeated step within one run is refused.
 """
 from __future__ import annotations
 
@@ -29,7 +33,7 @@ from perception.scene import Box, Scene, quat_to_matrix, read_json
 from planning.plan import Plan
 
 from console.robot_types import (HISTORY, RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
-                                 query_float)
+                                 new_run_id, query_float)
 
 PROTOCOL = "shelfpick.robot/1"
 MAX_LINE = 1 << 20      # bytes in one line
@@ -157,9 +161,14 @@ def grasp_for(box: Box, scene: Scene, transform: Transform) -> dict:
             "box_size": rnd(box.size)}
 
 
-def step_message(plan_hash: str, step: int, box: Box, scene: Scene, transform: Transform) -> dict:
-    return {"type": "step", "plan": plan_hash, "step": step, "box": box.id, "frame": "robot_base",
-            **grasp_for(box, scene, transform)}
+def step_message(plan_hash: str, step: int, box: Box, scene: Scene, transform: Transform,
+                 run: str | None = None) -> dict:
+    msg = {"type": "step", "plan": plan_hash, "step": step, "box": box.id, "frame": "robot_base",
+           **grasp_for(box, scene, transform)}
+    if run is not None:
+        msg["run"] = run
+    return msg
+
 
 
 # --------------------------------------------------------------------------
@@ -300,6 +309,8 @@ class TcpRobot:
         self.timeouts = timeouts or Timeouts()
         self.history = history or HISTORY
         self.robot_info: dict = {}
+        self.run_id: str | None = None       # set by the console (recorded with the run); None: one per run
+        self.last_run_id: str | None = None  # the id the last execute() sent
 
     @classmethod
     def from_spec(cls, spec: str) -> "TcpRobot":
@@ -432,7 +443,8 @@ class TcpRobot:
             return finish(plan, h, statuses, msg, self.history, ep)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         conn = LineConn(sock)
-        run = _Run(plan, h, scene, on_event, stop, statuses)
+        run = _Run(plan, h, scene, on_event, stop, statuses, self.run_id or new_run_id())
+        self.last_run_id = run.run_id
         try:
             error = self._session(conn, run, todo)
         except _Lost as exc:
@@ -448,7 +460,7 @@ class TcpRobot:
     def _session(self, conn: LineConn, run: "_Run", todo: list[int]) -> str | None:
         """Handshake, then the steps in order; the first error, stop or lie ends it (returns why)."""
         self._send(conn, {"type": "hello", "protocol": PROTOCOL, "client": "shelfpick",
-                          "plan": run.hash, "steps": len(run.plan.sequence)})
+                          "plan": run.hash, "steps": len(run.plan.sequence), "run": run.run_id})
         hello = self._wait(conn, {"hello", "error"}, time.monotonic() + self.timeouts.ack, run.stop, "hello")
         if hello == "stop":
             i, box = todo[0], run.plan.sequence[todo[0]]
@@ -467,7 +479,7 @@ class TcpRobot:
             if error is not None:
                 return error
         try:
-            conn.send({"type": "bye", "plan": run.hash})
+            conn.send({"type": "bye", "plan": run.hash, "run": run.run_id})
         except OSError:
             pass
         return None
@@ -477,7 +489,7 @@ class TcpRobot:
         box_id = run.plan.sequence[i]
         if run.stop.is_set():
             return self._abort(conn, run, None, i)
-        msg = step_message(run.hash, i, run.scene.box(box_id), run.scene, self.transform)
+        msg = step_message(run.hash, i, run.scene.box(box_id), run.scene, self.transform, run.run_id)
         run.pending = i  # sent, not acknowledged: the robot must not move before its ack
         self._send(conn, msg)
         expect = (run.hash, i, box_id)
@@ -560,7 +572,8 @@ class TcpRobot:
         box = run.plan.sequence[i]
         want = {"aborted", "done", "error"} if step is not None else {"aborted", "error"}
         try:
-            self._send(conn, {"type": "abort", "plan": run.hash, "step": step, "reason": reason})
+            self._send(conn, {"type": "abort", "plan": run.hash, "step": step, "reason": reason,
+                              "run": run.run_id})
             reply = self._wait(conn, want, time.monotonic() + self.timeouts.abort, None, "abort confirmation",
                                (run.hash, step, box if step is not None else None))
         except _Lost as exc:
@@ -597,6 +610,7 @@ class _Run:
     on_event: Callable[[RobotEvent], None]
     stop: threading.Event
     statuses: dict[int, dict]
+    run_id: str                  # sent in hello and every step: the robot keys "already done" by it
     pending: int | None = None   # sent, not yet acknowledged
     current: int | None = None   # acknowledged, not yet done: unknown if the link drops
 
@@ -642,4 +656,4 @@ def check_reply(msg: Mapping[str, Any], plan_hash: str, step: int | None, box: s
 
 
 __all__ = ["TcpRobot", "Transform", "Timeouts", "LineConn", "ProtocolError", "FloodError", "PROTOCOL",
-           "ERROR_CODES", "grasp_for", "step_message", "check_reply", "reply_detail", "clip"]
+           "ERROR_CODES", "grasp_for", "step_message", "new_run_id", "check_reply", "reply_detail", "clip"]

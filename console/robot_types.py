@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+import secrets
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Protocol
@@ -140,6 +141,16 @@ def finish(plan: Plan, plan_hash: str, statuses: dict[int, dict], error: str | N
     return RobotOutcome(completed, ok, error, tuple(steps), plan_hash, needs_replan=not ok)
 
 
+def new_run_id(prefix: str = "") -> str:
+    """A run id no other run shares: `prefix` (the console puts its session there) + 96 random bits.
+
+    Sent to a TCP robot with every step (it keys "already done" by it) and
+    recorded with the run's start. An identity, not a draw that changes any
+    result, so it takes no seed (like the store's owner token).
+    """
+    return f"{prefix}{secrets.token_hex(12)}"
+
+
 # --------------------------------------------------------------------------
 def query_float(q: dict[str, list[str]], key: str, spec: str, default: float) -> float:
     """A non-negative number option of a robot spec's query string, or `default`."""
@@ -155,4 +166,4 @@ def query_float(q: dict[str, list[str]], key: str, spec: str, default: float) ->
 
 
 __all__ = ["EVENT_KINDS", "REPLAN", "RobotError", "RobotEvent", "RobotOutcome", "RobotDriver", "StepHistory",
-           "HISTORY", "emit", "finish", "query_float"]
+           "HISTORY", "emit", "finish", "new_run_id", "query_float"]

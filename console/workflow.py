@@ -185,6 +185,7 @@ class _Run:
     audit_failed: str | None = None  # a robot event that could not be committed: the run was stopped
     scene: Any = None                # the perceived and (demo) true scene of the approved capture
     truth: Any = None
+    robot_run: str = ""              # the run id sent to the robot (keys its "already done"); recorded
 
 
 class Workflow:
@@ -659,9 +660,13 @@ class Workflow:
             self._set(approved=None, robot="running", robot_events=(), outcome=None, error=None,
                       message=f"robot: starting the {run.entry.plan.planner} plan {run.plan_hash}")
         try:
+            from console.robot_types import new_run_id
+
             done = self._steps_before(run)
+            run.robot_run = new_run_id(f"s{run.session_id}-")
             rid = self.store.start_run(run.session_id, run.plan_hash, run.decision_id,
-                                       {"sequence": list(run.entry.plan.sequence), "who": run.who})
+                                       {"sequence": list(run.entry.plan.sequence), "who": run.who,
+                                        "robot_run": run.robot_run})
         except Exception as exc:  # noqa: BLE001 - audit first: no committed start, no motion
             msg = exc.args[0] if isinstance(exc, WorkflowError) else self._audit_failed("the robot start", exc)
             with self._lock:
@@ -721,6 +726,8 @@ class Workflow:
         try:
             robot = self.robot_factory(run.truth, self.seed)
             _seed_history(robot, run.plan_hash, done_before)
+            if hasattr(robot, "run_id"):
+                robot.run_id = run.robot_run
             if run.stop.is_set():
                 err = "robot: stopped before the first step"
             else:

@@ -270,3 +270,125 @@ def test_controller_hangs_up_on_a_flooding_console_and_serves_the_next() -> None
         conn.close()
         out, _ = run(driver(ctl), clear_plan(("b0",)), row_scene())
     assert out.ok and out.completed == ("b0",)
+
+
+# ---------------------------------------------------------------------- the run id
+def step_line(plan: str, step: int, box: str, run: str | None) -> dict:
+    msg = {"type": "step", "plan": plan, "step": step, "box": box, "frame": "robot_base",
+           "grasp": {"point": [0.0, 0.0, 0.1], "approach": [0.0, 1.0, 0.0], "normal": [0.0, -1.0, 0.0]},
+           "pull_distance": 0.3, "box_size": [0.2, 0.2, 0.2]}
+    return msg if run is None else {**msg, "run": run}
+
+
+def test_two_runs_of_one_plan_hash_both_execute_each_with_its_own_run_id() -> None:
+    """A new capture that gives the same sequence is a new run: the reference controller executes it
+    (it used to answer DUPLICATE_STEP, keyed by plan hash and step alone)."""
+    from console.robot_types import StepHistory
+
+    plan, scene = clear_plan(), row_scene()
+    with RobotController() as ctl:
+        outs = []
+        for _ in range(2):   # the console gives each run a fresh history of what this capture did
+            robot = driver(ctl, history=StepHistory())
+            outs.append((run(robot, plan, scene)[0], robot.last_run_id))
+        hellos, steps = ctl.received("hello"), ctl.received("step")
+        executed = ctl.executed
+    (out1, run1), (out2, run2) = outs
+    assert out1.ok and out2.ok, (out1.error, out2.error)
+    assert run1 and run2 and run1 != run2
+    assert [h["run"] for h in hellos] == [run1, run2]
+    assert [(m["run"], m["step"]) for m in steps] == [(run1, i) for i in range(4)] + [(run2, i) for i in range(4)]
+    assert executed == [(plan.content_hash(), i, f"b{i}") for i in range(4)] * 2
+
+
+def test_a_repeated_step_within_one_run_is_refused() -> None:
+    """Same run id, same step: DUPLICATE_STEP, on the same connection and on a reconnect; a step that
+    names another run than its hello is a bad request; a console that sends no run id keeps the old
+    keying by plan hash and step."""
+    with RobotController() as ctl:
+        def session(run_id: str | None) -> LineConn:
+            conn = LineConn(socket.create_connection(ctl.address, timeout=2))
+            hello = {"type": "hello", "protocol": "shelfpick.robot/1", "plan": "p1", "steps": 2}
+            conn.send(hello if run_id is None else {**hello, "run": run_id})
+            assert conn.recv(2)["type"] == "hello"
+            return conn
+
+        def ask(conn: LineConn, step: int, run_id: str | None) -> list[str]:
+            conn.send(step_line("p1", step, f"b{step}", run_id))
+            kinds = [conn.recv(2)]
+            if kinds[0]["type"] == "ack":
+                kinds.append(conn.recv(2))
+            return [m["type"] if m["type"] != "error" else m["code"] for m in kinds]
+
+        conn = session("run-A")
+        assert ask(conn, 0, "run-A") == ["ack", "done"]
+        assert ask(conn, 0, "run-A") == ["DUPLICATE_STEP"]
+        assert ask(conn, 1, "run-B") == ["BAD_REQUEST"]             # not this connection's run
+        conn.close()
+        conn = session("run-A")                                    # a reconnect of the same run
+        assert ask(conn, 0, "run-A") == ["DUPLICATE_STEP"]
+        assert ask(conn, 1, "run-A") == ["ack", "done"]
+        conn.close()
+        conn = session("run-C")                                    # another run: done again
+        assert ask(conn, 0, "run-C") == ["ack", "done"]
+        conn.close()
+        conn = session(None)                                       # no run id: keyed by plan and step
+        assert ask(conn, 0, None) == ["ack", "done"]
+        assert ask(conn, 0, None) == ["DUPLICATE_STEP"]
+        conn.send({"type": "hello", "protocol": "shelfpick.robot/1", "run": 7})
+        assert conn.recv(2)["code"] == "BAD_REQUEST"
+        conn.close()
+        assert len(ctl.executed) == 4     # run-A 0 and 1, run-C 0, the run-less 0
+
+
+def test_the_driver_refused_as_duplicate_when_it_resends_within_its_run() -> None:
+    """The robot's refusal is a second line of defence: a driver whose history was lost but whose run
+    id is the same (a retry of one run) is refused before anything moves, and says so."""
+    from console.robot_types import StepHistory
+
+    plan, scene = clear_plan(("b0", "b1")), row_scene()
+    with RobotController() as ctl:
+        first = driver(ctl, history=StepHistory())
+        first.run_id = "s7-retry"
+        assert run(first, plan, scene)[0].ok
+        again = driver(ctl, history=StepHistory())
+        again.run_id = "s7-retry"
+        out, events = run(again, plan, scene)
+        executed = ctl.executed
+    assert not out.ok and "DUPLICATE_STEP" in out.error and out.completed == ()
+    assert [e.kind for e in events] == ["error"] and out.steps[0]["status"] == "error"
+    assert len(executed) == 2
+
+
+def test_the_console_records_the_run_id_it_sends_and_a_new_capture_runs_again(tmp_path: Path) -> None:
+    """Through the workflow and a real SQLite file: each run's start event holds the run id the
+    reference controller received; the second capture of the same shelf (same plan hash) executes."""
+    from console.store import SessionStore
+    from console.workflow import Workflow
+    from test_workflow import PASS, CodeShelfSource, small_scene
+
+    store = SessionStore(tmp_path / "runs.sqlite")
+    with RobotController() as ctl:
+        wf = Workflow(CodeShelfSource(small_scene()), store,
+                      lambda truth, seed: open_robot(ctl.url, truth=truth, seed=seed), PASS, samples=2)
+        done = []
+        for _ in range(2):
+            wf.capture()
+            st = wf.plan("clear", wait=True)
+            entry = st.plans["physics"]
+            wf.approve(entry.hash, PASS, "sue", accept_risk=True)
+            st = wf.execute(wait=True)
+            st = wf.wait_robot(30)
+            assert st.robot == "done", (st.error, st.outcome)
+            done.append((st.session_id, entry.hash))
+        steps = ctl.received("step")
+    assert done[0][1] == done[1][1] and done[0][0] != done[1][0]
+    recorded = []
+    for sid, _ in done:
+        starts = [e for e in store.load_session(sid).robot_events if e["kind"] == "start"]
+        assert len(starts) == 1
+        recorded.append(starts[0]["detail"]["robot_run"])
+    store.close()
+    assert recorded[0].startswith(f"s{done[0][0]}-") and recorded[0] != recorded[1]
+    n = len(steps) // 2
+    assert n > 0 and [m["run"] for m in steps] == [recorded[0]] * n + [recorded[1]] * n
