@@ -122,7 +122,7 @@ def robot_markdown(state: State) -> str:
     for ev in state.robot_events[-8:]:
         step = f" step {ev.step + 1}" if isinstance(ev.step, int) else ""
         note = ""
-        if ev.kind in ("error", "disconnected", "aborted") and ev.detail:
+        if ev.kind in ("error", "disconnected", "aborted", "note") and ev.detail:
             note = ": " + md(ev.detail.get("message") or ev.detail.get("reason") or ev.detail.get("code") or "")
         lines.append(f"- {md(ev.kind)}{step}" + (f" {md(ev.box)}" if ev.box else "") + note)
     out = state.outcome

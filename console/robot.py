@@ -11,6 +11,12 @@ Two drivers meet the `RobotDriver` protocol:
 - `TcpRobot` ("tcp://HOST:PORT", console/robot_tcp.py): line-delimited JSON
   to a robot-side controller (docs/robot-protocol.md).
 
+The physics adjusts a world that does not stand as given (a floating box
+drops, overlapping boxes are pushed apart). `SimRobot` reports those repairs
+of its world as a `note` event before the first step, so the console stores
+them with the run and shows them (escaped) to the operator, not only on the
+server's stderr.
+
 Both honour the `stop` event between steps, never re-send a step that a
 previous run of the same plan (same content hash) completed, and stop the
 sequence on the first error or collapse: the shelf is no longer what the
@@ -79,6 +85,7 @@ class SimRobot:
         self._lock = threading.Lock()
         self._history = StepHistory()
         self._endpoint = f"sim:{id(self)}"
+        self._repairs_told = False   # the repairs of the current world were reported
 
     def set_truth(self, truth: Scene | None) -> None:
         """A new shelf in front of the robot (a new demo capture): rebuild the world."""
@@ -91,6 +98,7 @@ class SimRobot:
         if self._sim is not None:
             self._sim.close()
             self._sim = None
+        self._repairs_told = False
 
     def close(self) -> None:
         with self._lock:
@@ -116,6 +124,20 @@ class SimRobot:
             return self._sim.scene.with_boxes(
                 replace(base[i], position=tuple(p), orientation=tuple(q)) for i, (p, q) in poses.items())
 
+    def _tell_repairs(self, sim: Any, on_event: Callable[[RobotEvent], None]) -> None:
+        """Once per world: what the physics moved to make it stand, as a `note` event (stored, shown)."""
+        if self._repairs_told:
+            return
+        self._repairs_told = True
+        repairs = [str(r) for r in getattr(sim, "repairs", ()) or ()]
+        if not repairs:
+            return
+        world = "true shelf" if self.truth is not None else "shelf (the perceived scene: no ground truth)"
+        emit(on_event, RobotEvent("note", None, None, {
+            "code": "WORLD_REPAIRED", "repairs": repairs,
+            "message": f"the simulated robot's {world} did not stand as given; the physics adjusted it "
+                       f"before the first step: " + "; ".join(repairs)}))
+
     def _present_boxes(self) -> dict[str, Box]:
         from dataclasses import replace
 
@@ -135,6 +157,7 @@ class SimRobot:
                 emit(on_event, RobotEvent("error", None, None, {"code": "WORLD", "message": str(exc)}))
                 return finish(plan, h, statuses, f"the simulated robot cannot build its world: {exc}",
                               self._history, self._endpoint)
+            self._tell_repairs(sim, on_event)
             note = {} if self.truth is not None else {"note": "no ground truth: executing on the perceived scene"}
             earlier = self._history.completed(self._endpoint, h)
             for i, box in enumerate(plan.sequence):

@@ -19,7 +19,7 @@ from planning.plan import Plan
 
 log = logging.getLogger("console.robot")
 
-EVENT_KINDS = ("ack", "done", "error", "aborted", "disconnected")
+EVENT_KINDS = ("ack", "done", "error", "aborted", "disconnected", "note")  # note: no step, no fault
 REPLAN = "a new capture and plan are needed"
 
 
@@ -29,7 +29,8 @@ class RobotError(ShelfpickError):
 
 @dataclass(frozen=True)
 class RobotEvent:
-    """One thing the robot reported: `ack` (step accepted), `done`, `error`, `aborted`, `disconnected`."""
+    """One thing the robot reported: `ack` (step accepted), `done`, `error`, `aborted`, `disconnected`,
+    or a `note` (`detail.message`: something the operator must read that is no step's outcome)."""
 
     kind: str
     step: int | None = None

@@ -99,3 +99,83 @@ def test_open_robot_sim_spec() -> None:
         open_robot("sim?speed=2")
     with pytest.raises(RobotError, match="delay: expected a number"):
         open_robot("sim?delay=fast")
+
+
+HOSTILE = "<img src=x onerror=alert(1)>"
+
+
+def test_repairs_of_the_true_world_are_a_note_event_once_per_world() -> None:
+    """A true shelf that does not stand as given (a box floating 10 cm) is adjusted by the physics;
+    the robot says so in a `note` event before the first step, not only on stderr."""
+    truth = stack_scene().with_boxes(list(stack_scene().boxes) + [Box(HOSTILE, (0.1, 0.1, 0.1), (-0.3, 0.12, 0.15))])
+    robot = SimRobot(truth, seed=0)
+    try:
+        with pytest.warns(UserWarning):
+            out, events = run(robot, Plan("extract", "b2", "physics", ("b2",)), truth)
+        out2, events2 = run(robot, Plan("extract", "b1", "physics", ("b1",)), truth)   # same world: told once
+    finally:
+        robot.close()
+    assert out.ok and [e.kind for e in events] == ["note", "ack", "done"]
+    note = events[0]
+    assert note.step is None and note.box is None and note.detail["code"] == "WORLD_REPAIRED"
+    [repair] = note.detail["repairs"]
+    assert repair.startswith(f"box {HOSTILE!r} dropped onto its support: moved 0.1")
+    assert "true shelf did not stand as given" in note.detail["message"] and HOSTILE in note.detail["message"]
+    assert out2.ok and "note" not in [e.kind for e in events2]
+    standing = SimRobot(stack_scene(), seed=0)
+    try:
+        out3, events3 = run(standing, Plan("extract", "b2", "physics", ("b2",)), stack_scene())
+    finally:
+        standing.close()
+    assert out3.ok and [e.kind for e in events3] == ["ack", "done"]    # nothing repaired, nothing said
+
+
+class _FloatingTruthSource:
+    """The camera sees three standing boxes; the true shelf also holds a box floating out of view."""
+
+    name = "floating-truth"
+
+    def __init__(self) -> None:
+        from test_workflow import small_scene
+
+        self.scene = small_scene()
+        self.truth = self.scene.with_boxes(list(self.scene.boxes) + [
+            Box(HOSTILE, (0.08, 0.1, 0.08), (0.45, 0.2, 0.5))])
+        self.n = 0
+
+    def capture(self):
+        from console.sources import Frame
+        from perception.render import render
+
+        self.n += 1
+        return Frame(render(self.scene, seed=2), self.truth, f"floating-truth-{self.n}")
+
+
+def test_the_console_stores_and_shows_the_robot_world_repairs_escaped(tmp_path) -> None:
+    """Through the workflow and a real SQLite file: the note is a stored robot event of the run and
+    reaches the page's robot panel as literal text (no tag)."""
+    from console.app import robot_markdown
+    from console.store import SessionStore
+    from console.workflow import Workflow
+    from test_workflow import PASS, sim_factory
+
+    store = SessionStore(tmp_path / "repairs.sqlite")
+    try:
+        wf = Workflow(_FloatingTruthSource(), store, sim_factory(), PASS, samples=2, seed=0)
+        wf.capture()
+        st = wf.plan("clear", wait=True)
+        entry = st.plans["physics"]
+        wf.approve(entry.hash, PASS, "sue", accept_risk=True)
+        with pytest.warns(UserWarning):
+            wf.execute(wait=True)
+        st = wf.wait_robot(30)
+        stored = [e for e in store.load_session(st.session_id).robot_events if e["kind"] == "note"]
+    finally:
+        store.close()
+    notes = [e for e in st.robot_events if e.kind == "note"]
+    assert len(notes) == 1 and len(stored) == 1
+    assert stored[0]["detail"]["code"] == "WORLD_REPAIRED" and HOSTILE in stored[0]["detail"]["repairs"][0]
+    assert stored[0]["step"] is None and stored[0]["plan_hash"] == entry.hash
+    page = robot_markdown(st)
+    assert "- note: " in page and "dropped onto its support" in page
+    assert "<img" not in page and "&#60;img src&#61;x onerror&#61;alert" in page
