@@ -48,7 +48,8 @@ class RobotOutcome:
     `completed`: boxes of this plan the robot has taken out (including those
     of an earlier run of the same plan hash, which were not re-sent), in plan
     order. `steps`: one dict per plan step: `step`, `box`, `status`
-    (done | skipped | error | aborted | unknown | not_sent) and `detail`.
+    (done | skipped | error | aborted | unknown | unacknowledged | not_sent)
+    and `detail`.
     `ok`: every step done, nothing collapsed, no error.
     """
 
