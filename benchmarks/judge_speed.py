@@ -1,0 +1,77 @@
+"""Planning speed on the independent judge's shelves: make_plan wall and CPU time, p50 / p90.
+
+The judge's 10-14 box extraction tasks (``../shared/judge/tasks.json``), observed as its camera
+model gives them (``observe.py``, imported at run time, never copied), planned one after the other in
+this process the way ``shelfpick plan`` plans (its defaults), and timed: wall time (what an operator
+waits for; inflated on a loaded machine) and CPU time of this process and its workers.
+
+    .venv/bin/python benchmarks/judge_speed.py --judge-dir ../shared/judge --workers 2 --noise 0
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+
+def _pct(values: list[float], q: float) -> float:
+    v = sorted(values)
+    k = (len(v) - 1) * q
+    lo = int(k)
+    hi = min(lo + 1, len(v) - 1)
+    return v[lo] + (v[hi] - v[lo]) * (k - lo)
+
+
+def _cpu() -> float:
+    """CPU seconds of this process and its finished children (a pool keeps its workers alive: with
+    --workers > 1 their CPU is not counted, read the wall time)."""
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--judge-dir", default=str(Path(__file__).resolve().parents[2] / "shared" / "judge"))
+    ap.add_argument("--noise", type=float, default=0.0, help="perception error of observe.py, m (default 0)")
+    ap.add_argument("--workers", type=int, default=1, help="make_plan workers (default 1)")
+    ap.add_argument("--samples", type=int, default=10)
+    ap.add_argument("--limit", type=int, default=None, help="only the first N tasks")
+    ap.add_argument("--min-boxes", type=int, default=10)
+    ap.add_argument("--max-boxes", type=int, default=14)
+    args = ap.parse_args(argv)
+    sys.path.insert(0, args.judge_dir)
+    from observe import observed  # the judge's camera model, run from its own folder
+
+    from perception.scene import Scene
+    from planning.planner import make_plan
+
+    tasks = [t for t in json.load(open(os.path.join(args.judge_dir, "tasks.json")))
+             if args.min_boxes <= t["n_boxes"] <= args.max_boxes][: args.limit]
+    walls, cpus = [], []
+    for t in tasks:
+        truth = json.load(open(os.path.join(args.judge_dir, "scenes", t["scene"] + ".json")))
+        scene = Scene.from_json(observed(truth, noise=args.noise, seed=int(t["scene"][1:]) + 17), t["scene"])
+        c0, w0 = _cpu(), time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            plan = make_plan(scene, "extract", t["target"], samples=args.samples, workers=args.workers)
+        walls.append(time.perf_counter() - w0)
+        cpus.append(_cpu() - c0)
+        print(f"{t['scene']}:{t['target']} {len(scene.boxes)} boxes  wall {walls[-1]:.2f} s  cpu {cpus[-1]:.2f} s  "
+              f"pulls {plan.extra['search'].get('pulls', 0)}  steps {len(plan.sequence)}", flush=True)
+    print(f"{len(tasks)} tasks of {args.min_boxes}-{args.max_boxes} boxes, workers {args.workers}, noise {args.noise}: "
+          f"wall p50 {_pct(walls, 0.5):.2f} s p90 {_pct(walls, 0.9):.2f} s; "
+          f"cpu p50 {_pct(cpus, 0.5):.2f} s p90 {_pct(cpus, 0.9):.2f} s; load {os.getloadavg()[0]:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
