@@ -656,6 +656,52 @@ def _leaning_on_columns(rng: np.random.Generator, n: int, shelf: Shelf) -> list[
     return lay.placed
 
 
+def _leaning_on_overhang(rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
+    """A long box lying on a column of two cubes (and on a second column if there is room),
+    sticking 20-23 cm out on the right, a standing long box leaning (18-23 deg) on that end,
+    and the rest dropped on top. Highest-first takes the long box before the leaning one
+    (its top is higher), and the leaning box falls 20 cm onto the cubes."""
+    cube, long_ = BOX_TYPES["cube"], BOX_TYPES["long"]
+    w, d, h = STANDING_LONG
+    lay = _Layout(shelf)
+    phi = math.radians(float(rng.uniform(18.0, 23.0)))
+    reach = h * math.sin(phi) + w * math.cos(phi) + 0.01        # floor the leaning box needs
+    end = shelf.width / 2 - GAP - reach                          # the long box's right end
+    long_c = end - long_[0] / 2
+    cube_c = long_c - float(rng.uniform(0.05, 0.075))
+    cy = float(rng.uniform(-0.02, 0.03)) + long_[1] / 2
+    columns = [cube_c] + ([cube_c - cube[0] - 0.012] if cube_c - 1.5 * cube[0] > -shelf.width / 2 + GAP else [])
+    for cx in columns:
+        for _ in range(2):
+            p = lay.upright(cube, cx, cube[1] / 2 + float(rng.uniform(-0.02, 0.03)), 0.0, min_support=0.5)
+            if p is None:
+                return lay.placed
+            lay.add(p)
+    bridge = lay.upright(long_, long_c, cy, 0.0, min_support=0.2)
+    if bridge is None:
+        return lay.placed
+    lay.add(bridge)
+    lean = _leaning_at(lay, end, -1, phi, cy)
+    if lean is not None:
+        lay.add(lean)
+    _drop_rest(lay, rng, n)
+    return lay.placed
+
+
+def _drop_rest(lay: _Layout, rng: np.random.Generator, n: int) -> None:
+    """Upright boxes of random types dropped where they land low until there are n (or no room)."""
+    types = list(BOX_TYPES.values())
+    for _ in range(6 * n):
+        if len(lay.placed) >= n:
+            return
+        t = types[int(rng.integers(len(types)))]
+        for cx, cy in _landing_spots(lay, rng, t, 0.0, 8, pile=True):
+            p = lay.upright(t, cx, cy, 0.0, min_support=0.4)
+            if p is not None and p.position[2] + t[2] / 2 <= lay.shelf.height - 0.05:
+                lay.add(p)
+                break
+
+
 def _hard(kind: str, rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Placed]:
     """The stacks where highest-first collapses often (HARD_KINDS)."""
     if kind == "proud":
@@ -663,6 +709,8 @@ def _hard(kind: str, rng: np.random.Generator, n: int, shelf: Shelf) -> list[_Pl
     if kind == "bridge":
         return _scattered(rng, n, shelf, bridges=3)
     if kind == "lean":
+        if rng.random() < 0.6:
+            return _leaning_on_overhang(rng, n, shelf)
         return _leaning_on_columns(rng, n, shelf)
     return _columns(rng, n, shelf, unstructured=True)   # overhang: turned, shifted columns at any size
 
@@ -709,6 +757,28 @@ def _masses(mass_range: tuple[float, float] | None, n: int, seed: int, kind: str
         return [None] * n
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, KINDS.index(kind), attempt, 7919])
     return [round(float(m), 3) for m in rng.uniform(mass_range[0], mass_range[1], n)]
+
+
+def _reload_problem(scene: Scene) -> str:
+    """A shelf written is a truth: read back into a fresh simulation it must come to rest where it
+    is (a column rocking on a light box can pass the first settle and not the next). '' when it does."""
+    from planning.sim import ShelfSim
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            sim = ShelfSim(scene)
+        except SceneError as exc:
+            return f"read back, it does not stand: {exc}"
+    try:
+        after = {b.id: b.position for b in sim.scene.boxes}
+        gone = set(scene.ids) - set(sim.present())
+    finally:
+        sim.close()
+    moved = max((math.dist(b.position, after[b.id]) for b in scene.boxes if b.id in after), default=0.0)
+    if gone or moved > STILL_LIMIT:
+        return f"read back, boxes moved {moved * 100:.1f} cm or fell ({sorted(gone)})"
+    return ""
 
 
 def _settle(scene: Scene) -> Scene:
@@ -776,6 +846,11 @@ def generate(kind: str, seed: int, n_boxes: int | None = None, *, settle: bool =
         boxes = _order(list(settled.boxes))
         mass = {b.id: b.mass for b in scene.boxes}
         rename = [Box(f"b{i}", b.size, b.position, b.orientation, mass[b.id]) for i, b in enumerate(boxes)]
-        return Scene(SHELF, tuple(rename), source=scene.source)
+        out = Scene(SHELF, tuple(rename), source=scene.source)
+        why = _reload_problem(out)
+        if why:
+            last = why
+            continue
+        return out
     raise SceneError(f"no {kind} shelf with {n_boxes} boxes for seed {seed} after "
                      f"{MAX_ATTEMPTS} attempts (last: {last})")

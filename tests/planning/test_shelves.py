@@ -182,3 +182,23 @@ def test_hard_shelves_are_at_rest_with_their_masses() -> None:
     with ShelfSim(scene) as sim:
         drift = sim.idle(1.0)
     assert max(drift.values()) < 0.01, drift
+
+
+def test_lean_kind_can_lean_on_a_long_box_overhanging_cubes() -> None:
+    """The layout where highest-first takes the long box first and the leaning box falls onto
+    the cubes: a standing long box leans on the end of a long box lying across cube columns."""
+    found = 0
+    for seed in range(6):
+        scene = generate("lean", seed, 10)
+        lean = [b for b in scene.boxes if abs(b.orientation[2]) > 0.1]
+        lying = [b for b in scene.boxes if max(b.size) > 0.4 and b.size[0] > 0.4 and abs(b.orientation[2]) < 0.05]
+        found += any(abs(lb.position[0] - (b.position[0] + b.size[0] / 2)) < 0.2 and lb.top_z < b.top_z + 0.3
+                     for lb in lean for b in lying if b.position[2] > 0.15)
+    assert found >= 2
+
+
+def test_written_shelves_stand_when_read_back() -> None:
+    from planning.shelves import _reload_problem
+
+    for kind in ("lean", "proud"):
+        assert _reload_problem(generate(kind, 4, 10)) == ""
