@@ -92,6 +92,27 @@ def box_texture(rng: np.random.Generator, size: int = 96) -> np.ndarray:
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
+def plain_box_texture(rng: np.random.Generator, size: int = 96) -> np.ndarray:
+    """Plain cardboard (size x size x 3 uint8 RGB): a kraft or white tone with grain, maybe
+    corrugation, a shade gradient and darker edges; no tape, no label, no print. Why: the
+    rules were fitted to printed and taped boxes; a plain face has no inner edge to lean on."""
+    h = w = size
+    tones = CARDBOARD_RGB[:6] + CARDBOARD_RGB[9:]
+    img = np.empty((h, w, 3), float)
+    img[:] = _jitter(tones[rng.integers(len(tones))], rng, 0.08)
+    img += rng.normal(0, rng.uniform(1, 5), (h, w, 1))
+    if rng.random() < 0.5:
+        stripes = np.sin(np.arange(w) * 2 * np.pi / rng.uniform(2.5, 5.0)) * rng.uniform(1, 3)
+        img += stripes[None, :, None]
+    yy, xx = np.mgrid[0:h, 0:w] / size
+    img *= (1 + rng.uniform(-0.1, 0.1) * (xx - 0.5) + rng.uniform(-0.1, 0.1) * (yy - 0.5))[:, :, None]
+    edge = max(1, size // 40)
+    dark = rng.uniform(0.85, 0.98)
+    for sl in (np.s_[:edge], np.s_[-edge:], np.s_[:, :edge], np.s_[:, -edge:]):
+        img[sl] *= dark
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
 def plain_texture(rng: np.random.Generator, rgb: tuple[int, int, int], size: int = 32,
                   grain: float = 4.0) -> np.ndarray:
     """A flat colour with some grain (shelf boards, walls, background)."""
@@ -121,4 +142,4 @@ def write_png(path: str | Path, img: np.ndarray) -> Path:
     return p
 
 
-__all__ = ["box_texture", "plain_texture", "write_png", "CARDBOARD_RGB", "SHELF_RGB", "BACKGROUND_RGB"]
+__all__ = ["box_texture", "plain_box_texture", "plain_texture", "write_png", "CARDBOARD_RGB", "SHELF_RGB", "BACKGROUND_RGB"]

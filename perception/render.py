@@ -198,8 +198,11 @@ def _build_shelf(b: _Builder, scene: Scene, rng: np.random.Generator) -> None:
           texture=plain_texture(rng, BACKGROUND_RGB[rng.integers(len(BACKGROUND_RGB))]))
 
 
+LOOKS = ("printed", "plain", "mixed")
+
+
 def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: bool = True,
-           front_only: bool = True) -> Capture:
+           front_only: bool = True, looks: str = "printed", varied_light: bool = False) -> Capture:
     """Render `scene` into a Capture with ground-truth masks (labels 1..N, visible boxes only).
 
     Masks hold each box's visible FRONT face (its local -y face), the part
@@ -208,11 +211,17 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
 
     `seed` draws the looks (cardboard, tape, labels, shelf paint, lighting) and
     the noise; `noise=False` gives the exact z-depth and the clean colour image.
+    `looks`: "printed" (tape, labels, print: what the rules were tuned on), "plain"
+    (`cardboard.plain_box_texture`: no tape, no label) or "mixed" (each box either);
+    `varied_light`: dimmer to brighter ambient light, harder shadows and a wider colour cast
+    than the tuned renders. The defaults draw exactly what they drew before (same seed, same image).
     """
+    if looks not in LOOKS:
+        raise ValueError(f"looks must be one of {LOOKS}, got {looks!r}")
     import pybullet as p
     from pybullet_utils.bullet_client import BulletClient
 
-    from perception.cardboard import box_texture
+    from perception.cardboard import box_texture, plain_box_texture
 
     cam = camera or scene.camera or default_camera()
     rng = np.random.default_rng(seed)
@@ -223,23 +232,14 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
             _build_shelf(builder, scene, rng)
             body_to_box: dict[int, str] = {}
             for box in scene.boxes:
+                plain = looks == "plain" or (looks == "mixed" and rng.random() < 0.5)
+                tex = (plain_box_texture if plain else box_texture)(rng, size=int(rng.choice([64, 96, 128])))
                 body = builder.box(tuple(x / 2 for x in box.size), box.position,
-                                   wxyz_to_xyzw(box.orientation),
-                                   texture=box_texture(rng, size=int(rng.choice([64, 96, 128]))))
+                                   wxyz_to_xyzw(box.orientation), texture=tex)
                 body_to_box[body] = box.id
-            light_dir = [float(rng.uniform(-1.5, 1.5)), float(rng.uniform(-2.5, -0.5)),
-                         float(rng.uniform(1.0, 3.0))]
-            warm = float(rng.uniform(-0.08, 0.08))
             _, _, rgba, zbuf, seg = client.getCameraImage(
                 cam.width, cam.height, gl_view_matrix(cam), gl_projection_matrix(cam),
-                lightDirection=light_dir,
-                lightColor=[1.0 + warm, 1.0, 1.0 - warm],
-                lightDistance=3.0,
-                shadow=int(rng.random() < 0.6),
-                lightAmbientCoeff=float(rng.uniform(0.35, 0.7)),
-                lightDiffuseCoeff=float(rng.uniform(0.3, 0.65)),
-                lightSpecularCoeff=float(rng.uniform(0.0, 0.15)),
-                renderer=p.ER_TINY_RENDERER)
+                renderer=p.ER_TINY_RENDERER, **_lighting(rng, varied_light))
     finally:
         client.disconnect()
     h, w = cam.height, cam.width
@@ -254,6 +254,20 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
         rgb = _camera_look(rgb, rng)
         z = DepthNoise().apply(z, rng)
     return Capture(rgb, z, cam, masks, labels)
+
+
+def _lighting(rng: np.random.Generator, varied: bool) -> dict:
+    """getCameraImage light arguments; `varied` widens every range (the draws of the default
+    ranges are unchanged, so old seeds render the same images)."""
+    light_dir = [float(rng.uniform(-1.5, 1.5)), float(rng.uniform(-2.5, -0.5)), float(rng.uniform(1.0, 3.0))]
+    warm = float(rng.uniform(-0.08, 0.08)) * (2.0 if varied else 1.0)
+    shadow = int(rng.random() < (0.8 if varied else 0.6))
+    amb = (0.2, 0.8) if varied else (0.35, 0.7)
+    dif = (0.2, 0.8) if varied else (0.3, 0.65)
+    spec = (0.0, 0.3) if varied else (0.0, 0.15)
+    return {"lightDirection": light_dir, "lightColor": [1.0 + warm, 1.0, 1.0 - warm], "lightDistance": 3.0,
+            "shadow": shadow, "lightAmbientCoeff": float(rng.uniform(*amb)),
+            "lightDiffuseCoeff": float(rng.uniform(*dif)), "lightSpecularCoeff": float(rng.uniform(*spec))}
 
 
 def _instance_masks(scene: Scene, cam: Camera, seg: np.ndarray, z: np.ndarray,
