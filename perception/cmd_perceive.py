@@ -11,8 +11,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rgb", required=True, help="colour image (PNG/JPEG)")
     p.add_argument("--depth", help="depth image (uint16 PNG in camera depth_scale units, or .npy)")
     p.add_argument("--camera", required=True, help="shelfpick.camera/1 file (intrinsics + pose)")
-    p.add_argument("--weights", help="YOLO11n-seg weights (.pt); implies --segmenter yolo")
-    p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo"), default="auto",
+    p.add_argument("--weights", help="YOLO11n-seg weights (.pt); implies --segmenter yolo "
+                   "(with --segmenter learned: a shelfpick-learned checkpoint)")
+    p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo", "learned"), default="auto",
                    help="auto: given weights, else depth-and-edge (default); photo: the experimental "
                         "segmenter for photos without depth (docs/perception-photos.md)")
     p.add_argument("--out", required=True, help="scene JSON to write")

@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--distance", type=float, default=None,
                    help="render from the default camera moved back to this many m from the shelf front "
                         "(re-pitched to the same aim point; default 1.05)")
-    p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo"), default="auto",
+    p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo", "learned"), default="auto",
                    help="auto: depth-and-edge for RGB-D, the photo segmenter for photos without depth")
     p.add_argument("--weights", help="YOLO11n-seg weights for --segmenter yolo/auto")
     p.add_argument("--out", default="perceive-bench", help="folder for report.md and report.json")

