@@ -114,7 +114,7 @@ def _varied_size(rng: np.random.Generator, shelf: Shelf) -> tuple[tuple[float, f
     return (round(w, 3), round(d, 3), round(h, 3)), False
 
 
-def sample_varied_scene(seed: int, n_boxes: int = 9) -> Scene:
+def sample_varied_scene(seed: int, n_boxes: int = 10) -> Scene:
     """A seeded shelf of the new variety: shelf 0.9-1.3 m wide and 0.30-0.50 m deep; cartons of
     the three types or any other size; columns structured (fronts flush) or scattered; boxes
     turned up to 20 deg about the vertical, leaning back against the wall or sideways, and proud
@@ -134,7 +134,7 @@ def sample_varied_scene(seed: int, n_boxes: int = 9) -> Scene:
         if roll < 0.3:
             variant, rot = "turned", _rot("z", float(rng.choice([-1, 1]) * rng.uniform(5, 20)))
         elif roll < 0.42 and d + h * 0.35 < shelf.depth - 0.01:
-            variant, rot = "leaning-back", _rot("x", float(rng.uniform(6, 18)))
+            variant, rot = "leaning-back", _rot("x", -float(rng.uniform(6, 18)))
         elif roll < 0.52 and boxes:
             variant, rot = "leaning-side", _rot("y", float(rng.uniform(6, 18)))
         elif roll < 0.65:
@@ -159,11 +159,14 @@ def sample_varied_scene(seed: int, n_boxes: int = 9) -> Scene:
         top = _aabb_of(base)[1, 2]
         support = base
         # stack on upright or turned supports only (a leaning box carries nothing)
-        while variant in ("upright", "turned", "proud") and len(boxes) < n_boxes and rng.random() < 0.75:
-            size2, typed2 = _varied_size(rng, shelf)
-            w2, d2, h2 = size2
+        while variant in ("upright", "turned", "proud") and len(boxes) < n_boxes and rng.random() < 0.85:
             sup = _aabb_of(support)
-            if w2 > (sup[1, 0] - sup[0, 0]) + 0.02 or top + h2 > 1.0 or d2 > shelf.depth - 0.01:
+            for _ in range(6):                       # a few draws for one that fits on the support
+                size2, typed2 = _varied_size(rng, shelf)
+                w2, d2, h2 = size2
+                if w2 <= (sup[1, 0] - sup[0, 0]) + 0.02 and top + h2 <= 1.1 and d2 <= shelf.depth - 0.01:
+                    break
+            else:
                 break
             v2, r2 = ("turned", _rot("z", float(rng.choice([-1, 1]) * rng.uniform(5, 20)))) \
                 if rng.random() < 0.3 else ("upright", np.eye(3))

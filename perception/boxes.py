@@ -34,6 +34,7 @@ class FrontFace:
     distance: float              # median camera depth over the eroded mask (m)
     pixels: int
     rect_px: tuple               # cv2 rotated rect in the image, for the overlay
+    tilt: float = 0.0            # elevation of the face normal (box +y) above the horizontal, deg
 
     @property
     def size_cm(self) -> str:
@@ -42,7 +43,7 @@ class FrontFace:
 
     def to_json(self) -> dict:
         return {"center": list(self.center), "width": self.width, "height": self.height,
-                "angle": self.angle, "yaw": self.yaw, "distance": self.distance, "pixels": self.pixels}
+                "angle": self.angle, "yaw": self.yaw, "tilt": self.tilt, "distance": self.distance, "pixels": self.pixels}
 
 
 def _rect_long_edge(pts: np.ndarray) -> tuple[tuple[float, float], float, float, float]:
@@ -70,8 +71,13 @@ def _rect_long_edge(pts: np.ndarray) -> tuple[tuple[float, float], float, float,
     return centre, width, height, angle  # type: ignore[return-value]
 
 
+# a face whose 3-D plane tilts less than this (deg) is taken as vertical (upright boxes keep the
+# vertical-plane fit they were measured with before); chosen on the tuning set 20000-20019
+TILT_SNAP = 3.0
+
+
 def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px: int = 3,
-                  angle_snap: float = 1.0) -> FrontFace | None:
+                  angle_snap: float = 1.0, tilt_snap: float = TILT_SNAP) -> FrontFace | None:
     """Measure one mask's front face; None when the mask has too little valid depth.
 
     Works on the mask's bounding box (the camera's principal point shifted with it):
@@ -88,7 +94,7 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     x0, x1 = max(0, cols[0] - pad), min(mask.shape[1], cols[-1] + pad + 1)
     if (y0, x0, y1, x1) != (0, 0) + mask.shape:
         sub = replace(camera, cx=camera.cx - x0, cy=camera.cy - y0)
-        f = measure_front(mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], sub, erode_px, angle_snap)
+        f = measure_front(mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], sub, erode_px, angle_snap, tilt_snap)
         if f is None:
             return None
         (rx, ry), rs, ra = f.rect_px
@@ -131,9 +137,14 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
             centre = np.median(pts[inl], axis=0)
             pts = pts[inl]
     yaw = math.degrees(math.atan2(-normal[0], normal[1]))
+    tilt, yaw3 = _tilt(pts, centre)
+    if abs(tilt) >= tilt_snap:
+        yaw = yaw3                       # a leaning face: the 3-D plane's own yaw
+    else:
+        tilt = 0.0                       # an upright face: the vertical plane, as before
     if abs(yaw) < 2.0:
         yaw = 0.0
-    normal = np.array([-math.sin(math.radians(yaw)), math.cos(math.radians(yaw)), 0.0])
+    normal = face_normal(yaw, tilt)
     # outline of the full mask cast onto the plane
     contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
@@ -172,7 +183,39 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     c3 = centre + ex * (x_lo + x_hi) / 2 + ez * (z_lo + z_hi) / 2
     rect_px = cv2.minAreaRect(outline.astype(np.float32))
     return FrontFace(tuple(float(x) for x in c3), float(width), float(height), float(angle),  # type: ignore[arg-type]
-                     float(yaw), dmed, int(m.sum()), rect_px)
+                     float(yaw), dmed, int(m.sum()), rect_px, float(tilt))
+
+
+def _tilt(pts: np.ndarray, centre: np.ndarray, rounds: int = 3) -> tuple[float, float]:
+    """(tilt, yaw) in degrees of the plane through the face's points, fitted in 3-D by least
+    squares with outlier rejection (points beyond 3x the median residual, at least 4 mm, are
+    dropped and the plane refitted). Why: a box leaning back or forward shows a face whose
+    normal leaves the horizontal; the vertical-plane fit would put its top and bottom edges at
+    the wrong depth. tilt > 0: the inward normal (box +y) points up, the face leans forward."""
+    p = pts
+    c = centre
+    n = np.array([0.0, 1.0, 0.0])
+    for _ in range(rounds):
+        if len(p) < 10:
+            break
+        c = p.mean(axis=0)
+        n = np.linalg.svd(p - c, full_matrices=False)[2][2]
+        if n[1] < 0:
+            n = -n
+        res = np.abs((p - c) @ n)
+        keep = res < max(0.004, 3.0 * float(np.median(res)))
+        if keep.all():
+            break
+        p = p[keep]
+    tilt = math.degrees(math.asin(max(-1.0, min(1.0, float(n[2])))))
+    return tilt, math.degrees(math.atan2(-n[0], n[1]))
+
+
+def face_normal(yaw: float, tilt: float = 0.0) -> np.ndarray:
+    """The inward unit normal (box +y) of a face turned `yaw` deg about shelf z whose normal
+    rises `tilt` deg above the horizontal."""
+    y, t = math.radians(yaw), math.radians(tilt)
+    return np.array([-math.sin(y) * math.cos(t), math.cos(y) * math.cos(t), math.sin(t)])
 
 
 def _wquant(x: np.ndarray, w: np.ndarray, qs: tuple[float, float]) -> tuple[float, float]:
@@ -183,9 +226,9 @@ def _wquant(x: np.ndarray, w: np.ndarray, qs: tuple[float, float]) -> tuple[floa
 
 
 def face_axes(face: FrontFace) -> np.ndarray:
-    """Box rotation matrix (columns: box x, y, z in the shelf frame) of a measured face."""
-    yaw = math.radians(face.yaw)
-    n = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    """Box rotation matrix (columns: box x, y, z in the shelf frame) of a measured face: its
+    normal from yaw and tilt, its x axis the plane's horizontal turned by the in-plane angle."""
+    n = face_normal(face.yaw, face.tilt)
     u = np.cross(n, [0.0, 0.0, 1.0])
     u /= np.linalg.norm(u)
     v = np.cross(u, n)
@@ -205,7 +248,8 @@ def box_from_face(face: FrontFace, box_id: str, label: int, shelf: Shelf,
     pos = np.asarray(face.center) + rot[:, 1] * depth / 2
     return Box(box_id, (face.width, depth, face.height), tuple(float(x) for x in pos),  # type: ignore[arg-type]
                matrix_to_quat(rot), None, False, label,
-               {"perceived": {"angle_deg": round(face.angle, 3), "distance": round(face.distance, 4)}})
+               {"perceived": {"angle_deg": round(face.angle, 3), "yaw_deg": round(face.yaw, 3),
+                              "tilt_deg": round(face.tilt, 3), "distance": round(face.distance, 4)}})
 
 
 # --------------------------------------------------------------------------
