@@ -37,6 +37,19 @@ def _cpu() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
+def _fingerprint(task: dict, plan: dict) -> dict:
+    """What a plan decides, without what depends on the machine (times)."""
+    drop = {"timing", "time", "seconds", "wall", "elapsed"}
+
+    def strip(v):
+        if isinstance(v, dict):
+            return {k: strip(x) for k, x in v.items() if k not in drop}
+        if isinstance(v, list):
+            return [strip(x) for x in v]
+        return v
+    return {"task": f"{task['scene']}:{task['target']}", "plan": strip(plan)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--judge-dir", default=str(Path(__file__).resolve().parents[2] / "shared" / "judge"))
@@ -46,27 +59,42 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="only the first N tasks")
     ap.add_argument("--min-boxes", type=int, default=10)
     ap.add_argument("--max-boxes", type=int, default=14)
+    ap.add_argument("--dump", default=None,
+                    help="write each plan (sequence, safety, risks; no timings) as a JSON line: diff two "
+                         "runs to show a refactoring left the plans unchanged")
     args = ap.parse_args(argv)
     sys.path.insert(0, args.judge_dir)
     from observe import observed  # the judge's camera model, run from its own folder
 
     from perception.scene import Scene
+    from planning.bullet_clients import ClientPool
     from planning.planner import make_plan
+    from planning.worker_pool import WorkerPool
 
     tasks = [t for t in json.load(open(os.path.join(args.judge_dir, "tasks.json")))
              if args.min_boxes <= t["n_boxes"] <= args.max_boxes][: args.limit]
     walls, cpus = [], []
+    dump = open(args.dump, "w") if args.dump else None
+    # what a long-running planner (the console) keeps between plans: Bullet clients and workers
+    clients = ClientPool()
+    pool = WorkerPool(args.workers) if args.workers > 1 else None
     for t in tasks:
         truth = json.load(open(os.path.join(args.judge_dir, "scenes", t["scene"] + ".json")))
         scene = Scene.from_json(observed(truth, noise=args.noise, seed=int(t["scene"][1:]) + 17), t["scene"])
         c0, w0 = _cpu(), time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            plan = make_plan(scene, "extract", t["target"], samples=args.samples, workers=args.workers)
+            plan = make_plan(scene, "extract", t["target"], samples=args.samples, workers=args.workers,
+                             pool=pool, clients=clients)
         walls.append(time.perf_counter() - w0)
+        if dump:
+            dump.write(json.dumps(_fingerprint(t, plan.to_json()), sort_keys=True) + "\n")
         cpus.append(_cpu() - c0)
         print(f"{t['scene']}:{t['target']} {len(scene.boxes)} boxes  wall {walls[-1]:.2f} s  cpu {cpus[-1]:.2f} s  "
               f"pulls {plan.extra['search'].get('pulls', 0)}  steps {len(plan.sequence)}", flush=True)
+    clients.close()
+    if pool is not None:
+        pool.close()
     print(f"{len(tasks)} tasks of {args.min_boxes}-{args.max_boxes} boxes, workers {args.workers}, noise {args.noise}: "
           f"wall p50 {_pct(walls, 0.5):.2f} s p90 {_pct(walls, 0.9):.2f} s; "
           f"cpu p50 {_pct(cpus, 0.5):.2f} s p90 {_pct(cpus, 0.9):.2f} s; load {os.getloadavg()[0]:.1f}")

@@ -32,24 +32,22 @@ def _pct(v: list[float], q: float) -> float:
     return v[lo] + (v[hi] - v[lo]) * (k - lo)
 
 
-def _cpu() -> float:
+def _cpu(pool=None) -> float:
     """CPU seconds of this process, its waited-for children and the live pool workers.
 
-    The Predictor's pool processes outlive it (they wait in an idle list for the
-    next Predictor), so their CPU time is read from /proc while they live.
+    The pool's processes outlive each Predictor (the pool keeps them for the
+    next one), so their CPU time is read from /proc while they live.
     """
     import os
     import resource
-
-    from planning import predict
 
     own = time.process_time()
     ch = resource.getrusage(resource.RUSAGE_CHILDREN)
     tick = os.sysconf("SC_CLK_TCK")
     workers = 0.0
-    for proc, _ in list(predict._IDLE_WORKERS):
+    for pid in (pool.pids() if pool is not None else []):
         try:
-            with open(f"/proc/{proc.pid}/stat") as fh:
+            with open(f"/proc/{pid}/stat") as fh:
                 f = fh.read().rsplit(")", 1)[1].split()
             workers += (int(f[11]) + int(f[12])) / tick   # utime, stime
         except (OSError, IndexError, ValueError):
@@ -84,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     from perception.scene import Scene
     from planning.predict import Predictor
     from planning.shelves import generate
+    from planning.worker_pool import WorkerPool
 
     config = PhysicsConfig.from_json(json.loads(args.physics), "--physics") if args.physics else None
     out = Path(args.out)
@@ -102,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     import os
 
     load_start = os.getloadavg()
+    pool = WorkerPool(args.workers) if args.workers > 1 else None
     rows = []
     bar = tqdm(total=len(work), desc="plan speed", unit="scene")
     with warnings.catch_warnings():
@@ -124,8 +124,8 @@ def main(argv: list[str] | None = None) -> int:
                        [truth.ids[int(i)] for i in rng.choice(len(truth.ids), min(args.targets, len(truth.ids)), replace=False)])
             for t in targets:
                 t0 = time.perf_counter()
-                c0 = _cpu()
-                pred = (Predictor(hidden, args.samples, s, config, workers=args.workers)
+                c0 = _cpu(pool)
+                pred = (Predictor(hidden, args.samples, s, config, workers=args.workers, pool=pool)
                         if args.workers > 1 else None)
                 try:
                     plan = make_plan(hidden, task, t, "physics", args.samples, s, risk=0.0, config=config,
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
                     if pred is not None:
                         pred.close()
                 dt = time.perf_counter() - t0
-                dc = _cpu() - c0
+                dc = _cpu(pool) - c0
                 ex = execute_plan(truth, plan.sequence, seed=s)   # the default physics: the truth
                 row = {"group": g, "kind": kind, "seed": s, "n_boxes": n, "target": t,
                              "plan_s": dt, "cpu_s": dc, "ok": bool(ex.ok), "removed": len(plan.sequence),
@@ -145,6 +145,8 @@ def main(argv: list[str] | None = None) -> int:
                     fh.write(json.dumps(row) + "\n")
             bar.update()
     bar.close()
+    if pool is not None:
+        pool.close()
     summary = {}
     for g in groups:
         r = [x for x in rows if x["group"] == g and "plan_s" in x]

@@ -12,7 +12,8 @@ from typing import Any, Sequence
 
 from perception.scene import Scene
 from planning.physics import PhysicsConfig
-from planning.sim import ShelfSim, StepResult
+from planning.sim import ShelfSim
+from planning.step_result import StepResult
 
 VERDICT_FORMAT = "shelfpick.verdict/1"
 

@@ -44,6 +44,14 @@ class PhysicsConfig:
     early_clear: bool = True            # park the box once nothing leans on it any more ...
     clear_time: float = 0.02            # ... for this long (s)
     gripper_size: tuple[float, float, float] = (0.06, 0.04, 0.06)  # suction cup body, m
+    gripper_gap: float = 1e-3           # m between the cup and the face it holds
+    disturbance_smoothing: float = 0.3  # share of the way to the next vibration set point per step
+    contact_slop: float = 1e-3          # m: a contact point this far apart still touches
+    support_normal: float = 0.5         # |normal z| above this: a contact that carries weight
+    engage_force_weights: float = 0.05  # normal force (in weights of the pulled box) that still drags it
+    record_fps: float = 30.0            # frames per second of sim time in a recorded pull
+    lift_clearance: float = 0.002       # m kept free above a lifted box
+    lift_footprint_shrink: float = 0.003  # m a box above must overlap the lifted one's footprint to bound it
     # settling
     settle_time: float = 1.0            # s, most time the rest gets to settle after a step
     initial_settle_time: float = 3.0    # s, most time a fresh scene gets to come to rest
@@ -56,6 +64,8 @@ class PhysicsConfig:
     # those); the other boxes stand in as static copies of themselves
     prediction_local: bool = True       # the Predictor's sample worlds use it; execution never does
     local_margin: float = 0.02          # m between bounding boxes that still counts as near
+    support_overlap: float = 0.005      # m two footprints overlap when one box stands on another ...
+    support_tilt: float = 0.03          # ... whose top may be this far above the upper one's bottom (tilt)
     # verdicts
     collapse_displacement: float = 0.02     # m from the step's start to its end
     collapse_rotation: float = 10.0         # degrees from the step's start to its end
@@ -70,6 +80,9 @@ class PhysicsConfig:
     repair_tolerance: float = 0.02      # m of overlap repaired; more is refused
     repair_min_overlap: float = 0.003   # m; shallower overlaps are resting contact, left to Bullet
     settle_report: float = 0.005        # m a box must move while a new scene settles to be reported
+    repair_rounds: int = 30             # passes of pushing overlapping boxes apart
+    repair_push: float = 2e-4           # m pushed past the overlap each pass
+    fallen_below: float = 0.02          # m below the shelf floor: a box is off the shelf
     # a perceived shelf is measured to about 1 cm per face (docs/physics.md): its sample worlds
     # repair overlaps up to `prediction_repair_tolerance`, and a box that then moves more than
     # `stand_tolerance` (or turns more than `stand_rotation`) while settling did not stand as seen
@@ -77,6 +90,7 @@ class PhysicsConfig:
     stand_tolerance: float = 0.03       # m
     stand_rotation: float = 8.0         # degrees
     stand_nudge: float = 0.5            # rad/s of the knock a standing shelf must survive (ShelfSim.nudge)
+    off_shelf_front: float = 0.3        # m in front of the shelf: a settled box there fell off it
     # shelf model
     shelf_top: bool = True
     wall_thickness: float = 0.05
@@ -127,4 +141,4 @@ _POSITIVE = {"gravity", "density", "time_step", "solver_iterations", "prediction
              "rest_angular_velocity", "collapse_displacement", "collapse_rotation",
              "collapse_velocity", "collapse_angular_velocity", "collapse_peak_displacement",
              "collapse_peak_rotation", "repair_tolerance", "stand_tolerance", "stand_rotation",
-             "wall_thickness", "min_sample_depth"}
+             "wall_thickness", "min_sample_depth", "record_fps", "repair_rounds"}

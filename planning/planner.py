@@ -17,12 +17,15 @@ from perception.scene import Scene
 from planning.clear import search_clear, visit_order
 from planning.extract import CountingOracle, search_extract, success_prob
 from planning.heuristic import heuristic_order
+from planning.oracle import Predicting, Screening
 from planning.plan import TASKS, Plan, StepPrediction
+from planning.predict import Predictor
 
 if TYPE_CHECKING:  # pragma: no cover
+    from planning.bullet_clients import ClientPool
     from planning.physics import PhysicsConfig
-    from planning.predict import Predictor
     from planning.uncertainty import Uncertainty
+    from planning.worker_pool import WorkerPool
 
 PLANNERS = ("physics", "heuristic")
 
@@ -59,18 +62,19 @@ def evaluate_sequence(sequence: tuple[str, ...],
 
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
               samples: int = 10, seed: int = 0, risk: float = 0.0,
-              config: "PhysicsConfig | None" = None, predictor: "Predictor | None" = None,
+              config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
               *, budget_s: float | None = None, origin: str = "", workers: int = 1,
-              model: "Uncertainty | None" = None) -> Plan:
+              model: "Uncertainty | None" = None, pool: "WorkerPool | None" = None,
+              clients: "ClientPool | None" = None) -> Plan:
     """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
 
-    `predictor` (anything with ``trial(removed, box) -> StepPrediction``) is
+    `predictor` (a `planning.oracle.Predicting`; a `Screening` one is used to the full) is
     reused when given (the console and the benchmark keep one per scene);
     otherwise one is built from `scene` with `samples` draws of what the camera
     cannot know (`model`, default `Uncertainty()`: depth, mass, friction, face
     error, the pull) and
-    `seed` (over `workers` processes: same plan, less wait), and closed
-    afterwards. `budget_s` bounds the physics search; when it runs out the plan says so (``extra["search"]["timed_out"]``).
+    `seed` (over `workers` processes of `pool`, or of a pool of its own: same plan,
+    less wait; Bullet clients from `clients` when given), and closed afterwards. `budget_s` bounds the physics search; when it runs out the plan says so (``extra["search"]["timed_out"]``).
     """
     check_request(scene, task, target, planner, samples, risk, origin)
     if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
@@ -82,16 +86,17 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
 
     own = predictor is None
     if own:
-        from planning.predict import Predictor
-        predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers, model=model)
+        predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers, model=model,
+                              pool=pool, clients=clients)
+    sampling = predictor if isinstance(predictor, Screening) else None
     try:
-        if own and scene.depth_known:
+        if own and scene.depth_known and sampling is not None:
             # the predictor keeps its worlds quiet; with known depths its one world
             # is the scene itself, so what it repaired is worth telling the user
-            for msg in getattr(getattr(predictor, "sims", [None])[0], "repairs", ()):
+            for msg in sampling.scene_check.get("repairs", ()):
                 warnings.warn(f"scene repaired: {msg}", stacklevel=2)
         t_ready = time.perf_counter()
-        stats = getattr(predictor, "stats", None)
+        stats = sampling.stats if sampling is not None else None
         pulls0 = stats.get("pulls", 0) if isinstance(stats, dict) else 0
         oracle = CountingOracle(predictor.trial)
         screened: set[tuple[frozenset[str], str]] = set()
@@ -106,13 +111,14 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             deadline = None if budget_s is None else time.monotonic() + budget_s
             # the fast path (docs/speed.md): a Predictor samples a candidate only until it
             # can no longer be safe, and finds the least risky box without sampling all
-            screen = getattr(predictor, "screen", None)
-            fast = None
-            if screen is not None:
+            fast = least = None
+            if sampling is not None:
+                screen = sampling.screen
+
                 def fast(r: frozenset[str], b: str) -> StepPrediction:
                     screened.add((frozenset(r), b))
                     return screen(r, b, risk)
-            least = getattr(predictor, "least_risky", None)
+                least = sampling.least_risky
             if task == "extract":
                 res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
                                      screen=fast)
@@ -134,7 +140,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     safe = all(p.risk <= risk for p in predicted)
     search["success_prob"] = success_prob(predicted)
     extra: dict[str, Any] = {"search": search}
-    check = getattr(predictor, "scene_check", None)
+    check = sampling.scene_check if sampling is not None else None
     if isinstance(check, dict):
         extra["scene_check"] = check
         # a shelf that does not stand as seen was not observed right: nothing planned on it is safe

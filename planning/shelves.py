@@ -30,6 +30,7 @@ import numpy as np
 
 from perception.errors import SceneError, ShelfpickError
 from perception.scene import BOX_TYPES, Box, Scene, Shelf, quat_to_matrix
+from planning.geometry3 import rot_angle_deg
 
 Kind = Literal["structured", "unstructured", "proud", "bridge", "lean", "overhang"]
 # the last four are stacks where the highest-first baseline collapses often (docs/bench.md):
@@ -809,8 +810,7 @@ def _settle(scene: Scene) -> Scene:
         side = math.hypot(a.position[0] - b.position[0], a.position[1] - b.position[1])
         drop = b.position[2] - a.position[2]
         move = max(side, abs(drop) - sink if drop > 0 else -drop)
-        dot = abs(sum(x * y for x, y in zip(a.orientation, b.orientation)))
-        turn = math.degrees(2 * math.acos(min(1.0, dot)))
+        turn = rot_angle_deg(a.orientation, b.orientation)
         if move > SETTLE_MOVE_LIMIT or turn > SETTLE_TURN_LIMIT:
             raise SceneError(f"box {b.id} moved {move * 100:.1f} cm / {turn:.0f} deg while settling")
         if min(c[2] for c in a.corners()) < -0.01:

@@ -5,7 +5,9 @@ of its cardboard, its own error on each face (about 1 cm), or how exactly the
 robot's suction pull will go (lift or drag, speed, force limit). A prediction
 is only as good as the worst plausible draw of all of these, so every sample
 world is one such draw: `draw_world(scene, seed, k, model) -> (Scene, PhysicsConfig)`,
-a pure function of its arguments (same seed, same world).
+a pure function of its arguments (same seed, same world). The depth comes first:
+`depth_range` bounds what a box hidden behind its front face can be, and
+`sample_depths` is the method's original sampler (depth only).
 
 The ranges are written up, with how they were chosen, in docs/physics.md
 ("What the camera cannot know").
@@ -14,13 +16,103 @@ from __future__ import annotations
 
 import math
 import random
+import zlib
 from dataclasses import dataclass, replace
 
 from perception.scene import Box, Scene, quat_to_matrix
 from planning.physics import PhysicsConfig
 
-
 PULL_MODES = ("lift", "drag", "ride")
+
+
+# --------------------------------------------------------------------------
+# depth: the camera sees the front face, the box behind it is a guess
+def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> tuple[float, float]:
+    """(lowest, highest) depth a box with unknown depth may have.
+
+    The highest keeps every back corner in front of the back wall and in front
+    of any box whose front face lies behind this one's (a hidden box cannot
+    pass through a visible one). The lowest is `min_sample_depth` (0.15 m, the
+    shallowest of the method's box types is 0.17 m), never above the highest.
+    """
+    cfg = config or PhysicsConfig()
+    r = quat_to_matrix(box.orientation)
+    face = _face(box)
+    face_max_y = max(c[1] for c in face)
+    dy = r[1][1]  # how much of the box's depth axis points into the shelf
+    if dy < 0.2:
+        return (box.size[1], box.size[1])  # lying sideways: the depth is not along y; keep it
+    hi = (scene.shelf.depth - face_max_y) / dy
+    x0, x1 = min(c[0] for c in face), max(c[0] for c in face)
+    z0, z1 = min(c[2] for c in face), max(c[2] for c in face)
+    for other in scene.boxes:
+        if other.id == box.id:
+            continue
+        cs = other.corners() if other.depth_known else _face(other)
+        ox0, ox1 = min(c[0] for c in cs), max(c[0] for c in cs)
+        oz0, oz1 = min(c[2] for c in cs), max(c[2] for c in cs)
+        oy0 = min(c[1] for c in cs)
+        # only a face really behind this one bounds it: a neighbour in the same column
+        # overlaps by a few mm through tilt or noise, and bounding by it gave 1 cm deep boxes
+        ov = _OCCLUSION_OVERLAP
+        if ox0 < x1 - ov and x0 + ov < ox1 and oz0 < z1 - ov and z0 + ov < oz1 and oy0 > face_max_y - 0.005:
+            bound = (oy0 - face_max_y) / dy
+            if bound >= cfg.min_sample_depth:
+                hi = min(hi, bound)
+    hi = max(hi, 0.01)
+    lo = min(cfg.min_sample_depth, hi)
+    return (lo, hi)
+
+
+_OCCLUSION_OVERLAP = 0.05  # m of face overlap in x and in z before a face counts as behind another
+
+
+def _face(b: Box) -> list:
+    r = quat_to_matrix(b.orientation)
+    f = b.front_center
+    hx, hz = b.size[0] / 2, b.size[2] / 2
+    return [tuple(f[i] + sx * r[i][0] * hx + sz * r[i][2] * hz for i in range(3))
+            for sx in (-1, 1) for sz in (-1, 1)]
+
+
+def depth_ranges(scene: Scene, config: PhysicsConfig | None = None) -> dict[str, tuple[float, float]]:
+    """`depth_range` of every box with an unknown depth (the same for every sample: compute once)."""
+    return {b.id: depth_range(scene, b, config) for b in scene.boxes if not b.depth_known}
+
+
+def sample_depths(scene: Scene, seed: int, sample: int, config: PhysicsConfig | None = None,
+                  reach: float = 1.0, ranges: dict[str, tuple[float, float]] | None = None) -> Scene:
+    """One depth sample of the scene: unknown depths drawn uniformly in `depth_range`.
+
+    Ranges are computed on the scene as perceived (placeholder depths for the
+    others are not used as obstacles: only front faces and known boxes are).
+    `reach` < 1 shrinks each range towards its lowest depth (used to redraw a
+    sample whose boxes, turned in the plane, swing into a neighbour).
+    `ranges` (from `depth_ranges(scene, config)`) saves recomputing them per sample.
+    """
+    rng = random.Random(f"shelfpick-depth:{int(seed)}:{int(sample)}")
+    out = []
+    for b in scene.boxes:
+        if b.depth_known:
+            out.append(b)
+            continue
+        lo, hi = ranges[b.id] if ranges is not None else depth_range(scene, b, config)
+        d = rng.uniform(lo, lo + (hi - lo) * reach)
+        out.append(b.with_depth(d))
+    return scene.with_boxes(out)
+
+
+def _stable_seed(*parts: object) -> int:
+    return zlib.crc32(":".join(str(p) for p in parts).encode())
+
+
+def trial_seed(seed: int, sample: int, removed: frozenset[str], box: str) -> int:
+    """The vibration seed of one pull: a pure function of what is pulled where."""
+    return _stable_seed(seed, sample, ",".join(sorted(removed)), box)
+
+
+# --------------------------------------------------------------------------
+# everything else the camera cannot know
 
 
 @dataclass(frozen=True)
@@ -97,7 +189,7 @@ def draw_scene(scene: Scene, seed: int, k: int, model: Uncertainty,
     """The shelf of draw `k`: each unknown depth uniform in its range (shrunk by `reach`),
     each unknown mass log-uniform, each face moved by up to `face_error` in x and z.
 
-    `ranges` are the depth ranges of the boxes with unknown depth (`predict.depth_ranges`).
+    `ranges` are the depth ranges of the boxes with unknown depth (`depth_ranges`).
     The depth draws use the same stream as the method's original sampler, so with
     `Uncertainty.none()` a draw is exactly the old depth sample.
     """

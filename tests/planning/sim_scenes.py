@@ -31,6 +31,6 @@ def grid(nx: int = 4, nz: int = 3) -> Scene:
 
 def twelve() -> Scene:
     """A 12-box shelf like the synthetic structured ones (the one the timing script measures)."""
-    from planning.sim_timing import twelve_box_scene
+    from benchmarks.sim_timing import twelve_box_scene
 
     return twelve_box_scene()

@@ -136,7 +136,7 @@ def test_plan_to_file_heuristic_clear(tmp_path, capsys):
 class _AlwaysCollapses:
     """Stands in for the physics: every pull drops some other box."""
 
-    def __init__(self, scene, samples=10, seed=0, config=None, workers=1, model=None):
+    def __init__(self, scene, samples=10, seed=0, config=None, workers=1, model=None, pool=None, clients=None):
         self.ids = scene.ids
 
     def trial(self, removed, box):
@@ -149,8 +149,8 @@ class _AlwaysCollapses:
 
 
 def test_no_safe_plan_warns_and_exits_zero(tmp_path, capsys, monkeypatch):
-    import planning.predict
-    monkeypatch.setattr(planning.predict, "Predictor", _AlwaysCollapses)
+    import planning.planner
+    monkeypatch.setattr(planning.planner, "Predictor", _AlwaysCollapses)
     assert main(["plan", str(_stack(tmp_path)), "--task", "clear"]) == 0
     out = capsys.readouterr()
     plan = Plan.from_json(json.loads(out.out))

@@ -99,7 +99,7 @@ def test_predictor_local_and_full_agree_on_a_tiny_shelf():
 
 
 def test_locality_measurement_compares_with_the_full_simulation():
-    from planning.sim_timing import locality
+    from benchmarks.sim_timing import locality
 
     res = locality({"grid": grid(3, 3)}, PhysicsConfig(), samples=1)
     assert res["trials"] == 9 + 8          # every pull, then every pull after taking a top box

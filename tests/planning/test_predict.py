@@ -5,7 +5,8 @@ import pytest
 
 from perception.scene import Box, Scene, Shelf, yaw_quat
 from planning.physics import PhysicsConfig
-from planning.predict import Predictor, depth_range, depth_ranges, sample_depths
+from planning.predict import Predictor
+from planning.uncertainty import depth_range, depth_ranges, sample_depths
 from tests.planning.sim_scenes import column, stacked, twelve
 
 
@@ -159,16 +160,45 @@ def test_pool_screens_the_same_prefix_as_one_process():
 
 
 def test_pool_workers_outlive_a_predictor_and_serve_the_next_one():
-    from planning import predict
+    from planning.worker_pool import WorkerPool
 
     scene = stacked().hide_depths()
-    with Predictor(scene, samples=2, seed=1, workers=2) as first:
-        a = first.trial(frozenset(), "a")
-        pids = sorted(proc.pid for proc, _, _ in first._pool)
-    assert sorted(proc.pid for proc, _ in predict._IDLE_WORKERS) == pids
-    with Predictor(scene, samples=2, seed=1, workers=2) as second, Predictor(scene, samples=2, seed=1) as serial:
-        assert sorted(proc.pid for proc, _, _ in second._pool) == pids      # the same processes
-        assert second.trial(frozenset(), "a") == a == serial.trial(frozenset(), "a")
+    with WorkerPool(2) as pool:
+        with Predictor(scene, samples=2, seed=1, workers=2, pool=pool) as first:
+            a = first.trial(frozenset(), "a")
+            pids = pool.pids()
+        assert len(pids) == 2 and pool.pids() == pids
+        with Predictor(scene, samples=2, seed=1, workers=2, pool=pool) as second, \
+                Predictor(scene, samples=2, seed=1) as serial:
+            assert pool.pids() == pids      # the same processes
+            assert second.trial(frozenset(), "a") == a == serial.trial(frozenset(), "a")
+    assert all(not _alive(pid) for pid in pids)     # the owner closed the pool: no process left
+
+
+def test_a_predictor_without_a_pool_stops_its_workers():
+    from planning import worker_pool
+
+    with Predictor(stacked().hide_depths(), samples=2, seed=1, workers=2) as pred:
+        pids = pred._pool.pids()
+    assert len(pids) == 2 and all(not _alive(pid) for pid in pids)
+    with pytest.raises(ValueError, match="never forks"):
+        worker_pool.WorkerPool(2, method="fork")
+
+
+def _alive(pid: int) -> bool:
+    import os
+    import time
+
+    for _ in range(50):
+        try:
+            os.kill(pid, 0)
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().split(")")[-1].split()[0] == "Z":
+                    return False
+        except (ProcessLookupError, FileNotFoundError):
+            return False
+        time.sleep(0.1)
+    return True
 
 
 def test_turned_box_whose_deep_samples_hit_a_neighbour_still_gets_samples():

@@ -178,24 +178,40 @@ def test_pulling_the_top_box_of_a_stack_leaves_the_one_below_standing(make, top,
 
 def test_lift_is_capped_by_the_free_space_above():
     with quiet(stacked()) as sim:
-        assert sim._free_lift("a") == 0.0          # b rests on a: no lift, a is dragged
-        assert sim._free_lift("b") == pytest.approx(PhysicsConfig().pull_lift)
+        assert sim.free_lift("a") == 0.0          # b rests on a: no lift, a is dragged
+        assert sim.free_lift("b") == pytest.approx(PhysicsConfig().pull_lift)
 
 
 def test_a_recycled_bullet_client_gives_bit_identical_results():
-    """A closed ShelfSim's client is reset and reused (connect costs ~25 ms); nothing may leak."""
-    from planning import sim as simmod
+    """A closed ShelfSim gives its client back to its pool, reset, for the next one
+    (connect costs ~25 ms); nothing of the first world may leak into the next."""
+    from planning.bullet_clients import ClientPool
 
     scene = grid(3, 3)
-    simmod._IDLE.clear()
-    with quiet(scene) as fresh:
-        r1 = fresh.remove("b4", seed=3)
-        first = fresh._p
-    other = PhysicsConfig(time_step=1 / 240, solver_iterations=10)
-    with quiet(column(), other) as dirty:   # reuses the client with other parameters, then returns it
-        assert dirty._p is first
-        dirty.remove("c5")
-    with quiet(scene) as again:
-        assert again._p is first
-        r2 = again.remove("b4", seed=3)
+    with ClientPool() as clients:
+        with ShelfSim(scene, clients=clients) as fresh:
+            r1 = fresh.remove("b4", seed=3)
+            first = fresh.client
+        other = PhysicsConfig(time_step=1 / 240, solver_iterations=10)
+        with ShelfSim(column(), other, clients=clients) as dirty:   # other parameters, then given back
+            assert dirty.client is first
+            dirty.remove("c5")
+        with ShelfSim(scene, clients=clients) as again:
+            assert again.client is first
+            r2 = again.remove("b4", seed=3)
     assert r1 == r2
+    with ShelfSim(scene) as alone:        # a client of its own: the same physics
+        assert alone.client is not first
+        assert alone.remove("b4", seed=3) == r1
+
+
+def test_a_client_pool_disconnects_every_client_when_closed():
+    from planning.bullet_clients import ClientPool
+
+    clients = ClientPool()
+    held = ShelfSim(grid(2, 2), clients=clients)    # never closed by its user
+    c = held.client
+    clients.close()
+    assert not c.isConnected()
+    with pytest.raises(RuntimeError, match="closed"):
+        ShelfSim(grid(2, 2), clients=clients)

@@ -8,7 +8,7 @@ import pytest
 
 from perception.scene import Box, Scene, Shelf
 from planning.physics import PhysicsConfig
-from planning.predict import depth_ranges, sample_depths
+from planning.uncertainty import depth_ranges, sample_depths
 from planning.uncertainty import Uncertainty, draw_config, draw_scene
 from tests.planning.sim_scenes import twelve
 

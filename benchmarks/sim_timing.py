@@ -1,8 +1,8 @@
 """Measure the simulation's cost and its accuracy against a fine-step reference.
 
-    python -m planning.sim_timing timing             # single trial, Predictor.trial (10 samples)
-    python -m planning.sim_timing accuracy [--quick] # verdicts of coarse settings vs 1/480 s
-    python -m planning.sim_timing locality [--quick] # local trials vs the full simulation
+    python -m benchmarks.sim_timing timing             # single trial, Predictor.trial (10 samples)
+    python -m benchmarks.sim_timing accuracy [--quick] # verdicts of coarse settings vs 1/480 s
+    python -m benchmarks.sim_timing locality [--quick] # local trials vs the full simulation
 
 The figures are written up in docs/physics.md. The scenes are built here so
 the measurement does not depend on the synthetic-shelf generator.
@@ -90,7 +90,7 @@ def timing(config: PhysicsConfig, repeat: int = 3) -> dict:
 
 def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, samples: int = 4) -> dict:
     """Collapse verdict and first collapsing box of every single-box removal, vs the reference."""
-    from planning.predict import sample_depths
+    from planning.uncertainty import sample_depths
     from planning.sim import ShelfSim
 
     base = twelve_box_scene().hide_depths()
@@ -133,7 +133,7 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
     Compares the collapse verdict, the first collapsing box and the collision
     verdict, and counts steps and CPU time of both ways.
     """
-    from planning.predict import sample_depths
+    from planning.uncertainty import sample_depths
     from planning.sim import ShelfSim
 
     rows = []
@@ -197,13 +197,13 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
 
 def _above(sim, box: str) -> set[str]:
     """Boxes stacked on `box` (the part of its neighbourhood that stands on it)."""
-    p = sim._p
-    lo, hi = p.getAABB(sim._body[box])
+    p = sim.client
+    lo, hi = p.getAABB(sim.body(box))
     out = set()
     for b in sim.present():
         if b == box:
             continue
-        olo, ohi = p.getAABB(sim._body[b])
+        olo, ohi = p.getAABB(sim.body(b))
         if (olo[0] < hi[0] - 0.005 and lo[0] + 0.005 < ohi[0] and olo[1] < hi[1] - 0.005
                 and lo[1] + 0.005 < ohi[1] and olo[2] > hi[2] - 0.03):
             out.add(b)

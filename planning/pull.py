@@ -1,0 +1,273 @@
+"""One suction pull of one box in a `ShelfSim`, and the verdict on what the rest did.
+
+The gripper grasps the front face, lifts the box a few mm when there is free
+space above it (else drags it on its support), and pulls it straight out along
+-y at the configured speed, with a seeded vibration. A `CollapseMonitor`
+watches every other box from the settled start of the step: when it started
+moving, and when a collapse became certain. What the box and the gripper
+touched on the way is a collision when that neighbour then moved.
+"""
+from __future__ import annotations
+
+import math
+import random
+from typing import TYPE_CHECKING
+
+from perception.scene import quat_to_matrix, xyzw_to_wxyz
+from planning.geometry3 import dist, matvec, norm, rot_angle_deg
+from planning.step_result import Frame, StepResult
+
+if TYPE_CHECKING:
+    from planning.sim import ShelfSim
+
+
+class CollapseMonitor:
+    """The other boxes of a step: when each started moving, and when its collapse became certain."""
+
+    def __init__(self, sim: "ShelfSim", others: list[str]) -> None:
+        self.p, self.cfg = sim.client, sim.config
+        self.others = others
+        self.bodies = [sim.body(b) for b in others]
+        self.start = [self.p.getBasePositionAndOrientation(ob) for ob in self.bodies]
+        self.onset: dict[str, int] = {}
+        self.collapse_at: dict[str, int] = {}
+
+    def look(self, step: int) -> bool:
+        """Check every other box at `step`; True while something still moves."""
+        p, cfg = self.p, self.cfg
+        moving = False
+        for k, ob in enumerate(self.bodies):
+            bid = self.others[k]
+            pos, orn = p.getBasePositionAndOrientation(ob)
+            lin, ang = p.getBaseVelocity(ob)
+            v = norm(lin)
+            w = norm(ang)
+            if v > cfg.rest_velocity or w > cfg.rest_angular_velocity:
+                moving = True
+            if bid in self.collapse_at:
+                continue
+            d = dist(pos, self.start[k][0])
+            if bid not in self.onset and (d > cfg.onset_displacement or v > cfg.onset_velocity):
+                self.onset[bid] = step
+            # certain collapses only: a tall column may rock a couple of cm and come back, so
+            # the end-of-step displacement is judged after the step; a velocity spike counts
+            # once the box has also really moved (a jolt that leaves the box where it was is not
+            # a collapse)
+            a = rot_angle_deg(orn, self.start[k][1])
+            fast = v > cfg.collapse_velocity or w > cfg.collapse_angular_velocity
+            if (d > cfg.collapse_peak_displacement or a > cfg.collapse_peak_rotation
+                    or (fast and (d > cfg.collapse_displacement / 2 or a > cfg.collapse_rotation / 2))):
+                self.collapse_at[bid] = step
+                self.onset.setdefault(bid, step)
+        return moving
+
+    def judge_end(self, step: int) -> tuple[dict[str, float], dict[str, float]]:
+        """Displacement and rotation of every other box from the step's start to now; a box past
+        the end-of-step thresholds has collapsed."""
+        p, cfg = self.p, self.cfg
+        end = [p.getBasePositionAndOrientation(ob) for ob in self.bodies]
+        disp = {b: dist(end[k][0], self.start[k][0]) for k, b in enumerate(self.others)}
+        rot = {b: rot_angle_deg(end[k][1], self.start[k][1]) for k, b in enumerate(self.others)}
+        for b in self.others:
+            if b not in self.collapse_at and (disp[b] > cfg.collapse_displacement
+                                              or rot[b] > cfg.collapse_rotation):
+                self.collapse_at[b] = step
+                self.onset.setdefault(b, step)
+        return disp, rot
+
+
+class PullTrial:
+    """The state of one pull: the drive's target, the vibration, the contacts, the frames."""
+
+    def __init__(self, sim: "ShelfSim", box_id: str, seed: int, record: bool) -> None:
+        self.sim, self.box_id, self.record = sim, box_id, record
+        p, cfg = sim.client, sim.config
+        self.p, self.cfg = p, cfg
+        dt = cfg.time_step
+        self.rng = random.Random(f"shelfpick-pull:{int(seed)}:{box_id}")
+        self.body = sim.body(box_id)
+        twins = sim.frozen_twins()
+        self.others = [b for b in sim.active() if b != box_id and b not in twins]
+        self.body_box = {sim.body(b): b for b in self.others}
+        self.body_box.update({t: b for b, t in twins.items()})
+        self.frozen = bool(twins)
+        self.monitor = CollapseMonitor(sim, self.others)
+        self.touched: set[str] = set()
+        self.frames: list[Frame] = []
+        self.step = 0
+        self.frame_every = max(1, int(round(1.0 / (cfg.record_fps * dt))))
+        self.rest_need = max(1, int(round(cfg.rest_window / dt)))
+        self.every = max(1, int(cfg.monitor_every))
+        self.note = ""
+        self._geometry(sim)
+
+    def _geometry(self, sim: "ShelfSim") -> None:
+        p, cfg, dt = self.p, self.cfg, self.cfg.time_step
+        self.pos0, self.orn0 = p.getBasePositionAndOrientation(self.body)
+        pos0 = self.pos0
+        r0 = quat_to_matrix(xyzw_to_wxyz(self.orn0))
+        hx, hy, hz = sim.half_extents(self.box_id)
+        self.front_local = (0.0, -hy, 0.0)
+        fw = matvec(r0, self.front_local)
+        self.front0 = (pos0[0] + fw[0], pos0[1] + fw[1], pos0[2] + fw[2])
+        # extent of the box along world y from its centre (for "clear of the shelf front")
+        self.ext_y = abs(r0[1][0]) * hx + abs(r0[1][1]) * hy + abs(r0[1][2]) * hz
+        self.travel_needed = (pos0[1] + self.ext_y) + cfg.pull_margin
+        gh = cfg.gripper_size[1] / 2
+        self.grip_local = (0.0, -hy - gh - cfg.gripper_gap, 0.0)
+        self.weight = p.getDynamicsInfo(self.body, -1)[0] * cfg.gravity
+        self.force_eps = cfg.engage_force_weights * self.weight
+        # a drive far stronger than the boxes' weights turns Bullet's edge contacts into
+        # catapults (a 50 N drive on an 8 g box flings the box below it); a suction
+        # gripper's pull is bounded anyway
+        self.max_force = min(cfg.pull_force, cfg.pull_force_weights * self.weight)
+        self.clear_need = max(1, int(round(cfg.clear_time / dt)))
+        # a box with free space above it is lifted off its support (then held at that height), so
+        # it no longer drags the box below it along by friction; a box something rests on gets no
+        # lift and is dragged. Without lift the drive holds x, y and the orientation (a stiff arm)
+        # and, unless `pull_hold`, leaves z free: the box rides on its support with its own weight
+        # (a drive that also held z would press it into the box below at every vertical jitter)
+        self.lift = sim.free_lift(self.box_id) if cfg.pull_lift > 0 else 0.0
+        self.lift_steps = int(math.ceil(cfg.lift_time / dt)) if self.lift > 0 else 0
+
+    # ------------------------------------------------------------------ the pull
+    def _place_gripper(self) -> tuple:
+        p = self.p
+        pos, orn = p.getBasePositionAndOrientation(self.body)
+        r = quat_to_matrix(xyzw_to_wxyz(orn))
+        g = matvec(r, self.grip_local)
+        p.resetBasePositionAndOrientation(self.sim.gripper_body,
+                                          [pos[0] + g[0], pos[1] + g[1], pos[2] + g[2]], orn)
+        return pos
+
+    def _record_frame(self, include_pulled: bool) -> None:
+        ids = self.others + ([self.box_id] if include_pulled else [])
+        t = round(self.step * self.cfg.time_step, 4)
+        self.frames.append((t, {b: (tuple(round(x, 5) for x in pp), tuple(round(x, 6) for x in qq))
+                                for b, (pp, qq) in self.sim.raw_poses(ids).items()}))
+
+    def _engaged(self) -> bool:
+        """Record what the box and the gripper touch; True while something leans on, or drags, the box."""
+        p, slop, up = self.p, self.cfg.contact_slop, self.cfg.support_normal
+        engaged = False
+        for c in p.getContactPoints(bodyA=self.body):
+            other = self.body_box.get(c[2])
+            if other is None or c[8] > slop:
+                continue
+            if abs(c[7][2]) > up or c[9] > self.force_eps:
+                engaged = True
+            if abs(c[7][2]) <= up:
+                self.touched.add(other)
+        for c in p.getContactPoints(bodyA=self.sim.gripper_body):
+            other = self.body_box.get(c[2])
+            if other is not None and c[8] <= slop:
+                self.touched.add(other)
+                engaged = True
+        return engaged
+
+    def drive(self, stop_on_collapse: bool) -> bool:
+        """Pull until the box is out (True), stuck, or (with `stop_on_collapse`) something collapsed."""
+        p, cfg, dt = self.p, self.cfg, self.cfg.time_step
+        joint = p.JOINT_FIXED if (self.lift > 0 or cfg.pull_hold) else p.JOINT_PRISMATIC
+        cid = p.createConstraint(self.body, -1, -1, -1, joint, [0, 0, 1], list(self.front_local),
+                                 list(self.front0), [0, 0, 0, 1], list(self.orn0))
+        p.changeConstraint(cid, list(self.front0), jointChildFrameOrientation=list(self.orn0),
+                           maxForce=self.max_force)
+        p.setCollisionFilterPair(self.sim.gripper_body, self.body, -1, -1, 0)
+        try:
+            if self.record:
+                self._record_frame(True)
+            self._place_gripper()
+            ramp = max(cfg.pull_ramp, dt)
+            dist_ = 0.0
+            period = max(1, int(round(cfg.disturbance_period / dt)))
+            jx = jz = tx = tz = 0.0
+            free_steps = 0
+            pos = self.pos0
+            max_steps = int(math.ceil(cfg.pull_timeout / dt))
+            while True:
+                z = self.front0[2]
+                if self.step < self.lift_steps:
+                    z += self.lift * (self.step + 1) / self.lift_steps
+                else:
+                    z += self.lift
+                    t = (self.step - self.lift_steps) * dt
+                    speed = cfg.pull_speed * min(1.0, (t + dt) / ramp)
+                    dist_ = min(self.travel_needed + 0.01, dist_ + speed * dt)
+                if self.step % period == 0:
+                    tx = self.rng.uniform(-cfg.disturbance, cfg.disturbance)
+                    tz = self.rng.uniform(-cfg.disturbance_force, cfg.disturbance_force) * self.weight
+                jx += (tx - jx) * cfg.disturbance_smoothing
+                jz += (tz - jz) * cfg.disturbance_smoothing
+                target = [self.front0[0] + jx, self.front0[1] - dist_, z]
+                p.changeConstraint(cid, target, jointChildFrameOrientation=list(self.orn0),
+                                   maxForce=self.max_force)
+                if jz:
+                    p.applyExternalForce(self.body, -1, [0.0, 0.0, jz], list(pos), p.WORLD_FRAME)
+                self.sim.step()
+                self.step += 1
+                pos = self._place_gripper()
+                if self.step % self.every == 0:
+                    self.monitor.look(self.step)
+                engaged = self._engaged()
+                if self.record and self.step % self.frame_every == 0:
+                    self._record_frame(True)
+                if stop_on_collapse and self.monitor.collapse_at:
+                    self.note = "stopped at the first collapse"
+                    return False
+                travelled = self.pos0[1] - pos[1]
+                out = pos[1] + self.ext_y < -cfg.pull_margin
+                free_steps = 0 if engaged else free_steps + 1
+                if out or (cfg.early_clear and travelled > 0.01 and free_steps >= self.clear_need):
+                    return True
+                if self.step >= max_steps:
+                    self.note = f"stuck: the box did not come out within {cfg.pull_timeout:g} s"
+                    return False
+        finally:
+            p.removeConstraint(cid)
+            p.setCollisionFilterPair(self.sim.gripper_body, self.body, -1, -1, 1)
+            self.sim.park_gripper()
+
+    def settle(self, stop_on_collapse: bool, extracted: bool) -> None:
+        """Let the rest settle after the pull, watching for collapses."""
+        calm = 0
+        for _ in range(int(math.ceil(self.cfg.settle_time / self.cfg.time_step))):
+            self.sim.step()
+            self.step += 1
+            if self.step % self.every == 0:
+                calm = calm + self.every if not self.monitor.look(self.step) else 0
+            if self.record and self.step % self.frame_every == 0:
+                self._record_frame(not extracted)
+            if stop_on_collapse and self.monitor.collapse_at:
+                self.note = "stopped at the first collapse"
+                break
+            if calm >= self.rest_need:
+                break
+
+    def result(self, extracted: bool) -> StepResult:
+        mon, cfg = self.monitor, self.cfg
+        disp, rot = mon.judge_end(self.step)
+        if self.frozen:   # they stood still, as static copies of themselves
+            disp = {b: disp.get(b, 0.0) for b in self.sim.active() if b != self.box_id}
+            rot = {b: rot.get(b, 0.0) for b in disp}
+        order = {b: i for i, b in enumerate(self.sim.ids)}
+        moved = tuple(sorted(mon.onset, key=lambda b: (mon.onset[b], order[b])))
+        collapsed = tuple(b for b in moved if b in mon.collapse_at)
+        collided = tuple(b for b in self.others if b in self.touched
+                         and (disp[b] > cfg.collision_threshold or b in mon.collapse_at))
+        return StepResult(self.box_id, extracted, collapsed, collided, disp, rot, moved,
+                          tuple(self.frames), round(self.step * cfg.time_step, 6), self.note)
+
+
+def pull(sim: "ShelfSim", box_id: str, seed: int, record: bool, stop_on_collapse: bool) -> StepResult:
+    """Pull `box_id` out of `sim` and judge the step (see `ShelfSim.remove`)."""
+    trial = PullTrial(sim, box_id, seed, record)
+    extracted = trial.drive(stop_on_collapse)
+    if extracted:
+        sim.park(box_id)
+    if not (stop_on_collapse and trial.monitor.collapse_at):
+        trial.settle(stop_on_collapse, extracted)
+    if record:
+        trial._record_frame(not extracted)
+    return trial.result(extracted)
+

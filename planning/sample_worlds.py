@@ -1,0 +1,235 @@
+"""The sample worlds of a prediction: one settled PyBullet world per draw of what the camera cannot know.
+
+A draw that does not stand as observed (a box that moves or falls while it settles,
+or at a small knock) contradicts the image: it is redrawn, and when no draw stands the
+boxes that did not are reported (`scene_check`), never silently planned on.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+from perception.errors import SceneError
+from perception.scene import Scene
+from planning.bullet_clients import ClientPool
+from planning.physics import PhysicsConfig
+from planning.sim import ShelfSim
+from planning.step_result import StepResult
+from planning.uncertainty import (
+    Uncertainty,
+    depth_ranges,
+    draw_config,
+    draw_scene,
+    trial_seed,
+)
+
+
+@dataclass(frozen=True)
+class Draw:
+    """One sample world as built: the world, and what the draws before it contradicted."""
+
+    sim: ShelfSim
+    rejected: tuple[Mapping[str, str], ...] = ()   # per redrawn attempt: box -> what it did
+    stands: bool = True                           # False: no attempt stood as observed
+    off: Mapping[str, str] = field(default_factory=dict)  # what the returned world contradicts
+
+    @property
+    def repairs(self) -> tuple[str, ...]:
+        return self.sim.repairs
+
+
+def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> dict[str, str]:
+    """Boxes of a freshly settled world that did not stand as they were given, with what they did.
+
+    Standing still is not enough: a box balanced on an edge stays put in a solver
+    that nothing disturbs, so the settled world also takes a small knock
+    (`ShelfSim.nudge`), and a box that then falls did not stand either (only a
+    world that settled is knocked: the knock costs a settle).
+    """
+    out = {}
+    for bid, (d, a) in sim.settle_moves.items():
+        pos = sim.scene.box(bid).position
+        if pos[2] < 0 or pos[1] < -config.off_shelf_front:
+            out[bid] = f"falls off the shelf while settling (moved {d:.2f} m)"
+        elif d > config.stand_tolerance:
+            out[bid] = f"moves {d:.3f} m while settling (more than {config.stand_tolerance:.2f} m)"
+        elif a > config.stand_rotation:
+            out[bid] = f"turns {a:.0f} deg while settling (more than {config.stand_rotation:.0f} deg)"
+    if out or knock is False:
+        return out
+    for bid, (d, a) in sim.nudge(config.stand_nudge).items():
+        if d > config.stand_tolerance or a > config.stand_rotation:
+            out[bid] = f"falls over at a small knock (moved {d:.2f} m, turned {a:.0f} deg): it cannot stand as seen"
+    return out
+
+
+_ATTEMPTS = (1.0, 1.0, 1.0, 0.66, 0.33, 0.0)   # reach of each attempt's depth draw, then as perceived
+
+
+def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
+                 ranges: dict[str, tuple[float, float]] | None = None,
+                 model: Uncertainty | None = None, known: frozenset[str] = frozenset(),
+                 clients: ClientPool | None = None) -> Draw:
+    """The settled world of draw `sample`; a draw that does not stand as observed is redrawn.
+
+    A draw contradicts the image when a box moves more than `stand_tolerance` or
+    turns more than `stand_rotation` while it settles, or when its overlaps cannot
+    be repaired. Later attempts reach less deep (a box turned in the plane swings
+    its back corners into its neighbours). When no attempt stands, the attempt
+    that moved the fewest boxes comes back with ``stands=False``: the caller must
+    say so, never plan on it as if it were the shelf. Boxes in `known` already
+    failed every attempt of an earlier sample: a draw in which only they
+    contradict the image is not drawn again (each attempt costs a whole world).
+    `clients`: where the worlds' Bullet clients come from (a fresh one each when None).
+    """
+    model = model if model is not None else Uncertainty()
+    if scene.depth_known:   # a known shelf is the truth: one world, as given
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sim = ShelfSim(scene, config, local=config.prediction_local, clients=clients)
+        off = contradictions(sim, config)
+        return Draw(sim, (off,) if off else (), not off, off)
+    rejected: list[dict[str, str]] = []
+    best: ShelfSim | None = None
+    best_off: dict[str, str] = {}
+    ranges = ranges if ranges is not None else depth_ranges(scene, config)
+    as_seen = {b.id: (b.size[1], b.size[1]) for b in scene.boxes if not b.depth_known}
+    for attempt, reach in enumerate(_ATTEMPTS + (None,)):
+        k = sample + 1000 * attempt
+        # the last resort keeps perception's placeholder depths, which perception made valid
+        sc = draw_scene(scene, seed, k, model, as_seen if reach is None else ranges, reach or 0.0)
+        cfg = draw_config(config, seed, k, model)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sim = ShelfSim(sc, cfg, local=config.prediction_local, clients=clients)
+        except SceneError as exc:  # overlaps past repair, or a world that never comes to rest
+            rejected.append({"*": str(exc)})
+            continue
+        off = contradictions(sim, config)
+        if not off or (known and set(off) <= known):
+            if best is not None:
+                best.close()
+            if off:
+                rejected.append(off)
+            return Draw(sim, tuple(rejected), not off, off)
+        rejected.append(off)
+        if best is None or len(off) < len(best_off):
+            if best is not None:
+                best.close()
+            best, best_off = sim, off
+        else:
+            sim.close()
+    if best is None:
+        raise SceneError(f"no draw of sample {sample} can be built: {rejected[-1].get('*', rejected[-1])}")
+    return Draw(best, tuple(rejected), False, best_off)
+
+
+@dataclass(frozen=True)
+class DrawSummary:
+    """A `Draw` as another process sees it: what it found, not the world (which stays put)."""
+
+    scene: Scene
+    rejected: tuple
+    stands: bool
+    off: Mapping[str, str]
+    repairs: tuple[str, ...]
+
+    @classmethod
+    def of(cls, draw: Draw) -> "DrawSummary":
+        return cls(draw.sim.scene, draw.rejected, draw.stands, draw.off, draw.repairs)
+
+
+def not_standing(draw: Draw | DrawSummary) -> frozenset[str]:
+    """The boxes that contradict the image in the world this draw settled on."""
+    return frozenset() if draw.stands else frozenset(b for b in draw.off if b != "*")
+
+
+def scene_check(draws: Sequence[Draw | DrawSummary]) -> dict:
+    """Whether the observed shelf stands as seen, from the sample worlds' draws.
+
+    A box is a problem when no attempt of a sample made it stand, in at least
+    half of the samples: then no plausible draw of what the camera cannot know
+    explains the image. (A box that fails in one sample of ten is explained by
+    the others; that sample's world is the attempt that contradicts least.)
+    """
+    fails: dict[str, list[str]] = {}
+    redrawn = 0
+    for d in draws:
+        redrawn += len(d.rejected)
+        for bid in not_standing(d):
+            fails.setdefault(bid, []).append(d.off[bid])
+    problems = {b: whats[0] for b, whats in fails.items() if 2 * len(whats) >= len(draws)}
+    return {"stands_as_seen": not problems, "redrawn": redrawn,
+            "samples_not_standing": sum(1 for d in draws if not d.stands),
+            "problems": [{"box": b, "what": w} for b, w in sorted(problems.items())],
+            # what the first sample world had to repair (overlaps pushed apart, boxes settled)
+            "repairs": list(draws[0].repairs) if draws else []}
+
+
+class SampleWorlds:
+    """Some of the sample worlds (all of them, or one worker's share) and their cached states.
+
+    Each world is built and settled once; the state after taking a set of boxes away is
+    cached with saveState, so every trial starts from a restoreState and costs one pull.
+    """
+
+    def __init__(self, scene: Scene, seed: int, config: PhysicsConfig, indices: Sequence[int],
+                 model: Uncertainty | None = None, known: frozenset[str] = frozenset(),
+                 clients: ClientPool | None = None):
+        """`known`: the boxes that did not stand in sample 0 (found here when 0 is in `indices`)."""
+        self.seed = seed
+        self.local = config.prediction_local
+        self.order = {b: i for i, b in enumerate(scene.ids)}
+        self.sims: dict[int, ShelfSim] = {}
+        self.draws: dict[int, Draw] = {}
+        ranges = depth_ranges(scene, config) if not scene.depth_known else None
+        try:
+            for i in indices:   # sample 0 first: the others learn from it what does not stand
+                self.draws[i] = d = build_sample(scene, seed, i, config, ranges, model,
+                                                 frozenset() if i == 0 else known, clients)
+                self.sims[i] = d.sim
+                if i == 0:
+                    known = not_standing(d)
+        except BaseException:
+            self.close()
+            raise
+        self.states = {i: {frozenset(): sim.snapshot()} for i, sim in self.sims.items()}
+        self.new_states = 0
+
+    def state(self, i: int, removed: frozenset[str]):
+        st = self.states[i]
+        snap = st.get(removed)
+        if snap is None:
+            sim = self.sims[i]
+            sim.restore(st[frozenset()])
+            sim.delete_many(sorted(removed, key=self.order.__getitem__), local=self.local)
+            snap = sim.snapshot()
+            st[removed] = snap
+            self.new_states += 1
+        return snap
+
+    def pull(self, i: int, removed: frozenset[str], box: str) -> StepResult:
+        sim = self.sims[i]
+        sim.restore(self.state(i, removed))
+        return sim.remove(box, seed=trial_seed(self.seed, i, removed, box), stop_on_collapse=True,
+                          local=self.local)
+
+    def preview(self, sequence: Sequence[str], i: int) -> list[StepResult]:
+        sim = self.sims[i]
+        removed: frozenset[str] = frozenset()
+        out = []
+        sim.restore(self.states[i][frozenset()])
+        try:
+            for box in sequence:
+                out.append(sim.remove(box, seed=trial_seed(self.seed, i, removed, box), record=True))
+                removed = removed | {box}
+        finally:
+            sim.restore(self.states[i][frozenset()])
+        return out
+
+    def close(self) -> None:
+        for sim in self.sims.values():
+            sim.close()
+        self.sims = {}

@@ -1,0 +1,222 @@
+"""Worker processes that hold a Predictor's sample worlds: created, owned and closed by the caller.
+
+A `WorkerPool` starts its processes with the forkserver (or spawn) start method,
+never by forking the caller: the console calls the planner from viser's thread
+pool, and a fork there copies locks held by other threads. A Predictor leases
+some workers for its life and gives them back; the pool keeps them (their
+imports and their Bullet clients are paid once) until its owner closes it.
+
+Each message to a worker is a small frozen dataclass; each answer a `Reply`.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import threading
+from dataclasses import dataclass, replace
+from typing import Any, Sequence
+
+from perception.scene import Scene
+from planning.bullet_clients import ClientPool
+from planning.physics import PhysicsConfig
+from planning.sample_worlds import DrawSummary, SampleWorlds
+from planning.uncertainty import Uncertainty
+
+
+@dataclass(frozen=True)
+class Build:
+    """Build these sample worlds (and drop any held before)."""
+
+    scene: Scene
+    seed: int
+    config: PhysicsConfig
+    indices: tuple[int, ...]
+    model: Uncertainty
+    known: frozenset[str]
+
+
+@dataclass(frozen=True)
+class Pull:
+    """Pull `box` with `removed` taken away in the held worlds `which`."""
+
+    removed: frozenset[str]
+    box: str
+    which: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Preview:
+    """Run `sequence` in world `sample`, recording frames."""
+
+    sequence: tuple[str, ...]
+    sample: int
+
+
+@dataclass(frozen=True)
+class Release:
+    """Close the held worlds; wait for the next Build."""
+
+
+@dataclass(frozen=True)
+class Reply:
+    value: Any = None
+    error: BaseException | None = None
+
+
+def _answer(worlds: SampleWorlds | None, msg: Any) -> Reply:
+    if isinstance(msg, Pull):
+        return Reply({i: replace(worlds.pull(i, msg.removed, msg.box), frames=())  # type: ignore[union-attr]
+                      for i in msg.which})
+    if isinstance(msg, Preview):
+        return Reply(worlds.preview(msg.sequence, msg.sample))  # type: ignore[union-attr]
+    raise TypeError(f"unknown message {msg!r}")
+
+
+def serve(conn) -> None:
+    """A worker's life: hold one Predictor's share of the sample worlds at a time.
+
+    The worker owns one `ClientPool` for its life, so the Bullet clients of the worlds
+    it closes are reused by the next Build.
+    """
+    worlds: SampleWorlds | None = None
+    with ClientPool() as clients:
+        try:
+            while True:
+                msg = conn.recv()
+                if isinstance(msg, Build):
+                    if worlds is not None:
+                        worlds.close()
+                    try:
+                        worlds = SampleWorlds(msg.scene, msg.seed, msg.config, msg.indices, msg.model,
+                                              msg.known, clients)
+                    except BaseException as exc:  # reported to the parent, which raises it
+                        worlds = None
+                        conn.send(Reply(error=exc))
+                        continue
+                    conn.send(Reply({i: DrawSummary.of(d) for i, d in worlds.draws.items()}))
+                elif isinstance(msg, Release):
+                    if worlds is not None:
+                        worlds.close()
+                    worlds = None
+                elif msg is None:
+                    break
+                else:
+                    conn.send(_answer(worlds, msg))
+        except (EOFError, KeyboardInterrupt):
+            pass
+        finally:
+            if worlds is not None:
+                worlds.close()
+
+
+class Worker:
+    """One worker process and the parent's end of its pipe."""
+
+    def __init__(self, ctx) -> None:
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=serve, args=(child,), daemon=True)
+        self.proc.start()
+        child.close()
+
+    def send(self, msg: Any) -> None:
+        self.conn.send(msg)
+
+    def recv(self) -> Any:
+        """The answer's value; the worker's exception is raised here."""
+        reply = self.conn.recv()
+        if reply.error is not None:
+            raise reply.error
+        return reply.value
+
+    def alive(self) -> bool:
+        return self.proc.is_alive()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        try:
+            self.conn.send(None)
+        except (OSError, BrokenPipeError):
+            pass
+        self.proc.join(timeout=timeout)
+        self.kill()
+
+    def kill(self) -> None:
+        if self.proc.is_alive():
+            self.proc.terminate()
+            self.proc.join(timeout=5)
+        self.conn.close()
+
+
+def _context(method: str | None):
+    methods = mp.get_all_start_methods()
+    name = method or ("forkserver" if "forkserver" in methods else "spawn")
+    ctx = mp.get_context(name)
+    if name == "forkserver":
+        # the fork server imports the planner once; every worker is then a cheap fork of it
+        ctx.set_forkserver_preload(["planning.worker_pool"])
+    return ctx
+
+
+class WorkerPool:
+    """Up to `size` idle workers kept for the next Predictor; close it when done (or use `with`)."""
+
+    def __init__(self, size: int = 2, *, method: str | None = None) -> None:
+        if method == "fork":
+            raise ValueError("a WorkerPool never forks its caller: use 'forkserver' or 'spawn'")
+        self.size = max(1, int(size))
+        self._ctx = _context(method)
+        self._idle: list[Worker] = []
+        self._leased: set[Worker] = set()
+        self._lock = threading.Lock()
+        self._closed = False
+
+    def lease(self, n: int) -> list[Worker]:
+        """`n` workers for one Predictor (idle ones first, new ones started as needed)."""
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the worker pool is closed")
+            out: list[Worker] = []
+            while self._idle and len(out) < n:
+                w = self._idle.pop()
+                if w.alive():
+                    out.append(w)
+                else:
+                    w.kill()
+            self._leased.update(out)
+        out += [Worker(self._ctx) for _ in range(n - len(out))]
+        with self._lock:
+            self._leased.update(out)
+        return out
+
+    def give_back(self, workers: Sequence[Worker], broken: bool = False) -> None:
+        """Workers a Predictor is done with; `broken` ones (a reply may be left in the pipe) are stopped."""
+        for w in workers:
+            with self._lock:
+                self._leased.discard(w)
+                keep = not broken and not self._closed and len(self._idle) < self.size and w.alive()
+            if not keep:
+                w.kill() if broken else w.stop()
+                continue
+            try:
+                w.send(Release())
+            except (OSError, BrokenPipeError):
+                w.kill()
+                continue
+            with self._lock:
+                self._idle.append(w)
+
+    def pids(self) -> list[int]:
+        with self._lock:
+            return sorted(w.proc.pid for w in self._idle + list(self._leased))
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            workers = self._idle + list(self._leased)
+            self._idle, self._leased = [], set()
+        for w in workers:
+            w.stop()
+
+    def __enter__(self) -> "WorkerPool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
