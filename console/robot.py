@@ -86,6 +86,9 @@ class SimRobot:
         self._history = StepHistory()
         self._endpoint = f"sim:{id(self)}"
         self._repairs_told = False   # the repairs of the current world were reported
+        # the console's look after each step: verify(step, box, world) -> None (go on) or why to hold;
+        # called after `done`, before the next step is taken (docs/robot-protocol.md, "Verification")
+        self.verify: Callable[..., str | None] | None = None
 
     def set_truth(self, truth: Scene | None) -> None:
         """A new shelf in front of the robot (a new demo capture): rebuild the world."""
@@ -115,14 +118,12 @@ class SimRobot:
     def world(self) -> Scene | None:
         """The true scene as it stands now (present boxes at their current poses)."""
         with self._lock:
-            if self._sim is None:
-                return self.truth
-            poses = self._sim.poses()
-            base = {b.id: b for b in self._sim.scene.boxes}
-            from dataclasses import replace
+            return self._world_now()
 
-            return self._sim.scene.with_boxes(
-                replace(base[i], position=tuple(p), orientation=tuple(q)) for i, (p, q) in poses.items())
+    def _world_now(self) -> Scene | None:
+        if self._sim is None:
+            return self.truth
+        return self._sim.scene.with_boxes(self._present_boxes().values())
 
     def _tell_repairs(self, sim: Any, on_event: Callable[[RobotEvent], None]) -> None:
         """Once per world: what the physics moved to make it stand, as a `note` event (stored, shown)."""
@@ -144,6 +145,15 @@ class SimRobot:
         base = {b.id: b for b in self._sim.scene.boxes}
         return {i: replace(base[i], position=tuple(p), orientation=tuple(q))
                 for i, (p, q) in self._sim.poses().items()}
+
+    def _verify(self, i: int, box: str) -> str | None:
+        """The console's look after step `i` (on the world as it now stands); a failing look holds."""
+        if self.verify is None:
+            return None
+        try:
+            return self.verify(i, box, self._world_now())
+        except Exception as exc:  # noqa: BLE001 - no verdict is no permission to go on
+            return f"verification failed: {exc.__class__.__name__}: {exc}"
 
     def execute(self, plan: Plan, scene: Scene, on_event: Callable[[RobotEvent], None],
                 stop: threading.Event) -> RobotOutcome:
@@ -206,11 +216,15 @@ class SimRobot:
                 self._history.mark_done(self._endpoint, h, i, box)
                 emit(on_event, RobotEvent("done", i, box, detail))
                 statuses[i] = {"step": i, "box": box, "status": "done", "detail": detail}
+                held = self._verify(i, box)
                 if res.collapsed:
                     msg = (f"step {i + 1} ({box}): boxes collapsed: {', '.join(detail['collapsed_ids'])}")
                     emit(on_event, RobotEvent("error", i, box, {"code": "COLLAPSE", "message": msg,
                                                                  "collapsed": detail["collapsed_ids"]}))
-                    error = msg
+                    error = msg + (f"; held: {held}" if held else "")
+                    break
+                if held is not None and i < len(plan.sequence) - 1:   # after the last step: evidence only
+                    error = f"held after step {i + 1} ({box}): {held}"
                     break
         return finish(plan, h, statuses, error, self._history, self._endpoint)
 

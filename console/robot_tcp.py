@@ -306,6 +306,8 @@ class TcpRobot:
         self.host, self.port = host, int(port)
         self.name = f"tcp://{host}:{self.port}"
         self.transform = transform or Transform.identity()
+        # the console's look after each step: verify(step, box, None) -> None (go on) or why to hold
+        self.verify: Callable[..., str | None] | None = None
         self.timeouts = timeouts or Timeouts()
         self.history = history or HISTORY
         self.robot_info: dict = {}
@@ -474,15 +476,54 @@ class TcpRobot:
         if hello.get("protocol") != PROTOCOL:
             raise _Lost("PROTOCOL", f"robot speaks {clip(hello.get('protocol'))!r}, expected {PROTOCOL!r}")
         self.robot_info = dict(hello)
-        for i in todo:
+        for n, i in enumerate(todo):
             error = self._step(conn, run, i)
+            if run.statuses.get(i, {}).get("status") == "done":
+                held = self._verify(conn, run, i)
+                if held is not None and error is None and n < len(todo) - 1:
+                    error = f"held after step {i + 1} ({run.plan.sequence[i]}): {held}"
+                    self._bye(conn, run, "held")
+                elif held is not None and error is not None:
+                    error = f"{error}; held: {held}"
             if error is not None:
                 return error
+        self._bye(conn, run, None)
+        return None
+
+    def _bye(self, conn: LineConn, run: "_Run", reason: str | None) -> None:
+        msg: dict[str, Any] = {"type": "bye", "plan": run.hash, "run": run.run_id}
+        if reason:
+            msg["reason"] = reason
         try:
-            conn.send({"type": "bye", "plan": run.hash, "run": run.run_id})
+            conn.send(msg)
         except OSError:
             pass
-        return None
+
+    def _verify(self, conn: LineConn, run: "_Run", i: int) -> str | None:
+        """The console's look after step `i`, the link kept alive meanwhile (pings answered and sent).
+
+        Nothing is sent to the robot but pings until the look is judged; a robot
+        that replies with a step message meanwhile broke the protocol.
+        """
+        if self.verify is None:
+            return None
+        box = run.plan.sequence[i]
+        answer: list = []
+        judged = threading.Event()
+
+        def look() -> None:
+            try:
+                answer.append(self.verify(i, box, None))
+            except Exception as exc:  # noqa: BLE001 - no verdict is no permission to go on
+                answer.append(f"verification failed: {exc.__class__.__name__}: {exc}")
+            finally:
+                judged.set()
+
+        threading.Thread(target=look, name="shelfpick-verify", daemon=True).start()
+        self._wait(conn, set(), time.monotonic() + max(self.timeouts.step, 60.0), judged,
+                   f"the verification of step {i + 1}")
+        judged.wait()
+        return answer[0] if answer else "verification gave no answer"
 
     def _step(self, conn: LineConn, run: "_Run", i: int) -> str | None:
         """Send step `i`, wait for its ack and its done; None when it is done and nothing fell."""

@@ -16,6 +16,13 @@
 
 A camera that fails raises `SourceError` (a ShelfpickError) naming the source
 and the cause; the console shows it and keeps running.
+
+`look_again(world, step)` is the console's look after a robot step (closed
+loop, docs/console.md "Verification"): the demo renders the simulated robot's
+true shelf as it now stands (`world`; unknown for another robot: SourceError,
+so the robot is held); files re-reads the folder and returns None when the
+images did not change since the last read (no new frame: the robot is held);
+RealSense grabs a new frame.
 """
 from __future__ import annotations
 
@@ -86,6 +93,7 @@ class DemoSource:
         self.camera = camera
         self.name = name
         self._n = 0
+        self._last: tuple[str, int] = (scenes[0][0], 0)   # the shelf and look number of the last capture
         self._lock = threading.Lock()
 
     @classmethod
@@ -109,7 +117,22 @@ class DemoSource:
             self._n += 1
         label, scene = self.scenes[n % len(self.scenes)]
         cap = _guard(f"demo:{label}", lambda: render(scene, self.camera, seed=self.seed + n))
+        with self._lock:
+            self._last = (label, n)
         return Frame(cap, scene, f"demo:{label}#{n}")
+
+    def look_again(self, world: Scene | None, step: int) -> Frame:
+        """The simulated robot's true shelf as it now stands, rendered (a new look: seeded by step)."""
+        from perception.render import render
+
+        with self._lock:
+            label, n = self._last
+        if world is None:
+            raise SourceError(f"demo:{label}: the shelf after the robot's step is not known (the demo "
+                              f"renders the simulated robot's shelf; this robot is not simulated here)")
+        seed = self.seed + n + 1000 * (step + 1)
+        cap = _guard(f"demo:{label}", lambda: render(world, self.camera, seed=seed))
+        return Frame(cap, world, f"demo:{label}#{n}/after step {step + 1}")
 
 
 class FilesSource:
@@ -118,6 +141,7 @@ class FilesSource:
     def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
         self.name = f"files:{self.folder}"
+        self._seen: str | None = None   # fingerprint of the images last read
         if not self.folder.is_dir():
             raise SourceError(f"{self.folder}: capture folder not found (files:DIR needs rgb.png, depth.png, "
                               f"camera.json)")
@@ -128,10 +152,29 @@ class FilesSource:
         for need in ("rgb.png", "camera.json"):
             if not (self.folder / need).is_file():
                 raise SourceError(f"{self.folder / need}: missing (files:DIR needs rgb.png, depth.png, camera.json)")
+        fingerprint = self._fingerprint()
         cap = _guard(self.name, lambda: load_capture_dir(self.folder))
         truth_path = self.folder / "truth.json"
         truth = Scene.load(truth_path) if truth_path.is_file() else None
+        self._seen = fingerprint
         return Frame(cap, truth, f"files:{self.folder.name}")
+
+    def _fingerprint(self) -> str:
+        """What the folder's images are now (a camera tool overwrites them with each new frame)."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for name in ("rgb.png", "depth.png", "camera.json"):
+            p = self.folder / name
+            h.update(name.encode())
+            h.update(p.read_bytes() if p.is_file() else b"-")
+        return h.hexdigest()
+
+    def look_again(self, world: Scene | None, step: int) -> Frame | None:
+        """The folder's next frame; None when its images are those already read (no new frame)."""
+        if _guard(self.name, self._fingerprint) == self._seen:
+            return None
+        return self.capture()
 
 
 class RealSenseSource:
@@ -166,6 +209,10 @@ class RealSenseSource:
                 cap = _guard(self.name, self._cam.grab)
             self._n += 1
             return Frame(cap, None, f"{self.name}#{self._n}")
+
+    def look_again(self, world: Scene | None, step: int) -> Frame:
+        """A new frame of the live camera (or the recording's next one)."""
+        return self.capture()
 
     def close_locked(self) -> None:
         if self._cam is not None:

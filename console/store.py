@@ -39,8 +39,9 @@ from perception.scene import Scene
 from planning.plan import Plan
 
 DEFAULT_DB = Path("data") / "shelfpick.db"
-SCHEMA_VERSION = 2          # 2: the runs table (which console runs which plan, for crash recovery)
-OUR_TABLES = {"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes"}
+SCHEMA_VERSION = 3          # 2: the runs table (crash recovery); 3: verifications (the look after each step)
+OUR_TABLES = {"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes", "runs",
+              "verifications"}
 ROBOT_KINDS = ("start", "ack", "done", "error", "aborted", "disconnected", "unknown")
 
 _SCHEMA = """
@@ -111,7 +112,21 @@ CREATE TABLE IF NOT EXISTS runs (
     ended TEXT,
     result TEXT                      -- done | stopped | failed | interrupted
 );
+CREATE TABLE IF NOT EXISTS verifications (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    session_id INTEGER NOT NULL REFERENCES sessions(id),
+    plan_hash TEXT NOT NULL,
+    run TEXT,                        -- the robot run id of the step's run
+    at TEXT NOT NULL,
+    step INTEGER NOT NULL,
+    box TEXT,
+    within INTEGER NOT NULL,         -- 1: the next step may go, 0: the robot was held
+    verdict TEXT NOT NULL,           -- console.verify.Verification JSON (matches, distances, timing)
+    predicted TEXT,                  -- shelfpick.scene/1: the shelf the plan predicted after the step
+    observed TEXT                    -- shelfpick.scene/1: the shelf perceived after the step
+);
 CREATE INDEX IF NOT EXISTS plans_session ON plans(session_id);
+CREATE INDEX IF NOT EXISTS verifications_session ON verifications(session_id);
 CREATE INDEX IF NOT EXISTS decisions_session ON decisions(session_id);
 CREATE INDEX IF NOT EXISTS events_session ON robot_events(session_id);
 """
@@ -182,6 +197,7 @@ class SessionRecord:
     decisions: tuple[dict, ...] = ()
     robot_events: tuple[dict, ...] = ()
     outcome: dict | None = None
+    verifications: tuple[dict, ...] = ()   # per verified step: verdict, predicted and observed Scene
     files: Path | None = None
     missing_files: tuple[str, ...] = field(default_factory=tuple)
 
@@ -318,7 +334,7 @@ class SessionStore:
                 cur.execute("INSERT OR IGNORE INTO meta(key, value) VALUES ('schema', ?)",
                             (str(SCHEMA_VERSION),))
                 cur.execute("UPDATE meta SET value=? WHERE key='schema' AND CAST(value AS INTEGER) < ?",
-                            (str(SCHEMA_VERSION), SCHEMA_VERSION))   # 1 -> 2: the runs table, added above
+                            (str(SCHEMA_VERSION), SCHEMA_VERSION))   # 1 -> 2 -> 3: tables added above
                 cur.execute("COMMIT")
             except BaseException:
                 if self._db.in_transaction:
@@ -504,11 +520,49 @@ class SessionStore:
 
         return self._write(fn)
 
+    def add_verification(self, session_id: int, plan_hash: str, run: str | None, verdict: dict,
+                         predicted: Scene | None, observed: Scene | None) -> int:
+        """The look after one step: the verdict, the predicted and the observed shelf (before the next step)."""
+        def fn(cur: sqlite3.Cursor) -> int:
+            self._require_session(cur, session_id)
+            cur.execute("INSERT INTO verifications(session_id, plan_hash, run, at, step, box, within, verdict, "
+                        "predicted, observed) VALUES (?,?,?,?,?,?,?,?,?,?)",
+                        (session_id, plan_hash, run, utc_now(), int(verdict["step"]), verdict.get("box"),
+                         1 if verdict.get("within") else 0, json.dumps(verdict, default=_jsonable),
+                         json.dumps(predicted.to_json()) if predicted is not None else None,
+                         json.dumps(observed.to_json()) if observed is not None else None))
+            return int(cur.lastrowid)
+
+        return self._write(fn)
+
+    def verification_stats(self) -> list[dict]:
+        """Every verified step of every session: plan hash, step, within, and the plan's predicted risk."""
+        if not self._has_table("verifications"):
+            return []
+        rows = self._read("SELECT v.session_id, v.plan_hash, v.step, v.box, v.within, v.verdict, "
+                          "(SELECT p.plan FROM plans p WHERE p.session_id=v.session_id AND p.hash=v.plan_hash "
+                          "ORDER BY p.id DESC LIMIT 1) AS plan FROM verifications v ORDER BY v.id")
+        out = []
+        for r in rows:
+            plan = json.loads(r["plan"]) if r["plan"] else {}
+            pred = plan.get("predicted") or []
+            step = int(r["step"])
+            p = pred[step] if step < len(pred) and isinstance(pred[step], dict) else {}
+            out.append({"session": r["session_id"], "plan": r["plan_hash"], "planner": plan.get("planner"),
+                        "step": step, "box": r["box"], "within": bool(r["within"]),
+                        "collapse_prob": float(p.get("collapse_prob", 0.0) or 0.0),
+                        "collision_prob": float(p.get("collision_prob", 0.0) or 0.0),
+                        "verdict": json.loads(r["verdict"])})
+        return out
+
+    def _has_table(self, name: str) -> bool:
+        return bool(self._read("SELECT 1 FROM sqlite_master WHERE type='table' AND name=?", (name,)))
+
     def set_outcome(self, session_id: int, outcome: dict, run_id: int | None = None) -> None:
-        """The run's outcome; the session's status says done, stopped, interrupted or failed."""
+        """The run's outcome; the session's status says done, held, stopped, interrupted or failed."""
         ok = bool(outcome.get("ok"))
         status = ("done" if ok else "interrupted" if outcome.get("interrupted")
-                  else "stopped" if outcome.get("stopped") else "failed")
+                  else "stopped" if outcome.get("stopped") else "held" if outcome.get("held") else "failed")
 
         def fn(cur: sqlite3.Cursor) -> None:
             self._require_session(cur, session_id)
@@ -620,6 +674,8 @@ class SessionStore:
             decisions = self._read("SELECT * FROM decisions WHERE session_id=? ORDER BY id", (session_id,))
             events = self._read("SELECT * FROM robot_events WHERE session_id=? ORDER BY id", (session_id,))
             orow = self._read("SELECT * FROM outcomes WHERE session_id=?", (session_id,))
+            vrows = (self._read("SELECT * FROM verifications WHERE session_id=? ORDER BY id", (session_id,))
+                     if self._has_table("verifications") else [])   # a version-2 archive has none
         origin = f"{self.path}#session{session_id}"
         scene = Scene.from_json(json.loads(scenes["perceived"]["scene"]), origin)
         truth = Scene.from_json(json.loads(scenes["truth"]["scene"]), origin) if "truth" in scenes else None
@@ -639,7 +695,13 @@ class SessionStore:
                                 "detail": json.loads(r["detail"]) if r["detail"] else None} for r in events),
             outcome=json.loads(orow[0]["outcome"]) if orow else None,
             files=self.path.parent / s["files"] if s["files"] else None,
-            missing_files=tuple(missing))
+            missing_files=tuple(missing),
+            verifications=tuple({"plan_hash": r["plan_hash"], "run": r["run"], "at": r["at"], "step": r["step"],
+                                 "box": r["box"], "within": bool(r["within"]), "verdict": json.loads(r["verdict"]),
+                                 "predicted": Scene.from_json(json.loads(r["predicted"]), origin)
+                                 if r["predicted"] else None,
+                                 "observed": Scene.from_json(json.loads(r["observed"]), origin)
+                                 if r["observed"] else None} for r in vrows))
 
     def _load_images(self, row: sqlite3.Row) -> tuple[Capture | None, np.ndarray | None, list[str]]:
         """Images back as arrays; a deleted file is reported, not fatal (the record stays readable)."""

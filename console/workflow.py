@@ -47,6 +47,7 @@ class PlanEntry:
     plan: Any                      # planning.plan.Plan
     hash: str
     preview: tuple = ()            # StepResult list from Predictor.preview (recorded frames)
+    shelves: tuple = ()            # the perceived Scene after each step, as predicted (verification)
 
     @property
     def est_seconds(self) -> float:
@@ -89,6 +90,8 @@ class State:
     repairs: tuple[str, ...] = ()  # what the physics moved to make the perceived scene valid
     audit: str | None = None       # a record that could not be committed (persists until a capture is)
     recovered: tuple[str, ...] = ()  # runs found interrupted at start-up (crash, kill -9)
+    verifications: tuple[Any, ...] = ()  # console.verify.Verification of the current run, per step
+    deviation: Any = None          # Deviation: why the last run was held (shown until the next capture)
     message: str = ""
     error: str | None = None
 
@@ -105,6 +108,8 @@ class State:
             return self.robot
         if self.approved is not None:
             return "approved"
+        if self.deviation is not None and not self.capturing and not self.planning and not self.plans:
+            return "held"
         if self.capturing:
             return "capturing"
         if self.planning:
@@ -168,6 +173,22 @@ class Throttle:
             return False
 
 
+@dataclass(frozen=True, eq=False)
+class Deviation:
+    """A run held because the shelf did not do what was predicted: what differed, and where.
+
+    `predicted` is the shelf the plan predicted after `verification.step`
+    (ids of the held plan's capture); the observed shelf is the new capture
+    the workflow made current (session `session`), held from `held_session`.
+    """
+
+    verification: Any              # console.verify.Verification
+    predicted: Any                 # Scene
+    plan: str                      # hash of the held plan
+    held_session: int
+    session: int | None            # the verification capture's session (plan again from it)
+
+
 @dataclass(eq=False)
 class _Run:
     """The run lock: one approval of one plan for one capture, until its run ends."""
@@ -186,6 +207,8 @@ class _Run:
     scene: Any = None                # the perceived and (demo) true scene of the approved capture
     truth: Any = None
     robot_run: str = ""              # the run id sent to the robot (keys its "already done"); recorded
+    verifications: list = field(default_factory=list)   # one Verification per verified step
+    held: tuple | None = None        # (Verification, Frame, Perception) that held the robot
 
 
 class Workflow:
@@ -193,7 +216,11 @@ class Workflow:
 
     def __init__(self, source: Any, store: Any, robot_factory: RobotFactory,
                  supervisor_passphrase: str, samples: int = 10, seed: int = 0,
-                 segmenter: Any = None, workers: int = 1, throttle: Throttle | None = None) -> None:
+                 segmenter: Any = None, workers: int = 1, throttle: Throttle | None = None,
+                 tolerance: Any = None) -> None:
+        """`tolerance` (console.verify.Tolerance): how far a box may be from its predicted pose
+        after a step before the robot is held; the look after each step needs a source with
+        `look_again` (demo, files, RealSense)."""
         if not supervisor_passphrase:
             raise ValueError("a supervisor passphrase is required")
         self.source = source
@@ -205,6 +232,9 @@ class Workflow:
         self.segmenter = segmenter
         self.workers = max(1, int(workers))     # processes for the depth samples (same plans for any count)
         self.throttle = throttle or Throttle()
+        from console.verify import Tolerance
+
+        self.tolerance = tolerance or Tolerance()
         self._lock = threading.RLock()
         self._state = State(source=getattr(source, "name", str(source)))
         self._listeners: list[Listener] = []
@@ -368,7 +398,7 @@ class Workflow:
                              plans={}, capturing=False, planning=False, progress=0.0, progress_text="",
                              approved=None, approval=None, decisions=(), robot="idle", robot_events=(),
                              outcome=None, needs_recapture=False, scene_problems=(), repairs=(),
-                             audit=audit, error=err,
+                             verifications=(), deviation=None, audit=audit, error=err,
                              message=f"captured {frame.name}: {len(scene.boxes)} boxes"
                                      + (f" (session {sid})" if sid is not None else ""))
 
@@ -376,7 +406,8 @@ class Workflow:
         return self._set(capture=frame.capture if frame else None, overlay=None, scene=None,
                          truth=None, plans={}, approved=None, approval=None, decisions=(), target=None,
                          robot="idle", robot_events=(), outcome=None, planning=False, capturing=False,
-                         scene_problems=(), repairs=(), session_id=None, message="", error=msg)
+                         scene_problems=(), repairs=(), session_id=None, verifications=(), deviation=None,
+                         message="", error=msg)
 
     # ----------------------------------------------------------------- target
     def select_target(self, box_id: str) -> State:
@@ -421,7 +452,8 @@ class Workflow:
             scene, sid = st.scene, st.session_id
             self._plan_thread = threading.Thread(target=self._plan_worker, name="shelfpick-plan",
                                                  args=(gen, scene, sid, task, target), daemon=True)
-            self._set(planning=True, task=task, plans={}, approved=None, approval=None, progress=0.0,
+            keep = {k: e for k, e in st.plans.items() if k == "continue"}
+            self._set(planning=True, task=task, plans=keep, approved=None, approval=None, progress=0.0,
                       progress_text="starting", scene_problems=(), repairs=(), error=None,
                       message=f"planning {task}" + (f" {target}" if target else "") + "...")
             thread = self._plan_thread
@@ -494,7 +526,10 @@ class Workflow:
         plan = replace(plan, timing=timing, extra=extra)
         self._progress(gen, 0.1 + 0.85 * (i + 0.6) / n, f"{planner} planner: recording preview")
         preview = tuple(predictor.preview(plan.sequence, 0)) if plan.sequence else ()
-        return PlanEntry(plan, plan.content_hash(), preview)
+        from planning.predicted import predicted_shelves
+
+        shelves = tuple(predicted_shelves(scene, plan.sequence, preview)) if preview else ()
+        return PlanEntry(plan, plan.content_hash(), preview, shelves)
 
     def _plans_ready(self, gen: int, entries: dict[str, PlanEntry], repairs: tuple[str, ...]) -> None:
         phys = entries["physics"].plan
@@ -511,6 +546,9 @@ class Workflow:
                 err = (f"no safe plan: the least risky sequence still has a predicted collapse "
                        f"risk of {100 * phys.risk:.0f}%; a supervisor may approve it only by "
                        f"accepting that risk. Or rearrange the shelf and capture again")
+            cont = self._state.plans.get("continue")   # continuing the held plan stays on offer
+            if cont is not None:
+                entries = {**entries, "continue": cont}
             self._set(plans=entries, planning=False, progress=1.0, progress_text="done", error=err,
                       scene_problems=problems, repairs=repairs,
                       message="plans ready: compare them, preview, then a supervisor approves one")
@@ -596,6 +634,15 @@ class Workflow:
                              error=None, message=f"{who} approved the {entry.plan.planner} plan {plan_hash}")
 
     def _risk_note(self, entry: PlanEntry, accept_risk: bool) -> str | None:
+        cont = (entry.plan.extra or {}).get("continues")
+        if isinstance(cont, Mapping):
+            # the shelf already did not do what this plan predicted: continuing is a risk taken knowingly
+            what = (f"continue plan {cont.get('plan')} as planned after a deviation at step "
+                    f"{int(cont.get('after_step', 0)) + 1} (session {cont.get('session')})")
+            if not accept_risk:
+                self._refuse(f"approval refused: to {what}, tick 'Accept predicted risk' (the shelf "
+                             f"differs from the prediction); or plan again from the new capture")
+            return f"accepted: {what}"
         if entry.plan.safe:
             return None
         risk = f"{100 * entry.plan.risk:.0f}%"
@@ -728,6 +775,8 @@ class Workflow:
             _seed_history(robot, run.plan_hash, done_before)
             if hasattr(robot, "run_id"):
                 robot.run_id = run.robot_run
+            if hasattr(robot, "verify") and callable(getattr(self.source, "look_again", None)):
+                robot.verify = self._verifier(run)
             if run.stop.is_set():
                 err = "robot: stopped before the first step"
             else:
@@ -739,6 +788,63 @@ class Workflow:
             err = f"robot: {exc}"
         finally:
             self._finish(run, run_id, outcome, err)
+
+    def _verifier(self, run: _Run) -> Callable[..., str | None]:
+        """After each `done`: look again, compare with the predicted shelf; a reason string holds the robot.
+
+        Runs on the robot's thread before the next step is sent. The record is
+        committed before the answer is given (audit first): a verification
+        that cannot be recorded, or cannot be made, holds the robot too.
+        """
+        def verify(step: int, box: str, world: Any = None) -> str | None:
+            from console.verify import unavailable
+
+            v, frame, perception, predicted = self._look(run, step, box, world)
+            try:
+                self.store.add_verification(run.session_id, run.plan_hash, run.robot_run, v.to_json(), predicted,
+                                            perception.scene if perception is not None else None)
+            except Exception as exc:  # noqa: BLE001 - audit first: no record, no further motion
+                msg = self._audit_failed(f"the verification of step {step + 1}", exc)
+                v = unavailable(step, box, f"the verification could not be recorded ({msg})", self.tolerance)
+            run.verifications.append(v)
+            with self._lock:
+                self._set(verifications=tuple(run.verifications), message=v.summary())
+            if v.within:
+                return None
+            if frame is not None and perception is not None:
+                run.held = (v, frame, perception, predicted)
+            return v.summary()
+        return verify
+
+    def _look(self, run: _Run, step: int, box: str, world: Any) -> tuple:
+        """(Verification, Frame | None, Perception | None, predicted Scene | None) after `step`."""
+        from console.verify import compare, unavailable
+        from perception.pipeline import perceive
+
+        shelves = run.entry.shelves
+        predicted = shelves[step] if step < len(shelves) else None
+        t0 = time.perf_counter()
+        try:
+            frame = self.source.look_again(world, step)
+        except Exception as exc:  # noqa: BLE001 - a camera fault holds the robot, it is not a crash
+            return unavailable(step, box, f"camera: {exc}", self.tolerance), None, None, predicted
+        if frame is None:
+            return (unavailable(step, box, "the source has no new frame since the last capture",
+                                self.tolerance), None, None, predicted)
+        t1 = time.perf_counter()
+        try:
+            shelf = frame.truth.shelf if frame.truth is not None else run.scene.shelf
+            perception = perceive(frame.capture, self.segmenter, shelf=shelf)
+        except Exception as exc:  # noqa: BLE001
+            return unavailable(step, box, f"perception: {exc}", self.tolerance), frame, None, predicted
+        t2 = time.perf_counter()
+        if predicted is None:
+            v = unavailable(step, box, "the plan has no predicted shelf for this step", self.tolerance)
+        else:
+            v = compare(predicted, perception.scene, step, box, self.tolerance)
+        t3 = time.perf_counter()
+        return (replace(v, timing={"capture_s": t1 - t0, "perceive_s": t2 - t1, "compare_s": t3 - t2}),
+                frame, perception, predicted)
 
     def _on_event(self, run: _Run) -> Callable[[Any], None]:
         def on_event(ev: Any) -> None:
@@ -764,16 +870,68 @@ class Workflow:
             status, msg = "done", "robot finished the plan"
         else:
             status, msg = "failed", "robot stopped on an error"
+        if run.held is not None and status == "failed":
+            status, msg = "held", f"robot held: {run.held[0].summary()}"
+        elif run.verifications and not run.verifications[-1].within and status == "failed":
+            status, msg = "held", f"robot held: {run.verifications[-1].summary()}"
         if run.audit_failed:
             status, err = "stopped", run.audit_failed
         out_doc = _outcome_json(outcome, err, run.entry, stop_asked, run.stopped_by)
+        if run.verifications:
+            out_doc["verified"] = [v.to_json() for v in run.verifications]
+            out_doc["held"] = status == "held"
         self._record("the outcome", self.store.set_outcome, run.session_id, out_doc, run_id)
         done = ", ".join(outcome.completed) if outcome is not None and outcome.completed else "none"
+        if run.held is not None:
+            if self._held_capture(run, status, outcome, msg, err):
+                return
         msg += f"; completed steps: {done}. Capture and plan again before the next run."
         with self._lock:
             self._release(run)
             self._set(robot=status, outcome=outcome, needs_recapture=True, approval=None, message=msg,
-                      error=err if status != "stopped" or run.audit_failed else None)
+                      error=err if status not in ("stopped", "held") or run.audit_failed else None)
+
+    def _held_capture(self, run: _Run, status: str, outcome: Any, msg: str, err: str | None) -> bool:
+        """The look that held the robot becomes the current capture: plan again from it, or continue.
+
+        A new session (its images and perceived scene, linked to the held one)
+        and, when every box the held plan still has to take was seen, a
+        `continue` plan: the rest of the held plan in the new capture's ids,
+        which a supervisor may approve (ticking `Accept predicted risk`).
+        """
+        v, frame, perception, predicted = run.held
+        info = {"frame": frame.name, **_summary(perception),
+                "verification_of": {"session": run.session_id, "plan": run.plan_hash, "step": v.step,
+                                    "run": run.robot_run}}
+        try:
+            sid = self.store.new_session(self._state.source, frame.capture, perception.scene, frame.truth,
+                                         perception.overlay, info)
+        except Exception as exc:  # noqa: BLE001 - no record, nothing of it can be approved: fall back
+            self._audit_failed("the capture taken after the held step", exc)
+            return False
+        cont = _continuation(run.entry, v, perception.scene, run.session_id)
+        recorded = False
+        if cont is not None:
+            recorded = self._record("the continue-as-planned plan", self.store.add_plan, sid, cont.plan,
+                                    [_step_json(r) for r in cont.preview]) is not None
+        scene = perception.scene
+        with self._lock:
+            self._generation += 1
+            if recorded:
+                self._recorded.add((sid, cont.hash))
+            self._release(run)
+            dev = Deviation(v, predicted, run.plan_hash, run.session_id, sid)
+            msg += (f". The new capture (session {sid}) is current: plan again from it"
+                    + (", or a supervisor approves `continue` (the rest of the plan as planned)"
+                       if recorded else "") + ".")
+            self._set(session_id=sid, frame_name=frame.name, capture=frame.capture, overlay=perception.overlay,
+                      scene=scene, truth=frame.truth, warnings=tuple(perception.warnings),
+                      target=_mapped_target(run.entry.plan, v, scene), task=None,
+                      plans={"continue": cont} if recorded else {}, planning=False, progress=0.0,
+                      progress_text="", approved=None, approval=None, decisions=(), robot=status,
+                      outcome=outcome, needs_recapture=False, scene_problems=(), repairs=(),
+                      deviation=dev, message=msg, error=v.summary() if status == "held" else err)
+        return True
 
 
 def _seed_history(robot: Any, plan_hash: str, done: dict[int, str]) -> None:
@@ -790,6 +948,59 @@ def _seed_history(robot: Any, plan_hash: str, done: dict[int, str]) -> None:
     for i, box in done.items():
         hist.mark_done(getattr(robot, "name", ""), plan_hash, i, box)
     robot.history = hist
+
+
+def _mapped_target(plan: Any, v: Any, scene: Any) -> str | None:
+    """The held plan's target in the new capture's ids (else the new capture's last box)."""
+    t = v.observed_of().get(plan.target) if plan.target else None
+    return t or (scene.ids[-1] if scene.boxes else None)
+
+
+def _continuation(entry: PlanEntry, v: Any, scene: Any, held_session: int) -> PlanEntry | None:
+    """The rest of the held plan in the new capture's ids; None when a box still to take was not seen.
+
+    Its predicted shelves carry the held plan's simulated motions on from
+    where the prediction stood after the held step, applied to the new
+    capture's boxes, so the continued run is verified step by step too.
+    """
+    from planning.plan import StepPrediction
+    from planning.predicted import predicted_shelves, sim_poses_after
+
+    plan, k = entry.plan, v.step
+    rest = plan.sequence[k + 1:]
+    ids = v.observed_of()
+    if not rest or any(b not in ids for b in rest):
+        return None
+    seq = tuple(ids[b] for b in rest)
+    pred = tuple(StepPrediction(ids[p.box], p.collapse_prob, p.collision_prob,
+                                tuple(ids[m] for m in p.moved if m in ids))
+                 for p in plan.predicted[k + 1:] if p.box in ids)
+    extra = {"continues": {"session": held_session, "plan": entry.hash, "after_step": k,
+                           "deviation": v.summary()}}
+    if plan.target is None:
+        target = None
+    else:
+        target = ids[plan.target]
+    cont = replace(plan, target=target, planner="continue", sequence=seq, predicted=pred,
+                   timing={}, extra=extra)
+    preview = tuple(_renamed(r, ids) for r in entry.preview[k + 1:])
+    start = _renamed_poses(sim_poses_after(entry.preview, k), ids) if entry.preview else None
+    shelves = tuple(predicted_shelves(scene, seq, preview, start)) if preview else ()
+    return PlanEntry(cont, cont.content_hash(), preview, shelves)
+
+
+def _renamed_poses(poses: Mapping[str, Any], ids: Mapping[str, str]) -> dict:
+    return {ids[b]: p for b, p in poses.items() if b in ids}
+
+
+def _renamed(step: Any, ids: Mapping[str, str]) -> dict:
+    """A recorded preview step (object or JSON) with the box ids of another capture."""
+    doc = _step_json(step) if not isinstance(step, Mapping) else dict(step)
+    doc["box"] = ids.get(doc.get("box"), doc.get("box"))
+    for k in ("collapsed", "collided"):
+        doc[k] = [ids[b] for b in doc.get(k, []) if b in ids]
+    doc["frames"] = [[t, _renamed_poses(poses, ids)] for t, poses in doc.get("frames", [])]
+    return doc
 
 
 def scene_problems(plan: Any) -> tuple[dict, ...]:
@@ -834,5 +1045,5 @@ def _outcome_json(outcome: Any, err: str | None, entry: PlanEntry, stopped: bool
     return doc
 
 
-__all__ = ["Workflow", "WorkflowError", "State", "PlanEntry", "Throttle", "PLANNERS", "SECONDS_PER_BOX",
+__all__ = ["Workflow", "WorkflowError", "State", "PlanEntry", "Deviation", "Throttle", "PLANNERS", "SECONDS_PER_BOX",
            "AUTH_REFUSED", "scene_problems", "problem_text"]
