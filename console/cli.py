@@ -5,11 +5,18 @@ Each subcommand lives in a module of the package that owns it and exposes
 modules import nothing heavy at module level (no torch, pybullet or viser),
 so `shelfpick --help` stays instant. A `ShelfpickError` is the user's to fix:
 it is printed as one line and the exit code is 2, with no traceback.
+
+Exit codes (docs/cli.md): 0 done; 1 an unexpected failure (a traceback);
+2 bad input or usage; 3 `simulate`: the plan did not hold; 130 interrupted;
+143 `console` stopped by SIGTERM. Status and warnings are log records on
+stderr (`-v` adds debug, `-q` keeps only warnings and errors); stdout carries
+only what a command was asked for (a plan, a verdict, a report).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 
 COMMANDS: dict[str, str] = {
@@ -26,11 +33,81 @@ COMMANDS: dict[str, str] = {
     "replay": "console.cmd_replay",
 }
 
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_PLAN_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
+LOGGERS = ("perception", "planning", "console")   # the packages whose records the CLI shows
+
+
+def version() -> str:
+    """The installed distribution's version (the one in pyproject.toml); 'unknown' from a bare checkout."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("shelfpick")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class _VersionAction(argparse.Action):
+    """`--version` without importing anything the version does not need."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"shelfpick {version()}")
+        parser.exit(EXIT_OK)
+
+
+class _StderrHandler(logging.Handler):
+    """Writes to whatever sys.stderr is at the time (pytest's capture swaps it per test)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+        except Exception:  # noqa: BLE001 - logging must never raise
+            self.handleError(record)
+
+
+class _Format(logging.Formatter):
+    """`shelfpick CMD: message` for information, `shelfpick CMD: warning: message` otherwise."""
+
+    def __init__(self, command: str) -> None:
+        super().__init__()
+        self.command = command
+
+    def format(self, record: logging.LogRecord) -> str:
+        msg = record.getMessage()
+        if record.exc_info and record.levelno >= logging.ERROR:
+            msg += "\n" + self.formatException(record.exc_info)
+        level = "" if record.levelno == logging.INFO else f"{record.levelname.lower()}: "
+        return f"shelfpick {self.command}: {level}{msg}"
+
+
+def configure_logging(command: str, verbosity: int) -> None:
+    """One stderr handler on the project's loggers; verbosity -1 (-q) warnings only, 0 info, 1+ debug."""
+    level = logging.DEBUG if verbosity > 0 else logging.INFO if verbosity == 0 else logging.WARNING
+    if verbosity < -1:
+        level = logging.ERROR
+    for name in LOGGERS:
+        logger = logging.getLogger(name)
+        for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
+            logger.removeHandler(h)
+        handler = _StderrHandler()
+        handler.setFormatter(_Format(command))
+        logger.addHandler(handler)
+        logger.setLevel(level)
+        logger.propagate = False
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="shelfpick",
-        description="Collapse- and collision-aware box picking from shelves.")
+        description="Collapse- and collision-aware box picking from shelves.",
+        epilog="exit codes: 0 done, 1 unexpected failure, 2 bad input, 3 simulate: the plan did not hold, "
+               "130 interrupted (docs/cli.md)")
+    parser.add_argument("--version", action=_VersionAction, help="print the version and exit")
+    add_verbosity(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, modname in COMMANDS.items():
         try:
@@ -40,9 +117,26 @@ def build_parser() -> argparse.ArgumentParser:
                 raise
             continue  # a subcommand whose module is not built yet
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        add_verbosity(p, argparse.SUPPRESS)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
+
+
+def add_verbosity(parser: argparse.ArgumentParser, default=0) -> None:
+    """-v / -q, before or after the subcommand (`shelfpick -q plan ...` = `shelfpick plan -q ...`)."""
+    parser.add_argument("-v", "--verbose", dest="verbosity", action="count", default=default,
+                        help="more detail on stderr (debug records)")
+    parser.add_argument("-q", "--quiet", dest="verbosity", action=_Decrement, default=default,
+                        help="only warnings and errors on stderr (-qq: errors only)")
+
+
+class _Decrement(argparse.Action):
+    def __init__(self, option_strings, dest, default=0, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, (getattr(namespace, self.dest, 0) or 0) - 1)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,16 +145,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
-        parser.print_help()
-        return 2
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
+    configure_logging(args.command, getattr(args, "verbosity", 0) or 0)
+    log = logging.getLogger("console.cli")
     try:
         return int(args._run(args) or 0)
     except ShelfpickError as exc:
-        print(f"shelfpick {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        log.error("%s", exc)
+        return EXIT_USAGE
     except KeyboardInterrupt:
-        print(f"shelfpick {args.command}: interrupted", file=sys.stderr)
-        return 130
+        log.error("interrupted")
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

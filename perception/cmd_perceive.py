@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
+
+log = logging.getLogger(__name__)
 
 HELP = "perceive a scene (depth_known false) from an RGB image, a depth image and a camera file"
 
@@ -46,6 +48,24 @@ def _check_numbers(args: argparse.Namespace) -> None:
                                   f"{' '.join(f'{v:g}' for v in vals)}")
 
 
+def _implausible(result, shelf) -> str | None:
+    """Why a colour-only result is no shelf of boxes (None when it may be one).
+
+    Without a depth image the distance to every face is one guess (a plane square to the optical
+    axis, or --front-distance / --box-size): on a pitched camera or a busy background a face can
+    come out as the whole shelf, or, far off axis, kilometres wide. Such a scene is refused rather
+    than written: a planner would treat it as real."""
+    for b in result.scene.boxes:
+        w, h = b.size[0], b.size[2]
+        if w > 0.9 * shelf.width or h > 0.9 * shelf.height:
+            return f"box {b.id} came out {w:.2f} x {h:.2f} m, the size of the shelf"
+    for box_id, f in (result.summary().get("faces") or {}).items():
+        x = f.get("center", [0.0])[0]
+        if f.get("width", 0.0) > 2 * shelf.width or abs(x) > shelf.width:
+            return f"the face of {box_id} came out {f.get('width', 0.0):.2f} m wide at x = {x:.2f} m"
+    return None
+
+
 def _write(path: str, what: str, write) -> None:
     """Run `write()`; a folder that cannot be made or a file that cannot be written is the
     user's to fix, so it becomes a one-line PerceptionError naming the file."""
@@ -86,6 +106,12 @@ def run(args: argparse.Namespace) -> int:
     extra = {"catalogue": None} if getattr(args, "no_catalogue", False) else {}
     result = perceive(capture, seg, shelf, front_distance=args.front_distance,
                       box_size=tuple(args.box_size) if args.box_size else None, origin=args.camera, **extra)
+    if capture.depth is None:
+        why = _implausible(result, shelf)
+        if why:
+            raise PerceptionError(f"--depth: not given, and from the colour image alone {why}; give the "
+                                  "capture's depth image (--depth), or the distance to the box fronts "
+                                  "(--front-distance M or --box-size W H), or use --segmenter photo, made for photos; nothing written")
     _write(args.out, "scene", lambda: result.scene.save(args.out))
     if args.overlay:
         _write(args.overlay, "overlay image",
@@ -95,9 +121,9 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         _write(args.report, "report", lambda: write_json(args.report, result.summary()))
     for w in result.warnings:
-        print(f"warning: {w}", file=sys.stderr)
+        log.warning("%s", w)
     for a in result.adjustments:
-        print(f"adjusted: {a}", file=sys.stderr)
-    print(f"{len(result.scene.boxes)} boxes -> {args.out} ({result.segmenter}, "
-          f"{result.timing['total']:.2f} s)")
+        log.info("adjusted: %s", a)
+    log.info("%d boxes -> %s (%s, %.2f s)", len(result.scene.boxes), args.out, result.segmenter,
+             result.timing["total"])
     return 0

@@ -10,7 +10,8 @@ HELP = "measure perception (recall, precision, centre/size/angle error, time) on
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenes", help="folder of scene JSON files to render (default: sample --count)")
     p.add_argument("--count", type=int, default=10, help="sampled scenes when no --scenes (half structured)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the sampled scenes and of the renders' looks and noise (default 0)")
     p.add_argument("--realdata", help="path of shared/realdata (default ../shared/realdata if present)")
     p.add_argument("--no-real", action="store_true", help="rendered scenes only")
     p.add_argument("--no-rendered", action="store_true", help="real captures only")
@@ -41,7 +42,10 @@ def run(args: argparse.Namespace) -> int:
         if not scenes:
             raise PerceptionError(f"{args.scenes}: no scene JSON files in the folder")
         camera = bench.camera_at(args.distance) if args.distance is not None else None
-        summary, frames = bench.bench_rendered(scenes, args.seed, seg, camera=camera)
+        from perception.cmd_render import c_stdout_to_stderr
+
+        with c_stdout_to_stderr():   # the renderer's pybullet prints argv[0]= on connect
+            summary, frames = bench.bench_rendered(scenes, args.seed, seg, camera=camera)
         if args.distance is not None:
             report["camera_distance_m"] = args.distance
         report["rendered"] = summary

@@ -2,6 +2,13 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import os
+import sys
+from contextlib import contextmanager
+from typing import Iterator
+
+log = logging.getLogger(__name__)
 
 HELP = "render a scene file into rgb.png, depth.png, camera.json, masks.png and masks.json"
 
@@ -15,6 +22,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-noise", action="store_true", help="exact depth, clean colour image")
 
 
+@contextmanager
+def c_stdout_to_stderr() -> Iterator[None]:
+    """File descriptor 1 pointed at stderr meanwhile: pybullet's C code printf()s `argv[0]=` on
+    connect, which would land among what a command was asked to print on stdout."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def run(args: argparse.Namespace) -> int:
     import time
 
@@ -24,9 +46,10 @@ def run(args: argparse.Namespace) -> int:
     scene = Scene.load(args.scene)
     camera = Camera.load(args.camera) if args.camera else None
     t0 = time.perf_counter()
-    capture = render(scene, camera, seed=args.seed, noise=not args.no_noise)
+    with c_stdout_to_stderr():
+        capture = render(scene, camera, seed=args.seed, noise=not args.no_noise)
     dt = time.perf_counter() - t0
     paths = capture.save(args.out)
-    print(f"rendered {len(scene.boxes)} boxes ({len(capture.labels)} visible) in {dt:.2f} s "
-          f"-> {', '.join(str(p) for p in paths.values())}")
+    log.info("rendered %d boxes (%d visible) in %.2f s -> %s", len(scene.boxes), len(capture.labels), dt,
+             ", ".join(str(p) for p in paths.values()))
     return 0

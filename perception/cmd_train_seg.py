@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import logging
+
+log = logging.getLogger(__name__)
 
 HELP = "train the YOLO11n-seg box segmenter on synthetic shelf renders (offline, resumable)"
 
@@ -29,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     dt = time.perf_counter() - t0
     m = "n/a" if res.map50_95 is None else f"{res.map50_95:.3f}"
     m50 = "n/a" if res.map50 is None else f"{res.map50:.3f}"
-    print(f"{'resumed, ' if res.resumed else ''}{res.epochs} epochs on {res.dataset.n_train} images "
-          f"({res.dataset.n_instances} boxes) in {dt / 60:.1f} min; validation mask mAP50-95 {m}, "
-          f"mAP50 {m50} -> {res.weights}")
+    log.info("%s%d epochs on %d images (%d boxes) in %.1f min; validation mask mAP50-95 %s, mAP50 %s -> %s",
+             "resumed, " if res.resumed else "", res.epochs, res.dataset.n_train, res.dataset.n_instances,
+             dt / 60, m, m50, res.weights)
     return 0

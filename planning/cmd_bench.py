@@ -4,6 +4,9 @@ what a camera gives (front faces with perception error) and their plans run on a
 from __future__ import annotations
 
 import argparse
+import logging
+
+log = logging.getLogger(__name__)
 
 HELP = "benchmark the planners on a folder of scenes (serial, --workers N or --ray; resumable)"
 
@@ -61,5 +64,5 @@ def run(args: argparse.Namespace) -> int:
                         limit=args.limit)
     from planning.bench import to_markdown
     print(to_markdown(summary), end="")
-    print(f"wrote {args.out}/results.md, results.json, results.png, records.jsonl")
+    log.info("wrote %s/results.md, results.json, results.png, records.jsonl", args.out)
     return 0

@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
+
+log = logging.getLogger(__name__)
 
 HELP = "plan the removals that extract a box (or clear the shelf) without a collapse"
 
@@ -29,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _warn(msg: str) -> None:
-    print(f"shelfpick plan: warning: {msg}", file=sys.stderr)
+    log.warning("%s", msg)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
                              workers=args.workers)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
+    plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk)
     for w in caught:
         _warn(str(w.message))
     search = plan.extra.get("search", {})
@@ -83,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
             plan.save(args.out)
         except OSError as exc:
             raise FormatError(args.out, "--out", f"cannot write the plan ({exc.strerror or exc})") from None
-        print(f"shelfpick plan: {len(plan.sequence)} step(s) {' -> '.join(plan.sequence) or '(none)'}"
-              f"; safe={str(plan.safe).lower()}; wrote {args.out}", file=sys.stderr)
+        log.info("%d step(s) %s; safe=%s; wrote %s", len(plan.sequence),
+                 " -> ".join(plan.sequence) or "(none)", str(plan.safe).lower(), args.out)
     else:
         json.dump(plan.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")

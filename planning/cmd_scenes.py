@@ -3,9 +3,12 @@ where highest-first collapses often) as scene files, settled with their true mas
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 from perception.errors import FormatError
+
+log = logging.getLogger(__name__)
 
 HELP = "generate synthetic shelves (settled in physics) as shelfpick.scene/1 files"
 
@@ -62,12 +65,13 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise FormatError(str(out), "", f"cannot create the output folder ({exc.strerror})") from None
-    for i in tqdm(range(args.count), desc=f"{args.kind} shelves", unit="scene"):
+    quiet = not log.isEnabledFor(logging.INFO)
+    for i in tqdm(range(args.count), desc=f"{args.kind} shelves", unit="scene", disable=quiet):
         s = scene_seed(args.seed, i)
         n = None
         if rng_range is not None:
             n = int(np.random.default_rng([s & 0xFFFFFFFF, 7]).integers(rng_range[0], rng_range[1] + 1))
         scene = generate(args.kind, s, n, masses=args.masses)
         scene.save(out / f"{args.kind}-{args.seed}-{i:04d}.json")
-    print(f"wrote {args.count} {args.kind} scenes to {out}")
+    log.info("wrote %d %s scenes to %s", args.count, args.kind, out)
     return 0

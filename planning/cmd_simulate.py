@@ -2,8 +2,13 @@
 from __future__ import annotations
 
 import argparse
+import logging
 
-HELP = "execute a plan on a scene (taken as ground truth) and print a JSON verdict"
+log = logging.getLogger(__name__)
+
+EXIT_PLAN_FAILED = 3  # the plan did not hold: something collapsed or the target did not come out (docs/cli.md)
+
+HELP = "execute a plan on a scene (taken as ground truth) and print a JSON verdict; exit 3 if the plan does not hold"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,21 +22,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import json
-    import sys
     import warnings
 
     from perception.scene import Scene, write_json
     from planning.execute import execute_plan
-    from planning.plan import Plan
+    from planning.plan import Plan, scene_hash
 
     scene = Scene.load(args.scene)
     plan = Plan.load(args.plan)
     plan.check_against(scene.ids, origin=str(args.plan))
+    made_for = plan.provenance.get("scene_hash")
+    if made_for and made_for != scene_hash(scene):
+        log.info("the plan was made for another scene (hash %s, this one %s): running it on this one as the truth",
+                 made_for, scene_hash(scene))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         execution = execute_plan(scene, plan.sequence, seed=args.seed, record=args.frames)
     for w in caught:
-        print(f"shelfpick simulate: warning: {w.message}", file=sys.stderr)
+        log.warning("%s", w.message)
     doc = execution.to_json(frames=args.frames)
     doc["scene"] = str(args.scene)
     doc["plan"] = str(args.plan)
@@ -40,4 +48,9 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         write_json(args.out, doc)
     print(json.dumps(doc, indent=2))
+    if not execution.ok:
+        step = execution.failed_step
+        log.warning("the plan did not hold%s (exit %d)", "" if step is None else f" at step {step + 1}",
+                    EXIT_PLAN_FAILED)
+        return EXIT_PLAN_FAILED
     return 0

@@ -3,15 +3,52 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
 from perception.errors import FormatError
-from perception.scene import read_json, write_json
+from perception.scene import Scene, read_json, write_json
 
 PLAN_FORMAT = "shelfpick.plan/1"
 TASKS = ("extract", "clear")
+# the physics settings a reader needs to judge a plan (all of them: `physics.config_hash`)
+PHYSICS_RECORDED = ("gravity", "lateral_friction", "spinning_friction", "density", "time_step",
+                    "solver_iterations", "pull_speed", "pull_force", "disturbance", "collapse_displacement",
+                    "collapse_rotation", "collision_threshold")
+
+
+def shelfpick_version() -> str:
+    """The installed shelfpick's version (pyproject.toml); 'unknown' when run from a bare checkout."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("shelfpick")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def scene_hash(scene: Scene) -> str:
+    """Identity of the scene a plan was made for: sha256 of its canonical JSON (sorted keys, no spaces)."""
+    doc = json.dumps(scene.to_json(), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+def provenance(scene: Scene, config: Any = None, samples: int | None = None,
+               risk: float | None = None) -> dict[str, Any]:
+    """What made a plan, so that a plan file can be checked against its scene and reproduced."""
+    from planning.physics import PhysicsConfig
+
+    cfg = asdict(config if config is not None else PhysicsConfig())
+    physics = {k: cfg[k] for k in PHYSICS_RECORDED if k in cfg}
+    physics["config_hash"] = hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    doc: dict[str, Any] = {"shelfpick_version": shelfpick_version(), "scene_hash": scene_hash(scene),
+                           "physics": physics}
+    if samples is not None:
+        doc["samples"] = samples
+    if risk is not None:
+        doc["risk"] = risk
+    return doc
 
 
 @dataclass(frozen=True)
@@ -76,6 +113,17 @@ class Plan:
         """Largest predicted step risk (0 when nothing is predicted to move)."""
         return max((p.risk for p in self.predicted), default=0.0)
 
+    @property
+    def provenance(self) -> Mapping[str, Any]:
+        """`shelfpick_version`, `scene_hash`, `physics`... (empty for plans written before 0.2)."""
+        doc = self.extra.get("provenance")
+        return doc if isinstance(doc, Mapping) else {}
+
+    def with_provenance(self, scene: Scene, config: Any = None, samples: int | None = None,
+                        risk: float | None = None) -> "Plan":
+        """This plan recording what made it (see `provenance`); sequence and predictions unchanged."""
+        return replace(self, extra={**self.extra, "provenance": provenance(scene, config, samples, risk)})
+
     def content_hash(self) -> str:
         """Identity of what the robot would do: task, target and the exact sequence."""
         key = json.dumps({"task": self.task, "target": self.target, "sequence": list(self.sequence)},
@@ -137,6 +185,9 @@ class Plan:
         seed = doc.get("seed")
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
             raise FormatError(origin, "seed", f"expected an integer, got {seed!r}")
+        prov = doc.get("provenance", {})
+        if not isinstance(prov, Mapping) or not isinstance(prov.get("scene_hash", ""), str):
+            raise FormatError(origin, "provenance", f"expected an object with a string scene_hash, got {prov!r}")
         known = {"format", "task", "target", "planner", "sequence", "predicted", "safe", "timing", "seed"}
         extra = {k: v for k, v in doc.items() if k not in known}
         return cls(task, target, planner, tuple(seq), predicted, safe, dict(timing), seed, extra)

@@ -35,7 +35,7 @@ def test_simulate_prints_a_parseable_verdict(tmp_path):
 def test_simulate_reports_a_collapse(tmp_path, capsys):
     scene, plan = write(tmp_path, ["a"])
     out = tmp_path / "verdict.json"
-    assert main(["simulate", scene, plan, "--out", str(out)]) == 0
+    assert main(["simulate", scene, plan, "--out", str(out)]) == 3   # the plan did not hold (docs/cli.md)
     doc = json.loads(capsys.readouterr().out)
     assert doc["ok"] is False and doc["steps"][0]["collapsed"] == ["b"]
     assert json.loads(out.read_text())["ok"] is False
