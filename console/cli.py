@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "perceive": "perception.cmd_perceive",
     "train-seg": "perception.cmd_train_seg",
     "perceive-bench": "perception.cmd_perceive_bench",
+    "calibrate": "perception.cmd_calibrate",
     "console": "console.cmd_console",
     "sessions": "console.cmd_sessions",
     "replay": "console.cmd_replay",
