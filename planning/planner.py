@@ -60,6 +60,41 @@ def evaluate_sequence(sequence: tuple[str, ...],
     return tuple(out)
 
 
+def _search(scene: Scene, task: str, target: str | None, planner: str, risk: float,
+            predictor: Predicting, sampling: Screening | None, budget_s: float | None,
+            t0: float) -> tuple[tuple[str, ...], tuple[StepPrediction, ...], bool, dict[str, float], int]:
+    """Run the planner: (sequence, predicted, timed out, timing, distinct questions asked of the physics)."""
+    oracle = CountingOracle(predictor.trial)
+    screened: set[tuple[frozenset[str], str]] = set()
+    if planner == "heuristic":
+        t1 = time.perf_counter()
+        sequence = heuristic_order(scene, target)
+        t_plan = time.perf_counter() - t1
+        predicted = evaluate_sequence(sequence, oracle)
+        timing = {"planning_s": t_plan, "prediction_s": time.perf_counter() - t1 - t_plan}
+        return tuple(sequence), tuple(predicted), False, timing, len(oracle.keys)
+    deadline = None if budget_s is None else time.monotonic() + budget_s
+    # the fast path (docs/speed.md): a Predictor samples a candidate only until it
+    # can no longer be safe, and finds the least risky box without sampling all
+    fast = least = None
+    if sampling is not None:
+        screen = sampling.screen
+
+        def fast(r: frozenset[str], b: str) -> StepPrediction:
+            screened.add((frozenset(r), b))
+            return screen(r, b, risk)
+        least = sampling.least_risky
+    if task == "extract":
+        res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
+                             screen=fast)
+    else:
+        res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
+                           screen=fast, least_risky=least)
+    timing = {"planning_s": time.perf_counter() - t0}
+    return (tuple(res.sequence), tuple(res.predicted), res.timed_out, timing,
+            len(screened | oracle.keys))
+
+
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
               samples: int = 10, seed: int = 0, risk: float = 0.0,
               config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
@@ -72,9 +107,10 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     reused when given (the console and the benchmark keep one per scene);
     otherwise one is built from `scene` with `samples` draws of what the camera
     cannot know (`model`, default `Uncertainty()`: depth, mass, friction, face
-    error, the pull) and
-    `seed` (over `workers` processes of `pool`, or of a pool of its own: same plan,
-    less wait; Bullet clients from `clients` when given), and closed afterwards. `budget_s` bounds the physics search; when it runs out the plan says so (``extra["search"]["timed_out"]``).
+    error, the pull) and `seed` (over `workers` processes of `pool`, or of a pool
+    of its own: same plan, less wait; Bullet clients from `clients` when given),
+    and closed afterwards. `budget_s` bounds the physics search; when it runs out
+    the plan says so (``extra["search"]["timed_out"]``).
     """
     check_request(scene, task, target, planner, samples, risk, origin)
     if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
@@ -98,38 +134,11 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         t_ready = time.perf_counter()
         stats = sampling.stats if sampling is not None else None
         pulls0 = stats.get("pulls", 0) if isinstance(stats, dict) else 0
-        oracle = CountingOracle(predictor.trial)
-        screened: set[tuple[frozenset[str], str]] = set()
-        if planner == "heuristic":
-            t1 = time.perf_counter()
-            sequence = heuristic_order(scene, target)
-            t_plan = time.perf_counter() - t1
-            predicted = evaluate_sequence(sequence, oracle)
-            timing = {"planning_s": t_plan, "prediction_s": time.perf_counter() - t1 - t_plan}
-            timed_out = False
-        else:
-            deadline = None if budget_s is None else time.monotonic() + budget_s
-            # the fast path (docs/speed.md): a Predictor samples a candidate only until it
-            # can no longer be safe, and finds the least risky box without sampling all
-            fast = least = None
-            if sampling is not None:
-                screen = sampling.screen
-
-                def fast(r: frozenset[str], b: str) -> StepPrediction:
-                    screened.add((frozenset(r), b))
-                    return screen(r, b, risk)
-                least = sampling.least_risky
-            if task == "extract":
-                res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
-                                     screen=fast)
-            else:
-                res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
-                                   screen=fast, least_risky=least)
-            sequence, predicted, timed_out = res.sequence, res.predicted, res.timed_out
-            timing = {"planning_s": time.perf_counter() - t0}
+        sequence, predicted, timed_out, timing, calls = _search(scene, task, target, planner, risk,
+                                                                predictor, sampling, budget_s, t0)
         timing["setup_s"] = t_ready - t0
         # distinct questions asked of the physics, whether screened or fully sampled
-        search.update({"oracle_calls": len(screened | oracle.keys), "timed_out": timed_out})
+        search.update({"oracle_calls": calls, "timed_out": timed_out})
         if isinstance(stats, dict) and "pulls" in stats:
             search["pulls"] = stats["pulls"] - pulls0  # physics pulls (samples actually run)
         if budget_s is not None:

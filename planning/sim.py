@@ -79,6 +79,20 @@ class ShelfSim:
         self._parked: set[str] = set()
         self.sim_time = 0.0
 
+        after = self._repair_and_settle()
+        if local:
+            for i, bid in enumerate(self._ids):
+                self._twin[bid] = self._add_twin(bid, i)
+        self._twin_of = {v: k for k, v in self._twin.items()}
+        snap = self.snapshot()   # start every world from a canonical state (see `restore`)
+        self.restore(snap)
+        self.forget(snap)
+        self.scene: Scene = scene.with_boxes(
+            replace(b, position=after[b.id][0], orientation=after[b.id][1]) for b in scene.boxes)
+
+    def _repair_and_settle(self) -> dict[str, tuple[Vec3, Quat]]:
+        """Push overlaps apart, settle, and say what moved (`repairs`, `settle_moves`); the poses at rest."""
+        cfg = self.config
         repairs = list(self._repair_overlaps())
         before = self.raw_poses(self._ids)
         if not self._settle(cfg.initial_settle_time):
@@ -99,17 +113,9 @@ class ShelfSim:
                 what = "dropped onto its support" if dz < -0.7 * d else "shifted while settling"
                 repairs.append(f"box {bid!r} {what}: moved {d:.3f} m")
         for msg in repairs:
-            warnings.warn(f"scene repaired: {msg}", stacklevel=2)
+            warnings.warn(f"scene repaired: {msg}", stacklevel=3)
         self.repairs: tuple[str, ...] = tuple(repairs)
-        if local:
-            for i, bid in enumerate(self._ids):
-                self._twin[bid] = self._add_twin(bid, i)
-        self._twin_of = {v: k for k, v in self._twin.items()}
-        snap = self.snapshot()   # start every world from a canonical state (see `restore`)
-        self.restore(snap)
-        self.forget(snap)
-        self.scene: Scene = scene.with_boxes(
-            replace(b, position=after[b.id][0], orientation=after[b.id][1]) for b in scene.boxes)
+        return after
 
     # ------------------------------------------------------------------ build
     def _static_box(self, name: str, half: Vec3, pos: Vec3) -> int:
