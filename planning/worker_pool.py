@@ -7,6 +7,9 @@ some workers for its life and gives them back; the pool keeps them (their
 imports and their Bullet clients are paid once) until its owner closes it.
 
 Each message to a worker is a small frozen dataclass; each answer a `Reply`.
+As with any spawn/forkserver start, a script that plans with workers must keep
+its top-level code under ``if __name__ == "__main__":`` (a worker imports the
+script's main module; unguarded code would run again there).
 """
 from __future__ import annotations
 
