@@ -125,12 +125,42 @@ def robot_markdown(state: State) -> str:
         if ev.kind in ("error", "disconnected", "aborted", "note") and ev.detail:
             note = ": " + md(ev.detail.get("message") or ev.detail.get("reason") or ev.detail.get("code") or "")
         lines.append(f"- {md(ev.kind)}{step}" + (f" {md(ev.box)}" if ev.box else "") + note)
+    lines.extend(verification_lines(state))
     out = state.outcome
     if out is not None:
         lines.append(f"\n**Outcome:** {'success' if out.ok else 'not completed'}; "
                      f"completed: {', '.join(md(b) for b in out.completed) or 'none'}"
                      + (f"; error: {md(out.error)}" if out.error else ""))
     return "\n".join(lines)
+
+
+def verification_lines(state: State) -> list[str]:
+    """The look after each step of the current run: one line per verified step."""
+    out = []
+    for v in state.verifications:
+        mark = "✓" if v.within else "⚠"
+        out.append(f"- {mark} {md(v.summary())}")
+    return out
+
+
+def deviation_markdown(state: State) -> str:
+    """Why the robot is held: each box predicted vs observed (ids are outside text: md())."""
+    dev = state.deviation
+    if dev is None:
+        return ""
+    v = dev.verification
+    rows = [f"**⚠ Robot held before step {v.step + 2}:** {md(v.summary())}", "",
+            "| predicted box | observed box | off by | turned | |", "|---|---|---|---|---|"]
+    for d in v.boxes:
+        if d.status == "ok":
+            continue
+        rows.append(f"| {md(d.predicted or '—')} | {md(d.observed or '—')} | {100 * d.displacement:.1f} cm "
+                    f"| {d.rotation:.0f}° | {md(d.status)} |")
+    rows.append(f"\n_Tolerance: {100 * v.tolerance.displacement:.0f} cm, {v.tolerance.rotation:.0f}°. "
+                f"Red outlines: boxes that differ; blue outlines: where they were predicted. Plan again "
+                f"from this capture (session {dev.session}), or a supervisor approves `continue` "
+                f"(the rest of plan `{md(dev.plan)}` as planned, with 'Accept predicted risk')._")
+    return "\n".join(rows)
 
 
 def status_markdown(state: State, viewer: str = "") -> str:
@@ -202,6 +232,7 @@ class ClientView:
                 self.prev_info = g.add_markdown("")
             self.btn_stop = g.add_button("Stop robot", color="red", icon="hand-stop")
             self.robot_md = g.add_markdown("")
+            self.deviation_md = g.add_markdown("")
             with g.add_folder("Camera"):
                 self.img_rgb = g.add_image(PLACEHOLDER, label="RGB")
                 self.img_overlay = g.add_image(PLACEHOLDER, label="Segmentation")
@@ -209,7 +240,7 @@ class ClientView:
             self.sup_info = g.add_markdown("")
             self.who = g.add_text("Name", "supervisor")
             self.passphrase = g.add_text("Passphrase", "")
-            self.approve_plan = g.add_dropdown("Plan", PLANNERS, initial_value=PLANNERS[0])
+            self.approve_plan = g.add_dropdown("Plan", PLANNERS + ("continue",), initial_value=PLANNERS[0])
             self.accept_risk = g.add_checkbox("Accept predicted risk", False,
                                               hint="needed to approve a plan predicted unsafe")
             self.btn_approve = g.add_button("Approve", color="green")
@@ -404,10 +435,28 @@ class ClientView:
 
     def _highlight(self) -> None:
         target = self.replay.get("target") if self.replay is not None else self.wf.state.target
-        risk = getattr(self, "risk", set())
+        risk = set(getattr(self, "risk", set()))
+        dev = self.wf.state.deviation if self.replay is None else None
+        if dev is not None and self.wf.state.session_id == dev.session:
+            risk |= {d.observed for d in dev.verification.boxes if d.status in ("moved", "new")}
+        self._draw_predicted(dev)
         for bid, n in self.nodes.items():
             n.target.visible = bid == target
             n.risk.visible = bid in risk
+
+    def _draw_predicted(self, dev: Any) -> None:
+        """Blue outlines where the held step's prediction had the boxes that differ (once per deviation)."""
+        if dev is getattr(self, "shown_deviation", None):
+            return
+        for h in getattr(self, "predicted_nodes", []):
+            h.remove()
+        self.predicted_nodes = []
+        self.shown_deviation = dev
+        if dev is None or dev.predicted is None:
+            return
+        differ = {d.predicted for d in dev.verification.boxes if d.status in ("moved", "missing")}
+        self.predicted_nodes = sv.draw_outlines(self.client.scene, [b for b in dev.predicted.boxes
+                                                                    if b.id in differ])
 
     def render(self, state: State) -> None:
         with self.lock:
@@ -425,6 +474,7 @@ class ClientView:
         for b in (self.btn_extract, self.btn_clear):
             b.disabled = state.planning
         self.robot_md.content = robot_markdown(state)
+        self.deviation_md.content = deviation_markdown(state) if self.replay is None else ""
         self.sup_info.content = self._supervisor_text(state)
         self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
         key = (state.session_id, state.robot, len(state.decisions), state.plans is not None and len(state.plans))

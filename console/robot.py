@@ -65,6 +65,30 @@ def match_boxes(perceived: Scene, truth: Scene, present: Mapping[str, Box] | Non
     return out
 
 
+SURPRISE_DRAW = 99_991   # the robot's draw index: no planner sample world (0..samples-1) shares it
+
+
+def surprising_world(truth: Scene | None, config: Any, seed: int, model: Any) -> tuple[Scene | None, Any]:
+    """(truth, physics) of a simulated robot: as given, or one seeded draw of `model` on top of them.
+
+    Boxes that carry a mass keep it (a world built from an earlier robot's
+    shelf keeps its masses); the faces are not moved (the truth is where it is).
+    """
+    if model is None:
+        return truth, config
+    from dataclasses import replace
+
+    from planning.physics import PhysicsConfig
+    from planning.uncertainty import draw_config, draw_scene
+
+    model = replace(model, face_error=0.0)
+    cfg = draw_config(config or PhysicsConfig(), seed, SURPRISE_DRAW, model)
+    if truth is not None:
+        known = truth.with_boxes(b if b.depth_known else replace(b, depth_known=True) for b in truth.boxes)
+        truth = draw_scene(known, seed, SURPRISE_DRAW, model, {})
+    return truth, cfg
+
+
 class SimRobot:
     """Executes a plan on the true scene in its own physics simulation (one ShelfSim per robot).
 
@@ -73,11 +97,14 @@ class SimRobot:
     """
 
     def __init__(self, truth: Scene | None = None, seed: int = 0, config: Any = None,
-                 step_delay: float = 0.0, match_tol: float = 0.08) -> None:
+                 step_delay: float = 0.0, match_tol: float = 0.08, surprise: Any = None) -> None:
+        """`surprise` (planning.uncertainty.Uncertainty): the robot's world is one seeded draw of what
+        the camera cannot know (a mass per box without one, friction, its own pull), not the
+        planner's assumptions, so the console's look after each step has something to catch."""
         self.name = "sim"
-        self.truth = truth
         self.seed = int(seed)
-        self.config = config
+        self.surprise = surprise
+        self.truth, self.config = surprising_world(truth, config, self.seed, surprise)
         self.step_delay = float(step_delay)
         self.match_tol = float(match_tol)
         self._sim: Any = None
@@ -94,7 +121,7 @@ class SimRobot:
         """A new shelf in front of the robot (a new demo capture): rebuild the world."""
         with self._lock:
             self.close_sim()
-            self.truth = truth
+            self.truth = surprising_world(truth, self.config, self.seed, self.surprise)[0]
             self._history.forget()
 
     def close_sim(self) -> None:
@@ -231,15 +258,22 @@ class SimRobot:
 
 # --------------------------------------------------------------------------
 def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDriver:
-    """`sim[?delay=S]` or `tcp://HOST:PORT[?transform=FILE|position=..&orientation=..&timeouts]`."""
+    """`sim[?delay=S&seed=N&surprise=0|1]` (surprise on by default: a truth the planner did not assume) or `tcp://HOST:PORT[?transform=FILE|position=..&orientation=..&timeouts]`."""
     parts = urlsplit(spec.strip())
     if spec.strip().split("?")[0] == "sim":
         q = parse_qs(spec.split("?", 1)[1]) if "?" in spec else {}
-        unknown = set(q) - {"delay", "seed"}
+        unknown = set(q) - {"delay", "seed", "surprise"}
         if unknown:
-            raise RobotError(f"robot spec {spec!r}: unknown option {sorted(unknown)[0]!r} (sim takes delay, seed)")
+            raise RobotError(f"robot spec {spec!r}: unknown option {sorted(unknown)[0]!r} "
+                             f"(sim takes delay, seed, surprise)")
         s = int(query_float(q, "seed", spec, seed))
-        return SimRobot(truth, seed=s, step_delay=query_float(q, "delay", spec, 0.0))
+        surprise = q.get("surprise", ["1"])[-1]
+        if surprise not in ("0", "1"):
+            raise RobotError(f"robot spec {spec!r}: surprise: expected 0 or 1, got {surprise!r}")
+        from planning.uncertainty import Uncertainty
+
+        return SimRobot(truth, seed=s, step_delay=query_float(q, "delay", spec, 0.0),
+                        surprise=Uncertainty() if surprise == "1" else None)
     if parts.scheme == "tcp":
         from console.robot_tcp import TcpRobot
 

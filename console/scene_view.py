@@ -17,6 +17,7 @@ import numpy as np
 SHELF_COLOR = (150, 130, 110)
 TARGET_COLOR = (255, 200, 0)
 RISK_COLOR = (230, 30, 30)
+PREDICTED_COLOR = (40, 90, 230)   # outlines of where a verification expected the boxes that differ
 PANEL = 0.02  # shelf board thickness drawn, m
 
 
@@ -90,6 +91,16 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
         risk = scene_api.add_box(f"{base}/risk", color=RISK_COLOR, dimensions=grow2,
                                  wireframe=True, visible=False, cast_shadow=False)
         out[b.id] = BoxNodes(handle, label, target, risk)
+    return out
+
+
+def draw_outlines(scene_api: Any, boxes: Sequence[Any], prefix: str = "/predicted") -> list:
+    """Wireframe boxes (blue) at the given poses: a step's predicted shelf over the observed one."""
+    out = []
+    for i, b in enumerate(boxes):   # named by position: ids are outside text
+        out.append(scene_api.add_box(f"{prefix}/{i}", color=PREDICTED_COLOR, dimensions=tuple(b.size),
+                                     position=tuple(b.position), wxyz=tuple(b.orientation),
+                                     wireframe=True, cast_shadow=False, receive_shadow=False))
     return out
 
 
@@ -175,5 +186,5 @@ def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any) -> None:
             n.box.visible = True
 
 
-__all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "BoxNodes",
+__all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "draw_outlines", "BoxNodes",
            "risky_boxes", "Keyframe", "timeline", "apply_keyframe", "reset_boxes", "visible_pose"]

@@ -34,7 +34,7 @@ class Tolerance:
     """How far a box may be from its predicted pose before the robot is held."""
 
     displacement: float = 0.03   # m, front-face centre
-    rotation: float = 8.0        # degrees, up to the box's symmetries
+    rotation: float = 10.0       # degrees, up to the box's symmetries
     match_radius: float = 0.10   # m: a box farther than this from every prediction is another box
 
     def to_json(self) -> dict:
@@ -43,7 +43,7 @@ class Tolerance:
 
     @classmethod
     def from_json(cls, doc: Mapping[str, Any]) -> "Tolerance":
-        return cls(float(doc.get("displacement_m", 0.03)), float(doc.get("rotation_deg", 8.0)),
+        return cls(float(doc.get("displacement_m", 0.03)), float(doc.get("rotation_deg", 10.0)),
                    float(doc.get("match_radius_m", 0.10)))
 
 

@@ -883,8 +883,12 @@ class Workflow:
         self._record("the outcome", self.store.set_outcome, run.session_id, out_doc, run_id)
         done = ", ".join(outcome.completed) if outcome is not None and outcome.completed else "none"
         if run.held is not None:
-            if self._held_capture(run, status, outcome, msg, err):
-                return
+            try:
+                if self._held_capture(run, status, outcome, msg, err):
+                    return
+            except Exception as exc:  # noqa: BLE001 - the run lock must be released whatever happens
+                traceback.print_exc()
+                self._audit_failed("the capture taken after the held step", exc)
         msg += f"; completed steps: {done}. Capture and plan again before the next run."
         with self._lock:
             self._release(run)
@@ -913,7 +917,8 @@ class Workflow:
         recorded = False
         if cont is not None:
             recorded = self._record("the continue-as-planned plan", self.store.add_plan, sid, cont.plan,
-                                    [_step_json(r) for r in cont.preview]) is not None
+                                    [r if isinstance(r, Mapping) else _step_json(r)
+                                     for r in cont.preview]) is not None
         scene = perception.scene
         with self._lock:
             self._generation += 1
