@@ -17,20 +17,32 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+import warnings
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
-from perception.errors import FormatError, ShelfpickError
-from perception.scene import quat_to_matrix
-from planning.bench_report import TIMING_KEYS, comparable, summarize, to_markdown, write_reports
+import numpy as np
+
+from perception.errors import FormatError, SceneError, ShelfpickError
+from perception.scene import Scene, quat_to_matrix, read_json, write_json
+from planning.bench_report import (
+    TIMING_KEYS,
+    comparable,
+    summarize,
+    to_markdown,
+    write_reports,
+)
+from planning.execute import execute_plan
+from planning.exhaustive import min_removals, true_scene_oracle
+from planning.physics import PhysicsConfig
+from planning.planner import make_plan
+from planning.predict import Predictor
+from planning.sim import ShelfSim
 
 __all__ = ["BenchConfig", "Job", "RecordLog", "TruthModel", "comparable", "derive_seed", "draw_truth",
            "observe", "read_records", "TIMING_KEYS", "run_bench", "run_scene", "summarize", "to_markdown", "true_world"]
 
-if TYPE_CHECKING:  # pragma: no cover
-    from perception.scene import Scene
-    from planning.physics import PhysicsConfig
 
 RECORDS = "records.jsonl"
 RUN_META = "run.json"
@@ -118,8 +130,6 @@ class Job:
 def observe(truth: "Scene", noise: float, seed: int, placeholder: float = 0.10) -> "Scene":
     """Front faces only: depth unknown (a placeholder), no masses, `noise` m of error
     (normal, per axis) on each front face's centre and on its width and height."""
-    import numpy as np
-    from dataclasses import replace
 
     rng = np.random.default_rng(seed)
     out = []
@@ -139,10 +149,7 @@ def observe(truth: "Scene", noise: float, seed: int, placeholder: float = 0.10) 
 
 def draw_truth(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "PhysicsConfig"]:
     """True masses (where the scene has none) and a truth physics, drawn from `seed`."""
-    import numpy as np
-    from dataclasses import replace
 
-    from planning.physics import PhysicsConfig
 
     rng = np.random.default_rng(seed)
     boxes = [b if b.mass is not None else replace(b, mass=round(float(rng.uniform(*model.mass)), 3))
@@ -157,9 +164,7 @@ def draw_truth(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "
 def stands(scene: "Scene", config: "PhysicsConfig", tolerance: float) -> str | None:
     """None when every box stays within `tolerance` of its place while the shelf settles and
     then rests 0.5 s under `config`; else which box moved and how far (not a truth)."""
-    import warnings
 
-    from planning.sim import ShelfSim
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -185,7 +190,6 @@ def stands(scene: "Scene", config: "PhysicsConfig", tolerance: float) -> str | N
 def true_world(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "PhysicsConfig", int]:
     """A truth draw under which the shelf stands as it is (redrawn otherwise); (scene, physics, draw).
     SceneError when no draw of `model.draws` stands: the scene is no truth for this model."""
-    from perception.errors import SceneError
 
     why = ""
     for k in range(model.draws):
@@ -200,7 +204,6 @@ def true_world(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "
 # the work itself (runs in a worker)
 def _worlds(job: Job) -> tuple["Scene", "Scene", "PhysicsConfig | None", dict]:
     """(what the planner is given, the truth it is judged on, the truth physics, record fields)."""
-    from perception.scene import Scene
 
     cfg = job.config
     truth = Scene.from_json(job.doc, job.name)
@@ -217,9 +220,6 @@ def _worlds(job: Job) -> tuple["Scene", "Scene", "PhysicsConfig | None", dict]:
 def _plan_and_run(job: Job, seen: "Scene", truth: "Scene", physics: "PhysicsConfig | None",
                   target: str, planner: str, shared: Any, seed: int) -> dict:
     """One planner on one target: plan on what was seen (timed), execute on the truth."""
-    from planning.execute import execute_plan
-    from planning.planner import make_plan
-    from planning.predict import Predictor
 
     cfg = job.config
     plan_seed = derive_seed(cfg.seed, job.name, "plan")
@@ -250,10 +250,7 @@ def _plan_and_run(job: Job, seen: "Scene", truth: "Scene", physics: "PhysicsConf
 
 def run_scene(job: Job) -> list[dict]:
     """Plan and execute every pending target of one scene; one record per target."""
-    import warnings
 
-    from perception.errors import SceneError
-    from planning.predict import Predictor
 
     cfg = job.config
     base = {"scene": job.name, "kind": scene_kind(job.doc, job.name), "scene_sha": scene_sha(job.doc),
@@ -271,7 +268,6 @@ def run_scene(job: Job) -> list[dict]:
         setup_s = time.perf_counter() - t0
         exhaustive = None
         if len(truth.boxes) <= cfg.exhaustive_max_boxes:
-            from planning.exhaustive import min_removals, true_scene_oracle
             exhaustive = (min_removals, true_scene_oracle(truth, derive_seed(cfg.seed, job.name, "exhaustive"),
                                                           config=physics))
         records = []
@@ -304,7 +300,6 @@ def run_scene(job: Job) -> list[dict]:
 def load_jobs(scenes_dir: str | Path, config: BenchConfig, limit: int | None = None,
               done: Iterable[str] = (), shas: dict[str, str] | None = None) -> list[Job]:
     """Scene files (sorted by name) with the targets not yet in `done`; `shas` gets each scene's content id."""
-    from perception.scene import Scene, read_json
 
     d = Path(scenes_dir)
     if not d.is_dir():
@@ -329,7 +324,6 @@ def load_jobs(scenes_dir: str | Path, config: BenchConfig, limit: int | None = N
 
 
 def count_tasks(scenes_dir: str | Path, limit: int | None = None) -> int:
-    from perception.scene import Scene
     files = sorted(Path(scenes_dir).glob("*.json"))
     if limit is not None:
         files = files[:limit]
@@ -386,14 +380,12 @@ def check_meta(out: Path, config: BenchConfig, scenes_dir: str | Path) -> None:
     meta = {"format": "shelfpick.bench/1", "config": config.to_json(),
             "scenes": str(Path(scenes_dir).resolve())}
     if meta_path.exists():
-        from perception.scene import read_json
         old = read_json(meta_path)
         if old.get("config") != meta["config"]:
             raise FormatError(str(meta_path), "config",
                               f"this folder holds a run with {old.get('config')}, not {meta['config']}; "
                               "use another --out")
         return
-    from perception.scene import write_json
     write_json(meta_path, meta)
 
 

@@ -13,11 +13,11 @@ planner and the true optimum, and which tasks admit any collapse-free order).
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Callable, Iterable
+from typing import Callable, Iterable
 
-if TYPE_CHECKING:  # pragma: no cover
-    from perception.scene import Scene
-    from planning.physics import PhysicsConfig
+from perception.scene import Scene
+from planning.physics import PhysicsConfig
+from planning.sim import ShelfSim
 
 SafeFn = Callable[[frozenset[str], str], bool]
 
@@ -73,7 +73,6 @@ def true_scene_oracle(scene: "Scene", seed: int = 0, config: "PhysicsConfig | No
     Asking about a set that was never reached raises ``KeyError``. Results are
     cached; call ``.close()`` when done, ``.calls()`` counts the pulls.
     """
-    from planning.sim import ShelfSim
 
     sim = ShelfSim(scene, config)
     snaps = {frozenset(): sim.snapshot()}

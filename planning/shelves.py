@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, Sequence
 
 import numpy as np
@@ -31,6 +31,7 @@ import numpy as np
 from perception.errors import SceneError, ShelfpickError
 from perception.scene import BOX_TYPES, Box, Scene, Shelf, quat_to_matrix
 from planning.geometry3 import rot_angle_deg
+from planning.sim import ShelfSim
 
 Kind = Literal["structured", "unstructured", "proud", "bridge", "lean", "overhang"]
 # the last four are stacks where the highest-first baseline collapses often (docs/bench.md):
@@ -641,7 +642,6 @@ def _leaning_on_columns(rng: np.random.Generator, n: int, shelf: Shelf) -> list[
     """Columns on the left of the shelf, and a standing long box leaning on the rightmost one
     against a box that reaches above it (highest-first takes that box first); where the columns
     offer none, against the wall or any stack tall enough."""
-    from dataclasses import replace
 
     part = Shelf(shelf.width - LEAN_ROOM, shelf.depth, shelf.height)
     dx = -LEAN_ROOM / 2
@@ -763,7 +763,6 @@ def _masses(mass_range: tuple[float, float] | None, n: int, seed: int, kind: str
 def _reload_problem(scene: Scene) -> str:
     """A shelf written is a truth: read back into a fresh simulation it must come to rest where it
     is (a column rocking on a light box can pass the first settle and not the next). '' when it does."""
-    from planning.sim import ShelfSim
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -784,7 +783,6 @@ def _reload_problem(scene: Scene) -> str:
 
 def _settle(scene: Scene) -> Scene:
     """Settle in the physics simulation; SceneError if it does not rest or boxes moved far."""
-    from planning.sim import ShelfSim
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
