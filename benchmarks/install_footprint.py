@@ -1,0 +1,119 @@
+"""Install footprint of the core and of each extra, and the time from `git clone` to a plan.
+
+Each variant is a fresh venv (python -m venv, pip upgraded as a new user would not: left as it
+comes) into which the wheel built from this checkout is installed with one extra; its size is
+`du -s` of the venv, measured and then the venv deleted (the `learned` one is ~6 GB). The clone
+measurement clones this repository (local `git clone`), creates a venv, installs the core and
+runs `shelfpick plan` on a demo shelf, timing each step. pip's download cache is whatever the
+machine has: say so when reporting (a cold cache adds the downloads).
+
+    nice -n 10 python benchmarks/install_footprint.py --out docs/results/install-footprint.md
+    nice -n 10 python benchmarks/install_footprint.py --extras core,perception   # a subset
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+EXTRAS = ("core", "perception", "bench", "console", "distributed", "realsense", "learned", "all")
+
+
+def sh(cmd: list[str], cwd: Path | None = None) -> float:
+    """Run, raise with its stderr on failure; wall seconds."""
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)}: {proc.stderr.strip()[-2000:]}")
+    return time.perf_counter() - t0
+
+
+def du_mib(path: Path) -> float:
+    out = subprocess.run(["du", "-sk", str(path)], capture_output=True, text=True, check=True).stdout
+    return int(out.split()[0]) / 1024
+
+
+def build_wheel(work: Path) -> Path:
+    sh([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(work)])
+    return next(work.glob("shelfpick-*.whl"))
+
+
+def footprint(wheel: Path, extra: str, work: Path, python: str) -> dict:
+    env = work / f"venv-{extra}"
+    t_venv = sh([python, "-m", "venv", str(env)])
+    empty = du_mib(env)
+    spec = str(wheel) if extra == "core" else f"shelfpick[{extra}] @ {wheel.as_uri()}"
+    t_install = sh([str(env / "bin" / "python"), "-m", "pip", "install", "-q", spec])
+    size = du_mib(env)
+    pkgs = subprocess.run([str(env / "bin" / "python"), "-m", "pip", "list", "--format=json"],
+                          capture_output=True, text=True, check=True).stdout
+    shutil.rmtree(env)
+    return {"extra": extra, "venv_mib": round(size, 1), "empty_venv_mib": round(empty, 1),
+            "added_mib": round(size - empty, 1), "packages": len(json.loads(pkgs)),
+            "install_s": round(t_venv + t_install, 1)}
+
+
+def clone_to_plan(work: Path, python: str) -> dict:
+    """git clone -> venv -> pip install . (core) -> shelfpick plan on a demo shelf, timed."""
+    repo = work / "clone"
+    times = {"clone_s": sh(["git", "clone", "-q", str(ROOT), str(repo)])}
+    times["venv_s"] = sh([python, "-m", "venv", str(repo / ".venv")])
+    times["install_s"] = sh([str(repo / ".venv" / "bin" / "python"), "-m", "pip", "install", "-q", "."], repo)
+    times["plan_s"] = sh([str(repo / ".venv" / "bin" / "shelfpick"), "plan", "static/demo/demo-small-6.json",
+                          "--target", "b1", "--out", "plan.json"], repo)
+    times["total_s"] = sum(times.values())
+    shutil.rmtree(repo)
+    return {k: round(v, 1) for k, v in times.items()}
+
+
+def markdown(rows: list[dict], clone: dict | None, cmd: str) -> str:
+    lines = ["# Install footprint", "", f"`{cmd}` (Python {sys.version.split()[0]}, "
+             f"{time.strftime('%Y-%m-%d')})", "",
+             "| install | venv (MiB) | added to an empty venv (MiB) | packages | install (s) |",
+             "|---|---:|---:|---:|---:|"]
+    for r in rows:
+        name = "core (`pip install shelfpick`)" if r["extra"] == "core" else f"`shelfpick[{r['extra']}]`"
+        lines.append(f"| {name} | {r['venv_mib']:.0f} | {r['added_mib']:.0f} | {r['packages']} | {r['install_s']:.0f} |")
+    if clone:
+        lines += ["", "From `git clone` to a plan with the core install: " +
+                  ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in clone.items())]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--extras", default=",".join(EXTRAS), help=f"comma separated, of {', '.join(EXTRAS)}")
+    p.add_argument("--python", default=sys.executable, help="interpreter for the venvs (default: this one)")
+    p.add_argument("--no-clone", action="store_true", help="skip the git clone -> plan timing")
+    p.add_argument("--out", help="also write the markdown table here (and .json beside it)")
+    args = p.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="shelfpick-footprint-") as tmp:
+        work = Path(tmp)
+        wheel = build_wheel(work)
+        for extra in [e.strip() for e in args.extras.split(",") if e.strip()]:
+            try:
+                rows.append(footprint(wheel, extra, work, args.python))
+            except RuntimeError as exc:
+                rows.append({"extra": extra, "error": str(exc).splitlines()[-1][:300]})
+                print(f"{extra}: {rows[-1]['error']}", file=sys.stderr)
+                continue
+            print(json.dumps(rows[-1]), flush=True)
+        clone = None if args.no_clone else clone_to_plan(work, args.python)
+    cmd = "python benchmarks/install_footprint.py " + " ".join(sys.argv[1:])
+    md = markdown([r for r in rows if "error" not in r], clone, cmd.strip())
+    print(md)
+    if args.out:
+        Path(args.out).write_text(md, encoding="utf-8")
+        Path(args.out).with_suffix(".json").write_text(json.dumps({"rows": rows, "clone_to_plan": clone}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
