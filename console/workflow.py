@@ -217,10 +217,11 @@ class Workflow:
     def __init__(self, source: Any, store: Any, robot_factory: RobotFactory,
                  supervisor_passphrase: str, samples: int = 10, seed: int = 0,
                  segmenter: Any = None, workers: int = 1, throttle: Throttle | None = None,
-                 tolerance: Any = None) -> None:
+                 tolerance: Any = None, perceive_options: Mapping[str, Any] | None = None) -> None:
         """`tolerance` (console.verify.Tolerance): how far a box may be from its predicted pose
         after a step before the robot is held; the look after each step needs a source with
-        `look_again` (demo, files, RealSense)."""
+        `look_again` (demo, files, RealSense). `perceive_options`: a cell file's `shelf` (used
+        when the source knows no truth) and `catalogue` (console/cell.py)."""
         if not supervisor_passphrase:
             raise ValueError("a supervisor passphrase is required")
         self.source = source
@@ -230,6 +231,7 @@ class Workflow:
         self.samples = int(samples)
         self.seed = int(seed)
         self.segmenter = segmenter
+        self.perceive_options = dict(perceive_options or {})
         self.workers = max(1, int(workers))     # processes for the depth samples (same plans for any count)
         self.throttle = throttle or Throttle()
         from console.verify import Tolerance
@@ -368,8 +370,10 @@ class Workflow:
         try:
             from perception.pipeline import perceive
 
-            shelf = frame.truth.shelf if frame.truth is not None else None  # installation geometry
-            perception = perceive(frame.capture, self.segmenter, shelf=shelf)
+            opts = dict(self.perceive_options)
+            cell_shelf = opts.pop("shelf", None)
+            shelf = frame.truth.shelf if frame.truth is not None else cell_shelf  # installation geometry
+            perception = perceive(frame.capture, self.segmenter, shelf=shelf, **opts)
         except Exception as exc:  # noqa: BLE001
             from perception.scene import Scene, Shelf
 
@@ -834,7 +838,8 @@ class Workflow:
         t1 = time.perf_counter()
         try:
             shelf = frame.truth.shelf if frame.truth is not None else run.scene.shelf
-            perception = perceive(frame.capture, self.segmenter, shelf=shelf)
+            opts = {k: v for k, v in self.perceive_options.items() if k != "shelf"}
+            perception = perceive(frame.capture, self.segmenter, shelf=shelf, **opts)
         except Exception as exc:  # noqa: BLE001
             return unavailable(step, box, f"perception: {exc}", self.tolerance), frame, None, predicted
         t2 = time.perf_counter()
