@@ -1,0 +1,249 @@
+"""A robot cell described in one TOML file (`shelfpick console --cell cell.toml`).
+
+What the console needs to know about an installation, in one place instead of URL query strings:
+the shelf interior, the camera (source, intrinsics and pose file), the segmenter and its weights,
+the robot (URL, shelf-to-robot transform, timeouts) and the safety settings. Read and checked
+completely before anything is opened: a wrong value is a `CellError`, one line naming the file,
+the field and the value (exit 2). Relative paths are relative to the cell file. See docs/console.md
+"Cell file" and examples/cell.toml.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+from urllib.parse import quote
+
+from perception.errors import FormatError
+
+CELL_FORMAT = "shelfpick.cell/1"
+SEGMENTERS = ("auto", "depth", "photo", "yolo", "learned")
+TIMEOUTS = ("connect_timeout", "ack_timeout", "step_timeout", "heartbeat", "heartbeat_timeout", "abort_timeout")
+SECTIONS: dict[str, tuple[str, ...]] = {
+    "shelf": ("width", "depth", "height"),
+    "camera": ("source", "file"),
+    "perception": ("segmenter", "weights", "catalogue"),
+    "robot": ("url", "transform", "position", "orientation") + TIMEOUTS,
+    "safety": ("samples", "seed", "workers", "host", "port", "db", "tolerance_displacement",
+               "tolerance_rotation", "tolerance_match_radius"),
+}
+
+
+class CellError(FormatError):
+    """A cell file that is wrong: `cell.toml: robot.url: expected tcp://HOST:PORT or sim, got 'x'`."""
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One installation, as read from its cell file (paths resolved against the file's folder)."""
+
+    path: str
+    shelf: tuple[float, float, float] | None = None
+    source: str | None = None
+    camera_file: str | None = None
+    segmenter: str = "auto"
+    weights: str | None = None
+    catalogue: bool = True
+    robot: str | None = None                      # the robot spec open_robot takes, options included
+    safety: Mapping[str, Any] = field(default_factory=dict)
+
+    def source_spec(self) -> str | None:
+        """The console's --source with the cell's camera file as its ?camera= option."""
+        if self.source is None:
+            return None
+        if self.camera_file and not self.source.startswith("files:"):
+            return f"{self.source}?camera={self.camera_file}"
+        return self.source
+
+    def tolerance(self) -> Any:
+        """console.verify.Tolerance from the safety section (defaults where not given)."""
+        from console.verify import Tolerance
+
+        d = Tolerance()
+        s = self.safety
+        return Tolerance(s.get("tolerance_displacement", d.displacement), s.get("tolerance_rotation", d.rotation),
+                         s.get("tolerance_match_radius", d.match_radius))
+
+
+def _toml() -> Any:
+    if sys.version_info >= (3, 11):
+        import tomllib
+        return tomllib
+    import tomli  # the console extra installs it on Python 3.10
+
+    return tomli
+
+
+def read_cell(path: str | Path) -> Cell:
+    """Parse and check a cell file completely; CellError (one line) on the first wrong value."""
+    p = Path(path)
+    origin = str(path)
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise CellError(origin, "", "cell file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CellError(origin, "", f"cannot read the cell file ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        doc = _toml().loads(text)
+    except ValueError as exc:   # tomllib.TOMLDecodeError is a ValueError
+        raise CellError(origin, "", f"not valid TOML ({exc})") from None
+    return _cell(doc, origin, p.resolve().parent)
+
+
+def _cell(doc: Mapping[str, Any], origin: str, base: Path) -> Cell:
+    unknown = sorted(set(doc) - set(SECTIONS) - {"format"})
+    if unknown:
+        raise CellError(origin, unknown[0], f"unknown section or key (known: format, {', '.join(SECTIONS)})")
+    if doc.get("format", CELL_FORMAT) != CELL_FORMAT:
+        raise CellError(origin, "format", f"expected {CELL_FORMAT!r}, got {doc['format']!r}")
+    sec = {name: _section(doc, name, origin) for name in SECTIONS}
+    shelf = None
+    if sec["shelf"]:
+        shelf = tuple(_number(sec["shelf"], "shelf", k, origin, lo=0.05, hi=20.0) for k in ("width", "depth", "height"))
+    cam = sec["camera"]
+    source = _string(cam, "camera", "source", origin) if "source" in cam else None
+    if source is not None and not (source in ("demo", "realsense") or
+                                   source.startswith(("demo:", "files:", "bag:"))):
+        raise CellError(origin, "camera.source", f"expected demo, demo:NAME, files:DIR, realsense or bag:FILE, "
+                                                 f"got {source!r}")
+    if source is not None and source.startswith(("files:", "bag:")):
+        kind, _, where = source.partition(":")
+        source = f"{kind}:{_path(where, base, origin, 'camera.source')}"
+    camera_file = _file(cam, "camera", "file", origin, base) if "file" in cam else None
+    if camera_file is not None:
+        from perception.scene import Camera
+
+        Camera.load(camera_file)          # its own one-line FormatError names the camera file and field
+    per = sec["perception"]
+    segmenter = _string(per, "perception", "segmenter", origin) if "segmenter" in per else "auto"
+    if segmenter not in SEGMENTERS:
+        raise CellError(origin, "perception.segmenter", f"expected one of {', '.join(SEGMENTERS)}, got {segmenter!r}")
+    weights = _file(per, "perception", "weights", origin, base) if "weights" in per else None
+    if weights is not None and segmenter in ("depth", "photo"):
+        raise CellError(origin, "perception.weights", f"weights are for the yolo or learned segmenter, "
+                                                      f"not {segmenter!r}")
+    catalogue = per.get("catalogue", True)
+    if not isinstance(catalogue, bool):
+        raise CellError(origin, "perception.catalogue", f"expected true or false, got {catalogue!r}")
+    robot = _robot(sec["robot"], origin, base) if sec["robot"] else None
+    return Cell(origin, shelf, source, camera_file, segmenter, weights, catalogue, robot,
+                _safety(sec["safety"], origin, base))
+
+
+def _section(doc: Mapping[str, Any], name: str, origin: str) -> dict[str, Any]:
+    sec = doc.get(name, {})
+    if not isinstance(sec, Mapping):
+        raise CellError(origin, name, f"expected a table [{name}], got {sec!r}")
+    unknown = sorted(set(sec) - set(SECTIONS[name]))
+    if unknown:
+        raise CellError(origin, f"{name}.{unknown[0]}", f"unknown key (known: {', '.join(SECTIONS[name])})")
+    return dict(sec)
+
+
+def _number(sec: Mapping[str, Any], name: str, key: str, origin: str, *, lo: float = 0.0,
+            hi: float = math.inf, integer: bool = False) -> Any:
+    v = sec.get(key)
+    if key not in sec:
+        raise CellError(origin, f"{name}.{key}", "missing required key")
+    ok_type = isinstance(v, int) if integer else isinstance(v, (int, float))
+    if isinstance(v, bool) or not ok_type or not (math.isfinite(v) and lo <= v <= hi):
+        what = "an integer" if integer else "a number"
+        raise CellError(origin, f"{name}.{key}", f"expected {what} in [{lo:g}, {hi:g}], got {v!r}")
+    return int(v) if integer else float(v)
+
+
+def _string(sec: Mapping[str, Any], name: str, key: str, origin: str) -> str:
+    v = sec[key]
+    if not isinstance(v, str) or not v.strip():
+        raise CellError(origin, f"{name}.{key}", f"expected a non-empty string, got {v!r}")
+    return v.strip()
+
+
+def _path(value: str, base: Path, origin: str, fld: str, *, must_exist: bool = True) -> str:
+    p = Path(value).expanduser()
+    p = p if p.is_absolute() else base / p
+    if must_exist and not p.exists():
+        raise CellError(origin, fld, f"{value!r}: no such file or folder (looked at {p})")
+    return str(p)
+
+
+def _file(sec: Mapping[str, Any], name: str, key: str, origin: str, base: Path) -> str:
+    path = _path(_string(sec, name, key, origin), base, origin, f"{name}.{key}")
+    if not Path(path).is_file():
+        raise CellError(origin, f"{name}.{key}", f"{sec[key]!r}: not a regular file")
+    return path
+
+
+def _vector(sec: Mapping[str, Any], key: str, n: int, origin: str) -> list[float]:
+    v = sec[key]
+    if (not isinstance(v, list) or len(v) != n
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+        raise CellError(origin, f"robot.{key}", f"expected a list of {n} numbers, got {v!r}")
+    return [float(x) for x in v]
+
+
+def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
+    """The robot section as the spec `console.robot.open_robot` takes (checked here, named by field)."""
+    url = _string(sec, "robot", "url", origin) if "url" in sec else None
+    if url is None:
+        raise CellError(origin, "robot.url", "missing required key (sim or tcp://HOST:PORT)")
+    if url == "sim":
+        extra = sorted(k for k in sec if k != "url")
+        if extra:
+            raise CellError(origin, f"robot.{extra[0]}", "only for a tcp:// robot (robot.url is 'sim')")
+        return "sim"
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme != "tcp" or not parts.hostname or not port or parts.query or parts.path not in ("", "/"):
+        raise CellError(origin, "robot.url", f"expected sim or tcp://HOST:PORT (options go in their own keys), "
+                                             f"got {url!r}")
+    opts: list[tuple[str, str]] = []
+    if "transform" in sec:
+        if "position" in sec or "orientation" in sec:
+            raise CellError(origin, "robot.transform", "give a transform file or position/orientation, not both")
+        tfile = _file(sec, "robot", "transform", origin, base)
+        from console.robot_tcp import Transform
+
+        Transform.load(tfile)                 # its own one-line error names the transform file
+        opts.append(("transform", tfile))
+    elif "position" in sec or "orientation" in sec:
+        pos = _vector(sec, "position", 3, origin) if "position" in sec else [0.0, 0.0, 0.0]
+        quat = _vector(sec, "orientation", 4, origin) if "orientation" in sec else [1.0, 0.0, 0.0, 0.0]
+        norm = math.sqrt(sum(c * c for c in quat))
+        if abs(norm - 1.0) > 1e-3:
+            raise CellError(origin, "robot.orientation", f"quaternion (w, x, y, z) is not unit length "
+                                                         f"(|q|={norm:.4f}): {sec['orientation']!r}")
+        opts += [("position", ",".join(repr(x) for x in pos)), ("orientation", ",".join(repr(x) for x in quat))]
+    for key in TIMEOUTS:
+        if key in sec:
+            opts.append((key, repr(_number(sec, "robot", key, origin, lo=1e-3, hi=3600.0))))
+    query = "&".join(f"{k}={quote(v, safe='/,.-_:')}" for k, v in opts)
+    return f"tcp://{parts.hostname}:{port}" + (f"?{query}" if query else "")
+
+
+def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, lo, hi in (("samples", 1, 1000), ("workers", 1, 256), ("port", 0, 65535), ("seed", 0, 2**63 - 1)):
+        if key in sec:
+            out[key] = _number(sec, "safety", key, origin, lo=lo, hi=hi, integer=True)
+    for key, lo, hi in (("tolerance_displacement", 1e-4, 1.0), ("tolerance_rotation", 0.1, 180.0),
+                        ("tolerance_match_radius", 1e-3, 2.0)):
+        if key in sec:
+            out[key] = _number(sec, "safety", key, origin, lo=lo, hi=hi)
+    if "host" in sec:
+        out["host"] = _string(sec, "safety", "host", origin)
+    if "db" in sec:
+        db = _path(_string(sec, "safety", "db", origin), base, origin, "safety.db", must_exist=False)
+        out["db"] = db
+    return out
+
+
+__all__ = ["Cell", "CellError", "CELL_FORMAT", "read_cell"]

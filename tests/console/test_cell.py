@@ -1,0 +1,185 @@
+"""`shelfpick console --cell cell.toml`: the cell file is read and checked before anything opens
+(one line naming file, field and value; exit 2; no database created), optional libraries are
+looked up before the server starts, and SIGTERM stops a robot run and closes the database
+(a real subprocess, a real SQLite file)."""
+from __future__ import annotations
+
+import importlib.util
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from console.cell import CellError, read_cell
+from console.cli import main
+from perception.scene import Camera
+
+ROOT = Path(__file__).resolve().parents[2]
+HERE = Path(__file__).resolve().parent
+
+GOOD = """
+format = "shelfpick.cell/1"
+
+[shelf]
+width = 1.2
+depth = 0.4
+height = 1.8
+
+[camera]
+source = "demo"
+file = "camera.json"
+
+[perception]
+segmenter = "depth"
+catalogue = false
+
+[robot]
+url = "tcp://127.0.0.1:9000"
+position = [0.6, 0.0, -0.2]
+orientation = [1.0, 0.0, 0.0, 0.0]
+step_timeout = 90
+
+[safety]
+samples = 4
+seed = 7
+db = "cell.db"
+tolerance_displacement = 0.02
+"""
+
+
+def write_cell(tmp_path: Path, text: str = GOOD) -> Path:
+    Camera(640, 480, 600.0, 600.0, 320.0, 240.0).save(tmp_path / "camera.json")
+    (tmp_path / "cell.toml").write_text(textwrap.dedent(text))
+    return tmp_path / "cell.toml"
+
+
+def test_a_cell_file_is_read_with_paths_beside_it(tmp_path):
+    cell = read_cell(write_cell(tmp_path))
+    assert cell.shelf == (1.2, 0.4, 1.8) and cell.segmenter == "depth" and cell.catalogue is False
+    assert cell.source_spec() == f"demo?camera={tmp_path / 'camera.json'}"
+    assert cell.robot.startswith("tcp://127.0.0.1:9000?position=0.6,0.0,-0.2&orientation=1.0,0.0,0.0,0.0")
+    assert "step_timeout=90.0" in cell.robot
+    assert cell.safety == {"samples": 4, "seed": 7, "db": str(tmp_path / "cell.db"), "tolerance_displacement": 0.02}
+    assert cell.tolerance().displacement == 0.02
+    from console.robot_tcp import TcpRobot
+
+    robot = TcpRobot.from_spec(cell.robot)          # the spec the console opens is one the driver takes
+    assert robot.timeouts.step == 90.0
+
+
+@pytest.mark.parametrize("old, new, field, value", [
+    ("width = 1.2", "width = -1", "shelf.width", "-1"),
+    ("depth = 0.4", 'depth = "deep"', "shelf.depth", "'deep'"),
+    ('segmenter = "depth"', 'segmenter = "magic"', "perception.segmenter", "'magic'"),
+    ("catalogue = false", 'catalogue = "no"', "perception.catalogue", "'no'"),
+    ('url = "tcp://127.0.0.1:9000"', 'url = "http://robot:80"', "robot.url", "'http://robot:80'"),
+    ('url = "tcp://127.0.0.1:9000"', 'url = "tcp://robot:9000?transform=x.json"', "robot.url", "transform=x.json"),
+    ("orientation = [1.0, 0.0, 0.0, 0.0]", "orientation = [1.0, 1.0, 0.0, 0.0]", "robot.orientation", "1.4142"),
+    ("position = [0.6, 0.0, -0.2]", "position = [0.6, 0.0]", "robot.position", "[0.6, 0.0]"),
+    ("step_timeout = 90", "step_timeout = 0", "robot.step_timeout", "0"),
+    ("samples = 4", "samples = 0", "safety.samples", "0"),
+    ('file = "camera.json"', 'file = "nope.json"', "camera.file", "nope.json"),
+    ('source = "demo"', 'source = "webcam"', "camera.source", "'webcam'"),
+    ("[safety]", "[safty]", "safty", "unknown section"),
+    ("seed = 7", "sed = 7", "safety.sed", "unknown key"),
+    ("height = 1.8", "height = 1.8\nheight = 2", "", "not valid TOML"),
+])
+def test_a_wrong_value_is_one_line_naming_file_field_and_value_exit_2(tmp_path, capsys, old, new, field, value):
+    path = write_cell(tmp_path, GOOD.replace(old, new))
+    with pytest.raises(CellError):
+        read_cell(path)
+    rc = main(["console", "--cell", str(path), "--port", "0", "--no-capture"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert str(path) in err[0] and field in err[0] and value in err[0], err[0]
+    assert not (tmp_path / "cell.db").exists()            # refused before the database was opened
+
+
+def test_a_wrong_camera_file_named_by_the_cell_is_its_own_one_line_error(tmp_path, capsys):
+    path = write_cell(tmp_path)
+    (tmp_path / "camera.json").write_text('{"format": "shelfpick.camera/1", "width": 0}')
+    assert main(["console", "--cell", str(path), "--port", "0", "--no-capture"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "camera.json" in err[0] and "width" in err[0]
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pyrealsense2") is not None, reason="pyrealsense2 is installed")
+@pytest.mark.parametrize("how", ["option", "cell"])
+def test_realsense_without_its_library_refuses_before_anything_starts(tmp_path, capsys, how):
+    if how == "option":
+        argv = ["console", "--source", "realsense", "--db", str(tmp_path / "cell.db")]
+    else:
+        argv = ["console", "--cell", str(write_cell(tmp_path, GOOD.replace('source = "demo"',
+                                                                            'source = "realsense"')))]
+    t0 = time.perf_counter()
+    rc = main(argv + ["--port", "0", "--no-capture"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "pyrealsense2" in err[0] and "shelfpick[realsense]" in err[0]
+    assert ("camera.source" in err[0]) == (how == "cell")
+    assert not (tmp_path / "cell.db").exists() and time.perf_counter() - t0 < 10
+
+
+CHILD = textwrap.dedent("""
+    import sys, threading, time
+    sys.path[:0] = [{root!r}, {here!r}]
+    from test_workflow import CodeShelfSource, small_scene, PASS
+    from console import cmd_console
+    from console.cli import build_parser, configure_logging
+    args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", "sim?delay=30",
+                                      "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
+    configure_logging("console", 0)
+    parts = cmd_console.build(args)
+    wf = parts[1]
+    wf.source = CodeShelfSource(small_scene())
+    def drive():
+        wf.capture()
+        wf.plan("clear", wait=True)
+        wf.approve(wf.state.plans["physics"].hash, PASS, "sue")
+        wf.execute()
+        while not any(e.kind == "ack" for e in wf.state.robot_events):
+            time.sleep(0.01)
+        print("READY", wf.state.session_id, flush=True)   # step 1 acknowledged; its pull takes 30 s
+    threading.Thread(target=drive, daemon=True).start()
+    sys.exit(cmd_console.serve(parts, args))
+""")
+
+
+def test_sigterm_stops_the_robot_run_and_closes_the_database(tmp_path):
+    from console.store import SessionStore
+
+    db = tmp_path / "t.sqlite"
+    code = CHILD.format(root=str(ROOT), here=str(HERE), db=str(db))
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT)
+    try:
+        sid = None
+        for raw in proc.stdout:
+            if raw.startswith("READY"):
+                sid = int(raw.split()[1])
+                break
+        assert sid is not None, proc.stderr.read() if proc.poll() is not None else "no READY"
+        t0 = time.perf_counter()
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(60)
+        stopped_in = time.perf_counter() - t0
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 143, err
+    assert stopped_in < 25, stopped_in                   # not the 30 s pull: the step was aborted
+    assert "stopped by SIGTERM" in err
+    assert not Path(str(db) + "-wal").exists() or Path(str(db) + "-wal").stat().st_size == 0  # closed cleanly
+    open_runs = sqlite3.connect(db).execute("SELECT COUNT(*) FROM runs WHERE ended IS NULL").fetchone()[0]
+    assert open_runs == 0
+    store = SessionStore(db, readonly=True)
+    rec = store.load_session(sid)
+    stops = [e for e in rec.robot_events if e["kind"] == "stop"]
+    assert stops and stops[0]["detail"]["who"] == "SIGTERM"
+    assert rec.outcome is not None and not rec.outcome["ok"]
+    store.close()
