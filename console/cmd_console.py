@@ -168,8 +168,8 @@ def serve(parts: tuple, args: argparse.Namespace) -> int:
               flush=True)
         if not given:
             print(f"supervisor passphrase (generated for this run): {passphrase}", flush=True)
-        for note in wf.state.recovered:
-            log.warning("recovered: %s", note)
+        for note in wf.state.recovered:   # on stdout with the URL, as README's safety rules say
+            print(f"recovered: {note}", flush=True)
         if not args.no_capture and not terminated.is_set():
             wf.capture()
             st = wf.state
