@@ -4,7 +4,7 @@ What the console needs to know about an installation, in one place instead of UR
 the shelf interior, the camera (source, intrinsics and pose file), the segmenter and its weights,
 the robot (URL, shelf-to-robot transform, timeouts) and the safety settings. Read and checked
 completely before anything is opened: a wrong value is a `CellError`, one line naming the file,
-the field and the value (exit 2). Relative paths are relative to the cell file. See docs/console.md
+the field and the value (exit 2). Relative paths are relative to the cell file. See docs/cli.md
 "Cell file" and examples/cell.toml.
 """
 from __future__ import annotations

@@ -31,7 +31,7 @@ DEFAULTS = {"source": "demo", "host": "127.0.0.1", "port": 8080, "db": None, "ro
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cell", default=None, metavar="CELL.toml",
                    help="the cell file: shelf, camera, segmenter and weights, robot URL and transform, safety "
-                        "settings (docs/console.md); options given here override it")
+                        "settings (docs/cli.md, examples/cell.toml); options given here override it")
     p.add_argument("--source", default=None,
                    help="demo | files:DIR | realsense | bag:FILE (default: demo, synthetic shelves)")
     p.add_argument("--host", default=None,

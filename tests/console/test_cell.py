@@ -183,3 +183,8 @@ def test_sigterm_stops_the_robot_run_and_closes_the_database(tmp_path):
     assert stops and stops[0]["detail"]["who"] == "SIGTERM"
     assert rec.outcome is not None and not rec.outcome["ok"]
     store.close()
+
+
+def test_the_example_cell_file_reads():
+    cell = read_cell(ROOT / "examples" / "cell.toml")
+    assert cell.robot == "sim" and cell.shelf == (1.0, 0.30, 1.60) and cell.safety["samples"] == 10
