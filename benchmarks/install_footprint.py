@@ -40,7 +40,11 @@ def du_mib(path: Path) -> float:
 
 
 def build_wheel(work: Path) -> Path:
-    sh([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(work)])
+    """From a clone of HEAD (setuptools builds in the source tree; the checkout stays clean)."""
+    src = work / "src"
+    sh(["git", "clone", "-q", str(ROOT), str(src)])
+    sh([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q", "-w", str(work)])
+    shutil.rmtree(src)
     return next(work.glob("shelfpick-*.whl"))
 
 

@@ -7,6 +7,7 @@ Slow (a venv and ~100 MB of wheels: ~30-60 s with pip's cache warm); `make test-
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import venv
@@ -23,10 +24,24 @@ def run(cmd: list[str], cwd: Path, timeout: float = 600) -> subprocess.Completed
     return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 
+def source_copy(dest: Path) -> Path:
+    """The checkout's files as git sees them (tracked and new, not ignored): setuptools builds in
+    the source tree (build/), which must neither litter the checkout nor carry stale modules."""
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=ROOT, capture_output=True,
+                           text=True, check=True).stdout.splitlines()
+    for name in files:
+        src = ROOT / name
+        if src.is_file() and not name.startswith(("tests/", "benchmarks/")):
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / name)
+    return dest
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
-    proc = run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(out)], ROOT)
+    src = source_copy(tmp_path_factory.mktemp("src"))
+    proc = run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q", "-w", str(out)], ROOT)
     assert proc.returncode == 0, proc.stderr
     (whl,) = out.glob("shelfpick-*.whl")
     return whl
