@@ -7,6 +7,7 @@ Slow (a venv and ~100 MB of wheels: ~30-60 s with pip's cache warm); `make test-
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -79,3 +80,25 @@ def test_core_install_plans_and_simulates_from_a_clean_venv(wheel, tmp_path):
     assert len(perceive.stderr.strip().splitlines()) == 1
     version = run([exe, "--version"], tmp_path)
     assert version.stdout.strip() == f"shelfpick {doc['provenance']['shelfpick_version']}"
+
+
+def test_the_yolo_segmenter_finds_its_weights_in_the_installed_wheel(wheel, tmp_path):
+    """Issue 13: from the wheel, `perceive --segmenter yolo` said "weights not found". The wheel's
+    files (pip install --target, no dependencies) run here on this venv's torch and ultralytics."""
+    pytest.importorskip("ultralytics")
+    site = tmp_path / "site"
+    proc = run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(wheel)], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    code = "import perception.segment as s; print(s.__file__); print(s.DEFAULT_WEIGHTS)"
+    where = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
+    module, weights = where.stdout.split()
+    assert module.startswith(str(site)) and weights.startswith(str(site)) and Path(weights).is_file()
+    cli = [sys.executable, "-c", "import sys; from console.cli import main; sys.exit(main())"]
+    demo = site / "static" / "demo" / "demo-small-6.json"
+    assert subprocess.run(cli + ["render", str(demo), "--out", "cap"], cwd=tmp_path, env=env).returncode == 0
+    perceive = subprocess.run(cli + ["perceive", "--rgb", "cap/rgb.png", "--depth", "cap/depth.png", "--camera",
+                                     "cap/camera.json", "--segmenter", "yolo", "--out", "scene.json"],
+                              cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert perceive.returncode == 0, perceive.stderr
+    assert "(yolo" in perceive.stderr and json.loads((tmp_path / "scene.json").read_text())["boxes"]
