@@ -22,15 +22,23 @@ TEST_MARKS := not slow
 ALL_MARKS :=
 endif
 
-.PHONY: run test test-all bench perceive-bench clean-venv browser-deps
+.PHONY: run test test-all bench perceive-bench clean-venv browser-deps lock
 
-$(STAMP): pyproject.toml
+# every extra (pyproject.toml) at the versions in constraints.txt
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# torch and torchvision must be this pair (both come from local disk here)
-	$(BIN)/python -m pip install --quiet "torch==2.14.1" "torchvision==0.29.1"
-	$(BIN)/python -m pip install --quiet -e ".[all,dev]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt "torch==2.14.1" "torchvision==0.29.1"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[all,dev]"
 	touch $(STAMP)
+
+# after changing dependencies: install them (make test), then freeze the working .venv
+lock: $(STAMP)
+	{ echo "# The versions \`make run\` / \`make test\` install (pip -c): frozen from a .venv whose tests pass."; \
+	  echo "# After changing dependencies in pyproject.toml: make lock (rewrites this file from .venv)."; \
+	  $(BIN)/python -m pip list --format=freeze --exclude-editable | grep -viE '^(pip|setuptools|wheel)=='; \
+	} > constraints.txt.tmp && mv constraints.txt.tmp constraints.txt
 
 run: $(STAMP)
 	$(BIN)/shelfpick console --source demo
