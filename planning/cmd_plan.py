@@ -65,6 +65,9 @@ def run(args: argparse.Namespace) -> int:
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
     plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk)
+    log.debug("scene %s: %d boxes, hash %s; %s planner, %d samples, seed %d, %d worker(s)", args.scene,
+              len(scene.boxes), plan.provenance["scene_hash"], args.planner, args.samples, args.seed, args.workers)
+    log.debug("timing: %s", ", ".join(f"{k} {v:.2f} s" for k, v in plan.timing.items()))
     for w in caught:
         _warn(str(w.message))
     search = plan.extra.get("search", {})

@@ -40,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
         execution = execute_plan(scene, plan.sequence, seed=args.seed, record=args.frames)
     for w in caught:
         log.warning("%s", w.message)
+    log.debug("%d step(s) in %.2f s; repairs: %s", len(execution.steps), execution.wall_s,
+              "; ".join(execution.repairs) or "none")
     doc = execution.to_json(frames=args.frames)
     doc["scene"] = str(args.scene)
     doc["plan"] = str(args.plan)

@@ -60,3 +60,17 @@ def test_bad_input_is_one_line_on_stderr_exit_2(tmp_path, capsys):
     assert main(["plan", str(tmp_path / "s.json"), "--target", "b0"]) == 2
     cap = capsys.readouterr()
     assert cap.out == "" and len(cap.err.strip().splitlines()) == 1 and "s.json" in cap.err
+
+
+def test_verbose_adds_debug_records_and_quiet_keeps_only_warnings(tmp_path, capsys):
+    from pathlib import Path
+
+    from console.cli import main
+
+    demo = str(Path(__file__).resolve().parents[2] / "static" / "demo" / "demo-small-6.json")
+    argv = ["plan", demo, "--target", "b1", "--samples", "2", "--workers", "1", "--out", str(tmp_path / "p.json")]
+    assert main(["-v"] + argv) == 0
+    err = capsys.readouterr().err
+    assert "shelfpick plan: debug: scene" in err and "shelfpick plan: 2 step(s)" in err or "step(s)" in err
+    assert main(argv + ["-q"]) == 0
+    assert "step(s)" not in capsys.readouterr().err
