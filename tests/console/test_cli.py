@@ -71,6 +71,6 @@ def test_verbose_adds_debug_records_and_quiet_keeps_only_warnings(tmp_path, caps
     argv = ["plan", demo, "--target", "b1", "--samples", "2", "--workers", "1", "--out", str(tmp_path / "p.json")]
     assert main(["-v"] + argv) == 0
     err = capsys.readouterr().err
-    assert "shelfpick plan: debug: scene" in err and "shelfpick plan: 2 step(s)" in err or "step(s)" in err
+    assert "shelfpick plan: debug: scene" in err and "step(s)" in err
     assert main(argv + ["-q"]) == 0
     assert "step(s)" not in capsys.readouterr().err
