@@ -9,6 +9,9 @@ machine has: say so when reporting (a cold cache adds the downloads).
 
     nice -n 10 python benchmarks/install_footprint.py --out docs/results/install-footprint.md
     nice -n 10 python benchmarks/install_footprint.py --extras core,perception   # a subset
+    # the learned extra on a CPU-only torch wheel installed first (pip takes it as torch==X)
+    nice -n 10 python benchmarks/install_footprint.py --extras learned --no-clone \
+        --pre-install /opt/wheels/torch-2.13.0+cpu-cp311-cp311-manylinux_2_28_x86_64.whl
 """
 from __future__ import annotations
 
@@ -48,17 +51,19 @@ def build_wheel(work: Path) -> Path:
     return next(work.glob("shelfpick-*.whl"))
 
 
-def footprint(wheel: Path, extra: str, work: Path, python: str) -> dict:
+def footprint(wheel: Path, extra: str, work: Path, python: str, pre: list[str] = ()) -> dict:
     env = work / f"venv-{extra}"
     t_venv = sh([python, "-m", "venv", str(env)])
     empty = du_mib(env)
+    if pre:
+        t_venv += sh([str(env / "bin" / "python"), "-m", "pip", "install", "-q", *pre])
     spec = str(wheel) if extra == "core" else f"shelfpick[{extra}] @ {wheel.as_uri()}"
     t_install = sh([str(env / "bin" / "python"), "-m", "pip", "install", "-q", spec])
     size = du_mib(env)
     pkgs = subprocess.run([str(env / "bin" / "python"), "-m", "pip", "list", "--format=json"],
                           capture_output=True, text=True, check=True).stdout
     shutil.rmtree(env)
-    return {"extra": extra, "venv_mib": round(size, 1), "empty_venv_mib": round(empty, 1),
+    return {"extra": extra + (f" (after {', '.join(Path(p).name for p in pre)})" if pre else ""), "venv_mib": round(size, 1), "empty_venv_mib": round(empty, 1),
             "added_mib": round(size - empty, 1), "packages": len(json.loads(pkgs)),
             "install_s": round(t_venv + t_install, 1)}
 
@@ -82,7 +87,9 @@ def markdown(rows: list[dict], clone: dict | None, cmd: str) -> str:
              "| install | venv (MiB) | added to an empty venv (MiB) | packages | install (s) |",
              "|---|---:|---:|---:|---:|"]
     for r in rows:
-        name = "core (`pip install shelfpick`)" if r["extra"] == "core" else f"`shelfpick[{r['extra']}]`"
+        base, _, note = r["extra"].partition(" ")
+        name = "core (`pip install shelfpick`)" if base == "core" else f"`shelfpick[{base}]`"
+        name += f" {note}" if note else ""
         lines.append(f"| {name} | {r['venv_mib']:.0f} | {r['added_mib']:.0f} | {r['packages']} | {r['install_s']:.0f} |")
     if clone:
         lines += ["", "From `git clone` to a plan with the core install: " +
@@ -95,6 +102,8 @@ def main() -> int:
     p.add_argument("--extras", default=",".join(EXTRAS), help=f"comma separated, of {', '.join(EXTRAS)}")
     p.add_argument("--python", default=sys.executable, help="interpreter for the venvs (default: this one)")
     p.add_argument("--no-clone", action="store_true", help="skip the git clone -> plan timing")
+    p.add_argument("--pre-install", action="append", default=[], metavar="REQ",
+                   help="install this first in every venv (e.g. a CPU-only torch wheel); repeatable")
     p.add_argument("--out", help="also write the markdown table here (and .json beside it)")
     args = p.parse_args()
     rows = []
@@ -103,7 +112,7 @@ def main() -> int:
         wheel = build_wheel(work)
         for extra in [e.strip() for e in args.extras.split(",") if e.strip()]:
             try:
-                rows.append(footprint(wheel, extra, work, args.python))
+                rows.append(footprint(wheel, extra, work, args.python, args.pre_install))
             except RuntimeError as exc:
                 rows.append({"extra": extra, "error": str(exc).splitlines()[-1][:300]})
                 print(f"{extra}: {rows[-1]['error']}", file=sys.stderr)
