@@ -2,7 +2,7 @@
 dependencies only, numpy and pybullet, from the package index), it plans and simulates from the
 demo shelves it carries, and a command that needs an extra says which in one line.
 
-Slow (a venv and ~100 MB of wheels: ~30-60 s with pip's cache warm); `make test-all` runs it.
+Slow (venvs and up to ~760 MB of wheels: 20-35 s a test with pip's cache warm); `make test-all` runs them.
 """
 from __future__ import annotations
 
@@ -102,3 +102,26 @@ def test_the_yolo_segmenter_finds_its_weights_in_the_installed_wheel(wheel, tmp_
                               cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert perceive.returncode == 0, perceive.stderr
     assert "(yolo" in perceive.stderr and json.loads((tmp_path / "scene.json").read_text())["boxes"]
+
+
+def test_perception_extra_renders_and_perceives_from_a_clean_venv(wheel, tmp_path):
+    """`pip install 'shelfpick[perception]'` (opencv, scipy, pillow, tqdm; ~760 MB): the default
+    segmenter runs without torch, on a render of the wheel's demo shelf, and plans on the result."""
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    py = env_dir / "bin" / "python"
+    proc = run([str(py), "-m", "pip", "install", "-q", f"shelfpick[perception] @ {wheel.as_uri()}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "torch" not in run([str(py), "-m", "pip", "freeze"], tmp_path).stdout.lower()
+    exe = str(env_dir / "bin" / "shelfpick")
+    site = run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path).stdout.strip()
+    demo = str(Path(site) / "static" / "demo" / "demo-small-6.json")
+    render = run([exe, "render", demo, "--out", "cap"], tmp_path)
+    assert render.returncode == 0 and render.stdout == "", render.stderr
+    perceive = run([exe, "perceive", "--rgb", "cap/rgb.png", "--depth", "cap/depth.png", "--camera",
+                    "cap/camera.json", "--out", "scene.json"], tmp_path)
+    assert perceive.returncode == 0, perceive.stderr
+    scene = json.loads((tmp_path / "scene.json").read_text())
+    assert len(scene["boxes"]) == 6
+    plan = run([exe, "plan", "scene.json", "--task", "clear", "--planner", "heuristic"], tmp_path)
+    assert plan.returncode == 0 and json.loads(plan.stdout)["task"] == "clear", plan.stderr
