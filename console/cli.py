@@ -18,6 +18,7 @@ import argparse
 import importlib
 import logging
 import sys
+from typing import Callable
 
 COMMANDS: dict[str, str] = {
     "plan": "planning.cmd_plan",
@@ -106,20 +107,32 @@ class _Format(logging.Formatter):
         return f"shelfpick {self.command}: {level}{msg}"
 
 
-def configure_logging(command: str, verbosity: int) -> None:
-    """One stderr handler on the project's loggers; verbosity -1 (-q) warnings only, 0 info, 1+ debug."""
+def configure_logging(command: str, verbosity: int) -> Callable[[], None]:
+    """One stderr handler on the project's loggers; verbosity -1 (-q) warnings only, 0 info, 1+ debug.
+
+    Returns the function that puts the loggers back as they were (main() calls it on the way out,
+    so a caller of main() in the same process, a test, keeps its own logging set-up)."""
     level = logging.DEBUG if verbosity > 0 else logging.INFO if verbosity == 0 else logging.WARNING
     if verbosity < -1:
         level = logging.ERROR
+    saved = []
     for name in LOGGERS:
         logger = logging.getLogger(name)
         for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
             logger.removeHandler(h)
         handler = _StderrHandler()
         handler.setFormatter(_Format(command))
+        saved.append((logger, handler, logger.level, logger.propagate))
         logger.addHandler(handler)
         logger.setLevel(level)
         logger.propagate = False
+
+    def restore() -> None:
+        for logger, handler, old_level, old_propagate in saved:
+            logger.removeHandler(handler)
+            logger.setLevel(old_level)
+            logger.propagate = old_propagate
+    return restore
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -169,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help(sys.stderr)
         return EXIT_USAGE
-    configure_logging(args.command, getattr(args, "verbosity", 0) or 0)
+    restore = configure_logging(args.command, getattr(args, "verbosity", 0) or 0)
     log = logging.getLogger("console.cli")
     try:
         return int(args._run(args) or 0)
@@ -185,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         log.error("interrupted")
         return EXIT_INTERRUPTED
+    finally:
+        restore()
 
 
 if __name__ == "__main__":

@@ -74,3 +74,16 @@ def test_verbose_adds_debug_records_and_quiet_keeps_only_warnings(tmp_path, caps
     assert "shelfpick plan: debug: scene" in err and "step(s)" in err
     assert main(argv + ["-q"]) == 0
     assert "step(s)" not in capsys.readouterr().err
+
+
+def test_main_puts_the_loggers_back_as_they_were(tmp_path):
+    import logging
+
+    from console.cli import LOGGERS, main
+
+    before = [(logging.getLogger(n).level, logging.getLogger(n).propagate, list(logging.getLogger(n).handlers))
+              for n in LOGGERS]
+    main(["plan", str(tmp_path / "missing.json"), "--target", "b0"])
+    after = [(logging.getLogger(n).level, logging.getLogger(n).propagate, list(logging.getLogger(n).handlers))
+             for n in LOGGERS]
+    assert after == before
