@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         camera = bench.camera_at(args.distance) if args.distance is not None else None
         from perception.cmd_render import c_stdout_to_stderr
 
-        with c_stdout_to_stderr():   # the renderer's pybullet prints argv[0]= on connect
+        with c_stdout_to_stderr(keep_stderr=True):   # the renderer's pybullet prints argv[0]= on connect
             summary, frames = bench.bench_rendered(scenes, args.seed, seg, camera=camera)
         if args.distance is not None:
             report["camera_distance_m"] = args.distance

@@ -23,18 +23,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 @contextmanager
-def c_stdout_to_stderr() -> Iterator[None]:
-    """File descriptor 1 pointed at stderr meanwhile: pybullet's C code printf()s `argv[0]=` on
-    connect, which would land among what a command was asked to print on stdout."""
+def c_stdout_to_stderr(keep_stderr: bool = False) -> Iterator[None]:
+    """pybullet's C code printf()s `argv[0]=` on stdout when it connects (and its build time on
+    stderr when imported): that would land among what a command was asked to print. With -v
+    (debug) or `keep_stderr` (a progress bar runs meanwhile) both go to stderr; otherwise nowhere
+    (Python's own errors are raised, and printed after the file descriptors are back)."""
     sys.stdout.flush()
-    saved = os.dup(1)
-    os.dup2(2, 1)
+    sys.stderr.flush()
+    saved = (os.dup(1), os.dup(2))
+    verbose = keep_stderr or log.isEnabledFor(logging.DEBUG)
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(2 if verbose else null, 1)
+    if not verbose:
+        os.dup2(null, 2)
     try:
         yield
     finally:
         sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
 
 
 def run(args: argparse.Namespace) -> int:
