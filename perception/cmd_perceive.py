@@ -48,6 +48,24 @@ def _check_numbers(args: argparse.Namespace) -> None:
                                   f"{' '.join(f'{v:g}' for v in vals)}")
 
 
+def _check_depth_given(args: argparse.Namespace) -> None:
+    """An RGB-D capture folder (as `render`, a RealSense capture or Capture.save write it) perceived
+    without its depth image: the distance to every box would be a guess (issue 13: a shelf-sized
+    box, exit 0). Refused unless the colour alone is asked for with a distance or a box size."""
+    from pathlib import Path
+
+    from perception.errors import PerceptionError
+
+    if args.depth is not None or args.front_distance is not None or args.box_size is not None:
+        return
+    rgb = Path(args.rgb)
+    beside = [rgb.with_name(n) for n in ("depth.png", "depth.npy") if rgb.with_name(n).is_file()]
+    if beside:
+        raise PerceptionError(f"--depth: not given, but {beside[0]} lies beside {rgb}: give --depth {beside[0]} "
+                              "(without it the distance to every box is a guess), or --front-distance M / "
+                              "--box-size W H to perceive the colour image alone")
+
+
 def _implausible(result, shelf) -> str | None:
     """Why a colour-only result is no shelf of boxes (None when it may be one).
 
@@ -98,10 +116,11 @@ def run(args: argparse.Namespace) -> int:
     if args.masks and not str(args.masks).lower().endswith(".png"):
         raise PerceptionError(f"{args.masks}: --masks must be a .png file (uint16 labels; JPEG cannot hold them)")
     kind = "yolo" if args.weights and args.segmenter == "auto" else args.segmenter
-    capture = load_capture(args.rgb, args.depth, args.camera)
+    capture = load_capture(args.rgb, args.depth, args.camera)   # bad files first, each in one line
     if capture.depth is not None:
         check_depth_structure(capture.depth, str(args.depth))
     seg = load_segmenter(args.weights, kind)
+    _check_depth_given(args)
     shelf = Shelf(*args.shelf) if args.shelf else Shelf()
     extra = {"catalogue": None} if getattr(args, "no_catalogue", False) else {}
     result = perceive(capture, seg, shelf, front_distance=args.front_distance,

@@ -50,8 +50,20 @@ def test_perceive_bad_inputs_exit_2_with_one_line(capture_dir, tmp_path, capsys)
     assert rc == 2 and "nope.pt" in capsys.readouterr().err
 
 
+def photo_only(capture_dir, tmp_path):
+    """The capture's colour image and camera without its depth image: a photo."""
+    import shutil
+
+    photo = tmp_path / "photo"
+    photo.mkdir()
+    for name in ("rgb.png", "camera.json"):
+        shutil.copy(capture_dir / name, photo / name)
+    return photo
+
+
 def test_perceive_without_depth_warns_and_uses_front_distance(capture_dir, tmp_path, capsys):
-    rc = main(["perceive", "--rgb", str(capture_dir / "rgb.png"), "--camera", str(capture_dir / "camera.json"),
+    photo = photo_only(capture_dir, tmp_path)
+    rc = main(["perceive", "--rgb", str(photo / "rgb.png"), "--camera", str(photo / "camera.json"),
                "--out", str(tmp_path / "s.json"), "--segmenter", "photo"])
     assert rc == 0 and "no depth image" in capsys.readouterr().err
     assert len(Scene.load(tmp_path / "s.json").boxes) == 2
@@ -60,11 +72,23 @@ def test_perceive_without_depth_warns_and_uses_front_distance(capture_dir, tmp_p
 def test_perceive_refuses_a_shelf_sized_box_from_colour_alone(capture_dir, tmp_path, capsys):
     """Issue 13: the depth-and-edge segmenter on a flat stand-in depth took the shelf's back for one
     box (1.01 x 0.73 m) and wrote it with exit 0; now: exit 2, one line naming --depth, no file."""
-    rc = main(["perceive", "--rgb", str(capture_dir / "rgb.png"), "--camera", str(capture_dir / "camera.json"),
+    photo = photo_only(capture_dir, tmp_path)
+    rc = main(["perceive", "--rgb", str(photo / "rgb.png"), "--camera", str(photo / "camera.json"),
                "--out", str(tmp_path / "s.json"), "--segmenter", "depth"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "--depth" in err[0] and "the size of the shelf" in err[0]
     assert not (tmp_path / "s.json").exists()
+
+
+def test_perceive_refuses_an_rgbd_capture_without_its_depth(capture_dir, tmp_path, capsys):
+    """The issue's case: a render's rgb.png perceived without --depth though depth.png lies beside it."""
+    argv = ["perceive", "--rgb", str(capture_dir / "rgb.png"), "--camera", str(capture_dir / "camera.json"),
+            "--out", str(tmp_path / "s.json"), "--segmenter", "photo"]
+    rc = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and f"--depth {capture_dir / 'depth.png'}" in err[0]
+    assert not (tmp_path / "s.json").exists()
+    assert main(argv + ["--front-distance", "1.0"]) == 0      # the colour alone, asked for
 
 
 def test_perceive_bench_on_two_rendered_scenes(tmp_path, capsys):
