@@ -186,8 +186,11 @@ class Plan:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
             raise FormatError(origin, "seed", f"expected an integer, got {seed!r}")
         prov = doc.get("provenance", {})
-        if not isinstance(prov, Mapping) or not isinstance(prov.get("scene_hash", ""), str):
-            raise FormatError(origin, "provenance", f"expected an object with a string scene_hash, got {prov!r}")
+        if not isinstance(prov, Mapping):
+            raise FormatError(origin, "provenance", f"expected an object, got {prov!r}")
+        sh = prov.get("scene_hash")
+        if sh is not None and not (isinstance(sh, str) and len(sh) == 16 and all(c in "0123456789abcdef" for c in sh)):
+            raise FormatError(origin, "provenance.scene_hash", f"expected 16 hex digits, got {sh!r}")
         known = {"format", "task", "target", "planner", "sequence", "predicted", "safe", "timing", "seed"}
         extra = {k: v for k, v in doc.items() if k not in known}
         return cls(task, target, planner, tuple(seq), predicted, safe, dict(timing), seed, extra)

@@ -92,6 +92,8 @@ def test_old_plans_without_provenance_still_load_and_validate(validators):
               "seed": True}),
     ("plan", {"format": "shelfpick.plan/1", "task": "extract", "target": "a", "planner": "x", "sequence": ["a"],
               "predicted": [{"box": "a", "collapse_prob": 1.5}]}),
+    ("plan", {"format": "shelfpick.plan/1", "task": "extract", "target": "a", "planner": "x", "sequence": ["a"],
+              "provenance": {"scene_hash": "not-a-hash"}}),
     ("scene", {"format": "shelfpick.scene/1", "shelf": {"width": 1, "depth": 0.3, "height": 0}, "boxes": []}),
     ("scene", {"format": "shelfpick.scene/1", "shelf": {"width": 1, "depth": 0.3, "height": 1},
                "boxes": [{"id": "", "size": [0.1, 0.1, 0.1], "position": [0, 0.1, 0.05]}]}),
