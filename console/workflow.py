@@ -108,7 +108,8 @@ class State:
             return self.robot
         if self.approved is not None:
             return "approved"
-        if self.deviation is not None and not self.capturing and not self.planning and not self.plans:
+        if (self.deviation is not None and not self.capturing and not self.planning
+                and set(self.plans or {}) <= {"continue"}):   # held: the only offer is to continue
             return "held"
         if self.capturing:
             return "capturing"
@@ -822,34 +823,10 @@ class Workflow:
 
     def _look(self, run: _Run, step: int, box: str, world: Any) -> tuple:
         """(Verification, Frame | None, Perception | None, predicted Scene | None) after `step`."""
-        from console.verify import compare, unavailable
-        from perception.pipeline import perceive
-
         shelves = run.entry.shelves
         predicted = shelves[step] if step < len(shelves) else None
-        t0 = time.perf_counter()
-        try:
-            frame = self.source.look_again(world, step)
-        except Exception as exc:  # noqa: BLE001 - a camera fault holds the robot, it is not a crash
-            return unavailable(step, box, f"camera: {exc}", self.tolerance), None, None, predicted
-        if frame is None:
-            return (unavailable(step, box, "the source has no new frame since the last capture",
-                                self.tolerance), None, None, predicted)
-        t1 = time.perf_counter()
-        try:
-            shelf = frame.truth.shelf if frame.truth is not None else run.scene.shelf
-            opts = {k: v for k, v in self.perceive_options.items() if k != "shelf"}
-            perception = perceive(frame.capture, self.segmenter, shelf=shelf, **opts)
-        except Exception as exc:  # noqa: BLE001
-            return unavailable(step, box, f"perception: {exc}", self.tolerance), frame, None, predicted
-        t2 = time.perf_counter()
-        if predicted is None:
-            v = unavailable(step, box, "the plan has no predicted shelf for this step", self.tolerance)
-        else:
-            v = compare(predicted, perception.scene, step, box, self.tolerance)
-        t3 = time.perf_counter()
-        return (replace(v, timing={"capture_s": t1 - t0, "perceive_s": t2 - t1, "compare_s": t3 - t2}),
-                frame, perception, predicted)
+        return look_again(self.source, world, step, box, predicted, run.scene.shelf, self.segmenter,
+                          self.tolerance, self.perceive_options)
 
     def _on_event(self, run: _Run) -> Callable[[Any], None]:
         def on_event(ev: Any) -> None:
@@ -942,6 +919,45 @@ class Workflow:
                       outcome=outcome, needs_recapture=False, scene_problems=(), repairs=(),
                       deviation=dev, message=msg, error=v.summary() if status == "held" else err)
         return True
+
+
+def look_again(source: Any, world: Any, step: int, box: str, predicted: Any, shelf: Any,
+               segmenter: Any = None, tolerance: Any = None,
+               perceive_options: Mapping[str, Any] | None = None) -> tuple:
+    """The console's look after `step`: a new frame, perceived, compared with the `predicted` shelf.
+
+    Returns (Verification, Frame | None, Perception | None, predicted). A
+    camera or perception fault, no new frame or no prediction is a verdict
+    that holds (`unavailable`), never an exception. `shelf`: the installation's
+    shelf when the frame knows no truth. benchmarks/closed_loop.py times and
+    scores exactly this function.
+    """
+    from console.verify import Tolerance, compare, unavailable
+    from perception.pipeline import perceive
+
+    tol = tolerance or Tolerance()
+    t0 = time.perf_counter()
+    try:
+        frame = source.look_again(world, step)
+    except Exception as exc:  # noqa: BLE001 - a camera fault holds the robot, it is not a crash
+        return unavailable(step, box, f"camera: {exc}", tol), None, None, predicted
+    if frame is None:
+        return unavailable(step, box, "the source has no new frame since the last capture", tol), None, None, predicted
+    t1 = time.perf_counter()
+    try:
+        opts = {k: v for k, v in (perceive_options or {}).items() if k != "shelf"}
+        perception = perceive(frame.capture, segmenter,
+                              shelf=frame.truth.shelf if frame.truth is not None else shelf, **opts)
+    except Exception as exc:  # noqa: BLE001
+        return unavailable(step, box, f"perception: {exc}", tol), frame, None, predicted
+    t2 = time.perf_counter()
+    if predicted is None:
+        v = unavailable(step, box, "the plan has no predicted shelf for this step", tol)
+    else:
+        v = compare(predicted, perception.scene, step, box, tol)
+    t3 = time.perf_counter()
+    return (replace(v, timing={"capture_s": t1 - t0, "perceive_s": t2 - t1, "compare_s": t3 - t2}),
+            frame, perception, predicted)
 
 
 def _seed_history(robot: Any, plan_hash: str, done: dict[int, str]) -> None:

@@ -5,6 +5,15 @@ SQLite file, the reference TCP robot (its own PyBullet world), rendering and
 perception. The shelf is a generated `lean` shelf: a standing long box leans
 on a column, which perception reports as upright, so the highest-first plan's
 first pull is predicted safe and drops the leaning box in the robot's world.
+
+Seed 0 of `generate("lean", seed, 8)` was picked by trying seeds 0-45
+(/tmp script, issue 11): its first pull is predicted safe, moves a neighbour
+5 cm in the robot's world, which the robot itself does not report (only the
+look catches it), and an extraction re-planned from the capture after the
+hold runs to the end. On seed 2 the fallen boxes keep resettling in the
+robot's world and the robot reports that as a collapse, so the re-plan fails;
+on seed 17 the hold comes at step 3. Without the look after each step the
+same run is not held (the second test).
 """
 from __future__ import annotations
 
@@ -34,8 +43,18 @@ class CameraOnRobotShelf:
         return self.demo.look_again(world if world is not None else self.controller.world(), step)
 
 
-@pytest.fixture
-def lean_console(tmp_path):
+class CameraThatDoesNotLookAgain:
+    """The same camera without `look_again`: the console runs the plan open loop."""
+
+    def __init__(self, scene, controller) -> None:
+        self.camera = CameraOnRobotShelf(scene, controller)
+        self.name = "camera-without-look"
+
+    def capture(self):
+        return self.camera.capture()
+
+
+def make_console(tmp_path, camera):
     from console.app import ClientView, ConsoleApp
     from console.robot import open_robot
     from console.robot_controller import RobotController
@@ -44,15 +63,33 @@ def lean_console(tmp_path):
     from perception.render import default_camera
     from planning.shelves import generate
 
-    truth = generate("lean", 2, 8)
+    truth = generate("lean", LEAN_SEED, 8)
     truth = type(truth)(truth.shelf, truth.boxes, default_camera())
     ctl = RobotController(truth=truth).start()
     store = SessionStore(tmp_path / "closed.sqlite")
-    wf = Workflow(CameraOnRobotShelf(truth, ctl), store,
+    wf = Workflow(camera(truth, ctl), store,
                   lambda t, seed: open_robot(ctl.url, truth=t, seed=seed), PASS, samples=2)
     app = ConsoleApp(wf, port=0)
     view = ClientView(app, app.server)
     app.views[4242] = view
+    return wf, store, ctl, view, app
+
+
+LEAN_SEED = 0
+
+
+@pytest.fixture
+def lean_console(tmp_path):
+    wf, store, ctl, view, app = make_console(tmp_path, CameraOnRobotShelf)
+    yield wf, store, ctl, view
+    app.stop()
+    store.close()
+    ctl.close()
+
+
+@pytest.fixture
+def open_loop_console(tmp_path):
+    wf, store, ctl, view, app = make_console(tmp_path, CameraThatDoesNotLookAgain)
     yield wf, store, ctl, view
     app.stop()
     store.close()
@@ -113,14 +150,34 @@ def test_collapse_holds_before_step_two_and_a_new_plan_completes(lean_console):
     wf.select_target(top.id)
     wf.plan("extract", wait=True)
     phys = wf.state.plans["physics"]
+    replanned = wf.state.session_id
     wf.approve(phys.hash, PASS, "sup", accept_risk=True)
     wf.execute(wait=True)
     st = wf.state
-    # the new plan ran under the new approval, each executed step looked at and recorded; on this
-    # shelf the fallen boxes keep settling in the robot's world, which the robot itself may report
-    assert st.robot in ("done", "failed", "held"), (st.robot, st.message, st.error)
-    assert st.outcome is not None and st.outcome.plan == phys.hash and st.outcome.completed
-    rec2 = store.load_session(rec2_id := store.load_session(st.session_id).id) if st.robot != "held" else None
-    assert st.verifications and len(st.verifications) == len(st.outcome.completed)
-    if rec2 is not None:
-        assert len(rec2.verifications) == len(st.outcome.completed)
+    # the new plan ran under the new approval to the end, each step looked at and recorded (a
+    # difference after the last step is evidence only: nothing is left to hold)
+    assert st.robot == "done", (st.robot, st.message, st.error)
+    assert st.outcome is not None and st.outcome.plan == phys.hash
+    assert st.outcome.completed == phys.plan.sequence and phys.plan.sequence[-1] == top.id
+    assert [v.step for v in st.verifications] == list(range(len(phys.plan.sequence)))
+    assert all(v.within for v in st.verifications[:-1]), [v.summary() for v in st.verifications]
+    rec2 = store.load_session(replanned)    # (a difference after the last step makes its look current)
+    assert rec2.status == "done" and rec2.outcome["plan"] == phys.hash
+    assert [r["step"] for r in rec2.verifications] == list(range(len(phys.plan.sequence)))
+    assert [(d["decision"], d["plan_hash"]) for d in rec2.decisions] == [("approve", phys.hash)]
+
+
+def test_without_the_look_the_same_run_is_not_held(open_loop_console):
+    """The counterfactual: no look after the step, no hold, nothing verified or recorded as such."""
+    wf, store, ctl, view = open_loop_console
+    first = wf.capture()
+    wf.plan("clear", wait=True)
+    heur = wf.state.plans["heuristic"]
+    wf.approve(heur.hash, PASS, "sup", accept_risk=True)
+    wf.execute(wait=True)
+    st = wf.state
+    assert st.robot != "held" and st.deviation is None and not st.verifications, (st.robot, st.message)
+    # the robot went on after the step that moved the neighbour (it does not report that move itself)
+    assert len(ctl.received("step")) > 1
+    rec = store.load_session(first.session_id)
+    assert rec.status != "held" and not rec.verifications
