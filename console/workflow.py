@@ -825,8 +825,9 @@ class Workflow:
         """(Verification, Frame | None, Perception | None, predicted Scene | None) after `step`."""
         shelves = run.entry.shelves
         predicted = shelves[step] if step < len(shelves) else None
+        removed = run.scene.box(box) if box in run.scene.ids else None
         return look_again(self.source, world, step, box, predicted, run.scene.shelf, self.segmenter,
-                          self.tolerance, self.perceive_options)
+                          self.tolerance, self.perceive_options, removed)
 
     def _on_event(self, run: _Run) -> Callable[[Any], None]:
         def on_event(ev: Any) -> None:
@@ -923,13 +924,14 @@ class Workflow:
 
 def look_again(source: Any, world: Any, step: int, box: str, predicted: Any, shelf: Any,
                segmenter: Any = None, tolerance: Any = None,
-               perceive_options: Mapping[str, Any] | None = None) -> tuple:
+               perceive_options: Mapping[str, Any] | None = None, removed: Any = None) -> tuple:
     """The console's look after `step`: a new frame, perceived, compared with the `predicted` shelf.
 
     Returns (Verification, Frame | None, Perception | None, predicted). A
     camera or perception fault, no new frame or no prediction is a verdict
     that holds (`unavailable`), never an exception. `shelf`: the installation's
-    shelf when the frame knows no truth. benchmarks/closed_loop.py times and
+    shelf when the frame knows no truth; `removed`: the box the step took out, as
+    perceived (a box it hid is not new). benchmarks/closed_loop.py times and
     scores exactly this function.
     """
     from console.verify import Tolerance, compare, unavailable
@@ -954,7 +956,7 @@ def look_again(source: Any, world: Any, step: int, box: str, predicted: Any, she
     if predicted is None:
         v = unavailable(step, box, "the plan has no predicted shelf for this step", tol)
     else:
-        v = compare(predicted, perception.scene, step, box, tol)
+        v = compare(predicted, perception.scene, step, box, tol, removed)
     t3 = time.perf_counter()
     return (replace(v, timing={"capture_s": t1 - t0, "perceive_s": t2 - t1, "compare_s": t3 - t2}),
             frame, perception, predicted)
