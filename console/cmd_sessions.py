@@ -1,4 +1,5 @@
-"""`shelfpick sessions`: list the console's stored sessions as a table."""
+"""`shelfpick sessions`: list the console's stored sessions as a table; `--stats`: predicted risk
+against what happened (console/session_stats.py)."""
 from __future__ import annotations
 
 import argparse
@@ -10,6 +11,9 @@ HELP = "list stored console sessions (id, start, source, boxes, task, status)"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="session database (default ./data/shelfpick.db)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--stats", action="store_true",
+                   help="over all sessions: executed steps by predicted collapse risk, robot-reported "
+                        "collapses, deviations seen by the look after each step")
 
 
 def format_table(rows: list[dict]) -> str:
@@ -31,6 +35,14 @@ def run(args: argparse.Namespace) -> int:
     # read-only: an archive on a read-only disk lists; a SQLite file that is not ours is refused untouched
     with SessionStore(db, readonly=True) as store:
         rows = store.list_sessions()
+        steps = store.step_stats() if args.stats else []
+    if args.stats:
+        from console.session_stats import format_stats, risk_table, session_counts
+
+        table, counts = risk_table(steps), session_counts(rows)
+        print(json.dumps({"by_risk": table, "sessions": counts}, indent=2) if args.json
+              else format_stats(table, counts))
+        return 0
     if args.json:
         print(json.dumps(rows, indent=2))
     elif not rows:

@@ -555,6 +555,36 @@ class SessionStore:
                         "verdict": json.loads(r["verdict"])})
         return out
 
+    def step_stats(self) -> list[dict]:
+        """Every step a robot reported done, in every session: the plan's predicted risk for it,
+        whether the robot reported boxes collapsing, and the look after it (None: not verified)."""
+        rows = self._read("SELECT e.session_id, e.plan_hash, e.kind, e.step, e.box, e.detail, "
+                          "(SELECT p.plan FROM plans p WHERE p.session_id=e.session_id AND p.hash=e.plan_hash "
+                          "ORDER BY p.id DESC LIMIT 1) AS plan FROM robot_events e "
+                          "WHERE e.kind IN ('done', 'error') AND e.step IS NOT NULL ORDER BY e.id")
+        looks = {(v["session"], v["plan"], v["step"]): v for v in self.verification_stats()}
+        out: dict[tuple, dict] = {}
+        for r in rows:
+            key = (r["session_id"], r["plan_hash"], int(r["step"]))
+            detail = json.loads(r["detail"]) if r["detail"] else {}
+            collapsed = bool(detail.get("collapsed")) or detail.get("code") == "COLLAPSE"
+            if r["kind"] == "error":
+                if key in out and collapsed:
+                    out[key]["robot_collapse"] = True
+                continue
+            plan = json.loads(r["plan"]) if r["plan"] else {}
+            pred = plan.get("predicted") or []
+            p = pred[key[2]] if key[2] < len(pred) and isinstance(pred[key[2]], dict) else {}
+            look = looks.get(key)
+            verdict = look["verdict"] if look else None
+            out[key] = {"session": key[0], "plan": key[1], "planner": plan.get("planner"), "step": key[2],
+                        "box": r["box"], "collapse_prob": float(p.get("collapse_prob", 0.0) or 0.0),
+                        "robot_collapse": collapsed,
+                        "verified": None if look is None else (
+                            "unavailable" if verdict.get("unavailable") else
+                            "within" if look["within"] else "deviation")}
+        return list(out.values())
+
     def _has_table(self, name: str) -> bool:
         return bool(self._read("SELECT 1 FROM sqlite_master WHERE type='table' AND name=?", (name,)))
 

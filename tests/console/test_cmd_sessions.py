@@ -47,3 +47,40 @@ def test_replay_command_writes_the_page(db, tmp_path: Path, capsys) -> None:
     assert f"session {sid2}: replay written" in capsys.readouterr().out
     assert main(["replay", "999", "--html", str(out), "--db", str(path)]) == 2
     assert "no session with id 999" in capsys.readouterr().err
+
+
+def test_sessions_stats_predicted_risk_against_what_happened(tmp_path: Path, capsys) -> None:
+    """One unverified session (2 steps predicted safe) and one run of the risky plan, looked at
+    after each step: its safe step stood, its risky step collapsed b1 and the look saw it."""
+    import json
+
+    from console.store import SessionStore
+    from console.verify import compare
+
+    from session_fixture import stack_scene
+
+    path = tmp_path / "stats.db"
+    make_session(path)
+    sid, info = make_session(path)
+    scene = stack_scene()
+    ok = compare(scene.without(["b2"]), scene.without(["b2"]), 0, "b2").to_json()
+    fell = compare(scene.without(["b2", "b0"]), scene.without(["b2", "b0", "b1"]), 1, "b0").to_json()
+    assert ok["within"] and not fell["within"]
+    with SessionStore(path) as store:
+        h = info["heuristic"]                       # steps b2 (risk 0), b0 (risk 1.0)
+        store.add_robot_event(sid, h, "done", 0, "b2", {"collapsed": []})
+        store.add_verification(sid, h, "r1", ok, scene, scene)
+        store.add_robot_event(sid, h, "done", 1, "b0", {"collapsed": ["b1"]})
+        store.add_verification(sid, h, "r1", fell, scene, scene)
+        store.set_outcome(sid, {"plan": h, "ok": False, "held": True})
+    assert main(["sessions", "--db", str(path), "--stats", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    by = {r["risk"]: r for r in doc["by_risk"]}
+    assert (by["0%"]["steps"], by["0%"]["verified"], by["0%"]["deviations"], by["0%"]["not_verified"]) == (5, 1, 0, 4)
+    assert (by["50-100%"]["steps"], by["50-100%"]["robot_collapses"], by["50-100%"]["deviations"]) == (1, 1, 1)
+    assert by["50-100%"]["deviation_rate"] == 1.0 and by["1-49%"]["steps"] == 0
+    assert by["all"]["steps"] == 6 and doc["sessions"] == {"done": 1, "held": 1}
+    assert main(["sessions", "--db", str(path), "--stats"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].split()[:2] == ["PREDICTED", "RISK"] and out[-1] == "sessions: done 1, held 1"
+    assert out[3].split()[:5] == ["50-100%", "1", "1.0", "1", "1"]
