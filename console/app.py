@@ -14,7 +14,7 @@ import re
 import threading
 import time
 import traceback
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -251,8 +251,12 @@ class ClientView:
             self.sessions_md = g.add_markdown("")
             self.session_pick = g.add_dropdown("Session", ("—",), initial_value="—")
             self.btn_replay = g.add_button("Replay")
+            self.look_pick = g.add_dropdown("Look after step", ("—",), initial_value="—",
+                                            hint="replay: the observed shelf after a step, the predicted "
+                                                 "poses as blue outlines, what differs in red")
             self.btn_live = g.add_button("Back to live")
             self.replay_md = g.add_markdown("")
+            self.look_md = g.add_markdown("")
 
         self.btn_capture.on_click(lambda e: self._do(e, self.wf.capture))
         self.btn_extract.on_click(lambda e: self._do(e, self.wf.plan, "extract"))
@@ -262,6 +266,7 @@ class ClientView:
         self.btn_reject.on_click(self._reject)
         self.btn_replay.on_click(self._replay)
         self.btn_live.on_click(self._live)
+        self.look_pick.on_update(lambda e: self._show_look(self.look_pick.value))
         self.btn_play.on_click(lambda e: self._play())
         self.btn_pause.on_click(lambda e: self._pause())
         self.prev_plan.on_update(lambda e: self._load_preview(force=True))
@@ -437,6 +442,9 @@ class ClientView:
         target = self.replay.get("target") if self.replay is not None else self.wf.state.target
         risk = set(getattr(self, "risk", set()))
         dev = self.wf.state.deviation if self.replay is None else None
+        look = self.replay.get("shown_look") if self.replay is not None else None
+        if look is not None:
+            risk = set(look["differ_o"])
         if dev is not None and self.wf.state.session_id == dev.session:
             risk |= {d.observed for d in dev.verification.boxes if d.status in ("moved", "new")}
         self._draw_predicted(dev)
@@ -558,13 +566,43 @@ class ClientView:
             self.shown_plans = None
             self.results.content = rec["plans_md"]
             self.replay_md.content = rec["summary_md"]
+            self._clear_look()
+            self.look_pick.options = ("—",) + tuple(lk["label"] for lk in rec.get("looks", ()))
+            self.look_pick.value = "—"
             self._load_preview()
             self.render(self.wf.state)
+
+    def _clear_look(self) -> None:
+        for h in getattr(self, "look_nodes", []):
+            h.remove()
+        self.look_nodes = []
+        self.look_md.content = ""
+
+    def _show_look(self, label: str) -> None:
+        """Replay: the shelf observed after one step with the plan's predicted poses as outlines."""
+        with self.lock:
+            if self.replay is None:
+                return
+            self._clear_look()
+            look = next((lk for lk in self.replay.get("looks", ()) if lk["label"] == label), None)
+            self.replay["shown_look"] = look
+            if look is None or look["observed"] is None:
+                self._draw_scene(self.replay.get("scene"), self.replay.get("camera"))
+            else:
+                self._draw_scene(look["observed"], self.replay.get("camera"))
+                if look["predicted"] is not None:
+                    self.look_nodes = sv.draw_outlines(self.client.scene, look["predicted"].boxes, prefix="/look")
+                self.look_md.content = look["md"]
+            self._highlight()
 
     def _live(self, event: Any) -> None:
         with self.lock:
             self.replay = None
             self.replay_md.content = ""
+            self._clear_look()
+            self.look_pick.options = ("—",)
+            self.look_pick.value = "—"
+            self.shown_scene = None       # draw the live shelf again
             self.render(self.wf.state)
 
 
@@ -606,9 +644,32 @@ def record_view(rec: Any) -> dict:
     for p in plans.values():
         target = p["plan"].target or target
     cap = rec.capture
+    looks = [look_view(v) for v in rec.verifications]
+    if looks:
+        lines.append("\n**Looks after each step** (pick one in `Look after step`)")
+        lines += [f"- {'✓' if lk['within'] else '⚠'} {md(lk['summary'])}" for lk in looks]
     return {"id": rec.id, "rgb": cap.rgb if cap is not None else None, "overlay": rec.overlay,
             "scene": rec.scene, "camera": cap.camera if cap is not None else rec.scene.camera,
-            "target": target, "plans": plans, "plans_md": plans_md, "summary_md": "\n".join(lines)}
+            "target": target, "plans": plans, "plans_md": plans_md, "summary_md": "\n".join(lines),
+            "looks": looks}
+
+
+def look_view(v: Mapping[str, Any]) -> dict:
+    """One stored verification as the replay draws it: observed scene, predicted scene, what differs."""
+    verdict = v.get("verdict") or {}
+    diffs = [d for d in verdict.get("boxes", []) if d.get("status") != "ok"]
+    rows = [f"**{'✓' if v.get('within') else '⚠'} {md(verdict.get('summary', ''))}**", ""]
+    if diffs:
+        rows += ["| predicted box | observed box | off by | turned | |", "|---|---|---|---|---|"]
+        rows += [f"| {md(d.get('predicted') or '—')} | {md(d.get('observed') or '—')} | "
+                 f"{100 * float(d.get('displacement_m', 0)):.1f} cm | {float(d.get('rotation_deg', 0)):.0f}° | "
+                 f"{md(d.get('status'))} |" for d in diffs]
+    rows.append("\n_Observed boxes drawn; blue outlines: the plan's predicted poses; red: boxes that differ._")
+    return {"label": f"step {int(v['step']) + 1} ({v.get('box')}, plan {v.get('plan_hash')})",
+            "step": int(v["step"]), "within": bool(v.get("within")), "summary": verdict.get("summary", ""),
+            "observed": v.get("observed"), "predicted": v.get("predicted"), "md": "\n".join(rows),
+            "differ_o": tuple(d["observed"] for d in diffs if d.get("observed")
+                              and d.get("status") in ("moved", "new"))}
 
 
 def _outcome_lines(out: dict, plans: dict) -> list[str]:

@@ -290,6 +290,65 @@ def _outcome(rec: SessionRecord) -> str:
             + "".join(rows) + "</table>")
 
 
+def _look_svg(shelf: Any, predicted: Scene | None, observed: Scene | None, differ_p: set[str],
+              differ_o: set[str]) -> str:
+    """Front view of one look: observed boxes filled, predicted poses as dashed blue outlines
+    (thick where the box differs), observed boxes that differ outlined in red."""
+    boxes = [("o", b) for b in (observed.boxes if observed else ())] + \
+            [("p", b) for b in (predicted.boxes if predicted else ())]
+    polys = [(k, b, front_polygon(b, b.position, b.orientation)) for k, b in boxes]
+    zs = [z for _, _, poly in polys for _, z in poly] or [0.0, 0.5]
+    x0, x1 = -shelf.width / 2 - 0.05, shelf.width / 2 + 0.05
+    z0, z1 = max(min(-0.05, min(zs) - 0.03), -1.0), min(shelf.height, max(zs) + 0.1) + 0.05
+    parts = [f'<svg class="look" viewBox="{x0:.3f} {-z1:.3f} {x1 - x0:.3f} {z1 - z0:.3f}" '
+             f'preserveAspectRatio="xMidYMid meet" role="img" aria-label="predicted vs observed">',
+             f'<line x1="{x0:.3f}" y1="0" x2="{x1:.3f}" y2="0" stroke="#5a4630" stroke-width="0.02"/>']
+    for i, (kind, b, poly) in enumerate(polys):
+        pts = " ".join(f"{x:.4f},{-z:.4f}" for x, z in poly)
+        if kind == "o":
+            r, g, bl = box_colour(i + 1)
+            stroke, w = ("#e01e1e", 0.012) if b.id in differ_o else ("#333", 0.004)
+            parts.append(f'<polygon data-observed="{_e(b.id)}" points="{pts}" fill="rgb({r},{g},{bl})" '
+                         f'fill-opacity="0.8" stroke="{stroke}" stroke-width="{w}"/>')
+            cx = sum(x for x, _ in poly) / len(poly)
+            cz = sum(z for _, z in poly) / len(poly)
+            parts.append(f'<text x="{cx:.4f}" y="{-cz + 0.015:.4f}" font-size="0.035" text-anchor="middle">'
+                         f'{_e(b.id)}</text>')
+        else:
+            w = 0.012 if b.id in differ_p else 0.005
+            parts.append(f'<polygon data-predicted="{_e(b.id)}" points="{pts}" fill="none" stroke="#1e5ae0" '
+                         f'stroke-width="{w}" stroke-dasharray="0.02,0.012"/>')
+    parts.append("</svg>")
+    return "".join(parts)
+
+
+def _looks(rec: SessionRecord) -> str:
+    """Each verified step: the verdict, what differed, and predicted (outlines) over observed (filled)."""
+    if not rec.verifications:
+        return "<p><i>No look after a step was recorded in this session.</i></p>"
+    out = []
+    for v in rec.verifications:
+        verdict = v.get("verdict") or {}
+        diffs = [d for d in verdict.get("boxes", []) if d.get("status") != "ok"]
+        differ_p = {d["predicted"] for d in diffs if d.get("predicted") and d.get("status") in ("moved", "missing")}
+        differ_o = {d["observed"] for d in diffs if d.get("observed") and d.get("status") in ("moved", "new")}
+        rows = "".join(f'<tr><td>{_e(d.get("predicted") or "—")}</td><td>{_e(d.get("observed") or "—")}</td>'
+                       f'<td>{100 * float(d.get("displacement_m", 0)):.1f} cm</td>'
+                       f'<td>{float(d.get("rotation_deg", 0)):.0f}°</td><td>{_e(d.get("status"))}</td></tr>'
+                       for d in diffs)
+        table = ('<table><tr><th>predicted box</th><th>observed box</th><th>off by</th><th>turned</th>'
+                 f'<th></th></tr>{rows}</table>') if rows else ""
+        svg = _look_svg(rec.scene.shelf, v.get("predicted"), v.get("observed"), differ_p, differ_o)
+        cls = "ok" if v.get("within") else "err"
+        out.append(f'<div class="card" data-look="{int(v["step"])}"><p class="{cls}"><b>'
+                   f'{"✓" if v.get("within") else "⚠"} {_e(verdict.get("summary", ""))}</b></p>'
+                   f'<p class="small">plan <code>{_e(v.get("plan_hash"))}</code> · run {_e(v.get("run") or "")}'
+                   f' · {_e(v.get("at"))}</p>{svg}{table}</div>')
+    return ('<p class="small">After each step the console looked again: observed boxes filled (red outline: '
+            'differs), the plan\'s predicted poses as dashed blue outlines.</p><div class="row">'
+            + "".join(out) + "</div>")
+
+
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:1.5em;color:#222;background:#fafafa}
 h1{margin-bottom:.2em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
@@ -301,6 +360,7 @@ td,th{border:1px solid #ddd;padding:.2em .5em;text-align:left} th{background:#f0
 tr.bad td{background:#fde8e8} tr.ok td{background:#eaf7ea} .ok{color:#197a19} .err{color:#b00}
 .small{font-size:.85em;color:#555} svg.anim{width:100%;height:340px;background:#fff;border:1px solid #ddd}
 .controls{display:flex;gap:.6em;align-items:center;margin:.3em 0} .controls input{flex:1}
+svg.look{width:100%;height:300px;background:#fff;border:1px solid #ddd}
 code{background:#f2f2f2;padding:0 .2em}
 """
 
@@ -391,6 +451,7 @@ def render_html(rec: SessionRecord) -> str:
             f'<h2>Plans</h2><div class="row">{cards}</div>'
             f'<h2>Decisions</h2>{decisions}'
             f'<h2>Robot: actual outcome vs prediction</h2>{_outcome(rec)}'
+            f'<h2>Looks after each step: predicted vs observed</h2>{_looks(rec)}'
             f'<h3>Robot events</h3>{events}'
             f'<p class="small">Exported by shelfpick replay; self-contained (no network needed).</p>'
             f'<script>{_JS}</script></body></html>')

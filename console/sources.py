@@ -17,7 +17,7 @@
 A camera that fails raises `SourceError` (a ShelfpickError) naming the source
 and the cause; the console shows it and keeps running.
 
-`look_again(world, step)` is the console's look after a robot step (closed
+`look_again(world, step, attempt=0)` is the console's look after a robot step (closed
 loop, docs/console.md "Verification"): the demo renders the simulated robot's
 true shelf as it now stands (`world`; unknown for another robot: SourceError,
 so the robot is held); files re-reads the folder and returns None when the
@@ -121,8 +121,9 @@ class DemoSource:
             self._last = (label, n)
         return Frame(cap, scene, f"demo:{label}#{n}")
 
-    def look_again(self, world: Scene | None, step: int) -> Frame:
-        """The simulated robot's true shelf as it now stands, rendered (a new look: seeded by step)."""
+    def look_again(self, world: Scene | None, step: int, attempt: int = 0) -> Frame:
+        """The simulated robot's true shelf as it now stands, rendered (a new look: seeded by step
+        and attempt; the console looks a second time to confirm a difference)."""
         from perception.render import render
 
         with self._lock:
@@ -130,9 +131,9 @@ class DemoSource:
         if world is None:
             raise SourceError(f"demo:{label}: the shelf after the robot's step is not known (the demo "
                               f"renders the simulated robot's shelf; this robot is not simulated here)")
-        seed = self.seed + n + 1000 * (step + 1)
+        seed = self.seed + n + 1000 * (step + 1) + 1_000_003 * attempt
         cap = _guard(f"demo:{label}", lambda: render(world, self.camera, seed=seed))
-        return Frame(cap, world, f"demo:{label}#{n}/after step {step + 1}")
+        return Frame(cap, world, f"demo:{label}#{n}/after step {step + 1}" + (f" (look {attempt + 1})" if attempt else ""))
 
 
 class FilesSource:
@@ -170,7 +171,7 @@ class FilesSource:
             h.update(p.read_bytes() if p.is_file() else b"-")
         return h.hexdigest()
 
-    def look_again(self, world: Scene | None, step: int) -> Frame | None:
+    def look_again(self, world: Scene | None, step: int, attempt: int = 0) -> Frame | None:
         """The folder's next frame; None when its images are those already read (no new frame)."""
         if _guard(self.name, self._fingerprint) == self._seen:
             return None
@@ -210,7 +211,7 @@ class RealSenseSource:
             self._n += 1
             return Frame(cap, None, f"{self.name}#{self._n}")
 
-    def look_again(self, world: Scene | None, step: int) -> Frame:
+    def look_again(self, world: Scene | None, step: int, attempt: int = 0) -> Frame:
         """A new frame of the live camera (or the recording's next one)."""
         return self.capture()
 

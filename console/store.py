@@ -132,6 +132,24 @@ CREATE INDEX IF NOT EXISTS events_session ON robot_events(session_id);
 """
 
 
+def stored_scene(text: str | None, origin: str = "") -> Scene | None:
+    """A verification's stored shelf; a predicted box out of the shelf's bounds (stored by an
+    older console: a box predicted to fall) is kept, so the record still replays."""
+    if not text:
+        return None
+    from perception.errors import FormatError
+    from perception.scene import Box, Shelf
+
+    doc = json.loads(text)
+    try:
+        return Scene.from_json(doc, origin)
+    except FormatError:
+        if not isinstance(doc, dict) or not isinstance(doc.get("boxes"), list):
+            raise
+        return Scene(Shelf.from_json(doc["shelf"], origin),
+                     tuple(Box.from_json(b, origin, f"boxes[{i}]") for i, b in enumerate(doc["boxes"])))
+
+
 class StoreError(ShelfpickError):
     """The session database cannot be opened or written (locked, read-only, full, corrupt)."""
 
@@ -728,10 +746,8 @@ class SessionStore:
             missing_files=tuple(missing),
             verifications=tuple({"plan_hash": r["plan_hash"], "run": r["run"], "at": r["at"], "step": r["step"],
                                  "box": r["box"], "within": bool(r["within"]), "verdict": json.loads(r["verdict"]),
-                                 "predicted": Scene.from_json(json.loads(r["predicted"]), origin)
-                                 if r["predicted"] else None,
-                                 "observed": Scene.from_json(json.loads(r["observed"]), origin)
-                                 if r["observed"] else None} for r in vrows))
+                                 "predicted": stored_scene(r["predicted"], origin),
+                                 "observed": stored_scene(r["observed"], origin)} for r in vrows))
 
     def _load_images(self, row: sqlite3.Row) -> tuple[Capture | None, np.ndarray | None, list[str]]:
         """Images back as arrays; a deleted file is reported, not fatal (the record stays readable)."""

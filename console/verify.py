@@ -83,6 +83,7 @@ class Verification:
     tolerance: Tolerance = field(default_factory=Tolerance)
     unavailable: str | None = None   # why no comparison could be made (then `within` is False)
     timing: Mapping[str, float] = field(default_factory=dict, compare=False)
+    unconfirmed: str | None = None   # a difference the first look saw and a second look did not
 
     def ids(self, status: str) -> tuple[str, ...]:
         """Predicted ids (observed ids for `new` and `revealed`) with this status."""
@@ -105,6 +106,8 @@ class Verification:
             return f"step {self.step + 1} ({self.box}): not verified: {self.unavailable}"
         if self.within:
             notes = "".join(f"; {len(self.ids(s))} {s}" for s in ("revealed", "resegmented") if self.ids(s))
+            if self.unconfirmed:
+                notes += "; a difference seen in one look was not there in a second"
             return (f"step {self.step + 1} ({self.box}): shelf as predicted "
                     f"(largest difference {100 * self.max_displacement:.1f} cm{notes})")
         parts = []
@@ -128,6 +131,8 @@ class Verification:
             doc["unavailable"] = self.unavailable
         if self.timing:
             doc["timing"] = {k: round(float(v), 4) for k, v in self.timing.items()}
+        if self.unconfirmed:
+            doc["unconfirmed"] = self.unconfirmed
         return doc
 
     @classmethod
@@ -135,7 +140,7 @@ class Verification:
         return cls(int(doc["step"]), str(doc["box"]), bool(doc["within"]),
                    tuple(BoxDiff.from_json(d) for d in doc.get("boxes", [])),
                    Tolerance.from_json(doc.get("tolerance", {})), doc.get("unavailable"),
-                   dict(doc.get("timing", {})))
+                   dict(doc.get("timing", {})), doc.get("unconfirmed"))
 
 
 def unavailable(step: int, box: str, why: str, tolerance: Tolerance | None = None) -> Verification:
@@ -188,12 +193,17 @@ def face_points(b: Box, spacing: float = 0.02) -> list[tuple[float, float, float
     return out
 
 
-def covered(b: Box, faces: Sequence[Box], margin: float, depth: float) -> float:
+def covered(b: Box, faces: Sequence[Box], margin: float, depth: float, hidden_by: Box | None = None) -> float:
     """Fraction of `b`'s front-face points that lie on one of `faces` (in plane within `margin`,
-    off the plane by at most `depth`)."""
+    off the plane by at most `depth`). Points behind `hidden_by` (the box just taken out) are
+    not counted: the camera saw them only after the step, or never."""
     frames = [(quat_to_matrix(o.orientation), o.front_center, o.size[0] / 2 + margin, o.size[2] / 2 + margin)
               for o in faces]
     pts = face_points(b)
+    if hidden_by is not None:
+        pts = [pt for pt in pts if not _point_behind(pt, hidden_by, margin)]
+        if not pts:
+            return 1.0
     hit = 0
     for pt in pts:
         for r, f, hx, hz in frames:
@@ -207,11 +217,16 @@ def covered(b: Box, faces: Sequence[Box], margin: float, depth: float) -> float:
     return hit / len(pts)
 
 
+def _point_behind(pt: Sequence[float], removed: Box, margin: float) -> bool:
+    """`pt` lies behind `removed`'s front face and inside its outline seen from the front."""
+    fr = removed.front_center
+    return (pt[1] > fr[1] + margin and abs(pt[0] - fr[0]) <= removed.size[0] / 2 + margin
+            and abs(pt[2] - fr[2]) <= removed.size[2] / 2 + margin)
+
+
 def _behind(o: Box, removed: Box, margin: float) -> bool:
     """`o`'s front face is behind `removed`'s and inside its outline seen from the front."""
-    fo, fr = o.front_center, removed.front_center
-    return (fo[1] > fr[1] + margin and abs(fo[0] - fr[0]) <= removed.size[0] / 2 + margin
-            and abs(fo[2] - fr[2]) <= removed.size[2] / 2 + margin)
+    return _point_behind(o.front_center, removed, margin)
 
 
 COVERED = 0.95   # share of a face that must lie on the other shelf's faces to count as re-segmented
@@ -226,7 +241,8 @@ def explain(diffs: list[BoxDiff], predicted: Scene, observed: Scene, tol: Tolera
     - `resegmented`: perception cut the same faces into other boxes (two boxes
       seen as one, one as two, a face matched to its neighbour): every face
       that differs lies, to 95%, on the faces of the other shelf (in plane
-      within half the tolerance, off it by at most the tolerance). All the
+      within half the tolerance, off it by at most the tolerance; the part
+      of a face behind the removed box is not judged: it was hidden). All the
       differing faces are judged together; a turn beyond the tolerance is
       never explained away.
     """
@@ -238,10 +254,10 @@ def explain(diffs: list[BoxDiff], predicted: Scene, observed: Scene, tol: Tolera
     margin = tol.displacement / 2
     for d in bad:
         if d.predicted is not None and covered(predicted.box(d.predicted), observed.boxes, margin,
-                                               tol.displacement) < COVERED:
+                                               tol.displacement, removed) < COVERED:
             return out
         if d.observed is not None and covered(observed.box(d.observed), predicted.boxes, margin,
-                                              tol.displacement) < COVERED:
+                                              tol.displacement, removed) < COVERED:
             return out
     return [replace(d, status="resegmented") if d in bad else d for d in out]
 

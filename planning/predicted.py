@@ -7,7 +7,8 @@ predicts is how each box *moves*. `predicted_shelves` applies each box's
 simulated rigid motion since the start of the plan to the box as perceived:
 a box predicted to stay keeps its perceived pose exactly, so the console's
 look after a step compares like with like (a camera against a camera).
-Boxes the plan has taken out, or that the simulation parked, are gone.
+Boxes the plan has taken out, that the simulation parked, or that it
+predicts to fall out of the shelf (to the floor in front of it) are gone.
 """
 from __future__ import annotations
 
@@ -51,6 +52,17 @@ def _on_shelf(pose: Pose) -> bool:
     return abs(p[0]) < _FAR and abs(p[1]) < _FAR and abs(p[2]) < _FAR
 
 
+def inside(scene: Scene, box: Box) -> bool:
+    """`box` stands within `scene`'s shelf as a scene file may hold it (Scene.check_bounds)."""
+    from perception.errors import FormatError
+
+    try:
+        scene.with_boxes([box]).check_bounds()
+    except FormatError:
+        return False
+    return True
+
+
 def predicted_shelves(scene: Scene, sequence: Sequence[str], preview: Sequence[Any],
                       start: Mapping[str, Pose] | None = None) -> list[Scene]:
     """The perceived `scene` after each step of `sequence`, as the recorded `preview` predicts it.
@@ -77,7 +89,9 @@ def predicted_shelves(scene: Scene, sequence: Sequence[str], preview: Sequence[A
             if b.id not in now:
                 boxes.append(b)     # the simulation did not record it: predicted to stay
             elif _on_shelf(now[b.id]):
-                boxes.append(moved_box(b, start[b.id], now[b.id]))
+                m = moved_box(b, start[b.id], now[b.id])
+                if inside(scene, m):
+                    boxes.append(m)   # else predicted to fall out of the shelf: gone from it
         out.append(scene.with_boxes(boxes))
     return out
 
@@ -87,7 +101,7 @@ def shelf_after(scene: Scene, sequence: Sequence[str], preview: Sequence[Any], s
     return predicted_shelves(scene, sequence[:step + 1], preview[:step + 1])[step]
 
 
-__all__ = ["predicted_shelves", "shelf_after", "moved_box", "sim_poses_after"]
+__all__ = ["predicted_shelves", "shelf_after", "moved_box", "sim_poses_after", "inside"]
 
 
 def sim_poses_after(preview: Sequence[Any], step: int) -> dict[str, Pose]:

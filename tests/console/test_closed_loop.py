@@ -39,8 +39,8 @@ class CameraOnRobotShelf:
     def capture(self):
         return self.demo.capture()
 
-    def look_again(self, world, step):
-        return self.demo.look_again(world if world is not None else self.controller.world(), step)
+    def look_again(self, world, step, attempt=0):
+        return self.demo.look_again(world if world is not None else self.controller.world(), step, attempt)
 
 
 class CameraThatDoesNotLookAgain:

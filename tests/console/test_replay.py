@@ -96,3 +96,70 @@ def test_replay_opens_and_animates_in_a_browser_without_network(stored, tmp_path
             browser.close()
     assert errors == []
     assert all(u.startswith(("file:", "data:")) for u in requests), requests
+
+
+def looked_session(db: Path) -> tuple[int, str]:
+    """The fixture session plus two looks after its physics plan's steps: the first as predicted,
+    the second with b2 6 cm left of where the plan put it (observed ids renumbered)."""
+    from console.verify import compare
+    from perception.scene import Box
+
+    sid, info = make_session(db)
+    scene = stack_scene().without(["b1"])
+    seen = scene.with_boxes([Box("o0", b.size, b.position) if b.id == "b0" else
+                             Box("o2", b.size, (b.position[0] - 0.06,) + tuple(b.position[1:])) for b in scene.boxes])
+    ok = compare(scene, scene, 0, "b1")
+    off = compare(scene.without(["b0"]), seen.without(["o0"]), 1, "b0")
+    assert ok.within and not off.within and off.ids("moved") == ("b2",)
+    with SessionStore(db) as store:
+        store.add_verification(sid, info["physics"], "r1", ok.to_json(), scene, scene)
+        store.add_verification(sid, info["physics"], "r1", off.to_json(), scene.without(["b0"]),
+                               seen.without(["o0"]))
+    return sid, info["physics"]
+
+
+def test_replay_html_shows_predicted_outlines_over_observed_boxes_per_step(tmp_path: Path) -> None:
+    db = tmp_path / "looks.db"
+    sid, h = looked_session(db)
+    page = render_html(SessionStore(db, readonly=True).load_session(sid))
+    assert "Looks after each step: predicted vs observed" in page
+    cards = re.findall(r'<div class="card" data-look="(\d)">(.*?)</div>', page, re.S)
+    assert [c[0] for c in cards] == ["0", "1"]
+    first, second = cards[0][1], cards[1][1]
+    assert "shelf as predicted" in first and "moved: b2 6.0 cm" in second
+    # step 1: b0 and b2 filled, both outlined where predicted; step 2: o2 filled in red, b2 outlined thick
+    assert re.findall(r'data-observed="(\w+)"', first) == ["b0", "b2"]
+    assert re.findall(r'data-predicted="(\w+)"', first) == ["b0", "b2"]
+    obs = re.search(r'<polygon data-observed="o2" points="([^"]+)"[^>]*stroke="#e01e1e"', second)
+    pred = re.search(r'<polygon data-predicted="b2" points="([^"]+)"[^>]*stroke-width="0.012"', second)
+    assert obs and pred
+    xs = lambda pts: [float(p.split(",")[0]) for p in pts.split()]   # noqa: E731
+    assert min(xs(pred.group(1))) - min(xs(obs.group(1))) == pytest.approx(0.06, abs=1e-3)
+
+
+def test_console_replay_draws_a_look_with_predicted_outlines(tmp_path: Path) -> None:
+    from console.app import ClientView, ConsoleApp
+    from console.workflow import Workflow
+
+    db = tmp_path / "looks.db"
+    sid, _ = looked_session(db)
+    store = SessionStore(db)
+    app = ConsoleApp(Workflow(None, store, lambda truth, seed: None, "pw"), port=0)
+    try:
+        view = ClientView(app, app.server)
+        view.session_pick.options = (str(sid),)
+        view.session_pick.value = str(sid)
+        view._replay(None)
+        labels = view.look_pick.options[1:]
+        assert len(labels) == 2 and labels[1].startswith("step 2 (b0")
+        assert "Looks after each step" in view.replay_md.content
+        view._show_look(labels[1])
+        assert set(view.nodes) == {"o2"} and view.nodes["o2"].risk.visible      # observed, differs: red
+        assert len(view.look_nodes) == 1                                          # b2's predicted pose
+        assert tuple(view.look_nodes[0].position) == pytest.approx((0.3, 0.12, 0.1))
+        assert "moved" in view.look_md.content
+        view._show_look("—")
+        assert set(view.nodes) == {"b0", "b1", "b2"} and view.look_nodes == []
+    finally:
+        app.stop()
+        store.close()
