@@ -781,11 +781,15 @@ class ConsoleApp:
         return record_view(self.workflow.store.load_session(session_id))
 
     def stop(self) -> None:
+        """Stop serving; the workflow's Bullet clients are disconnected (the app is its last user)."""
         self.workflow.remove_listener(self._on_state)
         with self._views_lock:
             for v in self.views.values():
                 v.playing = False
         self.server.stop()
+        close = getattr(self.workflow, "close", None)
+        if close is not None:
+            close()
 
 
 __all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "md", "results_markdown", "robot_markdown",

@@ -248,12 +248,30 @@ class Workflow:
         self._last_run: _Run | None = None
         self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
         self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
+        self._clients: Any = None    # planning.bullet_clients.ClientPool: Bullet clients reused by every plan
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced
         self._notify_cv = threading.Condition()
         self._pending: State | None = None
         threading.Thread(target=self._notify_loop, name="shelfpick-notify", daemon=True).start()
         self._recover()
+
+    def _client_pool(self) -> Any:
+        """The Bullet clients the plans of this console reuse (made at the first plan)."""
+        from planning.bullet_clients import ClientPool
+
+        with self._lock:
+            if self._clients is None:
+                self._clients = ClientPool()
+            return self._clients
+
+    def close(self) -> None:
+        """Disconnect the Bullet clients the plans used (the console's shutdown; a later plan makes
+        new ones)."""
+        with self._lock:
+            pool, self._clients = self._clients, None
+        if pool is not None:
+            pool.close()
 
     def _recover(self) -> None:
         """Runs left open by a console that died (kill -9): interrupted, in-flight steps unknown."""
@@ -485,7 +503,8 @@ class Workflow:
 
             self._progress(gen, 0.05, f"building {self.samples} depth samples")
             t_setup = time.perf_counter()
-            predictor = Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers)
+            predictor = Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
+                                  clients=self._client_pool())
             t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
             repairs = tuple(str(r) for r in getattr((predictor.sims or [None])[0], "repairs", ()) or ())
             entries = {p: self._one_plan(gen, i, p, scene, task, target, predictor, t_setup, repairs)
