@@ -274,6 +274,11 @@ def test_operator_plans_approves_executes_and_replays(browser, console, tmp_path
         assert [(d["decision"], d["plan_hash"]) for d in rec.decisions] == [("approve", phys.hash)]
         assert {e["plan_hash"] for e in rec.robot_events} == {phys.hash}
         assert rec.outcome["plan"] == phys.hash and rec.status == ("done" if rec.outcome["ok"] else "failed")
+        # the console looked at the shelf after every step the robot did, recorded it and shows it
+        assert [v["step"] for v in rec.verifications] == list(range(len(st.outcome.completed)))
+        if rec.verifications:
+            press(page, "Operator", role="tab")         # the robot panel lists each step's look
+            wait_text(page, rec.verifications[0]["verdict"]["summary"].split(":")[1].strip()[:20])
 
         press(page, "Sessions", role="tab")
         until(lambda: view.session_pick.value == str(st.session_id), 10, "session listed")
