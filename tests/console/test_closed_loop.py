@@ -6,14 +6,15 @@ perception. The shelf is a generated `lean` shelf: a standing long box leans
 on a column, which perception reports as upright, so the highest-first plan's
 first pull is predicted safe and drops the leaning box in the robot's world.
 
-Seed 0 of `generate("lean", seed, 8)` was picked by trying seeds 0-45
-(/tmp script, issue 11): its first pull is predicted safe, moves a neighbour
-5 cm in the robot's world, which the robot itself does not report (only the
-look catches it), and an extraction re-planned from the capture after the
-hold runs to the end. On seed 2 the fallen boxes keep resettling in the
-robot's world and the robot reports that as a collapse, so the re-plan fails;
-on seed 17 the hold comes at step 3. Without the look after each step the
-same run is not held (the second test).
+Seed 8 of `generate("lean", seed, 8)` was picked by trying seeds 0-63
+(a /tmp script; issue 11): its first pull is predicted safe and, in the
+robot's own world, drops two boxes by 10 and 27 cm (most other seeds hold on
+what turned out to be perception alone: the robot's world had not moved, the
+reason the console now looks twice before holding). An extraction
+re-planned from the capture after the hold, of a free box far from the fallen
+ones, runs to the end. On seed 2 every re-plan's first pull really moves the
+fallen boxes again, so the console rightly holds it. Without the look after
+each step the same run is not held (the second test).
 """
 from __future__ import annotations
 
@@ -75,7 +76,7 @@ def make_console(tmp_path, camera):
     return wf, store, ctl, view, app
 
 
-LEAN_SEED = 0
+LEAN_SEED = 8
 
 
 @pytest.fixture
@@ -139,14 +140,14 @@ def test_collapse_holds_before_step_two_and_a_new_plan_completes(lean_console):
     # nothing can run without a new approval
     with pytest.raises(Exception):
         wf.execute()
-    # a new plan from the new capture: approved, runs verified step by step, completes
-    # (a box the collapse left where it was: the fallen ones lie as perception cannot model them)
-    still = {d.observed for d in dev.verification.boxes if d.status == "ok"}
-    import math
-
-    fallen = [b.front_center for b in wf.state.scene.boxes if b.id in differ]
-    top = max((b for b in wf.state.scene.boxes if b.id in still),
-              key=lambda b: (min(math.dist(b.front_center, f) for f in fallen), b.top_z))
+    # a new plan from the new capture: approved, runs verified step by step, completes. Its target:
+    # a box with nothing on it, in the column farthest (left-right) from every box that differs
+    still = [b for b in wf.state.scene.boxes if b.id in {d.observed for d in dev.verification.boxes
+                                                         if d.status == "ok"}]
+    fallen = [b for b in wf.state.scene.boxes if b.id in differ]
+    free = [b for b in still if not any(o is not b and abs(o.position[0] - b.position[0]) < (o.size[0] + b.size[0]) / 2
+                                        and o.position[2] > b.position[2] for o in wf.state.scene.boxes)]
+    top = max(free, key=lambda b: min(abs(b.position[0] - f.position[0]) for f in fallen))
     wf.select_target(top.id)
     wf.plan("extract", wait=True)
     phys = wf.state.plans["physics"]
@@ -177,7 +178,8 @@ def test_without_the_look_the_same_run_is_not_held(open_loop_console):
     wf.execute(wait=True)
     st = wf.state
     assert st.robot != "held" and st.deviation is None and not st.verifications, (st.robot, st.message)
-    # the robot went on after the step that moved the neighbour (it does not report that move itself)
-    assert len(ctl.received("step")) > 1
+    # here only the robot's own report (the reference controller simulates, so it sees the collapse)
+    # stops the run: failed, no look, nothing to plan again from
+    assert st.robot == "failed" and st.phase == "finished", (st.robot, st.phase)
     rec = store.load_session(first.session_id)
     assert rec.status != "held" and not rec.verifications
