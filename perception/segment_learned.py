@@ -175,7 +175,7 @@ def load_model(path: str | Path = LEARNED_WEIGHTS):
         ck = torch.load(str(path), map_location="cpu", weights_only=True)
         model = build_model(int(ck.get("decoder_channels", 64)))
         model.load_state_dict({k: v.float() for k, v in ck["state_dict"].items()})
-    except (KeyError, RuntimeError, TypeError, AttributeError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's to replace
         why = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
         raise PerceptionError(f"{path}: not a shelfpick-learned checkpoint ({why})") from None
     model.eval()
@@ -225,6 +225,14 @@ class LearnedSegmenter:
         self.weights = str(weights)
         if threads is not None:
             torch.set_num_threads(threads)
+
+    def with_config(self, config: LearnedConfig) -> "LearnedSegmenter":
+        """The same network with other inference settings (for tuning; shares the model)."""
+        import copy
+
+        out = copy.copy(self)
+        out.config = config
+        return out
 
     def probabilities(self, rgb: np.ndarray) -> np.ndarray:
         """3xhxw class probabilities at 1/4 of the network input size."""

