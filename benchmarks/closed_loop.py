@@ -31,11 +31,15 @@ cut at its first hold (holding changes nothing before it). `--mode closed`
 (the reported runs) holds the robot as the console does, with the tolerance
 given, and counts the robot's acks after a hold.
 
-    # tuning seeds (0..): open loop, then sweep tolerances on the record
-    nice -n 10 .venv/bin/python benchmarks/closed_loop.py --count 30 --seed 0 --mode open --out closed-loop-tune
-    .venv/bin/python benchmarks/closed_loop.py --score closed-loop-tune/steps.jsonl --sweep
-    # reported seeds (1000..), disjoint from the tuning ones, the console's tolerance
-    nice -n 10 .venv/bin/python benchmarks/closed_loop.py --count 60 --seed 1000 --mode closed --out closed-loop
+    # tuning seeds 0-29: open loop (every step runs), then every tolerance of a grid on the record
+    nice -n 10 .venv/bin/python benchmarks/closed_loop.py --count 30 --seed 0 --mode open --task clear --out cl-tune
+    .venv/bin/python benchmarks/closed_loop.py --score cl-tune/steps.jsonl --sweep
+    # reported seeds 1000-1059, disjoint from the tuning ones, with the console's tolerance (3 cm, 10 deg)
+    nice -n 10 .venv/bin/python benchmarks/closed_loop.py --count 60 --seed 1000 --mode closed --task clear --out cl-report
+
+Time per step (`look_s_*`) is capture + perceive + compare of the console's look,
+both looks where the first differed, as measured in this process (2 shared cores:
+report the machine's load beside it).
 
 Rows are appended to OUT/steps.jsonl as each run ends (a second invocation with
 the same OUT skips the shelves already there); the summary goes to
@@ -85,11 +89,10 @@ def predicted_truth(truth: Any, perceived: Any, sequence: Any, preview: Any, ste
     in the recorded preview; a true box perception did not see is predicted to stay.
     """
     from console.robot import match_boxes
-    from planning.predicted import _frames, _on_shelf, moved_box, sim_poses_after
+    from planning.predicted import moved_box, on_shelf as sim_on_shelf, sim_poses_after, start_poses
 
     twin = {t: p for p, t in match_boxes(perceived, truth).items()}
-    frames0 = _frames(preview[0]) if preview else ()
-    start = dict(frames0[0][1]) if frames0 else {}
+    start = start_poses(preview)
     now = sim_poses_after(preview, step)
     removed = set(sequence[:step + 1])
     out: dict[str, Any] = {}
@@ -97,7 +100,7 @@ def predicted_truth(truth: Any, perceived: Any, sequence: Any, preview: Any, ste
         p = twin.get(b.id)
         if p is None or p not in now or p not in start:
             out[b.id] = None if p in removed else b
-        elif p in removed or not _on_shelf(now[p]):
+        elif p in removed or not sim_on_shelf(now[p]):
             out[b.id] = None
         else:
             out[b.id] = moved_box(b, start[p], now[p])
@@ -229,15 +232,17 @@ def run_shelf(kind: str, seed: int, args: argparse.Namespace, tol: Any, clients:
 # --------------------------------------------------------------------------- scoring
 def verdict_within(row: dict, disp: float, rot: float) -> bool:
     """The step's recorded look compared again at another tolerance (console.verify.compare)."""
+    from console.store import stored_scene
     from console.verify import Tolerance, compare
-    from perception.scene import Box, Scene
+    from perception.scene import Box
 
     if row["verdict"].get("unavailable") or row.get("predicted") is None or row.get("observed") is None:
         return False
     judged = row.setdefault("_within", {})      # the sweep judges each row at many tolerances
     if (disp, rot) not in judged:
         removed = Box.from_json(row["removed"]) if row.get("removed") else None
-        judged[(disp, rot)] = compare(Scene.from_json(row["predicted"]), Scene.from_json(row["observed"]),
+        judged[(disp, rot)] = compare(stored_scene(json.dumps(row["predicted"])),
+                                      stored_scene(json.dumps(row["observed"])),
                                       row["step"], row["box"], Tolerance(disp, rot), removed).within
     return judged[(disp, rot)]
 

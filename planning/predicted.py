@@ -47,6 +47,17 @@ def _frames(step: Any) -> Sequence:
     return getattr(step, "frames", ()) or ()
 
 
+def start_poses(preview: Sequence[Any]) -> dict[str, Pose]:
+    """The simulated pose of every box before the plan: the first frame of its first recorded step."""
+    frames = _frames(preview[0]) if preview else ()
+    return dict(frames[0][1]) if frames else {}
+
+
+def on_shelf(pose: Pose) -> bool:
+    """A simulated pose near the shelf (not a body the simulation parked far away)."""
+    return _on_shelf(pose)
+
+
 def _on_shelf(pose: Pose) -> bool:
     p = pose[0]
     return abs(p[0]) < _FAR and abs(p[1]) < _FAR and abs(p[2]) < _FAR
@@ -73,7 +84,7 @@ def predicted_shelves(scene: Scene, sequence: Sequence[str], preview: Sequence[A
     without frames predicts that nothing else moved.
     """
     if start is None:
-        start = dict(_frames(preview[0])[0][1]) if preview and _frames(preview[0]) else {}
+        start = start_poses(preview)
     out = []
     removed: set[str] = set()
     now: dict[str, Pose] = dict(start)    # each box's simulated pose after the latest step
@@ -101,7 +112,8 @@ def shelf_after(scene: Scene, sequence: Sequence[str], preview: Sequence[Any], s
     return predicted_shelves(scene, sequence[:step + 1], preview[:step + 1])[step]
 
 
-__all__ = ["predicted_shelves", "shelf_after", "moved_box", "sim_poses_after", "inside"]
+__all__ = ["predicted_shelves", "shelf_after", "moved_box", "sim_poses_after", "inside", "start_poses",
+           "on_shelf"]
 
 
 def sim_poses_after(preview: Sequence[Any], step: int) -> dict[str, Pose]:
