@@ -74,3 +74,47 @@ def test_a_box_hidden_behind_the_one_taken_out_is_revealed() -> None:
     elsewhere = moved(hidden, 0.0, 0.0, 0.40)
     v = compare(shelf(A, C), shelf(A, C, elsewhere), 0, "b", removed=B)
     assert not v.within and v.ids("new") == ("h",)
+
+
+class TwoLooks:
+    """A camera whose first look after a step shows `first` and whose second shows `second`
+    (None: no second frame), rendered and perceived for real."""
+
+    def __init__(self, first: Scene, second: Scene | None) -> None:
+        self.scenes = (first, second)
+        self.attempts: list[int] = []
+
+    def look_again(self, world, step, attempt=0):
+        from console.sources import Frame
+        from perception.render import default_camera, render
+
+        self.attempts.append(attempt)
+        scene = self.scenes[attempt]
+        if scene is None:
+            return None
+        return Frame(render(scene, default_camera(), seed=7 + attempt), scene, f"look {attempt}")
+
+
+def test_a_difference_is_looked_at_twice_before_it_holds() -> None:
+    from console.workflow import look_again
+    from perception.pipeline import perceive
+    from perception.render import default_camera, render
+
+    shelf_now = shelf(A, C)                                      # B was taken out
+    predicted = perceive(render(shelf_now, default_camera(), seed=3), shelf=shelf_now.shelf).scene
+    moved_c = shelf(A, moved(C, 0.08))
+    # seen once only: the second look finds the shelf as predicted, the step passes, the first kept
+    cam = TwoLooks(moved_c, shelf_now)
+    v = look_again(cam, None, 0, "b", predicted, shelf_now.shelf)[0]
+    assert cam.attempts == [0, 1] and v.within and v.unconfirmed and "moved" in v.unconfirmed
+    # seen twice: hold
+    cam = TwoLooks(moved_c, moved_c)
+    v = look_again(cam, None, 0, "b", predicted, shelf_now.shelf)[0]
+    assert cam.attempts == [0, 1] and not v.within and v.ids("moved")
+    # no second frame: the first verdict stands (hold); as predicted at once: one look only
+    cam = TwoLooks(moved_c, None)
+    v = look_again(cam, None, 0, "b", predicted, shelf_now.shelf)[0]
+    assert not v.within and v.ids("moved") and not v.unavailable
+    cam = TwoLooks(shelf_now, moved_c)
+    v = look_again(cam, None, 0, "b", predicted, shelf_now.shelf)[0]
+    assert cam.attempts == [0] and v.within and not v.unconfirmed
