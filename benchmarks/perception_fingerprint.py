@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -64,7 +65,7 @@ class CatalogueTap:
             np.savez_compressed(self.save_dir / f"{self.name}-{len(self.calls)}.npz",
                                 masks=np.asarray(masks, bool), depth=depth,
                                 rgb=rgb if rgb is not None else np.zeros(0, np.uint8),
-                                camera=json.dumps(camera.to_json()), cat=json.dumps(_cat_json(cat)))
+                                camera=np.frombuffer(pickle.dumps(camera), np.uint8), cat=json.dumps(_cat_json(cat)))
         got = _h(*[np.asarray(m, bool) for m in masks]) if masks else "none"
         mine: list[str] = []
         t = time.process_time()
@@ -153,7 +154,6 @@ def fingerprint(quick: bool = False, save: Path | None = None) -> dict:
 def replay(save: Path) -> dict:
     """Re-run only `apply_catalogue` on the saved inputs: {file: (masks hash, notes)}, CPU s."""
     from perception.box_catalogue import Catalogue, apply_catalogue
-    from perception.scene import Camera
 
     out, total = {}, 0.0
     for f in sorted(save.glob("*.npz")):
@@ -161,7 +161,7 @@ def replay(save: Path) -> dict:
         cat = json.loads(str(z["cat"]))
         cat["types"] = tuple(tuple(t) for t in cat["types"])
         rgb = z["rgb"] if z["rgb"].size else None
-        camera = Camera.from_json(json.loads(str(z["camera"])))
+        camera = pickle.loads(z["camera"].tobytes())   # from_json normalises the quaternion
         notes: list[str] = []
         t = time.process_time()
         masks, faces = apply_catalogue(list(z["masks"]), z["depth"], camera, rgb, Catalogue(**cat), notes)
