@@ -36,13 +36,18 @@ def frame_scores(scene, cap, segmenter, least: int) -> dict:
     from perception.bench_truth import front_face_masks
     from perception.pipeline import perceive
 
-    gt = [m for m in front_face_masks(scene, cap).values() if m.sum() >= least]
+    gt_ids = [k for k, m in front_face_masks(scene, cap).items() if m.sum() >= least]
+    gt_all = front_face_masks(scene, cap)
+    gt = [gt_all[k] for k in gt_ids]
     t, c = time.perf_counter(), time.process_time()
     res = perceive(cap, segmenter, scene.shelf)
     sec, cpu = time.perf_counter() - t, time.process_time() - c
     preds = [res.masks == b.mask_label for b in res.scene.boxes]
     pairs = match(preds, gt)
-    return {"true": len(gt), "pred": len(preds), "matched": len(pairs), "ious": [v for _, _, v in pairs],
+    err = [(float(np.linalg.norm(np.subtract(scene.box(gt_ids[i]).front_center, res.scene.boxes[j].front_center))),
+            abs(res.scene.boxes[j].size[0] - scene.box(gt_ids[i]).size[0]),
+            abs(res.scene.boxes[j].size[2] - scene.box(gt_ids[i]).size[2])) for i, j, _ in pairs]
+    return {"true": len(gt), "pred": len(preds), "matched": len(pairs), "ious": [v for _, _, v in pairs], "err": err,
             "seconds": sec, "cpu": cpu, "segment_seconds": res.timing.get("segment", 0.0)}
 
 
@@ -53,6 +58,9 @@ def pool(frames: list[dict]) -> dict:
     return {"frames": len(frames), "true": nt, "pred": npd, "matched": nm,
             "recall": nm / nt if nt else None, "precision": nm / npd if npd else None,
             "mean_iou": float(np.mean(ious)) if ious else None, "seconds_median": med("seconds"),
+            "centre_err_median_m": float(np.median([e[0] for f in frames for e in f["err"]])) if ious else None,
+            "width_err_median_m": float(np.median([e[1] for f in frames for e in f["err"]])) if ious else None,
+            "height_err_median_m": float(np.median([e[2] for f in frames for e in f["err"]])) if ious else None,
             "cpu_median": med("cpu"), "segment_seconds_median": med("segment_seconds"),
             "seconds_max": float(np.max([f["seconds"] for f in frames])) if frames else None}
 
@@ -93,7 +101,8 @@ def photo_set(root: Path, segmenters: dict, which: str) -> dict:
     return out
 
 
-def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float]) -> list[dict]:
+def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float],
+         full_res: tuple[bool, ...] = (True,)) -> list[dict]:
     """The learned segmenter's input width and interior threshold, scored on the TUNING roles
     only: varied renders 20000-20019 (through `perceive`) and the RCAN tune half (photos)."""
     import dataclasses
@@ -108,15 +117,16 @@ def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float]) 
         frames.append((scene, render(scene, cam, seed=s, looks="plain" if s % 2 == 0 else "mixed",
                                      varied_light=True), min_gt_pixels(cam)))
     rows = []
-    for w in widths:
-        for t in thresholds:
-            seg = segmenter.with_config(dataclasses.replace(segmenter.config, input_width=w, interior_threshold=t))
-            r = pool([frame_scores(sc, cap, seg, least) for sc, cap, least in frames])
-            p = bench_rcan(realdata / "RCAN_scd_samples" / "back", seg, progress=False, names=RCAN_TUNE)
-            rows.append({"input_width": w, "interior_threshold": t, "varied_recall": r["recall"],
-                         "varied_precision": r["precision"], "rcan_recall": p["recall"],
-                         "rcan_precision": p["precision"], "segment_s": r["segment_seconds_median"]})
-            print(json.dumps(rows[-1]), flush=True)
+    for w, t, fr in ((w, t, fr) for w in widths for t in thresholds for fr in full_res):
+        seg = segmenter.with_config(dataclasses.replace(segmenter.config, input_width=w, interior_threshold=t,
+                                                        full_res=fr))
+        r = pool([frame_scores(sc, cap, seg, least) for sc, cap, least in frames])
+        p = bench_rcan(realdata / "RCAN_scd_samples" / "back", seg, progress=False, names=RCAN_TUNE)
+        rows.append({"input_width": w, "interior_threshold": t, "full_res": fr, "varied_recall": r["recall"],
+                     "varied_centre_err_cm": round(r["centre_err_median_m"] * 100, 3),
+                     "varied_precision": r["precision"], "rcan_recall": p["recall"],
+                     "rcan_precision": p["precision"], "segment_s": r["segment_seconds_median"]})
+        print(json.dumps(rows[-1]), flush=True)
     return rows
 
 
@@ -124,13 +134,18 @@ def markdown(report: dict) -> str:
     def f(v, d=3):
         return "-" if v is None else f"{v:.{d}f}"
 
-    lines = ["| set | segmenter | faces | recall | precision | mean IoU | s/frame wall (median) | CPU s | segmenter s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    def cm(s):
+        keys = ("centre_err_median_m", "width_err_median_m", "height_err_median_m")
+        return " / ".join(f(s[k] * 100, 2) for k in keys) if s.get(keys[0]) is not None else "-"
+
+    lines = ["| set | segmenter | faces | recall | precision | mean IoU | centre / width / height err (cm) | "
+             "s/frame wall (median) | CPU s | segmenter s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, by in report["sets"].items():
         for k, s in by.items():
             faces = s.get("true", s.get("cartons"))
             lines.append(f"| {name} | {k} | {faces} | {f(s['recall'])} | {f(s['precision'])} | "
-                         f"{f(s.get('mean_iou', s.get('mean_iou_matched')))} | {f(s.get('seconds_median', s.get('seconds_per_frame_median')), 2)} | "
+                         f"{f(s.get('mean_iou', s.get('mean_iou_matched')))} | {cm(s)} | "
+                         f"{f(s.get('seconds_median', s.get('seconds_per_frame_median')), 2)} | "
                          f"{f(s.get('cpu_median'), 2)} | {f(s.get('segment_seconds_median'), 2)} |")
     return "\n".join(lines) + "\n"
 
@@ -145,6 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="learned-bench")
     p.add_argument("--tune", action="store_true",
                    help="only sweep input width x interior threshold on the tuning roles (varied 20000-20019, RCAN tune half)")
+    p.add_argument("--widths", default="384,480,576", help="--tune: input widths")
+    p.add_argument("--thresholds", default="0.4,0.5,0.6", help="--tune: interior thresholds")
+    p.add_argument("--full-res-both", action="store_true", help="--tune: maps at 1/4 size and upsampled")
     a = p.parse_args(argv)
     import torch
 
@@ -152,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(a.threads)
     if a.tune:
-        rows = tune(load_segmenter(a.weights, "learned"), Path(a.realdata), [384, 480, 576], [0.4, 0.5, 0.6])
+        rows = tune(load_segmenter(a.weights, "learned"), Path(a.realdata), [int(v) for v in a.widths.split(",")],
+                    [float(v) for v in a.thresholds.split(",")], (False, True) if a.full_res_both else (True,))
         Path(a.out).mkdir(parents=True, exist_ok=True)
         (Path(a.out) / "tune.json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
         return 0

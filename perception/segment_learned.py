@@ -15,6 +15,7 @@ pipeline's mask clean-up uses the depth afterwards).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -155,6 +156,7 @@ class LearnedConfig:
     interior_threshold: float = 0.5
     min_seed_px: int = 12          # interior components smaller than this (at 1/4 scale) are noise
     foreground_threshold: float = 0.5
+    full_res: bool = True          # instances from the maps upsampled to the frame (finer edges)
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -251,8 +253,16 @@ class LearnedSegmenter:
         import cv2
 
         h, w = rgb.shape[:2]
-        labels = instances(self.probabilities(rgb), self.config)
-        if labels.max() == 0:
+        prob = self.probabilities(rgb)
+        if self.config.full_res:
+            ph, pw = prob.shape[1:]
+            prob = np.stack([cv2.resize(c, (w, h), interpolation=cv2.INTER_LINEAR) for c in prob])
+            scale = (h * w) / (ph * pw)
+            labels = instances(prob, dataclasses.replace(self.config, min_seed_px=int(self.config.min_seed_px * scale)))
+            full = labels
+        else:
+            labels = instances(prob, self.config)
+            full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
+        if full.max() == 0:
             return []
-        full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
         return [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]
