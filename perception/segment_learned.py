@@ -133,7 +133,7 @@ def load_backbone(model, path: str | Path) -> None:
     sd = torch.load(str(path), map_location="cpu", weights_only=True)
     own = model.state_dict()
     take = {k: v for k, v in sd.items() if k in own and own[k].shape == v.shape}
-    missing = [k for k in own if (k.startswith("_blocks") or k.startswith(("_conv_stem", "_bn0.")))
+    missing = [k for k in own if k.startswith(("_blocks", "_conv_stem", "_bn0."))
                and k not in take]
     if missing:
         raise PerceptionError(f"{path}: not EfficientNet-Lite0 weights (missing {missing[0]})")
@@ -162,7 +162,7 @@ class LearnedConfig:
         return dict(vars(self))
 
     @classmethod
-    def from_json(cls, d: dict) -> "LearnedConfig":
+    def from_json(cls, d: dict) -> LearnedConfig:
         return cls(**{k: type(getattr(cls(), k))(v) for k, v in d.items() if k in cls.__dataclass_fields__})
 
 
@@ -228,7 +228,7 @@ class LearnedSegmenter:
         if threads is not None:
             torch.set_num_threads(threads)
 
-    def with_config(self, config: LearnedConfig) -> "LearnedSegmenter":
+    def with_config(self, config: LearnedConfig) -> LearnedSegmenter:
         """The same network with other inference settings (for tuning; shares the model)."""
         import copy
 
@@ -242,8 +242,8 @@ class LearnedSegmenter:
 
         torch = _torch()
         h, w = rgb.shape[:2]
-        iw = max(32, int(round(self.config.input_width / 32)) * 32)
-        ih = max(32, int(round(iw * h / w / 32)) * 32)
+        iw = max(32, round(self.config.input_width / 32) * 32)
+        ih = max(32, round(iw * h / w / 32) * 32)
         small = cv2.resize(np.ascontiguousarray(rgb[..., :3]), (iw, ih), interpolation=cv2.INTER_AREA)
         with torch.inference_mode():
             logits = self.model(to_tensor(small))

@@ -51,7 +51,7 @@ class TrainConfig:
         return d
 
     @classmethod
-    def from_json(cls, d: dict) -> "TrainConfig":
+    def from_json(cls, d: dict) -> TrainConfig:
         d = dict(d)
         if "crop" in d:
             d["crop"] = tuple(d["crop"])
@@ -263,7 +263,7 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
         f += rng.normal(0, rng.uniform(2, 14), f.shape).astype(np.float32)
     img = np.clip(f, 0, 255).astype(np.uint8)
     if rng.random() < 0.6:
-        ok, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(15, 90))])
+        _, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(15, 90))])
         img = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
     target = class_map(lab, cfg.boundary_px)
     target = cv2.resize(target, (cw // 4, ch // 4), interpolation=cv2.INTER_NEAREST)
@@ -295,7 +295,12 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     import torch
     import torch.nn.functional as F
 
-    from perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model
+    from perception.segment_learned import (
+        LearnedConfig,
+        build_model,
+        load_backbone,
+        save_model,
+    )
 
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)

@@ -10,8 +10,13 @@ import pytest
 
 from perception.errors import PerceptionError
 from perception.scene import Box, Scene, Shelf
-from perception.segment_learned import (LEARNED_WEIGHTS, LearnedConfig, LearnedSegmenter, instances,
-                                        load_model)
+from perception.segment_learned import (
+    LEARNED_WEIGHTS,
+    LearnedConfig,
+    LearnedSegmenter,
+    instances,
+    load_model,
+)
 
 pytest.importorskip("pybullet")
 
