@@ -102,7 +102,7 @@ def photo_set(root: Path, segmenters: dict, which: str) -> dict:
 
 
 def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float],
-         full_res: tuple[bool, ...] = (True,)) -> list[dict]:
+         full_res: tuple[bool, ...] = (True,), snaps: tuple[float, ...] = (0.0,)) -> list[dict]:
     """The learned segmenter's input width and interior threshold, scored on the TUNING roles
     only: varied renders 20000-20019 (through `perceive`) and the RCAN tune half (photos)."""
     import dataclasses
@@ -117,12 +117,13 @@ def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float],
         frames.append((scene, render(scene, cam, seed=s, looks="plain" if s % 2 == 0 else "mixed",
                                      varied_light=True), min_gt_pixels(cam)))
     rows = []
-    for w, t, fr in ((w, t, fr) for w in widths for t in thresholds for fr in full_res):
+    for w, t, fr, sn in ((w, t, fr, sn) for w in widths for t in thresholds for fr in full_res for sn in snaps):
         seg = segmenter.with_config(dataclasses.replace(segmenter.config, input_width=w, interior_threshold=t,
-                                                        full_res=fr))
+                                                        full_res=fr, snap_iou=sn))
         r = pool([frame_scores(sc, cap, seg, least) for sc, cap, least in frames])
         p = bench_rcan(realdata / "RCAN_scd_samples" / "back", seg, progress=False, names=RCAN_TUNE)
-        rows.append({"input_width": w, "interior_threshold": t, "full_res": fr, "varied_recall": r["recall"],
+        rows.append({"input_width": w, "interior_threshold": t, "full_res": fr, "snap_iou": sn,
+                     "varied_recall": r["recall"],
                      "varied_centre_err_cm": round(r["centre_err_median_m"] * 100, 3),
                      "varied_precision": r["precision"], "rcan_recall": p["recall"],
                      "rcan_precision": p["precision"], "segment_s": r["segment_seconds_median"]})
@@ -163,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="only sweep input width x interior threshold on the tuning roles (varied 20000-20019, RCAN tune half)")
     p.add_argument("--widths", default="384,480,576", help="--tune: input widths")
     p.add_argument("--thresholds", default="0.4,0.5,0.6", help="--tune: interior thresholds")
+    p.add_argument("--snaps", default="0", help="--tune: snap_iou values (0: off)")
     p.add_argument("--full-res-both", action="store_true", help="--tune: maps at 1/4 size and upsampled")
     a = p.parse_args(argv)
     import torch
@@ -172,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(a.threads)
     if a.tune:
         rows = tune(load_segmenter(a.weights, "learned"), Path(a.realdata), [int(v) for v in a.widths.split(",")],
-                    [float(v) for v in a.thresholds.split(",")], (False, True) if a.full_res_both else (True,))
+                    [float(v) for v in a.thresholds.split(",")], (False, True) if a.full_res_both else (True,),
+                    tuple(float(v) for v in a.snaps.split(",")))
         Path(a.out).mkdir(parents=True, exist_ok=True)
         (Path(a.out) / "tune.json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
         return 0

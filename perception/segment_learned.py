@@ -157,6 +157,9 @@ class LearnedConfig:
     min_seed_px: int = 12          # interior components smaller than this (at 1/4 scale) are noise
     foreground_threshold: float = 0.5
     full_res: bool = True          # instances from the maps upsampled to the frame (finer edges)
+    snap_iou: float = 0.7          # RGB-D: an instance is replaced by the depth-and-edge mask it
+    #                                overlaps at IoU >= this (0: off); the network decides which
+    #                                faces there are, the rules' depth edges where they end
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -228,6 +231,42 @@ class LearnedSegmenter:
         if threads is not None:
             torch.set_num_threads(threads)
 
+    camera = None
+    shelf = None
+    depth_ok = True
+
+    def bind(self, camera, shelf) -> LearnedSegmenter:
+        """A copy that knows the camera and shelf (for the depth-and-edge masks it snaps to)."""
+        import copy
+
+        out = copy.copy(self)
+        out.camera, out.shelf = camera, shelf
+        return out
+
+    def rgb_only(self) -> LearnedSegmenter:
+        """A photo's stand-in depth has no edges to snap to."""
+        import copy
+
+        out = copy.copy(self)
+        out.depth_ok = False
+        return out
+
+    def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
+        """Each instance that a depth-and-edge mask matches (IoU >= snap_iou, one to one) takes
+        that mask's outline; later masks lose pixels already taken."""
+        from perception.bench import match
+        from perception.segment_depth import DepthEdgeSegmenter
+
+        rules = DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
+        out = list(masks)
+        for i, j, _ in match(rules, masks, self.config.snap_iou):
+            out[i] = rules[j]
+        taken = np.zeros(rgb.shape[:2], bool)
+        for k, m in enumerate(out):
+            out[k] = m & ~taken
+            taken |= m
+        return [m for m in out if m.any()]
+
     def with_config(self, config: LearnedConfig) -> LearnedSegmenter:
         """The same network with other inference settings (for tuning; shares the model)."""
         import copy
@@ -265,4 +304,7 @@ class LearnedSegmenter:
             full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
         if full.max() == 0:
             return []
-        return [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]
+        masks = [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]
+        if self.config.snap_iou > 0 and depth is not None and self.depth_ok:
+            masks = self.snap(masks, rgb, depth)
+        return masks

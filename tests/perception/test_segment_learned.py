@@ -138,3 +138,20 @@ def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
     assert (tmp_path / "cache" / "f30000.npz").is_file()
     model, _ = load_model(tmp_path / "w.pt")
     assert not model.training
+
+
+def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segmenter):
+    from perception.segment_depth import DepthEdgeSegmenter
+
+    scene, cap = rendered
+    seg = segmenter.bind(cap.camera, scene.shelf)
+    rules = DepthEdgeSegmenter(cap.camera, scene.shelf).segment(cap.rgb, cap.depth)
+
+    def outlines_from_rules(masks):
+        return sum(any(np.array_equal(m, r) for r in rules) for m in masks)
+
+    off = seg.with_config(dataclasses.replace(seg.config, snap_iou=0.0)).segment(cap.rgb, cap.depth)
+    assert seg.config.snap_iou > 0 and outlines_from_rules(seg.segment(cap.rgb, cap.depth)) >= 2
+    assert outlines_from_rules(off) == 0
+    photo = seg.rgb_only().segment(cap.rgb, cap.depth)
+    assert len(photo) == len(off) and all(np.array_equal(a, b) for a, b in zip(photo, off))
