@@ -10,8 +10,9 @@ state dict, no download at run time).
 The network predicts three maps at 1/4 resolution: background, face interior and
 face boundary. Instances are the connected components of the interior, grown back
 over interior + boundary pixels by a watershed on the interior probability. RGB
-only: depth is not an input (a photo and an RGB-D frame are segmented alike; the
-pipeline's mask clean-up uses the depth afterwards).
+only: depth is not an input to the network. In an RGB-D capture an instance that a
+depth-and-edge mask matches (IoU >= `snap_iou`) takes that mask's outline: the network says
+which faces there are, the depth edges where they end (a photo is not snapped).
 """
 from __future__ import annotations
 
