@@ -65,7 +65,8 @@ class CatalogueTap:
             np.savez_compressed(self.save_dir / f"{self.name}-{len(self.calls)}.npz",
                                 masks=np.asarray(masks, bool), depth=depth,
                                 rgb=rgb if rgb is not None else np.zeros(0, np.uint8),
-                                camera=np.frombuffer(pickle.dumps(camera), np.uint8), cat=json.dumps(_cat_json(cat)))
+                                camera=np.frombuffer(pickle.dumps(camera), np.uint8),
+                                cat=json.dumps(_cat_json(cat)))
         got = _h(*[np.asarray(m, bool) for m in masks]) if masks else "none"
         mine: list[str] = []
         t = time.process_time()

@@ -14,11 +14,12 @@ import numpy as np
 
 from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
                               distance_from_box_size, make_valid, measure_front, planar_depth)
-from perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies, complete_cut_face
+from perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
 from perception.capture import Capture
 from perception.geometry import check_intrinsics, point_map
 from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from perception.overlay import draw_overlay
+from perception.repairs.border_cut import complete_cut_face
 from perception.scene import Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
 

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.box_catalogue import Catalogue, complete_cut_face, cut_directions
+from perception.box_catalogue import Catalogue
 from perception.boxes import measure_front
 from perception.masks import border_sides
 from perception.pipeline import perceive
+from perception.repairs.border_cut import complete_cut_face, cut_directions
 from perception.scene import Scene, Shelf
 from perception.segment_depth import DepthEdgeSegmenter
 from synth_frames import SMALL_CAMERA, box, cast
@@ -102,7 +103,8 @@ def test_error_cut_counts_a_cut_side_only_where_too_long():
 
 
 def test_pieces_cut_by_the_same_border_join_but_a_border_strip_never_joins_a_face_below():
-    from perception.box_catalogue import join_pieces
+    from perception.repairs.joins import join_pieces
+    from perception.repairs.measure import RepairContext
 
     scene = _stack(0.70)
     cap = cast(scene, noise=0.0)
@@ -113,12 +115,11 @@ def test_pieces_cut_by_the_same_border_join_but_a_border_strip_never_joins_a_fac
     cut = int(xs.min() + 0.24 * (xs.max() - xs.min()))
     cols = np.arange(top.shape[1])[None, :]
     left, right = top & (cols < cut - 3), top & (cols > cut + 3)
-    notes: list[str] = []
-    out = join_pieces([left, right, carton], cap.depth, cap.camera, Catalogue(), notes)
+    out, notes = join_pieces([left, right, carton], RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 2 and notes
     assert any((o & left).any() and (o & right).any() for o in out)
     assert any((o == carton).all() for o in out)             # the carton is left alone
     # a strip along the top border beside a carton that does not reach the border: kept apart
     strip = top & (np.arange(top.shape[0])[:, None] < 6)
-    out = join_pieces([strip, carton], cap.depth, cap.camera, Catalogue())
+    out, _ = join_pieces([strip, carton], RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 2

@@ -4,8 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.box_catalogue import (REFERENCE_TYPES, Catalogue, apply_catalogue, join_pieces,
-                                      split_faces)
+from perception.box_catalogue import REFERENCE_TYPES, Catalogue, apply_catalogue
+from perception.repairs.enclosed import absorb_enclosed
+from perception.repairs.joins import join_pieces
+from perception.repairs.l_cuts import cut_l_shapes
+from perception.repairs.measure import RepairContext
+from perception.repairs.splits import split_faces
 from perception.bench import mask_iou
 from perception.scene import Scene, Shelf
 from synth_frames import COLOURS, box, cast
@@ -44,8 +48,7 @@ def test_two_flush_boxes_of_one_colour_are_split_at_their_seam():
     rows = np.flatnonzero(high.any(axis=1))
     seam[rows[-1]:rows[-1] + 2] = True    # ... but a faint 2 px seam line where they meet
     rgb[seam & (low | high)] = (150, 115, 80)
-    notes: list[str] = []
-    out = split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, notes = split_faces([low | high, side], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9
     assert max(mask_iou(m, high) for m in out) > 0.9
@@ -55,12 +58,12 @@ def test_two_flush_boxes_of_one_colour_are_split_at_their_seam():
 def test_no_seam_no_split_and_other_sizes_are_left_alone():
     cap, rgb, low, high, side = _stack(0.20, 0.20)
     # one colour, flush, no line: nothing says where two boxes would meet
-    assert len(split_faces([low | high], cap.depth, cap.camera, rgb, Catalogue())) == 1
+    assert len(split_faces([low | high], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))[0]) == 1
     # boxes of a size the catalogue does not hold are never cut up (real data, other stock)
     cap, rgb, low, high, side = _stack(0.34, 0.15)
     rows = np.flatnonzero(high.any(axis=1))
     rgb[rows[-1]:rows[-1] + 2][(low | high)[rows[-1]:rows[-1] + 2]] = (150, 115, 80)
-    assert len(split_faces([low | high], cap.depth, cap.camera, rgb, Catalogue())) == 1
+    assert len(split_faces([low | high], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))[0]) == 1
 
 
 def test_a_face_cut_by_a_label_is_joined_back():
@@ -73,14 +76,13 @@ def test_a_face_cut_by_a_label_is_joined_back():
     label[cut:cut + 6] = True             # a label across the face, claimed by no mask
     top, bottom = a & ~label & (np.arange(a.shape[0])[:, None] < cut), a & ~label & \
         (np.arange(a.shape[0])[:, None] >= cut + 6)
-    notes: list[str] = []
-    out = join_pieces([top, bottom, b], cap.depth, cap.camera, Catalogue(), notes)
+    out, notes = join_pieces([top, bottom, b], RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 2, notes
     assert max(mask_iou(m, a) for m in out) > 0.95      # the label's pixels are given back too
     assert max(mask_iou(m, b) for m in out) > 0.99
     # the same pieces with a catalogue of other (smaller) boxes stay apart
-    assert len(join_pieces([top, bottom, b], cap.depth, cap.camera,
-                           Catalogue(types=((0.12, 0.12, 0.12),)))) == 3
+    other = RepairContext(cap.depth, cap.camera, Catalogue(types=((0.12, 0.12, 0.12),)))
+    assert len(join_pieces([top, bottom, b], other)[0]) == 3
 
 
 def test_apply_catalogue_leaves_captures_of_other_boxes_alone():
@@ -107,15 +109,14 @@ def test_a_stack_of_three_flush_boxes_of_one_colour_is_cut_one_seam_at_a_time():
         band = np.zeros_like(upper)
         band[rows[-1]:rows[-1] + 2] = True
         rgb[band & (low | mid | high)] = (150, 115, 80)
-    notes: list[str] = []
-    out = split_faces([low | mid | high, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, notes = split_faces([low | mid | high, side], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))
     assert len(out) == 4, notes
     for m in (low, mid, high, side):
         assert max(mask_iou(o, m) for o in out) > 0.85, notes
     # without the seams nothing is cut
     plain = cap.rgb.copy()
     plain[low | mid | high] = (180, 140, 95)
-    assert len(split_faces([low | mid | high], cap.depth, cap.camera, plain, Catalogue())) == 1
+    assert len(split_faces([low | mid | high], RepairContext(cap.depth, cap.camera, Catalogue(), plain))[0]) == 1
 
 
 def _long_on_long():
@@ -134,8 +135,6 @@ def _long_on_long():
 
 @pytest.mark.parametrize("ragged", [False, True])
 def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face(ragged):
-    from perception.box_catalogue import cut_l_shapes
-
     # the segmenter cut the lower box at its tape (x = 0.10 m) and the upper one along its
     # middle, then merged the lower one's right end with the upper one's lower strip: an L.
     # `ragged`: the strip also took a label's lower half with it, so its edge to the rest of its
@@ -150,18 +149,17 @@ def test_l_shaped_mask_is_cut_and_only_rejoined_into_a_type_face(ragged):
             & (cols < ux.min() + 0.75 * np.ptp(ux))
     up_top = up & ~up_bottom
     ell = low_right | up_bottom
-    notes: list[str] = []
-    out = cut_l_shapes([low_left, ell, up_top], cap.depth, cap.camera, Catalogue(), notes)
+    out, notes = cut_l_shapes([low_left, ell, up_top], RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 3 and any("L-shaped" in n for n in notes), notes
     if not ragged:  # one part joined its own box into a type face, the other is a rectangle of its own box
         assert max(mask_iou(o, low) for o in out) > 0.95 or max(mask_iou(o, up) for o in out) > 0.95
     assert all(max(mask_iou(o & t, o) for t in (low, up)) > 0.98 for o in out)
     # the second join pass (as in apply_catalogue) gives both boxes back whole
-    out = join_pieces(out, cap.depth, cap.camera, Catalogue())
+    out, _ = join_pieces(out, RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 2
     assert max(mask_iou(o, low) for o in out) > 0.95 and max(mask_iou(o, up) for o in out) > 0.95
     # nothing to join it with into a type face: the L stays as it is
-    assert len(cut_l_shapes([ell, up_top], cap.depth, cap.camera, Catalogue())) == 2
+    assert len(cut_l_shapes([ell, up_top], RepairContext(cap.depth, cap.camera, Catalogue()))[0]) == 2
 
 
 def test_a_depth_step_beats_a_label_edge_as_the_seam():
@@ -181,8 +179,7 @@ def test_a_depth_step_beats_a_label_edge_as_the_seam():
     band = np.zeros_like(up)
     band[label_bottom - 8:label_bottom, cols[0] + 3:cols[-1] - 8] = True
     rgb[band & up] = (235, 235, 230)
-    notes: list[str] = []
-    out = split_faces([low | up, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, notes = split_faces([low | up, side], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, up) for m in out) > 0.9, notes
     assert any("depth step" in n for n in notes)
@@ -224,13 +221,12 @@ def test_a_face_cut_into_arms_by_a_wide_tape_cross_is_joined_as_a_group():
     quarters = [face & ~cross & (rows < cy) & (cols < cx), face & ~cross & (rows < cy) & (cols > cx),
                 face & ~cross & (rows > cy) & (cols < cx), face & ~cross & (rows > cy) & (cols > cx)]
     masks = [cross | quarters[3]] + quarters[:3] + [side]
-    notes: list[str] = []
-    out = join_pieces(masks, cap.depth, cap.camera, Catalogue(), notes)
+    out, notes = join_pieces(masks, RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 2, notes
     assert max(mask_iou(m, face) for m in out) > 0.95 and max(mask_iou(m, side) for m in out) > 0.95
     # one quarter taken by another box's mask: the union cannot make the face, nothing joined
-    out = join_pieces([cross | quarters[3], quarters[0], quarters[1], quarters[2] | side], cap.depth,
-                      cap.camera, Catalogue())
+    out, _ = join_pieces([cross | quarters[3], quarters[0], quarters[1], quarters[2] | side],
+                         RepairContext(cap.depth, cap.camera, Catalogue()))
     assert max(mask_iou(m, face) for m in out) < 0.9
 
 
@@ -318,14 +314,14 @@ def test_a_faint_seam_splits_a_mask_into_exactly_two_type_faces():
     rgb = cap.rgb.copy()
     rgb[low | high] = (180, 140, 95)
     _seam_under(high, low | high, rgb, (179, 139, 94))
-    notes: list[str] = []
-    out = split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, notes = split_faces([low | high, side], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, high) for m in out) > 0.9
     # the rule off (a seam must score 1): not split; no seam at all: not split either
-    assert len(split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue(weak_evidence=1.0))) == 2
+    strict = RepairContext(cap.depth, cap.camera, Catalogue(weak_evidence=1.0), rgb)
+    assert len(split_faces([low | high, side], strict)[0]) == 2
     rgb[low | high] = (180, 140, 95)
-    assert len(split_faces([low | high, side], cap.depth, cap.camera, rgb, Catalogue())) == 2
+    assert len(split_faces([low | high, side], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))[0]) == 2
 
 
 def test_the_catalogue_share_is_by_area_so_a_face_in_many_pieces_does_not_switch_it_off():
@@ -429,8 +425,6 @@ def test_a_label_beside_re_cut_faces_is_joined_to_its_face_afterwards():
 def test_a_piece_inside_a_mask_on_its_plane_is_given_to_it_but_a_box_in_front_is_not():
     # an upright 17x50 face whose mask also took ~5 cm of the cube below (17x55: no type face, so
     # no join explains the tape band inside it), and the band as a separate piece
-    from perception.box_catalogue import absorb_enclosed
-
     cat = Catalogue()
     scene = Scene(Shelf(), (box("cube", -0.10, 0.0, 0.20, 0.20), box("long", -0.10, 0.20, 0.17, 0.50),
                             box("side", 0.22, 0.0, 0.31, 0.25),
@@ -444,8 +438,8 @@ def test_a_piece_inside_a_mask_on_its_plane_is_given_to_it_but_a_box_in_front_is
     band = lng & (np.abs(rows - cy) <= 8) & (np.abs(cols - cx) <= 16)
     host = (lng | strip) & ~band
     assert not cat.matches(*_size(host, cap)) and not cat.matches(*_size(band, cap))
-    notes: list[str] = []
-    out = absorb_enclosed([host, band, small, cube & ~strip, side], cap.depth, cap.camera, cat, notes)
+    out, notes = absorb_enclosed([host, band, small, cube & ~strip, side],
+                                 RepairContext(cap.depth, cap.camera, cat))
     assert len(out) == 4, notes
     assert any(mask_iou(m, host | band) > 0.99 for m in out), notes
     # the small box 4 cm in front of the face, surrounded by it in the image, stays a box

@@ -44,7 +44,7 @@ def test_each_true_box_is_one_perceived_box(seed, rule):
 
 
 def test_band_trim_keeps_a_chance_face_within_the_pieces_band():
-    from perception.box_catalogue import _band_trim
+    from perception.repairs.planes import band_trim
     from perception.boxes import measure_front
     from perception.scene import Scene, Shelf
     from synth_frames import COLOURS, box, cast
@@ -60,10 +60,10 @@ def test_band_trim_keeps_a_chance_face_within_the_pieces_band():
     strip = up & (rows >= ys.min() - 12) & (cols >= cut) & (cols <= xs.max())
     right = (low & (cols >= cut)) | strip
     face = measure_front(right, cap.depth, cap.camera)
-    trimmed = _band_trim(low & (cols < cut), right, face, cap.camera)
+    trimmed = band_trim(low & (cols < cut), right, face, cap.camera)
     assert trimmed is not None
     # the upper box's 4 cm strip goes, but for the 1 cm margin kept past the pieces' band
     assert (trimmed & strip).sum() <= 0.3 * strip.sum()
     assert (trimmed & low).sum() >= 0.97 * (right & low).sum()        # the cut face's part stays
     # nothing sticks out of the band: nothing to trim
-    assert _band_trim(low & (cols < cut), low & (cols >= cut), face, cap.camera) is None
+    assert band_trim(low & (cols < cut), low & (cols >= cut), face, cap.camera) is None

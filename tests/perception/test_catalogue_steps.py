@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from perception.bench import mask_iou
-from perception.box_catalogue import Catalogue, apply_catalogue, split_faces
+from perception.box_catalogue import Catalogue, apply_catalogue
+from perception.repairs.measure import RepairContext
+from perception.repairs.splits import split_faces
 from perception.scene import Scene, Shelf
 from synth_frames import COLOURS, box, cast
 
@@ -32,8 +34,7 @@ def _staircase(fronts: tuple[float, ...]):
 def test_a_staircase_of_offset_faces_of_one_colour_is_cut_into_its_type_faces():
     cat = Catalogue()
     cap, rgb, faces, union = _staircase((0.02, 0.035, 0.028, 0.02))   # fronts 0.7-1.5 cm apart
-    notes: list[str] = []
-    out = split_faces([union], cap.depth, cap.camera, rgb, cat, notes)
+    out, notes = split_faces([union], RepairContext(cap.depth, cap.camera, cat, rgb))
     assert len(out) == 4, notes
     for f in faces:
         assert max(mask_iou(o, f) for o in out) > 0.85, notes
@@ -43,8 +44,7 @@ def test_a_staircase_of_offset_faces_of_one_colour_is_cut_into_its_type_faces():
 def test_a_flat_staircase_without_seams_is_left_whole():
     # one colour, one front plane: nothing says where the boxes meet, so no cut at all
     cap, rgb, faces, union = _staircase((0.02, 0.02, 0.02, 0.02))
-    notes: list[str] = []
-    out = split_faces([union], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, notes = split_faces([union], RepairContext(cap.depth, cap.camera, Catalogue(), rgb))
     assert len(out) == 1 and not any("staircase" in n for n in notes), notes
 
 

@@ -1,0 +1,17 @@
+"""The mask repairs the box catalogue explains, one module per kind of damage.
+
+Each repair is a step `(masks, RepairContext) -> (masks, notes)`; `perception.box_catalogue`
+runs them in order (`apply_catalogue`). Modules:
+
+- `measure`: `RepairContext` (the capture, the catalogue, a `FaceCache`), `Measured`
+- `planes`: pixels on a face's plane; two pieces joined with the on-plane pixels between them
+- `seams`: where a seam (colour line or step, depth step) runs across a face
+- `joins`: `join_pieces` (a label, tape end or flap cut off a face; a face cut by a tape cross)
+- `splits`: `split_faces` (flush faces of one colour merged; rows and staircases of them)
+- `l_cuts`: `cut_l_shapes` (one box's strip merged with another's end)
+- `stepped`: `split_stepped_faces`, `take_stepped_parts` (masks across a depth step)
+- `bands`: `take_bridging_parts` (a tape band merged with the face above); `parts`: what it shares with `stepped`
+- `regroup`: `regroup_pieces` (halves merged crosswise, re-cut at the faces' seams)
+- `enclosed`: `absorb_enclosed` (a label or band inside a face)
+- `border_cut`: `cut_directions`, `complete_cut_face` (faces cut by the image border)
+"""

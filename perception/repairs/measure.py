@@ -1,0 +1,109 @@
+"""What every repair step works with: the capture (`RepairContext`), a mask's measured face
+(`Measured`, memoised per call in a `FaceCache`), and the masks next to a mask."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from perception.boxes import FrontFace, measure_front
+from perception.masks import border_sides
+from perception.repairs.planes import plane_dist
+from perception.scene import Camera
+
+if TYPE_CHECKING:
+    from perception.box_catalogue import Catalogue
+
+
+@dataclass(frozen=True, eq=False)
+class Measured:
+    """A mask, its measured front face and that face's error to the closest type face (m)."""
+
+    mask: np.ndarray
+    face: FrontFace
+    err: float
+
+
+class FaceCache:
+    """Measured faces by mask object, for one `apply_catalogue` call (the steps measure the
+    same masks again and again). It holds each mask, so a mask's id is not reused while the
+    cache lives; it dies with the call."""
+
+    def __init__(self) -> None:
+        self._hits: dict[int, tuple[np.ndarray, Measured | None]] = {}
+
+    def get(self, mask: np.ndarray) -> tuple[bool, Measured | None]:
+        hit = self._hits.get(id(mask))
+        if hit is not None and hit[0] is mask:
+            return True, hit[1]
+        return False, None
+
+    def put(self, mask: np.ndarray, measured: Measured | None) -> None:
+        self._hits[id(mask)] = (mask, measured)
+
+
+@dataclass(frozen=True, eq=False)
+class RepairContext:
+    """The capture the masks come from and the catalogue that explains them. `cache`: the
+    measured faces of the masks the steps keep (None: measure every time)."""
+
+    depth: np.ndarray
+    camera: Camera
+    cat: "Catalogue"
+    rgb: np.ndarray | None = None
+    cache: FaceCache | None = field(default=None, repr=False)
+
+    def measure(self, mask: np.ndarray) -> Measured | None:
+        """The measured face of a mask (memoised in `cache`)."""
+        if self.cache is not None:
+            found, hit = self.cache.get(mask)
+            if found:
+                return hit
+        out = self.measure_once(mask)
+        if self.cache is not None:
+            self.cache.put(mask, out)
+        return out
+
+    def measure_once(self, mask: np.ndarray) -> Measured | None:
+        """The measured face of a mask that is only looked at once (a candidate union): not cached."""
+        f = measure_front(mask, self.depth, self.camera)
+        return None if f is None else Measured(mask, f, self.cat.error(f.width, f.height))
+
+    @cached_property
+    def lab(self) -> np.ndarray | None:
+        """The colour image in CIELAB, a and b doubled (seams in hue count as much as in light)."""
+        if self.rgb is None:
+            return None
+        lab = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+        lab[..., 1:] = (lab[..., 1:] - 128) * 2
+        return lab
+
+    @cached_property
+    def gap_kernel(self) -> np.ndarray:
+        """Masks within `cat.max_join_gap_px` of each other are neighbours: the dilation kernel."""
+        return np.ones((2 * self.cat.max_join_gap_px + 1,) * 2, np.uint8)
+
+    def near(self, mask: np.ndarray) -> np.ndarray:
+        """The pixels within the join gap of `mask`."""
+        return cv2.dilate(mask.astype(np.uint8), self.gap_kernel) > 0
+
+
+def neighbour_pieces(i: int, masks: list[np.ndarray], ctx: RepairContext,
+                     plane: FrontFace | None = None) -> list[int]:
+    """Indices of the masks next to mask i (within the join gap) that are pieces: measurable, no
+    type face, not cut by the image border; with `plane` (a face), only those on its plane."""
+    near = ctx.near(masks[i])
+    out = []
+    for j, o in enumerate(masks):
+        if j == i or border_sides(o) or not (near & o).any():
+            continue
+        fo = ctx.measure(o)
+        if fo is None or fo.err <= ctx.cat.tol:
+            continue
+        if plane is not None and plane_dist(plane, o, ctx) > ctx.cat.plane_tol:
+            continue
+        out.append(j)
+    return out

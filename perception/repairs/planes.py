@@ -1,0 +1,161 @@
+"""Pixels measured on a face's plane: where they lie on it, how far off it they are, and two
+pieces joined with the unclaimed on-plane pixels between them."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from perception.boxes import FrontFace, face_axes
+from perception.geometry import backproject, ray_plane
+from perception.scene import Camera
+
+if TYPE_CHECKING:
+    from perception.repairs.measure import RepairContext
+
+
+def coords(face: FrontFace, mask: np.ndarray,
+           camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels of the mask and their (x, z) on the measured face plane, centred on the face."""
+    rot = face_axes(face)
+    c = np.asarray(face.center, float)
+    ys, xs = np.nonzero(mask)
+    hit = ray_plane(camera, xs.astype(np.float64), ys.astype(np.float64), c, rot[:, 1])
+    rel = hit - c
+    return ys, xs, rel @ rot[:, 0], rel @ rot[:, 2]
+
+
+def extent(v: np.ndarray, q: float = 0.02) -> float:
+    """The length of a side from its pixels' coordinates, robust to `q` stray pixels each end."""
+    if len(v) < 10:
+        return 0.0
+    lo, hi = np.quantile(v, (q, 1 - q))
+    return float(hi - lo) / (1 - 2 * q)
+
+
+def plane_dist(face: FrontFace, mask: np.ndarray, ctx: "RepairContext") -> float:
+    """Median distance (m) of the mask's depth points to the plane of `face`."""
+    depth = ctx.depth
+    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    if len(xs) < 10:
+        return math.inf
+    if len(xs) > 3000:
+        st = len(xs) // 3000 + 1
+        ys, xs = ys[::st], xs[::st]
+    p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64), depth[ys, xs].astype(np.float64))
+    n = face_axes(face)[:, 1]
+    return float(np.median(np.abs((p - np.asarray(face.center)) @ n)))
+
+
+def plane_res(face: FrontFace, where: np.ndarray, ctx: "RepairContext") -> np.ndarray:
+    """Per pixel of `where`, the distance (m) of its depth point to the plane of `face`
+    (inf where there is no depth or outside `where`)."""
+    depth = ctx.depth
+    out = np.full(where.shape, np.inf)
+    ys, xs = np.nonzero(where & np.isfinite(depth) & (depth > 0))
+    if len(xs):
+        p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
+                        depth[ys, xs].astype(np.float64))
+        out[ys, xs] = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1])
+    return out
+
+
+def on_plane(face: FrontFace, where: np.ndarray, ctx: "RepairContext", tol: float) -> np.ndarray:
+    """The pixels of `where` whose depth point lies within `tol` of the plane of `face`."""
+    depth = ctx.depth
+    out = np.zeros_like(where)
+    ys, xs = np.nonzero(where & np.isfinite(depth) & (depth > 0))
+    if len(xs):
+        p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
+                        depth[ys, xs].astype(np.float64))
+        near = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1]) <= tol
+        out[ys[near], xs[near]] = True
+    return out
+
+
+def rect_fill(m: np.ndarray) -> float:
+    """Area over the area of the axis-aligned bounding rectangle (image rows/columns)."""
+    rows = np.flatnonzero(m.any(axis=1))
+    cols = np.flatnonzero(m.any(axis=0))
+    if len(rows) == 0:
+        return 0.0
+    return float(m.sum()) / float((rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1))
+
+
+def largest_component(m: np.ndarray) -> tuple[np.ndarray, bool]:
+    """(the mask's largest 4-connected part, whether it has more than one) ((m, False) if not)."""
+    n, lbl, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=4)
+    if n <= 2:
+        return m, False
+    return lbl == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])), True
+
+
+def min_area_rect(m: np.ndarray) -> np.ndarray:
+    """The filled min-area rectangle around the mask's pixels (uint8, 1 inside)."""
+    rect = np.zeros(m.shape, np.uint8)
+    pts = cv2.findNonZero(m.astype(np.uint8))
+    cv2.fillPoly(rect, [np.round(cv2.boxPoints(cv2.minAreaRect(pts))).astype(np.int32)], 1)
+    return rect
+
+
+def join_on_plane(a: np.ndarray, b: np.ndarray, face: FrontFace, taken: np.ndarray,
+                  ctx: "RepairContext") -> tuple[np.ndarray, float]:
+    """Two pieces joined with the unclaimed pixels between them that lie on their plane (a
+    label, a tape edge, the depth holes of a seam), within the union's min-area rectangle;
+    and how well that fills the rectangle."""
+    u = a | b
+    rows = np.flatnonzero(u.any(axis=1))
+    cols = np.flatnonzero(u.any(axis=0))
+    y0, y1 = max(0, rows[0] - 2), min(u.shape[0], rows[-1] + 3)
+    x0, x1 = max(0, cols[0] - 2), min(u.shape[1], cols[-1] + 3)
+    uc = u[y0:y1, x0:x1]
+    sub = cv2.morphologyEx(uc.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    if cv2.findNonZero(sub) is None:
+        return u, 0.0
+    rect = min_area_rect(sub) > 0
+    cand = uc & rect
+    _add_on_plane(cand, rect & ~uc & ~taken[y0:y1, x0:x1], face, ctx, y0, x0)
+    fill = float(cand.sum()) / max(float(rect.sum()), 1.0)
+    cand, _ = largest_component(cand)
+    ac, bc = a[y0:y1, x0:x1], b[y0:y1, x0:x1]
+    if (cand & ac).sum() < 0.9 * ac.sum() or (cand & bc).sum() < 0.9 * bc.sum():
+        return u, 0.0          # the pieces do not connect on their plane
+    out = np.zeros_like(u)
+    out[y0:y1, x0:x1] = cand | (uc & ~rect)
+    return out, fill
+
+
+def _add_on_plane(cand: np.ndarray, free: np.ndarray, face: FrontFace, ctx: "RepairContext",
+                  y0: int, x0: int) -> None:
+    """Set the pixels of `free` (a crop at y0, x0) whose depth point lies on the face's plane."""
+    d = ctx.depth[y0:y0 + free.shape[0], x0:x0 + free.shape[1]]
+    free = free & np.isfinite(d) & (d > 0)
+    ys, xs = np.nonzero(free)
+    if len(xs):
+        p = backproject(ctx.camera, (xs + x0).astype(np.float64), (ys + y0).astype(np.float64),
+                        d[ys, xs].astype(np.float64))
+        on = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1]) < ctx.cat.plane_tol
+        cand[ys[on], xs[on]] = True
+
+
+def band_trim(pieces: np.ndarray, other: np.ndarray, face: FrontFace, camera: Camera,
+              margin: float = 0.01) -> np.ndarray | None:
+    """`other` cut to the band that `pieces` span along one axis of `face` (the axis that trims
+    less of it: at least 2%, at most a third, a strip sticking out), or None when neither does."""
+    _, _, px, pz = coords(face, pieces, camera)
+    ys, xs, ox, oz = coords(face, other, camera)
+    if len(px) < 10 or len(ox) < 10:
+        return None
+    best = None
+    for p, o in ((pz, oz), (px, ox)):
+        lo, hi = np.quantile(p, (0.01, 0.99))
+        keep = (o >= lo - margin) & (o <= hi + margin)
+        if 0.02 * len(o) <= (~keep).sum() <= len(o) / 3 and (best is None or keep.sum() > best.sum()):
+            best = keep
+    if best is None:
+        return None
+    out = np.zeros_like(other)
+    out[ys[best], xs[best]] = True
+    return out
