@@ -28,7 +28,7 @@ from perception.scene import Box, Camera, Scene, Shelf, yaw_quat
 
 # The method's box types (cm, as listed): each may stand on any face that fits the shelf depth.
 BOX_TYPES: tuple[tuple[float, float, float], ...] = tuple(scene_box_types.values())
-SHELF = Shelf(1.0, 0.30, 1.60)
+SHELF = Shelf()     # the method's shelf (1.0 x 0.30 x 1.60 m): scene.Shelf's defaults, its one definition
 VIEW_TOP = 1.15    # nothing above this is in view from the default camera; stop stacking there
 
 

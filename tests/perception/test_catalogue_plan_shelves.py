@@ -3,14 +3,10 @@ PyBullet, seen by benchmarks/perceive_plan.py's framing camera): every true box 
 as one box, each true box's visible front face mostly in one perceived mask."""
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-import perceive_plan as pp  # noqa: E402
+from benchmarks import perceive_plan as pp
 
 
 def _perceived_per_true_box(seed: int) -> tuple[dict[str, list[str]], list[str]]:

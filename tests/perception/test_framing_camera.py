@@ -2,9 +2,6 @@
 in view; the default camera (1.05 m back, 0.8 m up) does not see a tall stack's top."""
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
 from perception.geometry import project
@@ -12,8 +9,7 @@ from perception.render import default_camera
 from perception.scene import Scene, Shelf
 from synth_frames import box
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-import perceive_plan as pp  # noqa: E402
+from benchmarks import perceive_plan as pp
 
 
 def _tall() -> Scene:
