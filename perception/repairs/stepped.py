@@ -13,8 +13,6 @@ from perception.repairs.parts import Handover, give_parts, one_part, part_to_pie
 from perception.repairs.planes import coords, join_on_plane, on_plane, plane_dist, plane_res
 from perception.repairs.seams import line_evidence
 
-_OPEN = np.ones((3, 3), np.uint8)
-
 
 def split_stepped_faces(masks: list[np.ndarray], ctx: RepairContext,
                         min_part: float = 0.05) -> tuple[list[np.ndarray], list[str]]:
@@ -170,7 +168,7 @@ def _stepped_part(m: np.ndarray, i: int, pieces: list[int], out: list[np.ndarray
     rest, specks = kept
     if specks.any():     # specks next to the part are its holes; others (on the rest's rim) are dropped
         n2, lbl2 = cv2.connectedComponents(specks.astype(np.uint8), connectivity=8)
-        grow = cv2.dilate(part.astype(np.uint8), _OPEN) > 0
+        grow = cv2.dilate(part.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         touch = np.unique(lbl2[grow & specks])
         part = part | np.isin(lbl2, touch[touch > 0])
     step = plane_dist(fa.face, rest, ctx)
@@ -225,4 +223,4 @@ def _on_pieces_plane(m: np.ndarray, fa: Measured, ctx: RepairContext, plane_tol:
         d_on = cv2.distanceTransform((~on).astype(np.uint8), cv2.DIST_L2, 3)
         d_off = cv2.distanceTransform((~off).astype(np.uint8), cv2.DIST_L2, 3)
         on = on | (amb & (d_on < d_off))
-    return cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_OPEN, _OPEN) > 0
+    return cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
