@@ -15,3 +15,26 @@ runs them in order (`apply_catalogue`). Modules:
 - `enclosed`: `absorb_enclosed` (a label or band inside a face)
 - `border_cut`: `cut_directions`, `complete_cut_face` (faces cut by the image border)
 """
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_WHERE = {
+    "RepairContext": "perception.repairs.measure", "FaceCache": "perception.repairs.measure",
+    "Measured": "perception.repairs.measure",
+    "join_pieces": "perception.repairs.joins", "split_faces": "perception.repairs.splits",
+    "cut_l_shapes": "perception.repairs.l_cuts",
+    "split_stepped_faces": "perception.repairs.stepped", "take_stepped_parts": "perception.repairs.stepped",
+    "take_bridging_parts": "perception.repairs.bands", "regroup_pieces": "perception.repairs.regroup",
+    "absorb_enclosed": "perception.repairs.enclosed",
+    "cut_directions": "perception.repairs.border_cut", "complete_cut_face": "perception.repairs.border_cut",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(importlib.import_module(_WHERE[name]), name)
+    raise AttributeError(f"module 'perception.repairs' has no attribute {name!r}")

@@ -7,18 +7,18 @@ import sys
 import pytest
 
 
-def test_every_public_name_is_the_object_of_its_module():
+@pytest.mark.parametrize("package", ["perception", "perception.repairs"])
+def test_every_public_name_is_the_object_of_its_module(package):
     import importlib
 
-    import perception
-
+    pkg = importlib.import_module(package)
     # a name that is also a submodule's (perception.render) would be shadowed by the module
-    assert not set(perception.__all__) & {m.rsplit(".", 1)[1] for m in perception._WHERE.values()}
-    for name in perception.__all__:
-        where = importlib.import_module(perception._WHERE[name])
-        assert getattr(perception, name) is getattr(where, name), name
+    assert not set(pkg.__all__) & {m.rsplit(".", 1)[1] for m in pkg._WHERE.values()}
+    for name in pkg.__all__:
+        where = importlib.import_module(pkg._WHERE[name])
+        assert getattr(pkg, name) is getattr(where, name), name
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
-        perception.nope  # noqa: B018
+        pkg.nope  # noqa: B018
 
 
 def test_importing_the_package_or_a_command_loads_nothing_heavy():
