@@ -154,4 +154,6 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         extra["scene_check"] = check
         # a shelf that does not stand as seen was not observed right: nothing planned on it is safe
         safe = safe and bool(check.get("stands_as_seen", True))
-    return Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
+    plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
+    # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench
+    return plan.with_provenance(scene, config, samples, risk)

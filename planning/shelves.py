@@ -42,7 +42,7 @@ HARD_KINDS: tuple[str, ...] = KINDS[2:]
 MASS_RANGE = (0.3, 5.0)              # kg, true masses drawn per box (the hard kinds; --masses)
 PROUD_RANGE = (0.01, 0.06)           # m a proud box's front face sticks out of the shelf front
 
-SHELF = Shelf(1.0, 0.30, 1.60)
+SHELF = Shelf()                     # 100 x 30 x 160 cm, the method's (perception.scene)
 STANDING_LONG = (0.17, 0.17, 0.50)
 
 MAX_BOXES = 30

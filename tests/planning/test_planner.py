@@ -246,3 +246,14 @@ def test_same_seed_same_plan_whichever_worker_count():
             with Predictor(scene, samples=4, seed=2, workers=workers) as pred:
                 plans.append(make_plan(scene, task, target, samples=4, seed=2, predictor=pred))
         assert plans[0] == plans[1], task
+
+
+def test_every_plan_records_what_made_it():
+    """make_plan (the console's and the bench's way in, not only the CLI's) records its provenance."""
+    from planning.plan import scene_hash
+
+    scene = Scene(Shelf(), (Box("a", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)), Box("b", (0.2, 0.2, 0.2), (0.3, 0.1, 0.1))))
+    plan = make_plan(scene, "extract", "a", "heuristic", samples=2, seed=3)
+    prov = Plan.from_json(plan.to_json()).provenance
+    assert prov["scene_hash"] == scene_hash(scene) and prov["shelfpick_version"]
+    assert prov["samples"] == 2 and "physics" in prov
