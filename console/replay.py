@@ -21,8 +21,8 @@ import numpy as np
 from perception.scene import Box, Scene, quat_to_matrix
 
 from console.store import SessionRecord
+from console.workflow import SECONDS_PER_BOX   # the estimate the console shows, defined once
 
-SECONDS_PER_BOX = 12.5   # estimated robot time per removed box (as the console shows it)
 MAX_FRAMES_PER_STEP = 30
 
 

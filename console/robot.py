@@ -281,13 +281,5 @@ def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDri
     raise RobotError(f"robot spec {spec!r}: expected 'sim' or 'tcp://HOST:PORT'")
 
 
-def __getattr__(name: str) -> Any:  # `from console.robot import TcpRobot` as ARCHITECTURE.md lists it
-    if name == "TcpRobot":
-        from console.robot_tcp import TcpRobot
-
-        return TcpRobot
-    raise AttributeError(name)
-
-
-__all__ = ["RobotEvent", "RobotOutcome", "RobotDriver", "RobotError", "SimRobot", "TcpRobot",
+__all__ = ["RobotEvent", "RobotOutcome", "RobotDriver", "RobotError", "SimRobot",
            "StepHistory", "HISTORY", "match_boxes", "open_robot", "REPLAN", "EVENT_KINDS"]
