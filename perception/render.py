@@ -218,14 +218,16 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
     """
     if looks not in LOOKS:
         raise ValueError(f"looks must be one of {LOOKS}, got {looks!r}")
-    import pybullet as p
-    from pybullet_utils.bullet_client import BulletClient
-
     from perception.cardboard import box_texture, plain_box_texture
+    from perception.stdio import quiet_stdio
 
     cam = camera or scene.camera or default_camera()
     rng = np.random.default_rng(seed)
-    client = BulletClient(connection_mode=p.DIRECT)
+    with quiet_stdio():   # pybullet prints its build time on import and "argv[0]=" on connect
+        import pybullet as p
+        from pybullet_utils.bullet_client import BulletClient
+
+        client = BulletClient(connection_mode=p.DIRECT)
     try:
         with tempfile.TemporaryDirectory(prefix="shelfpick-render-") as tmp:
             builder = _Builder(client, Path(tmp))

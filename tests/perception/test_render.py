@@ -133,3 +133,14 @@ def test_render_command_writes_the_capture(tmp_path):
     cap = load_capture_dir(out)
     assert len(cap.labels) == 3
     assert main(["render", str(tmp_path / "missing.json"), "--out", str(out)]) == 2
+
+
+def test_rendering_as_a_library_keeps_stdout_clean(capfd):
+    """pybullet printf()s "argv[0]=" on every connect: a caller's stdout (the console's
+    log, a command's JSON) must not get it."""
+    from perception.render import render
+    from perception.scene import Box, Scene, Shelf
+
+    render(Scene(Shelf(), (Box("a", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),)), seed=1)
+    out = capfd.readouterr().out
+    assert "argv[0]" not in out and out == ""
