@@ -1,0 +1,407 @@
+"""The parts of one browser's console page, each owning its own GUI handles.
+
+`console.app.ClientView` composes them: the operator panel (capture, plan,
+stop, camera images), the preview player inside it, the supervisor panel
+(approve / reject), the sessions panel (stored sessions, replay, looks after
+each step) and the 3D shelf they all draw on. What crosses panels (replay
+mode, which scene is shown) stays with the view; a panel gets it through the
+callables it is built with.
+"""
+from __future__ import annotations
+
+import re
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from console import scene_view as sv
+from console.workflow import PLANNERS, State, Workflow, WorkflowError, problem_text
+
+PLACEHOLDER = np.full((48, 64, 3), 220, dtype=np.uint8)
+MAX_SHOWN = 500              # characters of any outside text shown in the page
+WORD_JOINER = "\u2060"
+_AUTOLINK = re.compile(r"(?i)(?:https?|ftp|mailto|xmpp)(?=:)|www(?=\.)")   # what remark-gfm links
+Do = Callable[..., None]     # run a call for a GUI event: (event, fn, *args), errors shown in that browser
+
+
+def md(value: Any) -> str:
+    """Outside text (robot messages, names, reasons, box ids, file names) as literal markdown text.
+
+    viser renders markdown with raw HTML enabled and unsanitised, so every
+    ASCII punctuation character becomes a numeric character reference: no
+    tag, link, image, emphasis or table cell can start inside it, and the
+    browser shows exactly the characters that came in. Line breaks and
+    control characters become spaces; long text is clipped. remark-gfm turns
+    URLs and e-mail addresses in decoded text into links, so an invisible
+    word joiner (U+2060) goes before the ":" of a scheme, the "." of "www."
+    and every "@": the text reads the same and links nowhere.
+    """
+    s = "" if value is None else str(value)
+    if len(s) > MAX_SHOWN:
+        s = s[:MAX_SHOWN] + "..."
+    s = _AUTOLINK.sub(lambda m: m.group(0) + WORD_JOINER, s).replace("@", WORD_JOINER + "@")
+    out = []
+    for ch in s:
+        o = ord(ch)
+        if o < 32 or o == 127 or 0x2028 <= o <= 0x2029:
+            out.append(" ")
+        elif ch.isascii() and not ch.isalnum() and ch != " ":
+            out.append(f"&#{o};")
+        else:
+            out.append(ch)
+    return "".join(out)
+
+
+def pct(p: float) -> str:
+    return f"{100.0 * p:.0f}%"
+
+
+class ShelfDrawing:
+    """This browser's 3D shelf: the box nodes, shelf and camera, and the predicted-pose outlines."""
+
+    def __init__(self, client: Any) -> None:
+        self.client = client
+        self.nodes: dict[str, sv.BoxNodes] = {}
+        self.shelf_nodes: list[Any] = []
+        self.predicted_nodes: list[Any] = []
+        self.shown_deviation: Any = None
+
+    def draw(self, scene: Any, camera: Any, forget_shelf: bool, on_click: Callable[[str], None]) -> None:
+        """Replace the drawn shelf by `scene`; forget_shelf: the old shelf handles were already replaced."""
+        sc = self.client.scene
+        for n in self.nodes.values():
+            n.box.remove()
+        self.nodes = {}
+        if forget_shelf:
+            self.shelf_nodes = []
+        for h in self.shelf_nodes:
+            h.remove()
+        self.shelf_nodes = []
+        if scene is None:
+            return
+        self.shelf_nodes = sv.draw_shelf(sc, scene.shelf)
+        cam = camera or getattr(scene, "camera", None)
+        if cam is not None:
+            self.shelf_nodes.append(sv.draw_camera(sc, cam))
+        self.nodes = sv.draw_boxes(sc, scene)
+        for bid, n in self.nodes.items():
+            n.box.on_click(lambda ev, bid=bid: on_click(bid))
+
+    def mark(self, target: Any, risk: set, dev: Any) -> None:
+        """Target and risky boxes outlined; the held step's predicted poses in blue."""
+        self.draw_predicted(dev)
+        for bid, n in self.nodes.items():
+            n.target.visible = bid == target
+            n.risk.visible = bid in risk
+
+    def draw_predicted(self, dev: Any) -> None:
+        """Blue outlines where the held step's prediction had the boxes that differ (once per deviation)."""
+        if dev is self.shown_deviation:
+            return
+        for h in self.predicted_nodes:
+            h.remove()
+        self.predicted_nodes = []
+        self.shown_deviation = dev
+        if dev is None or dev.predicted is None:
+            return
+        differ = {d.predicted for d in dev.verification.boxes if d.status in ("moved", "missing")}
+        self.predicted_nodes = sv.draw_outlines(self.client.scene, [b for b in dev.predicted.boxes
+                                                                    if b.id in differ])
+
+
+class PreviewPlayer:
+    """The `Preview` folder: a plan's recorded pull frames on the 3D shelf, scrubbed or played at 20 fps."""
+
+    def __init__(self, gui: Any, lock: threading.RLock, drawing: ShelfDrawing,
+                 source: Callable[[str], tuple[Any, Any]], scene: Callable[[], Any],
+                 after_load: Callable[[], None]) -> None:
+        self.lock = lock
+        self.drawing = drawing
+        self.source = source            # planner name -> (preview step results, plan)
+        self.scene = scene
+        self.after_load = after_load
+        self.frames: list[sv.Keyframe] = []
+        self.risk: set = set()
+        self.playing = False
+        self.prev_plan = gui.add_dropdown("Preview plan", PLANNERS, initial_value=PLANNERS[0])
+        self.btn_play = gui.add_button("Play", icon="player-play")
+        self.btn_pause = gui.add_button("Pause", icon="player-pause")
+        self.slider = gui.add_slider("Preview frame", 0, 1, 1, 0, disabled=True)
+        self.prev_info = gui.add_markdown("")
+        self.btn_play.on_click(lambda e: self.play())
+        self.btn_pause.on_click(lambda e: self.pause())
+        self.prev_plan.on_update(lambda e: self.load(force=True))
+        self.slider.on_update(lambda e: self.show_frame(int(self.slider.value)))
+
+    def load(self, force: bool = False) -> None:
+        with self.lock:
+            self.playing = False
+            preview, plan = self.source(self.prev_plan.value)
+            self.frames = sv.timeline(preview) if preview else []
+            self.risk = sv.risky_boxes(plan) if plan is not None else set()
+            n = len(self.frames)
+            self.slider.max = max(1, n - 1)
+            self.slider.disabled = n == 0
+            if self.slider.value != 0:
+                self.slider.value = 0          # triggers show_frame(0)
+            elif n:
+                self.show_frame(0)
+            if not n:
+                self.prev_info.content = "_No preview: plan first._"
+                scene = self.scene()
+                if scene is not None:
+                    sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene)
+            self.after_load()
+
+    def show_frame(self, i: int) -> None:
+        with self.lock:
+            if not self.frames or not self.drawing.nodes:
+                return
+            i = max(0, min(i, len(self.frames) - 1))
+            fr = self.frames[i]
+            scene = self.scene()
+            sv.apply_keyframe(self.drawing.client, self.drawing.nodes, fr, scene.shelf, None)
+            nsteps = max(k.step for k in self.frames) + 1
+            txt = f"Step {fr.step + 1}/{nsteps}: pulling **{md(fr.box)}** · t = {fr.t:.2f} s"
+            if fr.collapsed:
+                txt += f" · **collapsed: {', '.join(md(b) for b in fr.collapsed)}**"
+            self.prev_info.content = txt
+
+    def play(self) -> None:
+        with self.lock:
+            if self.playing or not self.frames:
+                return
+            self.playing = True
+            if int(self.slider.value) >= len(self.frames) - 1:
+                self.slider.value = 0
+
+        def run() -> None:
+            while True:
+                with self.lock:
+                    if not self.playing:
+                        return
+                    i = int(self.slider.value) + 1
+                    if i >= len(self.frames):
+                        self.playing = False
+                        return
+                    self.slider.value = i
+                time.sleep(1 / 20)
+
+        threading.Thread(target=run, name="shelfpick-preview", daemon=True).start()
+
+    def pause(self) -> None:
+        with self.lock:
+            self.playing = False
+
+
+class OperatorPanel:
+    """The `Operator` tab: capture, target, plan, the preview player, stop, robot progress, camera images."""
+
+    def __init__(self, gui: Any, wf: Workflow, do: Do, make_preview: Callable[[Any], PreviewPlayer]) -> None:
+        g = gui
+        self.wf = wf
+        self.status = g.add_markdown("Starting…")
+        self.btn_capture = g.add_button("Capture", icon="camera")
+        self.target = g.add_dropdown("Target", ("—",), initial_value="—")
+        self.btn_extract = g.add_button("Plan extraction", color="blue")
+        self.btn_clear = g.add_button("Plan clearance")
+        self.progress = g.add_progress_bar(0.0, visible=False, animated=True)
+        self.results = g.add_markdown("")
+        with g.add_folder("Preview"):
+            self.preview = make_preview(g)
+        self.btn_stop = g.add_button("Stop robot", color="red", icon="hand-stop")
+        self.robot_md = g.add_markdown("")
+        self.deviation_md = g.add_markdown("")
+        with g.add_folder("Camera"):
+            self.img_rgb = g.add_image(PLACEHOLDER, label="RGB")
+            self.img_overlay = g.add_image(PLACEHOLDER, label="Segmentation")
+
+        self.btn_capture.on_click(lambda e: do(e, wf.capture))
+        self.btn_extract.on_click(lambda e: do(e, wf.plan, "extract"))
+        self.btn_clear.on_click(lambda e: do(e, wf.plan, "clear"))
+        self.btn_stop.on_click(lambda e: do(e, wf.stop, "operator"))
+
+        @self.target.on_update
+        def _(event: Any) -> None:
+            if event.client is None:      # our own programmatic update
+                return
+            v = self.target.value
+            if v != "—" and v != wf.state.target:
+                do(event, wf.select_target, v)
+
+    def show_images(self, rgb: Any, overlay: Any) -> None:
+        """The camera folder; rgb None keeps the image shown, overlay None shows the placeholder."""
+        if rgb is not None:
+            self.img_rgb.image = rgb
+        self.img_overlay.image = overlay if overlay is not None else PLACEHOLDER
+
+    def show_targets(self, scene: Any) -> None:
+        self.target.options = tuple(scene.ids) if scene is not None and scene.boxes else ("—",)
+
+    def follow_target(self, target: Any) -> None:
+        want = target or "—"
+        if self.target.value != want and want in self.target.options:
+            self.target.value = want
+
+
+class SupervisorPanel:
+    """The `Supervisor` tab: the pending plans, approve (and run) or reject with a passphrase."""
+
+    def __init__(self, gui: Any, wf: Workflow, do: Do, client_key: Callable[[], str]) -> None:
+        g = gui
+        self.wf = wf
+        self.do = do
+        self.client_key = client_key      # who is asking, for the passphrase throttle
+        self.sup_info = g.add_markdown("")
+        self.who = g.add_text("Name", "supervisor")
+        self.passphrase = g.add_text("Passphrase", "")
+        self.approve_plan = g.add_dropdown("Plan", PLANNERS + ("continue",), initial_value=PLANNERS[0])
+        self.accept_risk = g.add_checkbox("Accept predicted risk", False,
+                                          hint="needed to approve a plan predicted unsafe")
+        self.btn_approve = g.add_button("Approve", color="green")
+        self.reason = g.add_text("Reject reason", "")
+        self.btn_reject = g.add_button("Reject", color="orange")
+        self.decisions_md = g.add_markdown("")
+        self.btn_approve.on_click(self.approve)
+        self.btn_reject.on_click(self.reject)
+
+    def render(self, state: State) -> None:
+        self.sup_info.content = supervisor_markdown(state)
+        self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
+
+    def _entry_for_approval(self) -> Any:
+        entry = self.wf.state.plans.get(self.approve_plan.value)
+        if entry is None:
+            raise WorkflowError("no plan to decide on: plan first")
+        return entry
+
+    def _take_passphrase(self) -> str:
+        """The typed passphrase, and the field cleared at once: every use needs it typed again."""
+        given = self.passphrase.value
+        self.passphrase.value = ""
+        return given
+
+    def approve(self, event: Any) -> None:
+        given = self._take_passphrase()
+
+        def go() -> None:
+            entry = self._entry_for_approval()
+            self.wf.approve(entry.hash, given, self.who.value.strip() or "supervisor",
+                            accept_risk=bool(self.accept_risk.value), client=self.client_key())
+            self.accept_risk.value = False
+            self.wf.execute()
+        self.do(event, go)
+
+    def reject(self, event: Any) -> None:
+        given = self._take_passphrase()
+
+        def go() -> None:
+            if not self.reason.value.strip():
+                raise WorkflowError("Reject needs a reason: type it in `Reject reason`")
+            entry = self._entry_for_approval()
+            self.wf.reject(entry.hash, given, self.who.value.strip() or "supervisor",
+                           self.reason.value, client=self.client_key())
+            self.reason.value = ""
+        self.do(event, go)
+
+
+def supervisor_markdown(state: State) -> str:
+    """The pending plans of the current capture, as the supervisor decides on them."""
+    if not state.plans:
+        return "_Nothing to decide: no plans for the current capture._"
+    lines = ["Pending plans for this capture:"]
+    for name, e in state.plans.items():
+        mark = " ✅ approved" if state.approved == e.hash else ""
+        lines.append(f"- **{md(name)}** `{md(e.hash)}`: {' → '.join(md(b) for b in e.plan.sequence)} "
+                     f"(max risk {pct(e.plan.risk)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}")
+    if state.scene_problems:
+        lines.append("\n**⚠ The shelf does not stand as seen:** " + "; ".join(
+            md(problem_text(p)) for p in state.scene_problems)
+            + ". Approving needs `Accept predicted risk`.")
+    lines.append("\n`Approve` sends the chosen plan to the robot at once.")
+    return "\n".join(lines)
+
+
+def decisions_markdown(decisions: Any, key: str = "plan") -> str:
+    """Supervisors' decisions; names and reasons are outside text."""
+    return "\n".join(
+        f"- {md(d['decision'])} `{md(d.get(key))}` by {md(d.get('who'))}"
+        + (f" at {md(d['at'])}" if isinstance(d.get("at"), str) else "")
+        + (f": {md(d['reason'])}" if d.get("reason") else "")
+        for d in decisions)
+
+
+class SessionsPanel:
+    """The `Sessions` tab: the stored sessions, replay of one, and its looks after each step."""
+
+    def __init__(self, gui: Any, wf: Workflow) -> None:
+        g = gui
+        self.wf = wf
+        self.last_sessions_key: Any = None
+        self.look_nodes: list[Any] = []
+        self.sessions_md = g.add_markdown("")
+        self.session_pick = g.add_dropdown("Session", ("—",), initial_value="—")
+        self.btn_replay = g.add_button("Replay")
+        self.look_pick = g.add_dropdown("Look after step", ("—",), initial_value="—",
+                                        hint="replay: the observed shelf after a step, the predicted "
+                                             "poses as blue outlines, what differs in red")
+        self.btn_live = g.add_button("Back to live")
+        self.replay_md = g.add_markdown("")
+        self.look_md = g.add_markdown("")
+
+    def render(self, state: State) -> None:
+        """The sessions table again when the current session changed in a way it shows."""
+        key = (state.session_id, state.robot, len(state.decisions), state.plans is not None and len(state.plans))
+        if key != self.last_sessions_key:
+            self.last_sessions_key = key
+            self.refresh()
+
+    def refresh(self) -> None:
+        try:
+            rows = self.wf.store.list_sessions()
+        except Exception as exc:  # noqa: BLE001 - DB locked/unreadable
+            self.sessions_md.content = f"**⚠ database: {md(exc)}**"
+            return
+        rows = sorted(rows, key=lambda r: -int(r["id"]))
+        lines = ["| id | started | source | boxes | task | status |", "|---|---|---|---|---|---|"]
+        for r in rows[:12]:
+            lines.append(f"| {md(r['id'])} | {md(_fmt_time(r.get('started')))} | {md(r.get('source', ''))} | "
+                         f"{md(r.get('n_boxes', ''))} | {md(r.get('task') or '')} | {md(r.get('status') or '')} |")
+        self.sessions_md.content = "\n".join(lines) if rows else "_No sessions yet._"
+        opts = tuple(str(r["id"]) for r in rows) or ("—",)
+        cur = self.session_pick.value
+        self.session_pick.options = opts
+        self.session_pick.value = cur if cur in opts else opts[0]
+
+    def start_replay(self, rec: dict) -> None:
+        self.replay_md.content = rec["summary_md"]
+        self.clear_look()
+        self.look_pick.options = ("—",) + tuple(lk["label"] for lk in rec.get("looks", ()))
+        self.look_pick.value = "—"
+
+    def end_replay(self) -> None:
+        self.replay_md.content = ""
+        self.clear_look()
+        self.look_pick.options = ("—",)
+        self.look_pick.value = "—"
+
+    def clear_look(self) -> None:
+        for h in self.look_nodes:
+            h.remove()
+        self.look_nodes = []
+        self.look_md.content = ""
+
+    def show_look(self, scene_api: Any, look: dict) -> None:
+        """A look's predicted poses as outlines and its table (the observed shelf is drawn by the view)."""
+        if look["predicted"] is not None:
+            self.look_nodes = sv.draw_outlines(scene_api, look["predicted"].boxes, prefix="/look")
+        self.look_md.content = look["md"]
+
+
+def _fmt_time(t: Any) -> str:
+    if isinstance(t, (int, float)):
+        return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
+    return str(t or "")
