@@ -20,13 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-
-def _pct(values: list[float], q: float) -> float:
-    v = sorted(values)
-    k = (len(v) - 1) * q
-    lo = int(k)
-    hi = min(lo + 1, len(v) - 1)
-    return v[lo] + (v[hi] - v[lo]) * (k - lo)
+from planning.bench_report import percentile  # noqa: E402
 
 
 def _cpu() -> float:
@@ -38,16 +32,8 @@ def _cpu() -> float:
 
 
 def _fingerprint(task: dict, plan: dict) -> dict:
-    """What a plan decides, without what depends on the machine (times)."""
-    drop = {"timing", "time", "seconds", "wall", "elapsed"}
-
-    def strip(v):
-        if isinstance(v, dict):
-            return {k: strip(x) for k, x in v.items() if k not in drop}
-        if isinstance(v, list):
-            return [strip(x) for x in v]
-        return v
-    return {"task": f"{task['scene']}:{task['target']}", "plan": strip(plan)}
+    """What a plan decides, without what depends on the machine (its timing)."""
+    return {"task": f"{task['scene']}:{task['target']}", "plan": {k: v for k, v in plan.items() if k != "timing"}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -96,8 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     if pool is not None:
         pool.close()
     print(f"{len(tasks)} tasks of {args.min_boxes}-{args.max_boxes} boxes, workers {args.workers}, noise {args.noise}: "
-          f"wall p50 {_pct(walls, 0.5):.2f} s p90 {_pct(walls, 0.9):.2f} s; "
-          f"cpu p50 {_pct(cpus, 0.5):.2f} s p90 {_pct(cpus, 0.9):.2f} s; load {os.getloadavg()[0]:.1f}")
+          f"wall p50 {percentile(walls, 0.5):.2f} s p90 {percentile(walls, 0.9):.2f} s; "
+          f"cpu p50 {percentile(cpus, 0.5):.2f} s p90 {percentile(cpus, 0.9):.2f} s; load {os.getloadavg()[0]:.1f}")
     return 0
 
 

@@ -22,14 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from planning.bench import derive_seed  # noqa: E402
-
-
-def _pct(v: list[float], q: float) -> float:
-    v = sorted(v)
-    k = (len(v) - 1) * q
-    lo = int(k)
-    hi = min(lo + 1, len(v) - 1)
-    return v[lo] + (v[hi] - v[lo]) * (k - lo)
+from planning.bench_report import percentile  # noqa: E402
 
 
 def _cpu(pool=None) -> float:
@@ -154,9 +147,9 @@ def main(argv: list[str] | None = None) -> int:
             continue
         times = [x["plan_s"] for x in r]
         cpus = [x["cpu_s"] for x in r]
-        summary[g] = {"plans": len(r), "p50_s": _pct(times, 0.5), "p90_s": _pct(times, 0.9),
+        summary[g] = {"plans": len(r), "p50_s": percentile(times, 0.5), "p90_s": percentile(times, 0.9),
                       "mean_s": statistics.fmean(times),
-                      "cpu_p50_s": _pct(cpus, 0.5), "cpu_p90_s": _pct(cpus, 0.9),
+                      "cpu_p50_s": percentile(cpus, 0.5), "cpu_p90_s": percentile(cpus, 0.9),
                       "success_rate": sum(x["ok"] for x in r) / len(r),
                       "mean_removed": statistics.fmean(x["removed"] for x in r),
                       "skipped_scenes": sum(1 for x in rows if x["group"] == g and "error" in x)}

@@ -31,7 +31,7 @@ import traceback
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping
 
-from planning.planner import PLANNERS  # the planners the console runs side by side
+from planning.plan import PLANNERS  # the planners the console runs side by side
 
 SECONDS_PER_BOX = 12.5  # estimated robot time per removed box (pull, place, return)
 AUTH_REFUSED = "wrong supervisor passphrase, or too many attempts: wait a moment and try again (recorded)"

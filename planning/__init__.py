@@ -10,7 +10,7 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "make_plan": "planning.planner", "PLANNERS": "planning.planner",
+    "make_plan": "planning.planner", "PLANNERS": "planning.plan",
     "Plan": "planning.plan", "StepPrediction": "planning.plan",
     "PhysicsConfig": "planning.physics",
     "Uncertainty": "planning.uncertainty",

@@ -15,7 +15,8 @@ if TYPE_CHECKING:  # pragma: no cover
 # fields of a record that are measurements of the machine, not results
 TIMING_KEYS = ("plan_s", "setup_s", "exec_wall_s", "exhaustive_s", "worker")
 
-def _pct(values: Sequence[float], q: float) -> float | None:
+def percentile(values: Sequence[float], q: float) -> float | None:
+    """Linear-interpolated quantile `q` of `values` (None when empty)."""
     if not values:
         return None
     v = sorted(values)
@@ -77,8 +78,8 @@ def summarize(records: Sequence[dict], config: BenchConfig) -> dict:
                 "success_rate": sum(p["ok"] for p in rows) / len(rows),
                 "mean_removed": _mean(removed),
                 "mean_exec_time_s": _mean([n * config.robot_time for n in removed]),
-                "plan_p50_s": _pct([p["plan_s"] for p in rows], 0.5),
-                "plan_p90_s": _pct([p["plan_s"] for p in rows], 0.9),
+                "plan_p50_s": percentile([p["plan_s"] for p in rows], 0.5),
+                "plan_p90_s": percentile([p["plan_s"] for p in rows], 0.9),
                 "mean_disp_per_step_m": _mean([p["mean_disp"] for p in rows]),
                 "declared_safe": sum(bool(p.get("safe")) for p in rows),
                 "declared_safe_collapsed": sum(bool(p.get("safe")) and not p["ok"] for p in rows),

@@ -36,6 +36,14 @@ class Client(BulletClient):
             self.__dict__[name] = functools.partial(getattr(pybullet, name), physicsClientId=self._client)
 
 
+def disconnect_quietly(client: Client) -> None:
+    """Disconnect, whether or not the physics server is still there."""
+    try:
+        client.disconnect()
+    except Exception:  # noqa: BLE001 - already gone
+        pass
+
+
 def connect(gui: bool = False) -> Client:
     """A new client whose C-level banner ("argv[0]=", build time) stays off stdout/stderr.
 
@@ -84,10 +92,7 @@ class ClientPool:
         with self._lock:
             if client in self._all:
                 self._all.remove(client)
-        try:
-            client.disconnect()
-        except Exception:  # noqa: BLE001 - already gone
-            pass
+        disconnect_quietly(client)
 
     def close(self) -> None:
         with self._lock:
@@ -96,10 +101,7 @@ class ClientPool:
         if os.getpid() != self._pid:
             return   # a copy in a child process: the clients are the parent's
         for c in clients:
-            try:
-                c.disconnect()
-            except Exception:  # noqa: BLE001 - already gone
-                pass
+            disconnect_quietly(c)
 
     def __enter__(self) -> "ClientPool":
         return self

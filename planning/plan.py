@@ -12,6 +12,7 @@ from perception.scene import Scene, read_json, write_json
 
 PLAN_FORMAT = "shelfpick.plan/1"
 TASKS = ("extract", "clear")
+PLANNERS = ("physics", "heuristic")   # what a plan's `planner` may be
 # the physics settings a reader needs to judge a plan (all of them: `physics.config_hash`)
 PHYSICS_RECORDED = ("gravity", "lateral_friction", "spinning_friction", "density", "time_step",
                     "solver_iterations", "pull_speed", "pull_force", "disturbance", "collapse_displacement",

@@ -18,7 +18,7 @@ from planning.clear import search_clear, visit_order
 from planning.extract import CountingOracle, search_extract, success_prob
 from planning.heuristic import heuristic_order
 from planning.oracle import Predicting, Screening
-from planning.plan import TASKS, Plan, StepPrediction
+from planning.plan import PLANNERS, TASKS, Plan, StepPrediction
 from planning.predict import Predictor
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -27,7 +27,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from planning.uncertainty import Uncertainty
     from planning.worker_pool import WorkerPool
 
-PLANNERS = ("physics", "heuristic")
 
 
 def check_request(scene: Scene, task: str, target: str | None, planner: str, samples: int,

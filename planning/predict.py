@@ -92,17 +92,14 @@ class Predictor:
             w.send(Build(self.scene, self.seed, self.config, tuple(share), self.model, known))
         draws: dict = {}
         error: BaseException | None = None
-        try:
-            for w, _ in self._workers:  # every reply is read, so no pipe keeps a stale one
-                try:
-                    draws.update(w.recv())
-                except (EOFError, OSError):
-                    raise
-                except Exception as exc:  # noqa: BLE001 - the worker's, raised after all replies
-                    error = error or exc
-        except BaseException:
-            self._broken = True
-            raise
+        for w, _ in self._workers:  # every reply is read, so no pipe keeps a stale one
+            try:
+                draws.update(w.recv())
+            except (EOFError, OSError, KeyboardInterrupt):   # a pipe that may hold a stale reply
+                self._broken = True
+                raise
+            except Exception as exc:  # noqa: BLE001 - the worker's, raised after all replies
+                error = error or exc
         if error is not None:
             raise error
         self.sample_scenes = [draws[i].scene for i in range(self._n)]

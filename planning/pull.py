@@ -140,7 +140,7 @@ class PullTrial:
                                           [pos[0] + g[0], pos[1] + g[1], pos[2] + g[2]], orn)
         return pos
 
-    def _record_frame(self, include_pulled: bool) -> None:
+    def record_frame(self, include_pulled: bool) -> None:
         ids = self.others + ([self.box_id] if include_pulled else [])
         t = round(self.step * self.cfg.time_step, 4)
         self.frames.append((t, {b: (tuple(round(x, 5) for x in pp), tuple(round(x, 6) for x in qq))
@@ -176,7 +176,7 @@ class PullTrial:
         p.setCollisionFilterPair(self.sim.gripper_body, self.body, -1, -1, 0)
         try:
             if self.record:
-                self._record_frame(True)
+                self.record_frame(True)
             self._place_gripper()
             ramp = max(cfg.pull_ramp, dt)
             dist_ = 0.0
@@ -211,7 +211,7 @@ class PullTrial:
                     self.monitor.look(self.step)
                 engaged = self._engaged()
                 if self.record and self.step % self.frame_every == 0:
-                    self._record_frame(True)
+                    self.record_frame(True)
                 if stop_on_collapse and self.monitor.collapse_at:
                     self.note = "stopped at the first collapse"
                     return False
@@ -237,7 +237,7 @@ class PullTrial:
             if self.step % self.every == 0:
                 calm = calm + self.every if not self.monitor.look(self.step) else 0
             if self.record and self.step % self.frame_every == 0:
-                self._record_frame(not extracted)
+                self.record_frame(not extracted)
             if stop_on_collapse and self.monitor.collapse_at:
                 self.note = "stopped at the first collapse"
                 break
@@ -268,6 +268,6 @@ def pull(sim: "ShelfSim", box_id: str, seed: int, record: bool, stop_on_collapse
     if not (stop_on_collapse and trial.monitor.collapse_at):
         trial.settle(stop_on_collapse, extracted)
     if record:
-        trial._record_frame(not extracted)
+        trial.record_frame(not extracted)
     return trial.result(extracted)
 

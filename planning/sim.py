@@ -20,7 +20,7 @@ from typing import Iterator
 
 from perception.errors import SceneError
 from perception.scene import Box, Quat, Scene, Vec3, wxyz_to_xyzw, xyzw_to_wxyz
-from planning.bullet_clients import Client, ClientPool, connect
+from planning.bullet_clients import Client, ClientPool, connect, disconnect_quietly
 from planning.geometry3 import dist as _dist
 from planning.geometry3 import norm as _norm
 from planning.geometry3 import rot_angle_deg as _rot_angle_deg
@@ -33,13 +33,6 @@ _PARK_X0 = 50.0      # parked boxes are put far from the shelf, out of the broad
 _PARK_DX = 3.0
 _PARK_Z = -50.0
 _GRIPPER_PARK = (-50.0, 0.0, -50.0)
-
-
-def _disconnect(client: Client) -> None:
-    try:
-        client.disconnect()
-    except Exception:  # noqa: BLE001 - already gone
-        pass
 
 
 class ShelfSim:
@@ -55,7 +48,7 @@ class ShelfSim:
         self._clients = clients if not gui else None
         self._p: Client | None = self._clients.acquire() if self._clients else connect(gui)
         # a simulation nobody closed still disconnects its own client when it is collected
-        self._finalizer = weakref.finalize(self, _disconnect, self._p) if self._clients is None else None
+        self._finalizer = weakref.finalize(self, disconnect_quietly, self._p) if self._clients is None else None
         p = self._p
         p.setGravity(0, 0, -cfg.gravity)
         p.setTimeStep(cfg.time_step)
@@ -575,7 +568,7 @@ class ShelfSim:
         if self._clients is not None:
             self._clients.release(client)
         else:
-            _disconnect(client)
+            disconnect_quietly(client)
 
     def __enter__(self) -> "ShelfSim":
         return self

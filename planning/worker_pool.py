@@ -196,7 +196,10 @@ class WorkerPool:
                 self._leased.discard(w)
                 keep = not broken and not self._closed and len(self._idle) < self.size and w.alive()
             if not keep:
-                w.kill() if broken else w.stop()
+                if broken:
+                    w.kill()
+                else:
+                    w.stop()
                 continue
             try:
                 w.send(Release())
