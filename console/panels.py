@@ -12,13 +12,20 @@ from __future__ import annotations
 import re
 import threading
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from console import scene_view as sv
-from console.workflow import PLANNERS, State, Workflow, WorkflowError, problem_text
+from console.workflow import PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError, problem_text
+from perception.scene import Camera, Scene
+from planning.plan import Plan
+
+if TYPE_CHECKING:
+    import viser
+
+    from console.replay_view import LookView, ReplayView
 
 PLACEHOLDER = np.full((48, 64, 3), 220, dtype=np.uint8)
 MAX_SHOWN = 500              # characters of any outside text shown in the page
@@ -62,14 +69,15 @@ def pct(p: float) -> str:
 class ShelfDrawing:
     """This browser's 3D shelf: the box nodes, shelf and camera, and the predicted-pose outlines."""
 
-    def __init__(self, client: Any) -> None:
+    def __init__(self, client: viser.ClientHandle) -> None:
         self.client = client
         self.nodes: dict[str, sv.BoxNodes] = {}
-        self.shelf_nodes: list[Any] = []
-        self.predicted_nodes: list[Any] = []
-        self.shown_deviation: Any = None
+        self.shelf_nodes: list[viser.SceneNodeHandle] = []
+        self.predicted_nodes: list[viser.SceneNodeHandle] = []
+        self.shown_deviation: Deviation | None = None
 
-    def draw(self, scene: Any, camera: Any, forget_shelf: bool, on_click: Callable[[str], None]) -> None:
+    def draw(self, scene: Scene | None, camera: Camera | None, forget_shelf: bool,
+             on_click: Callable[[str], None]) -> None:
         """Replace the drawn shelf by `scene`; forget_shelf: the old shelf handles were already replaced."""
         sc = self.client.scene
         for n in self.nodes.values():
@@ -83,21 +91,21 @@ class ShelfDrawing:
         if scene is None:
             return
         self.shelf_nodes = sv.draw_shelf(sc, scene.shelf)
-        cam = camera or getattr(scene, "camera", None)
+        cam = camera or scene.camera
         if cam is not None:
             self.shelf_nodes.append(sv.draw_camera(sc, cam))
         self.nodes = sv.draw_boxes(sc, scene)
         for bid, n in self.nodes.items():
             n.box.on_click(lambda ev, bid=bid: on_click(bid))
 
-    def mark(self, target: Any, risk: set, dev: Any) -> None:
+    def mark(self, target: str | None, risk: set[str], dev: Deviation | None) -> None:
         """Target and risky boxes outlined; the held step's predicted poses in blue."""
         self.draw_predicted(dev)
         for bid, n in self.nodes.items():
             n.target.visible = bid == target
             n.risk.visible = bid in risk
 
-    def draw_predicted(self, dev: Any) -> None:
+    def draw_predicted(self, dev: Deviation | None) -> None:
         """Blue outlines where the held step's prediction had the boxes that differ (once per deviation)."""
         if dev is self.shown_deviation:
             return
@@ -115,8 +123,8 @@ class ShelfDrawing:
 class PreviewPlayer:
     """The `Preview` folder: a plan's recorded pull frames on the 3D shelf, scrubbed or played at 20 fps."""
 
-    def __init__(self, gui: Any, lock: threading.RLock, drawing: ShelfDrawing,
-                 source: Callable[[str], tuple[Any, Any]], scene: Callable[[], Any],
+    def __init__(self, gui: viser.GuiApi, lock: threading.RLock, drawing: ShelfDrawing,
+                 source: Callable[[str], tuple[Sequence[Any], Plan | None]], scene: Callable[[], Scene | None],
                  after_load: Callable[[], None]) -> None:
         self.lock = lock
         self.drawing = drawing
@@ -124,7 +132,7 @@ class PreviewPlayer:
         self.scene = scene
         self.after_load = after_load
         self.frames: list[sv.Keyframe] = []
-        self.risk: set = set()
+        self.risk: set[str] = set()
         self.playing = False
         self.prev_plan = gui.add_dropdown("Preview plan", PLANNERS, initial_value=PLANNERS[0])
         self.btn_play = gui.add_button("Play", icon="player-play")
@@ -200,7 +208,8 @@ class PreviewPlayer:
 class OperatorPanel:
     """The `Operator` tab: capture, target, plan, the preview player, stop, robot progress, camera images."""
 
-    def __init__(self, gui: Any, wf: Workflow, do: Do, make_preview: Callable[[Any], PreviewPlayer]) -> None:
+    def __init__(self, gui: viser.GuiApi, wf: Workflow, do: Do,
+                 make_preview: Callable[[viser.GuiApi], PreviewPlayer]) -> None:
         g = gui
         self.wf = wf
         self.status = g.add_markdown("Starting…")
@@ -232,16 +241,16 @@ class OperatorPanel:
             if v != "—" and v != wf.state.target:
                 do(event, wf.select_target, v)
 
-    def show_images(self, rgb: Any, overlay: Any) -> None:
+    def show_images(self, rgb: np.ndarray | None, overlay: np.ndarray | None) -> None:
         """The camera folder; rgb None keeps the image shown, overlay None shows the placeholder."""
         if rgb is not None:
             self.img_rgb.image = rgb
         self.img_overlay.image = overlay if overlay is not None else PLACEHOLDER
 
-    def show_targets(self, scene: Any) -> None:
+    def show_targets(self, scene: Scene | None) -> None:
         self.target.options = tuple(scene.ids) if scene is not None and scene.boxes else ("—",)
 
-    def follow_target(self, target: Any) -> None:
+    def follow_target(self, target: str | None) -> None:
         want = target or "—"
         if self.target.value != want and want in self.target.options:
             self.target.value = want
@@ -250,7 +259,7 @@ class OperatorPanel:
 class SupervisorPanel:
     """The `Supervisor` tab: the pending plans, approve (and run) or reject with a passphrase."""
 
-    def __init__(self, gui: Any, wf: Workflow, do: Do, client_key: Callable[[], str]) -> None:
+    def __init__(self, gui: viser.GuiApi, wf: Workflow, do: Do, client_key: Callable[[], str]) -> None:
         g = gui
         self.wf = wf
         self.do = do
@@ -272,7 +281,7 @@ class SupervisorPanel:
         self.sup_info.content = supervisor_markdown(state)
         self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
 
-    def _entry_for_approval(self) -> Any:
+    def _entry_for_approval(self) -> PlanEntry:
         entry = self.wf.state.plans.get(self.approve_plan.value)
         if entry is None:
             raise WorkflowError("no plan to decide on: plan first")
@@ -325,7 +334,7 @@ def supervisor_markdown(state: State) -> str:
     return "\n".join(lines)
 
 
-def decisions_markdown(decisions: Any, key: str = "plan") -> str:
+def decisions_markdown(decisions: Iterable[Mapping[str, Any]], key: str = "plan") -> str:
     """Supervisors' decisions; names and reasons are outside text."""
     return "\n".join(
         f"- {md(d['decision'])} `{md(d.get(key))}` by {md(d.get('who'))}"
@@ -337,11 +346,11 @@ def decisions_markdown(decisions: Any, key: str = "plan") -> str:
 class SessionsPanel:
     """The `Sessions` tab: the stored sessions, replay of one, and its looks after each step."""
 
-    def __init__(self, gui: Any, wf: Workflow) -> None:
+    def __init__(self, gui: viser.GuiApi, wf: Workflow) -> None:
         g = gui
         self.wf = wf
-        self.last_sessions_key: Any = None
-        self.look_nodes: list[Any] = []
+        self.last_sessions_key: tuple | None = None
+        self.look_nodes: list[viser.SceneNodeHandle] = []
         self.sessions_md = g.add_markdown("")
         self.session_pick = g.add_dropdown("Session", ("—",), initial_value="—")
         self.btn_replay = g.add_button("Replay")
@@ -376,10 +385,10 @@ class SessionsPanel:
         self.session_pick.options = opts
         self.session_pick.value = cur if cur in opts else opts[0]
 
-    def start_replay(self, rec: dict) -> None:
-        self.replay_md.content = rec["summary_md"]
+    def start_replay(self, rec: ReplayView) -> None:
+        self.replay_md.content = rec.summary_md
         self.clear_look()
-        self.look_pick.options = ("—",) + tuple(lk["label"] for lk in rec.get("looks", ()))
+        self.look_pick.options = ("—",) + tuple(lk.label for lk in rec.looks)
         self.look_pick.value = "—"
 
     def end_replay(self) -> None:
@@ -394,14 +403,14 @@ class SessionsPanel:
         self.look_nodes = []
         self.look_md.content = ""
 
-    def show_look(self, scene_api: Any, look: dict) -> None:
+    def show_look(self, scene_api: viser.SceneApi, look: LookView) -> None:
         """A look's predicted poses as outlines and its table (the observed shelf is drawn by the view)."""
-        if look["predicted"] is not None:
-            self.look_nodes = sv.draw_outlines(scene_api, look["predicted"].boxes, prefix="/look")
-        self.look_md.content = look["md"]
+        if look.predicted is not None:
+            self.look_nodes = sv.draw_outlines(scene_api, look.predicted.boxes, prefix="/look")
+        self.look_md.content = look.md
 
 
-def _fmt_time(t: Any) -> str:
+def _fmt_time(t: float | str | None) -> str:
     if isinstance(t, (int, float)):
         return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
     return str(t or "")

@@ -13,14 +13,16 @@ import base64
 import colorsys
 import html
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from perception.scene import Box, Scene, quat_to_matrix
+from perception.scene import Box, Scene, Shelf, quat_to_matrix
+from planning.plan import Plan
 
-from console.store import SessionRecord
+from console.store import PlanRecord, SessionRecord
 from console.workflow import SECONDS_PER_BOX   # the estimate the console shows, defined once
 
 MAX_FRAMES_PER_STEP = 30
@@ -121,12 +123,26 @@ def _frames_of(step: Mapping) -> list[tuple[float, dict]]:
     return out
 
 
-def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> list[dict]:
+Polygon = list[list[float]]   # a front-view silhouette: [[x, z], ...]
+
+
+@dataclass(frozen=True, eq=False)
+class FrontKey:
+    """One keyframe of the replay's front-view animation: every box's silhouette at one moment."""
+
+    label: str
+    step: int                          # index in the plan's sequence; -1: the shelf as captured
+    polys: Mapping[str, Polygon]       # box id -> silhouette, for the boxes still on the shelf
+    pulled: str | None = None          # the box this step pulls
+    collapsed: tuple[str, ...] = field(default_factory=tuple)   # what this step's simulation judged collapsed
+
+
+def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> list[FrontKey]:
     """Front-view polygons per keyframe: the recorded preview when stored, else a step-by-step removal."""
     boxes = {b.id: b for b in scene.boxes}
-    keys: list[dict] = []
+    keys: list[FrontKey] = []
     still = {b.id: front_polygon(b, b.position, b.orientation) for b in scene.boxes}
-    keys.append({"label": "start", "step": -1, "polys": still})
+    keys.append(FrontKey("start", -1, still))
     recorded = bool(preview) and any(_frames_of(s) for s in preview if isinstance(s, Mapping))
     if recorded:
         removed: set[str] = set()
@@ -150,27 +166,25 @@ def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> li
                     if abs(pos[0]) > 10 or abs(pos[2]) > 10:  # parked off the shelf
                         continue
                     polys[bid] = front_polygon(boxes[bid], pos, quat)
-                keys.append({"label": f"step {i + 1}: pull {box_id}, t={t:.2f} s", "step": i,
-                             "polys": polys, "pulled": box_id,
-                             "collapsed": list(step.get("collapsed") or [])})
+                keys.append(FrontKey(f"step {i + 1}: pull {box_id}, t={t:.2f} s", i, polys, box_id,
+                                     tuple(step.get("collapsed") or ())))
             removed.add(str(box_id))
     else:
         gone: set[str] = set()
         for i, bid in enumerate(sequence):
             gone.add(bid)
-            keys.append({"label": f"step {i + 1}: {bid} removed (no recorded preview)", "step": i,
-                         "polys": {k: v for k, v in still.items() if k not in gone}, "pulled": bid,
-                         "collapsed": []})
+            keys.append(FrontKey(f"step {i + 1}: {bid} removed (no recorded preview)", i,
+                                 {k: v for k, v in still.items() if k not in gone}, bid))
     return keys
 
 
-def _svg(scene: Scene, keys: list[dict], anim_id: str, target: str | None,
+def _svg(scene: Scene, keys: list[FrontKey], anim_id: str, target: str | None,
          at_risk: Iterable[str]) -> str:
     s = scene.shelf
     tops = [max(c[2] for c in b.corners()) for b in scene.boxes] or [0.5]
     zmax = min(s.height, max(tops) + 0.25)
     x0, x1 = -s.width / 2 - 0.05, s.width / 2 + 0.05
-    lowest = min((z for k in keys for poly in k["polys"].values() for _, z in poly), default=0.0)
+    lowest = min((z for k in keys for poly in k.polys.values() for _, z in poly), default=0.0)
     z0, z1 = max(min(-0.05, lowest - 0.03), -1.0), zmax + 0.05   # boxes that fall off stay in view
     w, h = x1 - x0, z1 - z0
     risk = set(at_risk)
@@ -192,11 +206,11 @@ def _svg(scene: Scene, keys: list[dict], anim_id: str, target: str | None,
     return "".join(parts)
 
 
-def _animation(scene: Scene, plan: Any, preview: list | None, anim_id: str) -> str:
+def _animation(scene: Scene, plan: Plan, preview: list | None, anim_id: str) -> str:
     keys = keyframes(scene, plan.sequence, preview)
     at_risk = {m for p in plan.predicted for m in p.moved if p.collapse_prob > 0}
-    data = json.dumps({"keys": [{"label": k["label"], "polys": {b: [[x, -z] for x, z in poly]
-                                                                  for b, poly in k["polys"].items()}}
+    data = json.dumps({"keys": [{"label": k.label, "polys": {b: [[x, -z] for x, z in poly]
+                                                               for b, poly in k.polys.items()}}
                                 for k in keys]}, separators=(",", ":"))
     # outside text (box ids) inside a <script> element: no "<" at all, so no tag can end or open it
     data = data.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
@@ -212,7 +226,7 @@ def _pct(v: float | None) -> str:
     return "—" if v is None else f"{100 * v:.0f}%"
 
 
-def _plan_card(pr: Any, rec: SessionRecord, idx: int, approved: set[str]) -> str:
+def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[str]) -> str:
     plan = pr.plan
     pred = {p.box: p for p in plan.predicted}
     rows = []
@@ -238,9 +252,9 @@ def _plan_card(pr: Any, rec: SessionRecord, idx: int, approved: set[str]) -> str
             f'<h4>Predicted outcome (front view)</h4>{_animation(rec.scene, plan, pr.preview, f"anim{idx}")}</div>')
 
 
-def _scene_check(plan: Any) -> str:
+def _scene_check(plan: Plan) -> str:
     """What the planner found does not stand as seen, and what the physics adjusted (escaped)."""
-    extra = dict(getattr(plan, "extra", None) or {})
+    extra = dict(plan.extra or {})
     check = extra.get("scene_check") or {}
     out = ""
     if isinstance(check, Mapping) and not check.get("stands_as_seen", True):
@@ -290,7 +304,7 @@ def _outcome(rec: SessionRecord) -> str:
             + "".join(rows) + "</table>")
 
 
-def _look_svg(shelf: Any, predicted: Scene | None, observed: Scene | None, differ_p: set[str],
+def _look_svg(shelf: Shelf, predicted: Scene | None, observed: Scene | None, differ_p: set[str],
               differ_o: set[str]) -> str:
     """Front view of one look: observed boxes filled, predicted poses as dashed blue outlines
     (thick where the box differs), observed boxes that differ outlined in red."""
@@ -478,4 +492,4 @@ def export_html(rec: SessionRecord, out: str | Path) -> Path:
     return p
 
 
-__all__ = ["render_html", "export_html", "keyframes", "front_polygon", "png_data_uri"]
+__all__ = ["render_html", "export_html", "keyframes", "FrontKey", "front_polygon", "png_data_uri"]

@@ -29,9 +29,26 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, NamedTuple
 
-from planning.plan import PLANNERS  # the planners the console runs side by side
+from perception.scene import Box, Scene, Shelf
+from planning.plan import PLANNERS, Plan  # PLANNERS: the planners the console runs side by side
+
+if TYPE_CHECKING:   # for annotations only: importing these costs numpy, cv2 or the planner
+    import numpy as np
+
+    from console.robot_types import RobotDriver, RobotEvent, RobotOutcome
+    from console.sources import Frame, Source
+    from console.store import SessionStore
+    from console.verify import Tolerance, Verification
+    from perception.capture import Capture
+    from perception.pipeline import Perception
+    from perception.segment import Segmenter
+    from planning.bullet_clients import ClientPool
+    from planning.predict import Predictor
+    from planning.step_result import StepResult
+
+    PreviewStep = StepResult | Mapping[str, Any]   # a recorded step, or its JSON (a continued plan's)
 
 SECONDS_PER_BOX = 12.5  # estimated robot time per removed box (pull, place, return)
 AUTH_REFUSED = "wrong supervisor passphrase, or too many attempts: wait a moment and try again (recorded)"
@@ -45,10 +62,10 @@ class WorkflowError(Exception):
 class PlanEntry:
     """One planner's result for the current capture."""
 
-    plan: Any                      # planning.plan.Plan
+    plan: Plan
     hash: str
-    preview: tuple = ()            # StepResult list from Predictor.preview (recorded frames)
-    shelves: tuple = ()            # the perceived Scene after each step, as predicted (verification)
+    preview: tuple[PreviewStep, ...] = ()   # from Predictor.preview (recorded frames)
+    shelves: tuple[Scene, ...] = ()         # the perceived Scene after each step, as predicted (verification)
 
     @property
     def est_seconds(self) -> float:
@@ -68,10 +85,10 @@ class State:
     source: str = ""
     session_id: int | None = None
     frame_name: str = ""
-    capture: Any = None            # perception.capture.Capture
-    overlay: Any = None            # HxWx3 uint8 segmentation overlay
-    scene: Any = None              # perceived Scene
-    truth: Any = None              # true Scene when the source knows it (demo)
+    capture: Capture | None = None
+    overlay: np.ndarray | None = None   # HxWx3 uint8 segmentation overlay
+    scene: Scene | None = None          # perceived Scene
+    truth: Scene | None = None          # true Scene when the source knows it (demo)
     warnings: tuple[str, ...] = ()
     target: str | None = None
     task: str | None = None
@@ -84,15 +101,15 @@ class State:
     approval: Mapping[str, Any] | None = None   # plan, session, capture, who, decision id
     decisions: tuple[dict, ...] = ()
     robot: str = "idle"            # idle | running | stopping | done | stopped | failed
-    robot_events: tuple[Any, ...] = ()
-    outcome: Any = None            # console.robot.RobotOutcome
+    robot_events: tuple[RobotEvent, ...] = ()
+    outcome: RobotOutcome | None = None
     needs_recapture: bool = False
     scene_problems: tuple[dict, ...] = ()   # {"box", "what"}: the shelf does not stand as seen
     repairs: tuple[str, ...] = ()  # what the physics moved to make the perceived scene valid
     audit: str | None = None       # a record that could not be committed (persists until a capture is)
     recovered: tuple[str, ...] = ()  # runs found interrupted at start-up (crash, kill -9)
-    verifications: tuple[Any, ...] = ()  # console.verify.Verification of the current run, per step
-    deviation: Any = None          # Deviation: why the last run was held (shown until the next capture)
+    verifications: tuple[Verification, ...] = ()  # the look after each step of the current run
+    deviation: Deviation | None = None  # why the last run was held (shown until the next capture)
     message: str = ""
     error: str | None = None
 
@@ -123,7 +140,7 @@ class State:
         return "captured" if self.scene is not None else "empty"
 
 
-RobotFactory = Callable[[Any, int], Any]   # (truth Scene | None, seed) -> RobotDriver
+RobotFactory = Callable[[Scene | None, int], "RobotDriver"]   # (truth, seed) -> a driver for one run
 Listener = Callable[[State], None]
 
 
@@ -184,8 +201,8 @@ class Deviation:
     the workflow made current (session `session`), held from `held_session`.
     """
 
-    verification: Any              # console.verify.Verification
-    predicted: Any                 # Scene
+    verification: Verification
+    predicted: Scene | None        # None: the plan had no prediction for that step
     plan: str                      # hash of the held plan
     held_session: int
     session: int | None            # the verification capture's session (plan again from it)
@@ -206,20 +223,20 @@ class _Run:
     thread: threading.Thread | None = None
     stopped_by: str | None = None
     audit_failed: str | None = None  # a robot event that could not be committed: the run was stopped
-    scene: Any = None                # the perceived and (demo) true scene of the approved capture
-    truth: Any = None
+    scene: Scene | None = None       # the perceived and (demo) true scene of the approved capture
+    truth: Scene | None = None
     robot_run: str = ""              # the run id sent to the robot (keys its "already done"); recorded
-    verifications: list = field(default_factory=list)   # one Verification per verified step
-    held: tuple | None = None        # (Verification, Frame, Perception) that held the robot
+    verifications: list[Verification] = field(default_factory=list)   # one per verified step
+    held: Look | None = None         # the look that held the robot (it had a frame and a perception)
 
 
 class Workflow:
     """Thread-safe console state; the app calls these methods from any thread."""
 
-    def __init__(self, source: Any, store: Any, robot_factory: RobotFactory,
+    def __init__(self, source: Source | None, store: SessionStore, robot_factory: RobotFactory,
                  supervisor_passphrase: str, samples: int = 10, seed: int = 0,
-                 segmenter: Any = None, workers: int = 1, throttle: Throttle | None = None,
-                 tolerance: Any = None, perceive_options: Mapping[str, Any] | None = None) -> None:
+                 segmenter: Segmenter | None = None, workers: int = 1, throttle: Throttle | None = None,
+                 tolerance: Tolerance | None = None, perceive_options: Mapping[str, Any] | None = None) -> None:
         """`tolerance` (console.verify.Tolerance): how far a box may be from its predicted pose
         after a step before the robot is held; the look after each step needs a source with
         `look_again` (demo, files, RealSense). `perceive_options`: a cell file's `shelf` (used
@@ -249,7 +266,7 @@ class Workflow:
         self._last_run: _Run | None = None
         self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
         self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
-        self._clients: Any = None    # planning.bullet_clients.ClientPool: Bullet clients reused by every plan
+        self._clients: ClientPool | None = None    # Bullet clients reused by every plan
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced
         self._notify_cv = threading.Condition()
@@ -257,7 +274,7 @@ class Workflow:
         threading.Thread(target=self._notify_loop, name="shelfpick-notify", daemon=True).start()
         self._recover()
 
-    def _client_pool(self) -> Any:
+    def _client_pool(self) -> ClientPool:
         """The Bullet clients the plans of this console reuse (made at the first plan)."""
         from planning.bullet_clients import ClientPool
 
@@ -340,7 +357,7 @@ class Workflow:
         self._set(audit=msg)
         return msg
 
-    def _record(self, what: str, fn: Callable, *args: Any, **kw: Any) -> Any:
+    def _record(self, what: str, fn: Callable[..., Any], *args: Any, **kw: Any) -> Any:
         """Call the store for a record nothing waits on; a fault is shown (persistently), not raised."""
         try:
             return fn(*args, **kw)
@@ -426,7 +443,7 @@ class Workflow:
                              message=f"captured {frame.name}: {len(scene.boxes)} boxes"
                                      + (f" (session {sid})" if sid is not None else ""))
 
-    def _capture_failed(self, msg: str, frame: Any = None) -> State:
+    def _capture_failed(self, msg: str, frame: Frame | None = None) -> State:
         return self._set(capture=frame.capture if frame else None, overlay=None, scene=None,
                          truth=None, plans={}, approved=None, approval=None, decisions=(), target=None,
                          robot="idle", robot_events=(), outcome=None, planning=False, capturing=False,
@@ -497,7 +514,7 @@ class Workflow:
             if gen == self._generation:
                 self._set(progress=frac, progress_text=text)
 
-    def _plan_worker(self, gen: int, scene: Any, sid: int | None, task: str, target: str | None) -> None:
+    def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
         predictor = None
         try:
             from planning.predict import Predictor
@@ -532,8 +549,8 @@ class Workflow:
                 if self._state.planning and gen != self._generation:
                     self._state = replace(self._state, planning=False)
 
-    def _one_plan(self, gen: int, i: int, planner: str, scene: Any, task: str, target: str | None,
-                  predictor: Any, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
+    def _one_plan(self, gen: int, i: int, planner: str, scene: Scene, task: str, target: str | None,
+                  predictor: Predictor, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
         from planning.planner import make_plan
 
         n = len(PLANNERS)
@@ -821,10 +838,11 @@ class Workflow:
         committed before the answer is given (audit first): a verification
         that cannot be recorded, or cannot be made, holds the robot too.
         """
-        def verify(step: int, box: str, world: Any = None) -> str | None:
+        def verify(step: int, box: str, world: Scene | None = None) -> str | None:
             from console.verify import unavailable
 
-            v, frame, perception, predicted = self._look(run, step, box, world)
+            look = self._look(run, step, box, world)
+            v, perception, predicted = look.verification, look.perception, look.predicted
             try:
                 self.store.add_verification(run.session_id, run.plan_hash, run.robot_run, v.to_json(), predicted,
                                             perception.scene if perception is not None else None)
@@ -836,21 +854,21 @@ class Workflow:
                 self._set(verifications=tuple(run.verifications), message=v.summary())
             if v.within:
                 return None
-            if frame is not None and perception is not None:
-                run.held = (v, frame, perception, predicted)
+            if look.frame is not None and perception is not None:
+                run.held = look._replace(verification=v)
             return v.summary()
         return verify
 
-    def _look(self, run: _Run, step: int, box: str, world: Any) -> tuple:
-        """(Verification, Frame | None, Perception | None, predicted Scene | None) after `step`."""
+    def _look(self, run: _Run, step: int, box: str, world: Scene | None) -> Look:
+        """The look after `step`: the new frame compared with the shelf the plan predicted."""
         shelves = run.entry.shelves
         predicted = shelves[step] if step < len(shelves) else None
         removed = run.scene.box(box) if box in run.scene.ids else None
         return look_again(self.source, world, step, box, predicted, run.scene.shelf, self.segmenter,
                           self.tolerance, self.perceive_options, removed)
 
-    def _on_event(self, run: _Run) -> Callable[[Any], None]:
-        def on_event(ev: Any) -> None:
+    def _on_event(self, run: _Run) -> Callable[[RobotEvent], None]:
+        def on_event(ev: RobotEvent) -> None:
             try:
                 self.store.add_robot_event(run.session_id, run.plan_hash, ev.kind, ev.step, ev.box,
                                            dict(ev.detail) if ev.detail else None)
@@ -863,7 +881,7 @@ class Workflow:
                 self._set(robot_events=events, message=f"robot: {ev.kind}{step}" + (f" ({ev.box})" if ev.box else ""))
         return on_event
 
-    def _finish(self, run: _Run, run_id: int, outcome: Any, err: str | None) -> None:
+    def _finish(self, run: _Run, run_id: int, outcome: RobotOutcome | None, err: str | None) -> None:
         stop_asked = run.stop.is_set()
         ok = outcome is not None and outcome.ok
         if stop_asked and not ok:
@@ -874,7 +892,7 @@ class Workflow:
         else:
             status, msg = "failed", "robot stopped on an error"
         if run.held is not None and status == "failed":
-            status, msg = "held", f"robot held: {run.held[0].summary()}"
+            status, msg = "held", f"robot held: {run.held.verification.summary()}"
         elif run.verifications and not run.verifications[-1].within and status == "failed":
             status, msg = "held", f"robot held: {run.verifications[-1].summary()}"
         if run.audit_failed:
@@ -898,7 +916,8 @@ class Workflow:
             self._set(robot=status, outcome=outcome, needs_recapture=True, approval=None, message=msg,
                       error=err if status not in ("stopped", "held") or run.audit_failed else None)
 
-    def _held_capture(self, run: _Run, status: str, outcome: Any, msg: str, err: str | None) -> bool:
+    def _held_capture(self, run: _Run, status: str, outcome: RobotOutcome | None, msg: str,
+                      err: str | None) -> bool:
         """The look that held the robot becomes the current capture: plan again from it, or continue.
 
         A new session (its images and perceived scene, linked to the held one)
@@ -906,7 +925,7 @@ class Workflow:
         `continue` plan: the rest of the held plan in the new capture's ids,
         which a supervisor may approve (ticking `Accept predicted risk`).
         """
-        v, frame, perception, predicted = run.held
+        v, frame, perception, predicted = run.held   # set only with a frame and its perception
         info = {"frame": frame.name, **_summary(perception),
                 "verification_of": {"session": run.session_id, "plan": run.plan_hash, "step": v.step,
                                     "run": run.robot_run}}
@@ -942,13 +961,23 @@ class Workflow:
         return True
 
 
-def look_again(source: Any, world: Any, step: int, box: str, predicted: Any, shelf: Any,
-               segmenter: Any = None, tolerance: Any = None,
-               perceive_options: Mapping[str, Any] | None = None, removed: Any = None,
-               confirm: bool = True) -> tuple:
+class Look(NamedTuple):
+    """One look after a step: the verdict, the frame and its perception (None when there was no
+    frame or perception failed) and the shelf the plan predicted (None: no prediction)."""
+
+    verification: Verification
+    frame: Frame | None
+    perception: Perception | None
+    predicted: Scene | None
+
+
+def look_again(source: Source, world: Scene | None, step: int, box: str, predicted: Scene | None,
+               shelf: Shelf | None, segmenter: Segmenter | None = None, tolerance: Tolerance | None = None,
+               perceive_options: Mapping[str, Any] | None = None, removed: Box | None = None,
+               confirm: bool = True) -> Look:
     """The console's look after `step`: a new frame, perceived, compared with the `predicted` shelf.
 
-    Returns (Verification, Frame | None, Perception | None, predicted). A
+    Returns a `Look` (verification, frame, perception, predicted). A
     camera or perception fault, no new frame or no prediction is a verdict
     that holds (`unavailable`), never an exception. `shelf`: the installation's
     shelf when the frame knows no truth; `removed`: the box the step took out, as
@@ -961,23 +990,24 @@ def look_again(source: Any, world: Any, step: int, box: str, predicted: Any, she
     """
     first = _look_once(source, world, step, box, predicted, shelf, segmenter, tolerance, perceive_options,
                        removed, 0)
-    v = first[0]
+    v = first.verification
     if not confirm or v.within or v.unavailable:
-        return first + (predicted,)
+        return first
     second = _look_once(source, world, step, box, predicted, shelf, segmenter, tolerance, perceive_options,
                         removed, 1)
-    timing = {k: v.timing.get(k, 0.0) + second[0].timing.get(k, 0.0) for k in v.timing}
-    if second[0].within:
-        return (replace(second[0], timing=timing, unconfirmed=v.summary()),) + second[1:] + (predicted,)
-    if second[0].unavailable:
-        return (replace(v, timing=timing),) + first[1:] + (predicted,)
-    return (replace(second[0], timing=timing),) + second[1:] + (predicted,)
+    v2 = second.verification
+    timing = {k: v.timing.get(k, 0.0) + v2.timing.get(k, 0.0) for k in v.timing}
+    if v2.within:
+        return second._replace(verification=replace(v2, timing=timing, unconfirmed=v.summary()))
+    if v2.unavailable:
+        return first._replace(verification=replace(v, timing=timing))
+    return second._replace(verification=replace(v2, timing=timing))
 
 
-def _look_once(source: Any, world: Any, step: int, box: str, predicted: Any, shelf: Any, segmenter: Any,
-               tolerance: Any, perceive_options: Mapping[str, Any] | None, removed: Any,
-               attempt: int) -> tuple:
-    """One frame, perceived and compared: (Verification, Frame | None, Perception | None)."""
+def _look_once(source: Source, world: Scene | None, step: int, box: str, predicted: Scene | None,
+               shelf: Shelf | None, segmenter: Segmenter | None, tolerance: Tolerance | None,
+               perceive_options: Mapping[str, Any] | None, removed: Box | None, attempt: int) -> Look:
+    """One frame, perceived and compared."""
     from console.verify import Tolerance, compare, unavailable
     from perception.pipeline import perceive
 
@@ -986,26 +1016,28 @@ def _look_once(source: Any, world: Any, step: int, box: str, predicted: Any, she
     try:
         frame = source.look_again(world, step, attempt) if attempt else source.look_again(world, step)
     except Exception as exc:  # noqa: BLE001 - a camera fault holds the robot, it is not a crash
-        return unavailable(step, box, f"camera: {exc}", tol), None, None
+        return Look(unavailable(step, box, f"camera: {exc}", tol), None, None, predicted)
     if frame is None:
-        return unavailable(step, box, "the source has no new frame since the last capture", tol), None, None
+        return Look(unavailable(step, box, "the source has no new frame since the last capture", tol), None, None,
+                    predicted)
     t1 = time.perf_counter()
     try:
         opts = {k: v for k, v in (perceive_options or {}).items() if k != "shelf"}
         perception = perceive(frame.capture, segmenter,
                               shelf=frame.truth.shelf if frame.truth is not None else shelf, **opts)
     except Exception as exc:  # noqa: BLE001
-        return unavailable(step, box, f"perception: {exc}", tol), frame, None
+        return Look(unavailable(step, box, f"perception: {exc}", tol), frame, None, predicted)
     t2 = time.perf_counter()
     if predicted is None:
         v = unavailable(step, box, "the plan has no predicted shelf for this step", tol)
     else:
         v = compare(predicted, perception.scene, step, box, tol, removed)
     t3 = time.perf_counter()
-    return replace(v, timing={"capture_s": t1 - t0, "perceive_s": t2 - t1, "compare_s": t3 - t2}), frame, perception
+    return Look(replace(v, timing={"capture_s": t1 - t0, "perceive_s": t2 - t1, "compare_s": t3 - t2}), frame,
+                perception, predicted)
 
 
-def _seed_history(robot: Any, plan_hash: str, done: dict[int, str]) -> None:
+def _seed_history(robot: RobotDriver, plan_hash: str, done: dict[int, str]) -> None:
     """The driver's step history for this run: what this session already did, nothing else.
 
     The drivers keep a process-wide history keyed by plan hash alone; a new
@@ -1021,13 +1053,13 @@ def _seed_history(robot: Any, plan_hash: str, done: dict[int, str]) -> None:
     robot.history = hist
 
 
-def _mapped_target(plan: Any, v: Any, scene: Any) -> str | None:
+def _mapped_target(plan: Plan, v: Verification, scene: Scene) -> str | None:
     """The held plan's target in the new capture's ids (else the new capture's last box)."""
     t = v.observed_of().get(plan.target) if plan.target else None
     return t or (scene.ids[-1] if scene.boxes else None)
 
 
-def _continuation(entry: PlanEntry, v: Any, scene: Any, held_session: int) -> PlanEntry | None:
+def _continuation(entry: PlanEntry, v: Verification, scene: Scene, held_session: int) -> PlanEntry | None:
     """The rest of the held plan in the new capture's ids; None when a box still to take was not seen.
 
     Its predicted shelves carry the held plan's simulated motions on from
@@ -1060,11 +1092,11 @@ def _continuation(entry: PlanEntry, v: Any, scene: Any, held_session: int) -> Pl
     return PlanEntry(cont, cont.content_hash(), preview, shelves)
 
 
-def _renamed_poses(poses: Mapping[str, Any], ids: Mapping[str, str]) -> dict:
+def _renamed_poses(poses: Mapping[str, Any], ids: Mapping[str, str]) -> dict[str, Any]:
     return {ids[b]: p for b, p in poses.items() if b in ids}
 
 
-def _renamed(step: Any, ids: Mapping[str, str]) -> dict:
+def _renamed(step: PreviewStep, ids: Mapping[str, str]) -> dict[str, Any]:
     """A recorded preview step (object or JSON) with the box ids of another capture."""
     doc = _step_json(step) if not isinstance(step, Mapping) else dict(step)
     doc["box"] = ids.get(doc.get("box"), doc.get("box"))
@@ -1074,9 +1106,9 @@ def _renamed(step: Any, ids: Mapping[str, str]) -> dict:
     return doc
 
 
-def scene_problems(plan: Any) -> tuple[dict, ...]:
+def scene_problems(plan: Plan) -> tuple[dict, ...]:
     """plan.extra["scene_check"]["problems"] when the shelf does not stand as seen, else ()."""
-    check = (getattr(plan, "extra", None) or {}).get("scene_check") or {}
+    check = (plan.extra or {}).get("scene_check") or {}
     if not isinstance(check, Mapping) or check.get("stands_as_seen", True):
         return ()
     probs = check.get("problems") or [{"box": None, "what": "does not stand as seen"}]
@@ -1087,14 +1119,14 @@ def problem_text(p: Mapping[str, Any]) -> str:
     return (f"box {p['box']}" if p.get("box") else "the scene") + f" {p.get('what', '')}".rstrip()
 
 
-def _summary(perception: Any) -> dict:
+def _summary(perception: Perception) -> dict:
     try:
         return dict(perception.summary())
     except Exception:  # noqa: BLE001 - an older Perception without summary()
         return {"warnings": list(perception.warnings), "timing": dict(perception.timing)}
 
 
-def _step_json(result: Any) -> dict:
+def _step_json(result: PreviewStep) -> dict:
     """A preview step with its recorded frames, so a replay can animate it without the server."""
     try:
         return result.to_json(frames=True)
@@ -1102,7 +1134,7 @@ def _step_json(result: Any) -> dict:
         return result.to_json()
 
 
-def _outcome_json(outcome: Any, err: str | None, entry: PlanEntry, stopped: bool,
+def _outcome_json(outcome: RobotOutcome | None, err: str | None, entry: PlanEntry, stopped: bool,
                   stopped_by: str | None = None) -> dict:
     doc: dict[str, Any] = {"plan": entry.hash, "planner": entry.plan.planner,
                            "sequence": list(entry.plan.sequence), "stopped": stopped}

@@ -92,9 +92,9 @@ def test_app_serves_and_replays_a_stored_session(tmp_path):
                             "steps": [{"step": 0, "box": "b1", "status": "done"},
                                       {"step": 1, "box": "b0", "status": "error"}]})
     view = record_view(store.load_session(sid))
-    assert view["rgb"].shape == cap.rgb.shape and view["scene"].ids == ("b0",)
-    assert set(view["plans"]) == {"physics", "heuristic"} and view["target"] == "b0"
-    md = html.unescape(view["summary_md"])      # what the browser shows (outside text is entity-escaped)
+    assert view.rgb.shape == cap.rgb.shape and view.scene.ids == ("b0",)
+    assert set(view.plans) == {"physics", "heuristic"} and view.target == "b0"
+    md = html.unescape(view.summary_md)      # what the browser shows (outside text is entity-escaped)
     assert f"approve `{h}` by sue" in md and "completed: b1" in md and "collapsed: b3" in md
     assert "| 2 | b0 | 0% |" in md
 
@@ -104,7 +104,7 @@ def test_app_serves_and_replays_a_stored_session(tmp_path):
         assert app.port > 0 and app.url.startswith("http://127.0.0.1:")
         with urllib.request.urlopen(app.url, timeout=10) as r:
             assert r.status == 200 and b"<html" in r.read().lower()
-        assert app.load_replay(sid)["id"] == sid
+        assert app.load_replay(sid).id == sid
     finally:
         app.stop()
         store.close()

@@ -52,13 +52,13 @@ def test_keyframes_follow_the_recorded_collapse() -> None:
     finally:
         sim.close()
     keys = keyframes(scene, ("b0",), preview)
-    assert len(keys) > 3 and keys[0]["label"] == "start"
-    top0 = max(z for _, z in keys[0]["polys"]["b1"])
-    top_end = max(z for _, z in keys[-1]["polys"]["b1"]) if "b1" in keys[-1]["polys"] else -1.0
+    assert len(keys) > 3 and keys[0].label == "start"
+    top0 = max(z for _, z in keys[0].polys["b1"])
+    top_end = max(z for _, z in keys[-1].polys["b1"]) if "b1" in keys[-1].polys else -1.0
     assert top0 == pytest.approx(0.4, abs=0.01)
     assert top_end < top0 - 0.1  # b1 fell when b0 was pulled from under it
     static = keyframes(scene, ("b2", "b0"), None)
-    assert [sorted(k["polys"]) for k in static] == [["b0", "b1", "b2"], ["b0", "b1"], ["b1"]]
+    assert [sorted(k.polys) for k in static] == [["b0", "b1", "b2"], ["b0", "b1"], ["b1"]]
 
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"

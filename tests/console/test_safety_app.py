@@ -161,7 +161,7 @@ def test_replay_shows_outside_text_literally(tmp_path):
     assert text.count(MARKUP) >= 5 and "The shelf does not stand as seen" in text
     from console.app import record_view
     view = record_view(store.load_session(sid))
-    assert literal(view["summary_md"], MARKUP) and literal(view["plans_md"], MARKUP)
+    assert literal(view.summary_md, MARKUP) and literal(view.plans_md, MARKUP)
     store.close()
 
 
