@@ -17,7 +17,8 @@ that test in typical ways:
 Every repair only acts when the catalogue explains the result, within `tol`, so
 a capture of other boxes (real data) is left as it is; the catalogue is a
 parameter (`Catalogue(types=...)`), the reference types are the default.
-`apply_catalogue` runs the repairs, each a step `(masks, context) -> (masks, notes)`.
+`apply_catalogue` runs the repairs, each a step `(masks, context) -> (masks, notes)`, and
+returns the masks, their faces and the notes.
 """
 from __future__ import annotations
 
@@ -171,23 +172,21 @@ STEPS: tuple[Step, ...] = (join_pieces, _split_and_cut, split_stepped_faces, tak
 
 
 def apply_catalogue(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, rgb: np.ndarray | None,
-                    cat: Catalogue, notes: list[str] | None = None) -> tuple[list[np.ndarray], list]:
-    """The masks repaired by `STEPS` in order, and their measured faces (None where a mask
-    cannot be measured), so the pipeline need not measure them again; what was changed is
-    appended to `notes`. A capture where the types do not explain the faces is left alone."""
+                    cat: Catalogue) -> tuple[list[np.ndarray], list[FrontFace | None], list[str]]:
+    """The masks repaired by `STEPS` in order; their measured faces (None where a mask cannot
+    be measured), so the pipeline need not measure them again; and what was changed, one line
+    each. A capture where the types do not explain the faces is left alone (no notes)."""
     ctx = RepairContext(depth, camera, cat, rgb, FaceCache())
     masks = [np.asarray(m, bool) for m in masks]
     measured = [ctx.measure(m) for m in masks]
+    notes: list[str] = []
     if _applies(measured, cat):
-        done: list[str] = []
         for step in STEPS:
             masks, said = step(masks, ctx)
-            done += said
-        if notes is not None:
-            notes.extend(done)
+            notes += said
         measured = [ctx.measure(m) for m in masks]
     # (not a capture of these box types, e.g. another warehouse or real data: left alone)
-    return masks, [None if f is None else f.face for f in measured]
+    return masks, [None if f is None else f.face for f in measured], notes
 
 
 def _applies(measured: list[Measured | None], cat: Catalogue) -> bool:

@@ -15,10 +15,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from perception.errors import PerceptionError
 from perception.geometry import backproject, matrix_to_quat, ray_plane
+from perception.masks import border_sides
 from perception.scene import Box, Camera, Shelf, quat_to_matrix
 
 
@@ -52,8 +54,6 @@ def _rect_long_edge(pts: np.ndarray) -> tuple[tuple[float, float], float, float,
     The angle is that of the rectangle edge closest to the x axis; width is the
     extent along it. OpenCV's own (w, h, angle) convention is not used.
     """
-    import cv2
-
     rect = cv2.minAreaRect(pts.astype(np.float32))
     corners = cv2.boxPoints(rect).astype(np.float64)
     e1 = corners[1] - corners[0]
@@ -82,8 +82,6 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
 
     Works on the mask's bounding box (the camera's principal point shifted with it):
     the same numbers as on the full frame, several times faster."""
-    import cv2
-
     mask = np.asarray(mask, bool)
     rows = np.flatnonzero(mask.any(axis=1))
     if len(rows) == 0:
@@ -102,6 +100,39 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     m = mask.astype(np.uint8)
     if m.sum() < 20:
         return None
+    got = _face_points(m, depth, camera, erode_px)
+    if got is None:
+        return None
+    pts, dmed = got
+    centre, normal, pts = _vertical_plane(pts)
+    yaw = math.degrees(math.atan2(-normal[0], normal[1]))
+    tilt, yaw3 = _tilt(pts, centre)
+    if abs(tilt) >= tilt_snap:
+        yaw = yaw3                       # a leaning face: the 3-D plane's own yaw
+    else:
+        tilt = 0.0                       # an upright face: the vertical plane, as before
+    if abs(yaw) < 2.0:
+        yaw = 0.0
+    normal = face_normal(yaw, tilt)
+    # outline of the full mask cast onto the plane
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    outline = np.concatenate([c.reshape(-1, 2) for c in contours], axis=0).astype(np.float64)
+    got_axes = _in_plane_axes(outline, camera, centre, normal, angle_snap)
+    if got_axes is None:
+        return None
+    angle, ex, ez = got_axes
+    c3, width, height = _extents(m, camera, centre, normal, ex, ez)
+    rect_px = cv2.minAreaRect(outline.astype(np.float32))
+    return FrontFace(tuple(float(x) for x in c3), float(width), float(height), float(angle),  # type: ignore[arg-type]
+                     float(yaw), dmed, int(m.sum()), rect_px, float(tilt))
+
+
+def _face_points(m: np.ndarray, depth: np.ndarray, camera: Camera,
+                 erode_px: int) -> tuple[np.ndarray, float] | None:
+    """Shelf-frame points of the eroded mask's valid depth within a few cm of its median (at
+    most ~6000), and that median depth; None with fewer than 10 valid pixels."""
     k = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)
     inner = cv2.erode(m, k) > 0
     if inner.sum() < 20:
@@ -118,8 +149,12 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     if len(z) > 6000:
         step = len(z) // 6000 + 1
         vs, us, z = vs[::step], us[::step], z[::step]
-    pts = backproject(camera, us, vs, z)
-    # plane: vertical (normal in the shelf x-y plane); robust fit of its direction
+    return backproject(camera, us, vs, z), dmed
+
+
+def _vertical_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centre, normal, inlier points) of a vertical plane (normal in the shelf x-y plane)
+    fitted robustly to the points: two rounds of a PCA in x-y, outliers dropped."""
     centre = np.median(pts, axis=0)
     normal = np.array([0.0, 1.0, 0.0])
     for _ in range(2):
@@ -136,20 +171,13 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
         if inl.sum() >= 10:
             centre = np.median(pts[inl], axis=0)
             pts = pts[inl]
-    yaw = math.degrees(math.atan2(-normal[0], normal[1]))
-    tilt, yaw3 = _tilt(pts, centre)
-    if abs(tilt) >= tilt_snap:
-        yaw = yaw3                       # a leaning face: the 3-D plane's own yaw
-    else:
-        tilt = 0.0                       # an upright face: the vertical plane, as before
-    if abs(yaw) < 2.0:
-        yaw = 0.0
-    normal = face_normal(yaw, tilt)
-    # outline of the full mask cast onto the plane
-    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        return None
-    outline = np.concatenate([c.reshape(-1, 2) for c in contours], axis=0).astype(np.float64)
+    return centre, normal, pts
+
+
+def _in_plane_axes(outline: np.ndarray, camera: Camera, centre: np.ndarray, normal: np.ndarray,
+                   angle_snap: float) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """(angle, ex, ez): the in-plane turn (deg) of the outline cast onto the face plane, and
+    the face's x and z axes turned by it; None when fewer than 4 outline rays hit the plane."""
     hit = ray_plane(camera, outline[:, 0], outline[:, 1], centre, normal)
     hit = hit[np.all(np.isfinite(hit), axis=1)]
     if len(hit) < 4:
@@ -161,8 +189,17 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     _, _, _, angle = _rect_long_edge(ab * 1000.0)   # orientation from the outline (mm precision)
     if abs(angle) < angle_snap:
         angle = 0.0
-    # extents from weighted quantiles of every mask pixel cast onto the plane: a few stray
-    # pixels cannot inflate the rectangle, and pixel footprints (~z^3) weight the far side fairly
+    a = math.radians(angle)
+    ex = math.cos(a) * u_ax + math.sin(a) * v_ax
+    ez = -math.sin(a) * u_ax + math.cos(a) * v_ax
+    return angle, ex, ez
+
+
+def _extents(m: np.ndarray, camera: Camera, centre: np.ndarray, normal: np.ndarray,
+             ex: np.ndarray, ez: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """(centre, width, height) of the face along ex, ez: weighted quantiles of every mask pixel
+    cast onto the plane, so a few stray pixels cannot inflate the rectangle, and pixel
+    footprints (~z^3) weight the far side fairly."""
     ys_all, xs_all = np.nonzero(m)
     if len(xs_all) > 20000:
         st = len(xs_all) // 20000 + 1
@@ -171,9 +208,6 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     okp = np.all(np.isfinite(allp), axis=1)
     allp = allp[okp]
     rel = allp - centre
-    a = math.radians(angle)
-    ex = math.cos(a) * u_ax + math.sin(a) * v_ax
-    ez = -math.sin(a) * u_ax + math.cos(a) * v_ax
     cam_t = np.asarray(camera.position, dtype=np.float64)
     wts = np.linalg.norm(allp - cam_t, axis=1) ** 3
     q = 0.02
@@ -181,9 +215,7 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     width = (x_hi - x_lo) / (1 - 2 * q)
     height = (z_hi - z_lo) / (1 - 2 * q)
     c3 = centre + ex * (x_lo + x_hi) / 2 + ez * (z_lo + z_hi) / 2
-    rect_px = cv2.minAreaRect(outline.astype(np.float32))
-    return FrontFace(tuple(float(x) for x in c3), float(width), float(height), float(angle),  # type: ignore[arg-type]
-                     float(yaw), dmed, int(m.sum()), rect_px, float(tilt))
+    return c3, width, height
 
 
 def _tilt(pts: np.ndarray, centre: np.ndarray, rounds: int = 3) -> tuple[float, float]:
@@ -277,11 +309,24 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
     into the shelf. Placeholder depths shrink to fit before the back wall.
     """
     notes: list[str] = []
-    out: list[Box] = []
-    for b in boxes:
-        b = _clamp(b, shelf, notes)
-        out.append(b)
-    # sideways: neighbours at the same height overlapping a little
+    out = [_clamp(b, shelf, notes) for b in boxes]
+    out, said = _push_apart(out, snap, min_contact)
+    notes += said
+    out = [_clamp(b, shelf, notes) for b in out]
+    out, said = _rest_on_supports(out, snap, min_contact)
+    notes += said
+    for b in out:
+        top = _aabb(b)[1, 2]
+        if top > shelf.height + 1e-6:
+            notes.append(f"{b.id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m")
+    return out, notes
+
+
+def _push_apart(boxes: list[Box], snap: float, min_contact: float) -> tuple[list[Box], list[str]]:
+    """Neighbours side by side at one height that overlap sideways by at most `snap`, moved
+    apart by half the overlap each; and what was moved."""
+    out = list(boxes)
+    notes: list[str] = []
     order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 0])
     for ii, i in enumerate(order):
         for j in order[ii + 1:]:
@@ -299,9 +344,14 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
             out[left] = _moved(out[left], np.array([-half, 0, 0]))
             out[right] = _moved(out[right], np.array([half, 0, 0]))
             notes.append(f"{out[left].id}/{out[right].id}: pushed apart sideways by {ox * 100:.1f} cm overlap")
-    for i in range(len(out)):
-        out[i] = _clamp(out[i], shelf, notes)
-    # vertical: rest every box on what is under it, lowest first
+    return out, notes
+
+
+def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tuple[list[Box], list[str]]:
+    """Every box, lowest first, moved up or down onto the floor or the highest box under it;
+    and what was moved (more than 1 mm)."""
+    out = list(boxes)
+    notes: list[str] = []
     order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 2])
     placed: list[int] = []
     for i in order:
@@ -328,10 +378,6 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
         elif delta != 0:
             out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
         placed.append(i)
-    for i in range(len(out)):
-        top = _aabb(out[i])[1, 2]
-        if top > shelf.height + 1e-6:
-            notes.append(f"{out[i].id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m")
     return out, notes
 
 
@@ -408,10 +454,6 @@ def not_a_face(f: FrontFace, mask: np.ndarray) -> str:
     """Why a mask on the shelf is still no box front ('' when it can be): a ragged region filling
     its rectangle less than `MIN_RECT_FILL` (the dark edge of a machine base), or a long thin
     strip not cut by the top/left/right border (pallet boards seen from above, shelf lips)."""
-    import cv2
-
-    from perception.masks import border_sides
-
     ys, xs = np.nonzero(mask)
     if len(xs) < 3:
         return ""
@@ -468,8 +510,6 @@ def planar_depth(camera: Camera, distance: float) -> np.ndarray:
 
 def distance_from_box_size(masks: list[np.ndarray], camera: Camera, box_size: tuple[float, float]) -> float:
     """The distance at which the median mask's pixel size matches a known front-face size (W, H in m)."""
-    import cv2
-
     if len(box_size) != 2 or min(box_size) <= 0:
         raise PerceptionError(f"--box-size needs two positive sizes in metres (W H), got {box_size!r}")
     long_m, short_m = max(box_size), min(box_size)

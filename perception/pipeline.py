@@ -7,16 +7,19 @@ belong to the image, a distance that is not a distance).
 """
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
+import cv2
 import numpy as np
 
 from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
                               distance_from_box_size, make_valid, measure_front, planar_depth)
 from perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
 from perception.capture import Capture
-from perception.geometry import check_intrinsics, point_map
+from perception.geometry import check_intrinsics, point_map, pose_matrix
 from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from perception.overlay import draw_overlay
 from perception.repairs.border_cut import complete_cut_face
@@ -98,14 +101,10 @@ def looks_away(camera, shelf: Shelf, min_cos: float = 0.2) -> str:
     """A warning ('' if none) when the camera's optical axis does not point into the shelf
     (shelf +y): a pose with a sign or axis mixed up sees no shelf, and the scene comes out
     empty or nonsensical; the user should hear why."""
-    from perception.geometry import pose_matrix
-
     rot, _ = pose_matrix(camera)
     c = float(rot[1, 2])
     if c >= min_cos:
         return ""
-    import math
-
     return (f"the camera looks {math.degrees(math.acos(max(-1.0, min(1.0, c)))):.0f} deg away from the shelf's "
             "depth axis (+y, into the shelf): check its pose.orientation")
 
@@ -118,9 +117,6 @@ MAX_PIXELS = 1920 * 1080
 def _scaled_capture(capture: Capture, s: float) -> Capture:
     """The capture at `s` times its size: RGB by area, depth by nearest pixel (no blending across
     holes or steps), intrinsics scaled about pixel centres."""
-    import cv2
-    from dataclasses import replace
-
     h, w = capture.shape
     sw, sh = max(1, int(w * s)), max(1, int(h * s))
     kx, ky = sw / w, sh / h
@@ -146,21 +142,9 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     check_intrinsics(capture.camera, capture.shape, origin)
     h, w = capture.shape
     if h * w > max_pixels:
-        import cv2
-        from dataclasses import replace
-
-        small = _scaled_capture(capture, (max_pixels / (h * w)) ** 0.5)
-        res = perceive(small, segmenter, shelf, front_distance=front_distance, box_size=box_size,
-                       placeholder=placeholder, origin=origin, catalogue=catalogue,
-                       max_pixels=small.shape[0] * small.shape[1])   # once: never scaled again
-        labels = cv2.resize(res.masks, (w, h), interpolation=cv2.INTER_NEAREST)
-        t = time.perf_counter()
-        overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in res.scene.boxes if b.mask_label})
-        timing = dict(res.timing, overlay=res.timing.get("overlay", 0.0) + time.perf_counter() - t)
-        timing["total"] = time.perf_counter() - t0
-        note = f"image {w}x{h} perceived at {small.shape[1]}x{small.shape[0]} (over {max_pixels} pixels)"
-        return replace(res, scene=replace(res.scene, camera=capture.camera), masks=labels, overlay=overlay,
-                       warnings=(note,) + res.warnings, timing=timing)
+        return _perceive_scaled(capture, max_pixels, t0, segmenter=segmenter, shelf=shelf,
+                                front_distance=front_distance, box_size=box_size, placeholder=placeholder,
+                                origin=origin, catalogue=catalogue)
     timing: dict[str, float] = {}
     warnings: list[str] = []
     camera = capture.camera
@@ -171,31 +155,14 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     seg = for_capture(seg, capture.depth is not None)
     if hasattr(seg, "bind"):
         seg = seg.bind(camera, shelf)  # type: ignore[union-attr]
-    depth = capture.depth
-    used_distance = None
-    if depth is None:
-        if front_distance is None and box_size is None:
-            front_distance = default_front_distance(camera)
-            warnings.append(f"no depth image: assuming a flat front {front_distance:.2f} m from the camera "
-                            "(give --front-distance or --box-size)")
-        used_distance = front_distance if front_distance is not None else default_front_distance(camera)
-        depth = planar_depth(camera, used_distance)
+    depth, used_distance, flat = _stand_in_depth(capture, front_distance, box_size)
+    if flat:
+        warnings.append(flat)
     t = time.perf_counter()
     raw = seg.segment(capture.rgb, depth)
     timing["segment"] = time.perf_counter() - t
     t = time.perf_counter()
-    union = np.any(raw, axis=0) if raw else None
-    scale = pixel_scale(capture.depth, union)       # 1.0 without depth (the distance is a guess)
-    minpx = _min_pixels(capture.shape, scale)
-    masks = refine(raw, capture.depth, min_pixels=minpx)
-    masks = grow_on_plane(masks, capture.depth, camera, rgb=capture.rgb,
-                          allowed=_inside_shelf(capture.depth, camera, shelf))
-    catalogue_notes: list[str] = []
-    if catalogue is not None and capture.depth is not None and masks:
-        masks, measured = apply_catalogue(masks, capture.depth, camera, capture.rgb,
-                                          catalogue.scaled(scale).within(shelf.depth), catalogue_notes)
-    else:
-        measured = None
+    masks, measured, scale, catalogue_notes = _clean_masks(raw, capture, shelf, catalogue)
     timing["masks"] = time.perf_counter() - t
     if capture.depth is None and box_size is not None and front_distance is None and masks:
         used_distance = distance_from_box_size(masks, camera, box_size)
@@ -203,18 +170,9 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
         warnings.append(f"no depth image: front at {used_distance:.3f} m derived from the box size "
                         f"{box_size[0]:g} x {box_size[1]:g} m")
     t = time.perf_counter()
-    if measured is None or depth is not capture.depth:
-        measured = [measure_front(m, depth, camera) for m in masks]
-    # a face cut by the image border is completed to a type face only in a capture of these types
-    types = catalogue if capture.depth is not None and catalogue is not None and masks and \
-        catalogue_applies(measured, masks, catalogue.within(shelf.depth)) else None
-    measured, completed = _complete_cut_faces(masks, measured, camera, types)
-    boxes, masks, faces, w = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured)
-    warnings.extend(w)
-    warnings.extend(_border_warnings(boxes, masks))
-    cut_notes = [f"{b.id}: {completed[id(f)]}" for b, f in zip(boxes, faces) if id(f) in completed]
-    boxes, notes = make_valid(boxes, shelf)
-    notes = catalogue_notes + cut_notes + notes
+    boxes, masks, faces, said, notes = _boxes(masks, measured, depth, capture, shelf, catalogue, placeholder)
+    warnings.extend(said)
+    notes = catalogue_notes + notes
     timing["boxes"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = to_label_image(masks, capture.shape)
@@ -228,3 +186,71 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     timing["total"] = time.perf_counter() - t0
     return Perception(scene, labels, overlay, tuple(warnings), timing, tuple(notes), tuple(faces),
                       name, used_distance, {"pixel_scale": scale})
+
+
+def _perceive_scaled(capture: Capture, max_pixels: int, t0: float, **kw: Any) -> Perception:
+    """`perceive` of the capture scaled down to `max_pixels`, with its labels and overlay
+    scaled back up to the full image and a warning that says so."""
+    h, w = capture.shape
+    small = _scaled_capture(capture, (max_pixels / (h * w)) ** 0.5)
+    res = perceive(small, **kw, max_pixels=small.shape[0] * small.shape[1])   # once: never scaled again
+    labels = cv2.resize(res.masks, (w, h), interpolation=cv2.INTER_NEAREST)
+    t = time.perf_counter()
+    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in res.scene.boxes if b.mask_label})
+    timing = dict(res.timing, overlay=res.timing.get("overlay", 0.0) + time.perf_counter() - t)
+    timing["total"] = time.perf_counter() - t0
+    note = f"image {w}x{h} perceived at {small.shape[1]}x{small.shape[0]} (over {max_pixels} pixels)"
+    return replace(res, scene=replace(res.scene, camera=capture.camera), masks=labels, overlay=overlay,
+                   warnings=(note,) + res.warnings, timing=timing)
+
+
+def _stand_in_depth(capture: Capture, front_distance: float | None,
+                    box_size: tuple[float, float] | None) -> tuple[np.ndarray, float | None, str]:
+    """(depth to segment with, the flat front's distance or None, a warning or ''): the
+    capture's own depth, or without one a flat front at `front_distance` (or where the
+    camera's axis meets the shelf front when neither it nor `box_size` is given)."""
+    if capture.depth is not None:
+        return capture.depth, None, ""
+    flat = ""
+    if front_distance is None and box_size is None:
+        front_distance = default_front_distance(capture.camera)
+        flat = (f"no depth image: assuming a flat front {front_distance:.2f} m from the camera "
+                "(give --front-distance or --box-size)")
+    used = front_distance if front_distance is not None else default_front_distance(capture.camera)
+    return planar_depth(capture.camera, used), used, flat
+
+
+def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogue: Catalogue | None,
+                 ) -> tuple[list[np.ndarray], list[FrontFace | None] | None, float, list[str]]:
+    """(masks, their faces or None if not measured yet, pixel scale, catalogue notes): the
+    segmenter's masks refined, grown onto their planes and repaired by the catalogue (RGB-D)."""
+    union = np.any(raw, axis=0) if raw else None
+    scale = pixel_scale(capture.depth, union)       # 1.0 without depth (the distance is a guess)
+    minpx = _min_pixels(capture.shape, scale)
+    masks = refine(raw, capture.depth, min_pixels=minpx)
+    masks = grow_on_plane(masks, capture.depth, capture.camera, rgb=capture.rgb,
+                          allowed=_inside_shelf(capture.depth, capture.camera, shelf))
+    if catalogue is not None and capture.depth is not None and masks:
+        masks, measured, notes = apply_catalogue(masks, capture.depth, capture.camera, capture.rgb,
+                                                 catalogue.scaled(scale).within(shelf.depth))
+        return masks, measured, scale, notes
+    return masks, None, scale, []
+
+
+def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, depth: np.ndarray,
+           capture: Capture, shelf: Shelf, catalogue: Catalogue | None, placeholder: float,
+           ) -> tuple[list, list[np.ndarray], list[FrontFace], list[str], list[str]]:
+    """(boxes made valid, their masks, their faces, warnings, notes): faces measured (unless
+    the catalogue did on this depth), border-cut ones completed, boxes built and made valid."""
+    camera = capture.camera
+    if measured is None or depth is not capture.depth:
+        measured = [measure_front(m, depth, camera) for m in masks]
+    # a face cut by the image border is completed to a type face only in a capture of these types
+    types = catalogue if capture.depth is not None and catalogue is not None and masks and \
+        catalogue_applies(measured, masks, catalogue.within(shelf.depth)) else None
+    measured, completed = _complete_cut_faces(masks, measured, camera, types)
+    boxes, masks, faces, warnings = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured)
+    warnings.extend(_border_warnings(boxes, masks))
+    cut_notes = [f"{b.id}: {completed[id(f)]}" for b, f in zip(boxes, faces) if id(f) in completed]
+    boxes, notes = make_valid(boxes, shelf)
+    return boxes, masks, faces, warnings, cut_notes + notes

@@ -14,15 +14,20 @@ flush fronts). The segmenter
 6. merges neighbouring pieces whose colours match and whose union is still a
    rectangle, unless both are rectangles with an edge line along their whole
    common border (the seam between two boxes).
+Steps 5 and 6, joining pieces into faces, live in `perception.piece_merge`.
 Vectorised; a 640x480 frame takes about 0.1-0.3 s of the ~0.35 s of `perceive`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
+from scipy import ndimage
 
-from perception.scene import Camera, Shelf
+from perception.masks import pixel_scale, scaled_px
+from perception.piece_merge import merge_pieces, merge_tape
+from perception.scene import Camera, Shelf, quat_to_matrix
 
 
 @dataclass(frozen=True)
@@ -60,8 +65,6 @@ class DepthEdgeConfig:
 
 def _small_holes(valid: np.ndarray, max_px: int) -> np.ndarray:
     """Invalid pixels in 8-connected groups of at most `max_px` pixels."""
-    import cv2
-
     if max_px <= 0:
         return np.zeros_like(valid)
     n, lab, stats, _ = cv2.connectedComponentsWithStats((~valid).astype(np.uint8), connectivity=8)
@@ -99,48 +102,46 @@ class DepthEdgeSegmenter:
         return [labels == k for k in range(1, n + 1)]
 
     def segment_labels(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
-        import cv2
-
+        """HxW uint16 labels 1..n of the faces (steps 1-6 of the module docstring)."""
         cfg = self.config
         h, w = depth.shape
         camera = self.camera or _guess_camera(w, h)
-        d = np.nan_to_num(depth.astype(np.float32), nan=0.0)
-        valid = d > 0
-        ds = cv2.medianBlur(d, 5)
-        # a hole of a few pixels inside a surface (sensor speckle, an inf or NaN read as no data)
-        # takes the median around it: left as a hole, every one cuts the surface like a depth
-        # jump, and 10% scattered holes left no face at all
-        ds[~valid & ~_small_holes(valid, cfg.fill_hole_px)] = 0.0
-        # ---- depth jumps (both sides of the step are boundary)
-        thr = cfg.jump_abs + cfg.jump_rel * ds * ds
-        jump = np.zeros((h, w), bool)
-        dx = np.abs(np.diff(ds, axis=1)) > np.minimum(thr[:, 1:], thr[:, :-1])
-        dy = np.abs(np.diff(ds, axis=0)) > np.minimum(thr[1:, :], thr[:-1, :])
-        jump[:, 1:] |= dx
-        jump[:, :-1] |= dx
-        jump[1:, :] |= dy
-        jump[:-1, :] |= dy
+        ds = _smoothed_depth(depth, cfg.fill_hole_px)
         vs = ds > 0
-        jump |= ~vs
-        # ---- camera-frame points and normals from smoothed depth
-        fx, fy = camera.fx, camera.fy
-        uu = ((np.arange(w, dtype=np.float32) - camera.cx) / fx)[None, :]
-        vv = ((np.arange(h, dtype=np.float32) - camera.cy) / fy)[:, None]
-        wgt = cv2.blur(vs.astype(np.float32), (5, 5))
-        dsm = cv2.blur(ds, (5, 5)) / np.maximum(wgt, 1e-6)
-        px, py, pz = uu * dsm, vv * dsm, dsm
+        jump = _depth_jumps(ds, cfg) | ~vs
+        pts = _camera_points(ds, vs, camera)
+        fg = vs & self._facing(pts, camera) & ~jump
+        if self.camera is not None and self.shelf is not None:
+            fg &= _inside_shelf(pts, camera, self.shelf, cfg.wall_margin)
+        # ---- geometric patches
+        npatch, patch = cv2.connectedComponents(fg.astype(np.uint8), connectivity=4)
+        if npatch <= 1:
+            return np.zeros((h, w), np.uint16)
+        # ---- colour edges cut patches further
+        edges = _colour_edges(rgb, fg, depth, cfg)
+        core = fg & ~edges
+        npiece, piece = cv2.connectedComponents(core.astype(np.uint8), connectivity=4)
+        # pixel scale (m per px) for metric sizes
+        mpp = np.where(vs, ds / np.sqrt(camera.fx * camera.fy), 0.0).astype(np.float32)
+        keep = _big_pieces(core, piece, npiece, mpp, cfg)
+        assigned = np.where(keep[piece], piece, 0)
+        # ---- pixels of a patch not in a big piece go to the nearest big piece of that patch
+        assigned = _grow_within(assigned, patch, fg)
+        # ---- merge pieces of one patch with matching colour and a rectangular union
+        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+        # ---- tape: a band (or cross) of another colour between pieces of one colour
+        kcore = core & keep[piece]
+        merged = merge_tape(assigned, kcore, lab, mpp, cfg)
+        merged = merge_pieces(merged, kcore, patch, lab, cfg, edges)
+        merged = merge_tape(merged, kcore, lab, mpp, cfg)
+        return _finish(merged, mpp, cfg)
+
+    def _facing(self, pts: tuple[np.ndarray, np.ndarray, np.ndarray], camera: Camera) -> np.ndarray:
+        """Pixels whose surface normal is within `facing_cos` of shelf +y (of the optical axis
+        when no camera is bound)."""
+        cfg = self.config
         k = cfg.normal_step
-        du = [np.zeros_like(dsm) for _ in range(3)]
-        dv = [np.zeros_like(dsm) for _ in range(3)]
-        for i, p in enumerate((px, py, pz)):
-            du[i][:, k:-k] = p[:, 2 * k:] - p[:, :-2 * k]
-            dv[i][k:-k, :] = p[2 * k:, :] - p[:-2 * k, :]
-            if cfg.border_px > 0:
-                # the first k rows and the first/last k columns take the nearest full
-                # difference: a face cut by the top or a side border keeps its normal up to the
-                # border (the bottom border stays as it was: the floor in front of the shelf)
-                du[i][:, :k], du[i][:, -k:] = du[i][:, k:k + 1], du[i][:, -k - 1:-k]
-                dv[i][:k, :] = dv[i][k:k + 1, :]
+        du, dv = _tangents(pts, k, cfg.border_px > 0)
         nx = du[1] * dv[2] - du[2] * dv[1]
         ny = du[2] * dv[0] - du[0] * dv[2]
         nz = du[0] * dv[1] - du[1] * dv[0]
@@ -161,75 +162,122 @@ class DepthEdgeSegmenter:
             mx, my, mz = ty * up[2] - tz * up[1], tz * up[0] - tx * up[2], tx * up[1] - ty * up[0]
             mn = np.sqrt(mx * mx + my * my + mz * mz) + 1e-12
             facing[:b] = np.abs(mx * fwd[0] + my * fwd[1] + mz * fwd[2]) / mn > cfg.facing_cos
-        fg = vs & facing & ~jump
-        # ---- the shelf itself
-        if self.camera is not None and self.shelf is not None:
-            rot = np.asarray(_rot(camera), dtype=np.float32)
-            t = np.asarray(camera.position, dtype=np.float32)
-            sx = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + t[0]
-            sy = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + t[1]
-            sz = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + t[2]
-            s = self.shelf
-            m = cfg.wall_margin
-            inside = (sy < s.depth - m) & (np.abs(sx) < s.width / 2 - 0.003) & (sz > 0.005) \
-                & (sz < s.height - 0.003)
-            fg &= inside
-        # ---- geometric patches
-        npatch, patch = cv2.connectedComponents(fg.astype(np.uint8), connectivity=4)
-        if npatch <= 1:
-            return np.zeros((h, w), np.uint16)
-        # ---- colour edges cut patches further
-        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        gray = cv2.GaussianBlur(gray, (3, 3), 0)
-        edges = cv2.Canny(gray, cfg.canny_low, cfg.canny_high) > 0
-        # hue seams that grey levels miss (two browns of one brightness)
-        lab8 = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB), (3, 3), 0)
-        for c in (1, 2) if cfg.chroma_gain > 0 else ():
-            ch = np.clip((lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255
-                         ).astype(np.uint8)
-            edges |= cv2.Canny(ch, cfg.canny_low, cfg.canny_high) > 0
-        edges = _extend_lines(edges, fg, _scaled(cfg, depth, fg))
-        edges = cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        core = fg & ~edges
-        npiece, piece = cv2.connectedComponents(core.astype(np.uint8), connectivity=4)
-        # pixel scale (m per px) for metric sizes
-        mpp = np.where(vs, ds / np.sqrt(fx * fy), 0.0).astype(np.float32)
-        dist = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 3)
-        idx = np.arange(1, npiece)
-        from scipy import ndimage
+        return facing
 
-        area_m2 = ndimage.sum(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
-        thick_m = 2 * ndimage.maximum(dist * mpp, piece, idx) if npiece > 1 else np.zeros(0)
-        big = (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.min_side_m)
-        if npiece > 1 and cfg.border_px > 0:
-            # a face cut by the image border is at least this big: a thin strip along the
-            # border (the bottom of a box above the view) is a face, not tape
-            edge = np.zeros((h, w), bool)
-            b = cfg.border_px
-            edge[:b, :] = True
-            edge[:, :b] = edge[:, -b:] = True
-            on_edge = ndimage.sum(edge, piece, idx) >= cfg.border_min_px if npiece > 1 else np.zeros(0, bool)
-            big |= on_edge & (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.border_side_m)
-        keep = np.zeros(npiece, bool)
-        keep[1:] = big
-        assigned = np.where(keep[piece], piece, 0)
-        # ---- pixels of a patch not in a big piece go to the nearest big piece of that patch
-        assigned = _grow_within(assigned, patch, fg)
-        # ---- merge pieces of one patch with matching colour and a rectangular union
-        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
-        # ---- tape: a band (or cross) of another colour between pieces of one colour
-        kcore = core & keep[piece]
-        merged = _merge_tape(assigned, kcore, lab, mpp, cfg)
-        merged = _merge_pieces(merged, kcore, patch, lab, cfg, edges)
-        merged = _merge_tape(merged, kcore, lab, mpp, cfg)
-        return _finish(merged, mpp, cfg)
+
+def _smoothed_depth(depth: np.ndarray, fill_hole_px: int) -> np.ndarray:
+    """The depth median-filtered (5x5), NaN read as no data (0); holes of more than
+    `fill_hole_px` pixels stay 0."""
+    d = np.nan_to_num(depth.astype(np.float32), nan=0.0)
+    valid = d > 0
+    ds = cv2.medianBlur(d, 5)
+    # a hole of a few pixels inside a surface (sensor speckle, an inf or NaN read as no data)
+    # takes the median around it: left as a hole, every one cuts the surface like a depth
+    # jump, and 10% scattered holes left no face at all
+    ds[~valid & ~_small_holes(valid, fill_hole_px)] = 0.0
+    return ds
+
+
+def _depth_jumps(ds: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
+    """Pixels on either side of a depth step larger than the noise-scaled threshold."""
+    h, w = ds.shape
+    thr = cfg.jump_abs + cfg.jump_rel * ds * ds
+    jump = np.zeros((h, w), bool)
+    dx = np.abs(np.diff(ds, axis=1)) > np.minimum(thr[:, 1:], thr[:, :-1])
+    dy = np.abs(np.diff(ds, axis=0)) > np.minimum(thr[1:, :], thr[:-1, :])
+    jump[:, 1:] |= dx
+    jump[:, :-1] |= dx
+    jump[1:, :] |= dy
+    jump[:-1, :] |= dy
+    return jump
+
+
+def _camera_points(ds: np.ndarray, vs: np.ndarray,
+                   camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera-frame x, y, z per pixel from the depth box-smoothed over its valid pixels."""
+    h, w = ds.shape
+    fx, fy = camera.fx, camera.fy
+    uu = ((np.arange(w, dtype=np.float32) - camera.cx) / fx)[None, :]
+    vv = ((np.arange(h, dtype=np.float32) - camera.cy) / fy)[:, None]
+    wgt = cv2.blur(vs.astype(np.float32), (5, 5))
+    dsm = cv2.blur(ds, (5, 5)) / np.maximum(wgt, 1e-6)
+    return uu * dsm, vv * dsm, dsm
+
+
+def _tangents(pts: tuple[np.ndarray, np.ndarray, np.ndarray], k: int,
+              to_border: bool) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Central differences (half step `k`) of the points along image x (du) and y (dv)."""
+    du = [np.zeros_like(pts[2]) for _ in range(3)]
+    dv = [np.zeros_like(pts[2]) for _ in range(3)]
+    for i, p in enumerate(pts):
+        du[i][:, k:-k] = p[:, 2 * k:] - p[:, :-2 * k]
+        dv[i][k:-k, :] = p[2 * k:, :] - p[:-2 * k, :]
+        if to_border:
+            # the first k rows and the first/last k columns take the nearest full
+            # difference: a face cut by the top or a side border keeps its normal up to the
+            # border (the bottom border stays as it was: the floor in front of the shelf)
+            du[i][:, :k], du[i][:, -k:] = du[i][:, k:k + 1], du[i][:, -k - 1:-k]
+            dv[i][:k, :] = dv[i][k:k + 1, :]
+    return du, dv
+
+
+def _inside_shelf(pts: tuple[np.ndarray, np.ndarray, np.ndarray], camera: Camera, s: Shelf,
+                  m: float) -> np.ndarray:
+    """Pixels inside the shelf volume and more than `m` in front of its back wall (the shelf
+    itself is no box)."""
+    px, py, pz = pts
+    rot = np.asarray(_rot(camera), dtype=np.float32)
+    t = np.asarray(camera.position, dtype=np.float32)
+    sx = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + t[0]
+    sy = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + t[1]
+    sz = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + t[2]
+    return (sy < s.depth - m) & (np.abs(sx) < s.width / 2 - 0.003) & (sz > 0.005) \
+        & (sz < s.height - 0.003)
+
+
+def _colour_edges(rgb: np.ndarray, fg: np.ndarray, depth: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
+    """Canny edges of grey and (scaled) Lab chroma, long straight ones extended over `fg`,
+    dilated 3x3."""
+    gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    gray = cv2.GaussianBlur(gray, (3, 3), 0)
+    edges = cv2.Canny(gray, cfg.canny_low, cfg.canny_high) > 0
+    # hue seams that grey levels miss (two browns of one brightness)
+    lab8 = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB), (3, 3), 0)
+    for c in (1, 2) if cfg.chroma_gain > 0 else ():
+        ch = np.clip((lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255
+                     ).astype(np.uint8)
+        edges |= cv2.Canny(ch, cfg.canny_low, cfg.canny_high) > 0
+    edges = _extend_lines(edges, fg, _scaled(cfg, depth, fg))
+    return cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+
+
+def _big_pieces(core: np.ndarray, piece: np.ndarray, npiece: int, mpp: np.ndarray,
+                cfg: DepthEdgeConfig) -> np.ndarray:
+    """keep[label]: the pieces big and thick enough to be (part of) a face; the rest (tape,
+    edge bands, labels) go to their neighbours."""
+    h, w = core.shape
+    dist = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 3)
+    idx = np.arange(1, npiece)
+    area_m2 = ndimage.sum(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
+    thick_m = 2 * ndimage.maximum(dist * mpp, piece, idx) if npiece > 1 else np.zeros(0)
+    big = (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.min_side_m)
+    if npiece > 1 and cfg.border_px > 0:
+        # a face cut by the image border is at least this big: a thin strip along the
+        # border (the bottom of a box above the view) is a face, not tape
+        edge = np.zeros((h, w), bool)
+        b = cfg.border_px
+        edge[:b, :] = True
+        edge[:, :b] = edge[:, -b:] = True
+        on_edge = ndimage.sum(edge, piece, idx) >= cfg.border_min_px if npiece > 1 else np.zeros(0, bool)
+        big |= on_edge & (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.border_side_m)
+    keep = np.zeros(npiece, bool)
+    keep[1:] = big
+    return keep
 
 
 def _scaled(cfg: DepthEdgeConfig, depth: np.ndarray, fg: np.ndarray) -> DepthEdgeConfig:
     """The straight-line threshold (px) at the capture's pixel scale (f / depth of the
     camera-facing pixels relative to the tuning distance); unchanged without real depth."""
-    from perception.masks import pixel_scale, scaled_px
-
     s = pixel_scale(depth, fg) if cfg.metric_px else 1.0
     if s == 1.0:
         return cfg
@@ -247,8 +295,6 @@ def _extend_lines(edges: np.ndarray, fg: np.ndarray, cfg: DepthEdgeConfig) -> np
     pixel joins two boxes into one piece. Long straight segments are drawn again,
     extended by `line_extend` px at both ends, but only over foreground.
     """
-    import cv2
-
     if cfg.line_extend <= 0:
         return edges
     lines = cv2.HoughLinesP(edges.astype(np.uint8) * 255, 1, np.pi / 180, cfg.line_votes,
@@ -269,8 +315,6 @@ def _extend_lines(edges: np.ndarray, fg: np.ndarray, cfg: DepthEdgeConfig) -> np
 
 
 def _rot(camera: Camera):
-    from perception.scene import quat_to_matrix
-
     return quat_to_matrix(camera.orientation)
 
 
@@ -281,8 +325,6 @@ def _guess_camera(w: int, h: int) -> Camera:
 
 def _grow_within(assigned: np.ndarray, patch: np.ndarray, fg: np.ndarray) -> np.ndarray:
     """Give every foreground pixel without a piece the label of its nearest piece in the same patch."""
-    import cv2
-
     if assigned.max() == 0:
         return assigned
     todo = fg & (assigned == 0)
@@ -303,242 +345,8 @@ def _grow_within(assigned: np.ndarray, patch: np.ndarray, fg: np.ndarray) -> np.
     return out
 
 
-def _merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
-                  cfg: DepthEdgeConfig, edges: np.ndarray | None = None) -> np.ndarray:
-    import cv2
-    from scipy import ndimage
-
-    n = int(assigned.max())
-    if n <= 1:
-        return assigned
-    idx = np.arange(1, n + 1)
-    src = np.where(core, assigned, 0)
-    cnt = np.maximum(ndimage.sum(np.ones_like(src), src, idx), 1)
-    mean = np.stack([ndimage.sum(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
-    # neighbouring pieces (one pixel apart after growing)
-    pairs = set()
-    for a, b in ((assigned[:, :-1], assigned[:, 1:]), (assigned[:-1, :], assigned[1:, :])):
-        sel = (a != b) & (a > 0) & (b > 0)
-        if sel.any():
-            code = np.unique(np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1)
-                             + np.maximum(a[sel], b[sel]))
-            pairs.update((int(c // (n + 1)), int(c % (n + 1))) for c in code)
-    parent = list(range(n + 1))
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    cand = []
-    for a, b in pairs:
-        de = float(np.linalg.norm(mean[a - 1] - mean[b - 1]))
-        if de < cfg.colour_merge:
-            cand.append((de, a, b))
-    cand.sort()
-    members: dict[int, list[int]] = {i: [i] for i in range(1, n + 1)}
-    seam = _seam_fraction(assigned, edges) if edges is not None and cfg.seam_veto < 1 else {}
-    for _, a, b in cand:
-        ra, rb = find(a), find(b)
-        if ra == rb:
-            continue
-        if seam.get((a, b), 0.0) > cfg.seam_veto and \
-                min(_rect_fill(np.isin(assigned, members[r])) for r in (ra, rb)) >= cfg.seam_rect:
-            continue        # two rectangles with an edge line all along their border: two boxes
-        union = np.isin(assigned, members[ra] + members[rb])
-        if _rect_fill(union) < cfg.rect_fill:
-            continue
-        parent[rb] = ra
-        members[ra] = members[ra] + members.pop(rb)
-    lut = np.zeros(n + 1, np.int32)
-    for i in range(1, n + 1):
-        lut[i] = find(i)
-    return lut[assigned]
-
-
-def _contacts(labels: np.ndarray) -> dict[tuple[int, int], int]:
-    """(a, b) with a < b -> number of 4-neighbour pixel pairs where label a touches label b."""
-    n = int(labels.max())
-    out: dict[tuple[int, int], int] = {}
-    for a, b in ((labels[:, :-1], labels[:, 1:]), (labels[:-1, :], labels[1:, :])):
-        sel = (a != b) & (a > 0) & (b > 0)
-        if not sel.any():
-            continue
-        code = np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1) + np.maximum(a[sel], b[sel])
-        u, c = np.unique(code, return_counts=True)
-        for k, v in zip(u, c):
-            key = (int(k // (n + 1)), int(k % (n + 1)))
-            out[key] = out.get(key, 0) + int(v)
-    return out
-
-
-def _merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.ndarray,
-                cfg: DepthEdgeConfig) -> np.ndarray:
-    """Join a tape piece with the pieces it separates.
-
-    Tape across a face (a band, or a cross of two) is a piece of another colour
-    that cuts the face into parts of one colour. A piece P is taken for tape when
-    it is thin (<= `tape_max_m`, and clearly thinner than its neighbours), at least
-    two of its neighbours share a colour, and P with those neighbours fills a
-    rectangle. Two stacked boxes flush with a thin third one between them would
-    fool this rule only if the outer two have the same colour and width.
-    """
-    import cv2
-    from scipy import ndimage
-
-    n = int(labels.max())
-    if n < 3:
-        return labels
-    idx = np.arange(1, n + 1)
-    # thickness: twice the largest distance to another label or the background, in metres
-    # (depth holes inside a face are not borders: close them first)
-    fgl = labels > 0
-    filled = cv2.morphologyEx(fgl.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
-    border = ~filled
-    for a, b, sl_a, sl_b in ((labels[:, 1:], labels[:, :-1], np.s_[:, 1:], np.s_[:, :-1]),
-                             (labels[1:, :], labels[:-1, :], np.s_[1:, :], np.s_[:-1, :])):
-        diff = (a != b) & (a > 0) & (b > 0)
-        border[sl_a] |= diff
-        border[sl_b] |= diff
-    inner = ~border
-    dist = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
-    # 90th percentile, not the maximum: the centre of a tape cross is wider than its arms
-    thick = 2 * np.asarray(ndimage.labeled_comprehension(
-        dist * mpp, labels, idx, lambda v: np.percentile(v, 90), float, 0.0), float)
-    src = np.where(core, labels, 0)
-    cnt = np.maximum(np.asarray(ndimage.sum(np.ones(labels.shape), src, idx)), 1)
-    mean = np.stack([np.asarray(ndimage.sum(lab[..., c], src, idx)) / cnt for c in range(3)], axis=1)
-    contacts = _contacts(labels)
-    nbrs: dict[int, set[int]] = {i: set() for i in idx}
-    for (a, b), c in contacts.items():
-        if c >= 3:
-            nbrs[a].add(b)
-            nbrs[b].add(a)
-    lut = np.arange(n + 1)
-    done: set[int] = set()
-    for p in sorted(idx, key=lambda i: thick[i - 1]):
-        p = int(p)
-        if p in done or thick[p - 1] > cfg.tape_max_m:
-            continue
-        cand = [q for q in nbrs[p] if q not in done
-                and thick[p - 1] <= cfg.tape_rel * thick[q - 1]]
-        if len(cand) < 2:
-            continue
-        best = None
-        # the neighbours that share a colour with the largest one of them
-        for seed in sorted(cand, key=lambda q: -cnt[q - 1]):
-            group = [q for q in cand
-                     if np.linalg.norm(mean[q - 1] - mean[seed - 1]) < cfg.tape_colour]
-            if len(group) >= 2:
-                best = group
-                break
-        if best is None:
-            continue
-        # the pieces along the tape's long sides first (not one it only touches with its end)
-        side = [q for q in best if contacts[(min(p, q), max(p, q))]
-                >= 0.3 * max(contacts[(min(p, r), max(p, r))] for r in best)]
-        ok = None
-        for group in ([side, best] if len(side) >= 2 and len(side) < len(best) else [best]):
-            union = np.isin(labels, [p] + group)
-            if _rect_fill(union) >= cfg.rect_fill and _spans(
-                    labels == p, union, cfg.tape_span, thick[p - 1] / max(float(np.median(mpp[union])), 1e-6),
-                    cfg.tape_frac, cfg.tape_centre):
-                ok = group
-                break
-        if ok is None:
-            continue
-        best = ok
-        for q in best:
-            lut[q] = p
-            done.add(q)
-        done.add(p)
-    return lut[labels]
-
-
-def _spans(piece: np.ndarray, union: np.ndarray, frac: float, thick_px: float = 0.0,
-           max_rel: float = 1.0, centre_tol: float = 1.0) -> bool:
-    """Whether `piece` looks like tape on the face `union`: it runs across the face along one
-    of its rectangle axes (>= `frac` of the face), is thin across that axis (<= `max_rel` of the
-    face) and lies near the middle of the face (tape closes the flaps' centre seam)."""
-    import cv2
-
-    pts = cv2.findNonZero(piece.astype(np.uint8))
-    upts = cv2.findNonZero(union.astype(np.uint8))
-    if pts is None or upts is None:
-        return False
-    (_, _), (_, _), ang = cv2.minAreaRect(pts)
-    a = np.deg2rad(ang)
-    axes = (np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)]))
-    ext = []
-    for ax in axes:
-        pp = pts.reshape(-1, 2) @ ax
-        uu = upts.reshape(-1, 2) @ ax
-        ext.append((np.percentile(pp, 1), np.percentile(pp, 99), np.percentile(uu, 1), np.percentile(uu, 99)))
-    for i in (0, 1):
-        p0, p1, u0, u1 = ext[i]
-        if u1 - u0 <= 0 or p1 - p0 < frac * (u1 - u0):
-            continue
-        q0, q1, v0, v1 = ext[1 - i]
-        if v1 - v0 <= 0:
-            continue
-        width = min(q1 - q0, thick_px) if thick_px > 0 else q1 - q0
-        centre = abs(0.5 * (q0 + q1) - 0.5 * (v0 + v1)) / (v1 - v0)
-        if width <= max_rel * (v1 - v0) and centre <= centre_tol:
-            return True
-    return False
-
-
-def _seam_fraction(labels: np.ndarray, edges: np.ndarray) -> dict[tuple[int, int], float]:
-    """(a, b) -> fraction of the border between pieces a and b that runs along a colour edge.
-
-    Two pieces of one face cut apart by a thin tape meet at the tape's middle, away
-    from any edge; two boxes meet at their seam, which is an edge line all along.
-    """
-    n = int(labels.max())
-    tot: dict[int, int] = {}
-    hit: dict[int, int] = {}
-    for a, b, ea, eb in ((labels[:, :-1], labels[:, 1:], edges[:, :-1], edges[:, 1:]),
-                         (labels[:-1, :], labels[1:, :], edges[:-1, :], edges[1:, :])):
-        sel = (a != b) & (a > 0) & (b > 0)
-        if not sel.any():
-            continue
-        code = np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1) + np.maximum(a[sel], b[sel])
-        e = (ea[sel] | eb[sel]).astype(np.int64)
-        u, inv = np.unique(code, return_inverse=True)
-        t = np.bincount(inv)
-        h = np.bincount(inv, weights=e)
-        for k, tt, hh in zip(u, t, h):
-            tot[int(k)] = tot.get(int(k), 0) + int(tt)
-            hit[int(k)] = hit.get(int(k), 0) + int(hh)
-    return {(k // (n + 1), k % (n + 1)): hit[k] / tot[k] for k in tot if tot[k] >= 10}
-
-
-def _rect_fill(mask: np.ndarray) -> float:
-    """How well the mask fills its min-area rectangle: the rectangle of the mask opened by
-    5x5 (one-pixel spurs left by growing must not inflate it), depth holes closed."""
-    import cv2
-
-    pts = cv2.findNonZero(mask.astype(np.uint8))
-    if pts is None:
-        return 0.0
-    x, y, w, h = cv2.boundingRect(pts)
-    sub = np.pad(mask[y:y + h, x:x + w].astype(np.uint8), 3)
-    sub = cv2.morphologyEx(sub, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    core = cv2.morphologyEx(sub, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
-    cpts = cv2.findNonZero(core)
-    if cpts is None:
-        return 0.0
-    rect = cv2.minAreaRect(cpts)
-    box = np.zeros_like(sub)
-    cv2.fillPoly(box, [np.round(cv2.boxPoints(rect)).astype(np.int32)], 1)
-    return float((sub & box).sum()) / max(float(box.sum()), 1.0)
-
-
 def _finish(merged: np.ndarray, mpp: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
     """Relabel 1..n, dropping faces too small to be a box."""
-    from scipy import ndimage
-
     labels = np.unique(merged)
     labels = labels[labels > 0]
     if len(labels) == 0:

@@ -12,7 +12,7 @@ from perception.pipeline import perceive
 from perception.repairs.border_cut import complete_cut_face, cut_directions
 from perception.scene import Scene, Shelf
 from perception.segment_depth import DepthEdgeSegmenter
-from synth_frames import SMALL_CAMERA, box, cast
+from synth_frames import box, cast
 
 # SMALL_CAMERA sees the front plane (y = 0.02) up to z ~ 0.758 m
 

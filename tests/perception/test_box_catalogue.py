@@ -89,11 +89,11 @@ def test_apply_catalogue_leaves_captures_of_other_boxes_alone():
     cap, rgb, low, high, side = _stack(0.20, 0.20)
     rows = np.flatnonzero(high.any(axis=1))
     rgb[rows[-1]:rows[-1] + 2][(low | high)[rows[-1]:rows[-1] + 2]] = (150, 115, 80)
-    masks, faces = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, Catalogue())
+    masks, faces, _ = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, Catalogue())
     assert len(masks) == 3 and all(f is not None for f in faces)
     # with a catalogue none of these faces belongs to, nothing is changed
     other = Catalogue(types=((0.34, 0.25, 0.45),))
-    masks, faces = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, other)
+    masks, faces, _ = apply_catalogue([low | high, side], cap.depth, cap.camera, rgb, other)
     assert len(masks) == 2
 
 
@@ -197,13 +197,12 @@ def test_a_face_given_in_part_to_the_box_below_is_cut_back_and_rejoined():
     xs = np.nonzero(cube)[1]
     cut = int(xs.min() + 0.65 * np.ptp(xs))
     merged, piece = low | (cube & (cols < cut)), cube & (cols >= cut)
-    notes: list[str] = []
-    out, _ = apply_catalogue([merged, piece, side], cap.depth, cap.camera, cap.rgb, Catalogue(), notes)
+    out, _, notes = apply_catalogue([merged, piece, side], cap.depth, cap.camera, cap.rgb, Catalogue())
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, cube) for m in out) > 0.9, notes
     # with no piece beside it to take the cut-off part, the mask is not cut (a label at a face's
     # end would otherwise be cut off a face measured too long)
-    out, _ = apply_catalogue([merged, side], cap.depth, cap.camera, cap.rgb, Catalogue())
+    out, _, _ = apply_catalogue([merged, side], cap.depth, cap.camera, cap.rgb, Catalogue())
     assert len(out) == 2
 
 
@@ -250,17 +249,16 @@ def test_a_type_face_mask_across_a_depth_step_whose_parts_complete_two_pieces_is
     cat = Catalogue()
     cap, low, up, side, merged, low_r, up_r = _two_cut_stacked_faces(0.013)
     assert cat.matches(*_size(merged, cap))          # the merged mask reads as a type face
-    notes: list[str] = []
-    out, _ = apply_catalogue([merged, low_r, up_r, side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    out, _, notes = apply_catalogue([merged, low_r, up_r, side], cap.depth, cap.camera, cap.rgb, cat)
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, up) for m in out) > 0.9, notes
     assert any("type-face mask" in n and "depth step" in n for n in notes), notes
     # only one part has a piece to complete: not split (it may be a long box with a label)
-    out, _ = apply_catalogue([merged, low_r, side], cap.depth, cap.camera, cap.rgb, cat)
+    out, _, _ = apply_catalogue([merged, low_r, side], cap.depth, cap.camera, cap.rgb, cat)
     assert len(out) == 3 and any(mask_iou(m, merged) > 0.99 for m in out)
     # no depth step through it (one flat front): the type face stays as it is
     cap, low, up, side, merged, low_r, up_r = _two_cut_stacked_faces(0.0)
-    out, _ = apply_catalogue([merged, low_r, up_r, side], cap.depth, cap.camera, cap.rgb, cat)
+    out, _, _ = apply_catalogue([merged, low_r, up_r, side], cap.depth, cap.camera, cap.rgb, cat)
     assert any(mask_iou(m, merged) > 0.99 for m in out)
 
 
@@ -285,13 +283,12 @@ def test_a_tape_band_merged_with_the_face_above_is_given_back_to_its_face():
     band = low & (np.abs(cols - cx) <= hw)
     left, right = low & (cols < cx - hw), low & (cols > cx + hw)
     assert not cat.matches(*_size(up | band, cap))
-    notes: list[str] = []
-    out, _ = apply_catalogue([up | band, left, right, side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    out, _, notes = apply_catalogue([up | band, left, right, side], cap.depth, cap.camera, cap.rgb, cat)
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9 and max(mask_iou(m, up) for m in out) > 0.9, notes
     assert any("pieces' rectangle" in n for n in notes), notes
     # one piece only (the other taken by the side box's mask): the T is left as it is
-    out, _ = apply_catalogue([up | band, left, right | side], cap.depth, cap.camera, cap.rgb, cat)
+    out, _, _ = apply_catalogue([up | band, left, right | side], cap.depth, cap.camera, cap.rgb, cat)
     assert any(mask_iou(m, up | band) > 0.99 for m in out)
 
 
@@ -335,8 +332,7 @@ def test_the_catalogue_share_is_by_area_so_a_face_in_many_pieces_does_not_switch
     rows, cols = np.arange(lng.shape[0])[:, None], np.arange(lng.shape[1])[None, :]
     cross = lng & ((np.abs(rows - cy) <= 2) | (np.abs(cols - cx) <= 3))
     quarters = [lng & ~cross & (a * (rows - cy) > 0) & (b * (cols - cx) > 0) for a in (-1, 1) for b in (-1, 1)]
-    notes: list[str] = []
-    out, _ = apply_catalogue(quarters + [side], cap.depth, cap.camera, cap.rgb, Catalogue(), notes)
+    out, _, notes = apply_catalogue(quarters + [side], cap.depth, cap.camera, cap.rgb, Catalogue())
     assert len(out) == 2, notes
     assert max(mask_iou(m, lng) for m in out) > 0.95 and max(mask_iou(m, side) for m in out) > 0.99
 
@@ -359,8 +355,7 @@ def test_the_rest_of_an_l_cut_is_split_into_its_row_of_faces():
     xs = np.nonzero(lng)[1]
     cut = int(xs.min() + 0.55 * np.ptp(xs))
     ell, rest = stack | (lng & (cols < cut)), lng & (cols >= cut)
-    notes: list[str] = []
-    out, _ = apply_catalogue([ell, rest, o1, o2], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, _, notes = apply_catalogue([ell, rest, o1, o2], cap.depth, cap.camera, rgb, Catalogue())
     assert any("L-shaped" in n for n in notes), notes
     assert len(out) == 6, notes
     for g in (c0, c1, c2, lng, o1, o2):
@@ -387,15 +382,14 @@ def test_masks_that_are_no_type_faces_are_re_cut_along_their_seams_into_type_fac
     cap, rgb, low, up, side, left, right = _halves_of_two_cubes(seam=True)
     cat = Catalogue()
     assert not cat.matches(*_size(left, cap)) and not cat.matches(*_size(right, cap))
-    notes: list[str] = []
-    out, _ = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat, notes)
+    out, _, notes = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat)
     assert len(out) == 3, notes
     for g in (low, up, side):
         assert max(mask_iou(m, g) for m in out) > 0.95, notes
     assert any("re-cut 2 masks" in n for n in notes), notes
     # no seam between the cubes: nothing says where to cut, the halves stay
     cap, rgb, low, up, side, left, right = _halves_of_two_cubes(seam=False)
-    out, _ = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat)
+    out, _, _ = apply_catalogue([left, right, side], cap.depth, cap.camera, rgb, cat)
     assert any(mask_iou(m, left) > 0.99 for m in out) and any(mask_iou(m, right) > 0.99 for m in out)
 
 
@@ -414,8 +408,7 @@ def test_a_label_beside_re_cut_faces_is_joined_to_its_face_afterwards():
     cy, cx = int(np.median(ys)), int(np.median(xs))
     left, right = (low | up) & (cols < cx), (low | up) & (cols >= cx)
     label = low & (np.abs(rows - cy) <= 6) & (cols >= cx) & (cols < cx + 14)
-    notes: list[str] = []
-    out, _ = apply_catalogue([left, right & ~label, label, side], cap.depth, cap.camera, rgb, Catalogue(), notes)
+    out, _, notes = apply_catalogue([left, right & ~label, label, side], cap.depth, cap.camera, rgb, Catalogue())
     assert len(out) == 3, notes
     for g in (low, up, side):
         assert max(mask_iou(m, g) for m in out) > 0.95, notes
@@ -465,10 +458,9 @@ def test_faces_of_boxes_deeper_than_the_shelf_are_no_type_faces():
         band |= lng & (np.abs(rows - c) <= 2)
     pieces = [lng & ~band & (rows < cuts[0]), lng & ~band & (rows > cuts[0]) & (rows < cuts[1]),
               lng & ~band & (rows > cuts[1])]
-    notes: list[str] = []
-    out, _ = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    out, _, notes = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, cat)
     assert len(out) == 2, notes
     assert max(mask_iou(m, lng) for m in out) > 0.95 and max(mask_iou(m, side) for m in out) > 0.99
     # every box shape allowed (a deep shelf): the three 17x17 "end faces" stay three boxes
-    out, _ = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, Catalogue())
+    out, _, _ = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, Catalogue())
     assert len(out) == 4

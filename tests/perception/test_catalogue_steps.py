@@ -67,8 +67,7 @@ def _stepped(step: float):
 def test_a_face_part_merged_across_a_depth_step_goes_back_to_its_pieces():
     cat = Catalogue()
     cap, low, up, side, top, band, under = _stepped(0.017)
-    notes: list[str] = []
-    out, _ = apply_catalogue([low | under, top, band, side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    out, _, notes = apply_catalogue([low | under, top, band, side], cap.depth, cap.camera, cap.rgb, cat)
     assert len(out) == 3, notes
     assert max(mask_iou(m, low) for m in out) > 0.9, notes
     assert max(mask_iou(m, up) for m in out) > 0.9, notes
@@ -79,6 +78,5 @@ def test_no_depth_step_no_part_given_by_plane():
     # the same masks on one front plane: no depth says which part is whose, this rule stays out
     cat = Catalogue()
     cap, low, up, side, top, band, under = _stepped(0.0)
-    notes: list[str] = []
-    apply_catalogue([low | under, top, band, side], cap.depth, cap.camera, cap.rgb, cat, notes)
+    _, _, notes = apply_catalogue([low | under, top, band, side], cap.depth, cap.camera, cap.rgb, cat)
     assert not any("off its rest" in n for n in notes), notes

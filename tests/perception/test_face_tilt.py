@@ -28,7 +28,7 @@ def _rot(axis: str, deg: float) -> np.ndarray:
 def _posed(bid: str, size, rot: np.ndarray, x: float, front: float) -> Box:
     half = np.asarray(size) / 2
     corners = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]) * half @ rot.T
-    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    lo = corners.min(axis=0)
     pos = (x, front - lo[1], -lo[2])
     return Box(bid, tuple(size), tuple(float(v) for v in pos), matrix_to_quat(rot))
 

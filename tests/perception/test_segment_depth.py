@@ -5,7 +5,7 @@ import numpy as np
 
 from perception.scene import Scene, Shelf
 from perception.segment_depth import DepthEdgeSegmenter
-from synth_frames import SMALL_CAMERA, box, cast
+from synth_frames import box, cast
 
 
 def _match(labels: np.ndarray, truth: np.ndarray) -> dict[int, float]:

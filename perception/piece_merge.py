@@ -1,0 +1,259 @@
+"""Joining the pieces that the depth-and-edge segmenter's cuts left into whole faces.
+
+Two rules, both only where the union is still a rectangle (`rect_fill`):
+- tape (`merge_tape`): a thin band (or cross) of another colour across a face, near its
+  middle, joins the same-colour pieces it separates;
+- colour (`merge_pieces`): neighbouring pieces of one colour join, unless both are
+  rectangles with a colour edge all along their common border (`seam_fraction`: the seam
+  between two flush boxes).
+Used by `perception.segment_depth`; apart from it because it is its own idea (what is one
+face), not how the image is cut.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+if TYPE_CHECKING:
+    from perception.segment_depth import DepthEdgeConfig
+
+
+def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
+                 cfg: DepthEdgeConfig, edges: np.ndarray | None = None) -> np.ndarray:
+    """Join neighbouring pieces (labels in `assigned`) whose mean Lab colours over `core` are
+    within `colour_merge`, closest first, while their union fills its rectangle (`rect_fill`);
+    two rectangles with an edge line along their common border (`seam_veto`) stay apart."""
+    n = int(assigned.max())
+    if n <= 1:
+        return assigned
+    idx = np.arange(1, n + 1)
+    src = np.where(core, assigned, 0)
+    cnt = np.maximum(ndimage.sum(np.ones_like(src), src, idx), 1)
+    mean = np.stack([ndimage.sum(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
+    # neighbouring pieces (one pixel apart after growing)
+    pairs = set()
+    for a, b in ((assigned[:, :-1], assigned[:, 1:]), (assigned[:-1, :], assigned[1:, :])):
+        sel = (a != b) & (a > 0) & (b > 0)
+        if sel.any():
+            code = np.unique(np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1)
+                             + np.maximum(a[sel], b[sel]))
+            pairs.update((int(c // (n + 1)), int(c % (n + 1))) for c in code)
+    parent = list(range(n + 1))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    cand = []
+    for a, b in pairs:
+        de = float(np.linalg.norm(mean[a - 1] - mean[b - 1]))
+        if de < cfg.colour_merge:
+            cand.append((de, a, b))
+    cand.sort()
+    members: dict[int, list[int]] = {i: [i] for i in range(1, n + 1)}
+    seam = seam_fraction(assigned, edges) if edges is not None and cfg.seam_veto < 1 else {}
+    for _, a, b in cand:
+        ra, rb = find(a), find(b)
+        if ra == rb:
+            continue
+        if seam.get((a, b), 0.0) > cfg.seam_veto and \
+                min(rect_fill(np.isin(assigned, members[r])) for r in (ra, rb)) >= cfg.seam_rect:
+            continue        # two rectangles with an edge line all along their border: two boxes
+        union = np.isin(assigned, members[ra] + members[rb])
+        if rect_fill(union) < cfg.rect_fill:
+            continue
+        parent[rb] = ra
+        members[ra] = members[ra] + members.pop(rb)
+    lut = np.zeros(n + 1, np.int32)
+    for i in range(1, n + 1):
+        lut[i] = find(i)
+    return lut[assigned]
+
+
+def contacts(labels: np.ndarray) -> dict[tuple[int, int], int]:
+    """(a, b) with a < b -> number of 4-neighbour pixel pairs where label a touches label b."""
+    n = int(labels.max())
+    out: dict[tuple[int, int], int] = {}
+    for a, b in ((labels[:, :-1], labels[:, 1:]), (labels[:-1, :], labels[1:, :])):
+        sel = (a != b) & (a > 0) & (b > 0)
+        if not sel.any():
+            continue
+        code = np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1) + np.maximum(a[sel], b[sel])
+        u, c = np.unique(code, return_counts=True)
+        for k, v in zip(u, c):
+            key = (int(k // (n + 1)), int(k % (n + 1)))
+            out[key] = out.get(key, 0) + int(v)
+    return out
+
+
+def merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.ndarray,
+               cfg: DepthEdgeConfig) -> np.ndarray:
+    """Join a tape piece with the pieces it separates.
+
+    Tape across a face (a band, or a cross of two) is a piece of another colour
+    that cuts the face into parts of one colour. A piece P is taken for tape when
+    it is thin (<= `tape_max_m`, and clearly thinner than its neighbours), at least
+    two of its neighbours share a colour, and P with those neighbours fills a
+    rectangle. Two stacked boxes flush with a thin third one between them would
+    fool this rule only if the outer two have the same colour and width.
+    """
+    n = int(labels.max())
+    if n < 3:
+        return labels
+    idx = np.arange(1, n + 1)
+    thick = _thickness(labels, mpp, idx)
+    src = np.where(core, labels, 0)
+    cnt = np.maximum(np.asarray(ndimage.sum(np.ones(labels.shape), src, idx)), 1)
+    mean = np.stack([np.asarray(ndimage.sum(lab[..., c], src, idx)) / cnt for c in range(3)], axis=1)
+    touch = contacts(labels)
+    nbrs: dict[int, set[int]] = {i: set() for i in idx}
+    for (a, b), c in touch.items():
+        if c >= 3:
+            nbrs[a].add(b)
+            nbrs[b].add(a)
+    lut = np.arange(n + 1)
+    done: set[int] = set()
+    for p in sorted(idx, key=lambda i: thick[i - 1]):
+        p = int(p)
+        if p in done or thick[p - 1] > cfg.tape_max_m:
+            continue
+        cand = [q for q in nbrs[p] if q not in done
+                and thick[p - 1] <= cfg.tape_rel * thick[q - 1]]
+        if len(cand) < 2:
+            continue
+        best = _same_colour(cand, cnt, mean, cfg.tape_colour)
+        if best is None:
+            continue
+        best = _tape_group(labels, p, best, touch, thick[p - 1], mpp, cfg)
+        if best is None:
+            continue
+        for q in best:
+            lut[q] = p
+            done.add(q)
+        done.add(p)
+    return lut[labels]
+
+
+def _thickness(labels: np.ndarray, mpp: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Per label: twice the 90th percentile of the distance (m) to another label or the
+    background. Depth holes inside a face are no borders (closed first); the 90th percentile,
+    not the maximum: the centre of a tape cross is wider than its arms."""
+    fgl = labels > 0
+    filled = cv2.morphologyEx(fgl.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
+    border = ~filled
+    for a, b, sl_a, sl_b in ((labels[:, 1:], labels[:, :-1], np.s_[:, 1:], np.s_[:, :-1]),
+                             (labels[1:, :], labels[:-1, :], np.s_[1:, :], np.s_[:-1, :])):
+        diff = (a != b) & (a > 0) & (b > 0)
+        border[sl_a] |= diff
+        border[sl_b] |= diff
+    inner = ~border
+    dist = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
+    return 2 * np.asarray(ndimage.labeled_comprehension(
+        dist * mpp, labels, idx, lambda v: np.percentile(v, 90), float, 0.0), float)
+
+
+def _same_colour(cand: list[int], cnt: np.ndarray, mean: np.ndarray, tol: float) -> list[int] | None:
+    """The candidates within `tol` (Lab) of the largest one that has at least one such
+    neighbour (largest first); None when no two share a colour."""
+    for seed in sorted(cand, key=lambda q: -cnt[q - 1]):
+        group = [q for q in cand
+                 if np.linalg.norm(mean[q - 1] - mean[seed - 1]) < tol]
+        if len(group) >= 2:
+            return group
+    return None
+
+
+def _tape_group(labels: np.ndarray, p: int, best: list[int], touch: dict[tuple[int, int], int],
+                thick_p: float, mpp: np.ndarray, cfg: DepthEdgeConfig) -> list[int] | None:
+    """The pieces tape `p` joins: those along its long sides first (not one it only touches
+    with its end), else all of `best`; when tape and pieces fill a rectangle and the tape
+    spans it (`spans`). None: no tape here."""
+    side = [q for q in best if touch[(min(p, q), max(p, q))]
+            >= 0.3 * max(touch[(min(p, r), max(p, r))] for r in best)]
+    for group in ([side, best] if len(side) >= 2 and len(side) < len(best) else [best]):
+        union = np.isin(labels, [p] + group)
+        if rect_fill(union) >= cfg.rect_fill and spans(
+                labels == p, union, cfg.tape_span, thick_p / max(float(np.median(mpp[union])), 1e-6),
+                cfg.tape_frac, cfg.tape_centre):
+            return group
+    return None
+
+
+def spans(piece: np.ndarray, union: np.ndarray, frac: float, thick_px: float = 0.0,
+          max_rel: float = 1.0, centre_tol: float = 1.0) -> bool:
+    """Whether `piece` looks like tape on the face `union`: it runs across the face along one
+    of its rectangle axes (>= `frac` of the face), is thin across that axis (<= `max_rel` of the
+    face) and lies near the middle of the face (tape closes the flaps' centre seam)."""
+    pts = cv2.findNonZero(piece.astype(np.uint8))
+    upts = cv2.findNonZero(union.astype(np.uint8))
+    if pts is None or upts is None:
+        return False
+    (_, _), (_, _), ang = cv2.minAreaRect(pts)
+    a = np.deg2rad(ang)
+    axes = (np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)]))
+    ext = []
+    for ax in axes:
+        pp = pts.reshape(-1, 2) @ ax
+        uu = upts.reshape(-1, 2) @ ax
+        ext.append((np.percentile(pp, 1), np.percentile(pp, 99), np.percentile(uu, 1), np.percentile(uu, 99)))
+    for i in (0, 1):
+        p0, p1, u0, u1 = ext[i]
+        if u1 - u0 <= 0 or p1 - p0 < frac * (u1 - u0):
+            continue
+        q0, q1, v0, v1 = ext[1 - i]
+        if v1 - v0 <= 0:
+            continue
+        width = min(q1 - q0, thick_px) if thick_px > 0 else q1 - q0
+        centre = abs(0.5 * (q0 + q1) - 0.5 * (v0 + v1)) / (v1 - v0)
+        if width <= max_rel * (v1 - v0) and centre <= centre_tol:
+            return True
+    return False
+
+
+def seam_fraction(labels: np.ndarray, edges: np.ndarray) -> dict[tuple[int, int], float]:
+    """(a, b) -> fraction of the border between pieces a and b that runs along a colour edge.
+
+    Two pieces of one face cut apart by a thin tape meet at the tape's middle, away
+    from any edge; two boxes meet at their seam, which is an edge line all along.
+    """
+    n = int(labels.max())
+    tot: dict[int, int] = {}
+    hit: dict[int, int] = {}
+    for a, b, ea, eb in ((labels[:, :-1], labels[:, 1:], edges[:, :-1], edges[:, 1:]),
+                         (labels[:-1, :], labels[1:, :], edges[:-1, :], edges[1:, :])):
+        sel = (a != b) & (a > 0) & (b > 0)
+        if not sel.any():
+            continue
+        code = np.minimum(a[sel], b[sel]).astype(np.int64) * (n + 1) + np.maximum(a[sel], b[sel])
+        e = (ea[sel] | eb[sel]).astype(np.int64)
+        u, inv = np.unique(code, return_inverse=True)
+        t = np.bincount(inv)
+        h = np.bincount(inv, weights=e)
+        for k, tt, hh in zip(u, t, h):
+            tot[int(k)] = tot.get(int(k), 0) + int(tt)
+            hit[int(k)] = hit.get(int(k), 0) + int(hh)
+    return {(k // (n + 1), k % (n + 1)): hit[k] / tot[k] for k in tot if tot[k] >= 10}
+
+
+def rect_fill(mask: np.ndarray) -> float:
+    """How well the mask fills its min-area rectangle: the rectangle of the mask opened by
+    5x5 (one-pixel spurs left by growing must not inflate it), depth holes closed."""
+    pts = cv2.findNonZero(mask.astype(np.uint8))
+    if pts is None:
+        return 0.0
+    x, y, w, h = cv2.boundingRect(pts)
+    sub = np.pad(mask[y:y + h, x:x + w].astype(np.uint8), 3)
+    sub = cv2.morphologyEx(sub, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    core = cv2.morphologyEx(sub, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+    cpts = cv2.findNonZero(core)
+    if cpts is None:
+        return 0.0
+    rect = cv2.minAreaRect(cpts)
+    box = np.zeros_like(sub)
+    cv2.fillPoly(box, [np.round(cv2.boxPoints(rect)).astype(np.int32)], 1)
+    return float((sub & box).sum()) / max(float(box.sum()), 1.0)
