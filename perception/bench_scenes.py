@@ -9,11 +9,13 @@ every box rests flat on the floor or on the box below, nothing overlaps.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
+from perception.geometry import matrix_to_quat
 from perception.scene import BOX_TYPES as TYPE_TABLE
-from perception.scene import Box, Scene, Shelf
+from perception.scene import Box, Camera, Scene, Shelf
 
 BOX_TYPES = tuple(TYPE_TABLE.values())
 
@@ -85,8 +87,6 @@ def _rot(axis: str, deg: float) -> np.ndarray:
 def _posed(box_id: str, size, rot: np.ndarray, bottom_center, variant: str) -> Box:
     """A box of `size` turned by `rot`, placed so its lowest corner rests at `bottom_center`'s z
     and its footprint centre at its x, y."""
-    from perception.geometry import matrix_to_quat
-
     half = np.asarray(size) / 2
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half @ rot.T
     lo, hi = corners.min(axis=0), corners.max(axis=0)
@@ -129,18 +129,7 @@ def sample_varied_scene(seed: int, n_boxes: int = 10) -> Scene:
     x = -shelf.width / 2 + float(rng.uniform(0.0, 0.03))
     while len(boxes) < n_boxes:
         size, typed = _varied_size(rng, shelf)
-        w, d, h = size
-        roll = rng.random()
-        if roll < 0.3:
-            variant, rot = "turned", _rot("z", float(rng.choice([-1, 1]) * rng.uniform(5, 20)))
-        elif roll < 0.42 and d + h * 0.35 < shelf.depth - 0.01:
-            variant, rot = "leaning-back", _rot("x", -float(rng.uniform(6, 18)))
-        elif roll < 0.52 and boxes:
-            variant, rot = "leaning-side", _rot("y", float(rng.uniform(6, 18)))
-        elif roll < 0.65:
-            variant, rot = "proud", np.eye(3)
-        else:
-            variant, rot = "upright", np.eye(3)
+        variant, rot = _varied_pose(rng, size, shelf, bool(boxes))
         probe = _posed("p", size, rot, (0.0, 0.0, 0.0), variant)
         ext = _aabb_of(probe)
         fw, fd = ext[1, 0] - ext[0, 0], ext[1, 1] - ext[0, 1]
@@ -156,46 +145,67 @@ def sample_varied_scene(seed: int, n_boxes: int = 10) -> Scene:
         tag = variant if typed else variant + "+odd"
         base = _posed(f"b{len(boxes)}", size, rot, (cx, front + fd / 2, 0.0), tag)
         boxes.append(base)
-        top = _aabb_of(base)[1, 2]
-        support = base
         # stack on upright or turned supports only (a leaning box carries nothing)
-        while variant in ("upright", "turned", "proud") and len(boxes) < n_boxes and rng.random() < 0.85:
-            sup = _aabb_of(support)
-            for _ in range(6):                       # a few draws for one that fits on the support
-                size2, typed2 = _varied_size(rng, shelf)
-                w2, d2, h2 = size2
-                if w2 <= (sup[1, 0] - sup[0, 0]) + 0.02 and top + h2 <= 1.1 and d2 <= shelf.depth - 0.01:
-                    break
-            else:
-                break
-            v2, r2 = ("turned", _rot("z", float(rng.choice([-1, 1]) * rng.uniform(5, 20)))) \
-                if rng.random() < 0.3 else ("upright", np.eye(3))
-            p2 = _aabb_of(_posed("p", size2, r2, (0.0, 0.0, 0.0), v2))
-            fw2, fd2 = p2[1, 0] - p2[0, 0], p2[1, 1] - p2[0, 1]
-            if fw2 > (sup[1, 0] - sup[0, 0]) + 0.03 or fd2 > shelf.depth:
-                break
-            off = 0.0 if structured else float(rng.uniform(-1, 1)) * max(0.0, (sup[1, 0] - sup[0, 0] - fw2) / 2)
-            f2 = float(np.clip(sup[0, 1] + (0.0 if structured else rng.uniform(-0.03, 0.03)),
-                               -0.02 if sup[0, 1] < 0 else 0.0, shelf.depth - fd2))
-            b2 = _posed(f"b{len(boxes)}", size2, r2, ((sup[0, 0] + sup[1, 0]) / 2 + off, f2 + fd2 / 2, top),
-                        v2 if typed2 else v2 + "+odd")
-            boxes.append(b2)
-            support, top = b2, _aabb_of(b2)[1, 2]
+        if variant in ("upright", "turned", "proud"):
+            boxes += _stacked_on(rng, base, shelf, structured, len(boxes), n_boxes - len(boxes))
         x = cx + fw / 2 + (0.01 if structured else float(rng.uniform(0.005, 0.05)))
     return Scene(shelf, tuple(boxes), None,
                  {"kind": "perception-bench", "layout": "varied-" + ("structured" if structured else "unstructured"),
                   "seed": seed})
 
 
+def _varied_pose(rng: np.random.Generator, size: tuple[float, float, float], shelf: Shelf,
+                 others: bool) -> tuple[str, np.ndarray]:
+    """(variant, rotation) of a column's bottom box: turned 30%, else leaning back (when it
+    fits), leaning sideways (not the first column), proud or upright."""
+    w, d, h = size
+    roll = rng.random()
+    if roll < 0.3:
+        return "turned", _rot("z", float(rng.choice([-1, 1]) * rng.uniform(5, 20)))
+    if roll < 0.42 and d + h * 0.35 < shelf.depth - 0.01:
+        return "leaning-back", _rot("x", -float(rng.uniform(6, 18)))
+    if roll < 0.52 and others:
+        return "leaning-side", _rot("y", float(rng.uniform(6, 18)))
+    if roll < 0.65:
+        return "proud", np.eye(3)
+    return "upright", np.eye(3)
+
+
+def _stacked_on(rng: np.random.Generator, base: Box, shelf: Shelf, structured: bool, first: int,
+                room: int) -> list[Box]:
+    """Up to `room` boxes stacked on `base` (ids from b`first`), each on the one below, each
+    upright or turned; the stack ends at random (15%) or when a draw does not fit."""
+    out: list[Box] = []
+    support, top = base, _aabb_of(base)[1, 2]
+    while len(out) < room and rng.random() < 0.85:
+        sup = _aabb_of(support)
+        for _ in range(6):                       # a few draws for one that fits on the support
+            size2, typed2 = _varied_size(rng, shelf)
+            w2, d2, h2 = size2
+            if w2 <= (sup[1, 0] - sup[0, 0]) + 0.02 and top + h2 <= 1.1 and d2 <= shelf.depth - 0.01:
+                break
+        else:
+            break
+        v2, r2 = ("turned", _rot("z", float(rng.choice([-1, 1]) * rng.uniform(5, 20)))) \
+            if rng.random() < 0.3 else ("upright", np.eye(3))
+        p2 = _aabb_of(_posed("p", size2, r2, (0.0, 0.0, 0.0), v2))
+        fw2, fd2 = p2[1, 0] - p2[0, 0], p2[1, 1] - p2[0, 1]
+        if fw2 > (sup[1, 0] - sup[0, 0]) + 0.03 or fd2 > shelf.depth:
+            break
+        off = 0.0 if structured else float(rng.uniform(-1, 1)) * max(0.0, (sup[1, 0] - sup[0, 0] - fw2) / 2)
+        f2 = float(np.clip(sup[0, 1] + (0.0 if structured else rng.uniform(-0.03, 0.03)),
+                           -0.02 if sup[0, 1] < 0 else 0.0, shelf.depth - fd2))
+        b2 = _posed(f"b{first + len(out)}", size2, r2, ((sup[0, 0] + sup[1, 0]) / 2 + off, f2 + fd2 / 2, top),
+                    v2 if typed2 else v2 + "+odd")
+        out.append(b2)
+        support, top = b2, _aabb_of(b2)[1, 2]
+    return out
+
+
 def varied_camera(seed: int):
     """A seeded camera for a varied scene: 0.9-1.8 m from the shelf front, 0.55-1.1 m up, up to
     15 cm off centre and turned up to 8 deg toward the middle, pitched to aim 0.25-0.45 m up
     the shelf front; focal length 0.75-1.05 x the width (640x480)."""
-    import math
-
-    from perception.geometry import matrix_to_quat
-    from perception.scene import Camera
-
     rng = np.random.default_rng(seed + 7_000_000)
     dist = float(rng.uniform(0.9, 1.8))
     height = float(rng.uniform(0.55, 1.1))

@@ -7,6 +7,7 @@ pixel belongs to at most one box.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 
@@ -37,8 +38,6 @@ def scaled_px(px: float, scale: float, least: int = 1) -> int:
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask with every hole that does not touch the image border filled."""
-    import cv2
-
     m = mask.astype(np.uint8)
     h, w = m.shape
     pad = np.zeros((h + 2, w + 2), np.uint8)
@@ -52,8 +51,6 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 
 def drop_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
     """Keep the connected pieces of at least `min_pixels` (8-connected)."""
-    import cv2
-
     n, lbl, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     keep = np.zeros(n, bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_pixels
@@ -61,8 +58,6 @@ def drop_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
 
 
 def largest_component(mask: np.ndarray) -> np.ndarray:
-    import cv2
-
     n, lbl, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
         return np.zeros(mask.shape, bool)
@@ -71,8 +66,6 @@ def largest_component(mask: np.ndarray) -> np.ndarray:
 
 def clean_mask(mask: np.ndarray, min_pixels: int = 200, open_px: int = 1) -> np.ndarray:
     """Small blobs dropped, holes filled, ragged one-pixel spurs opened away."""
-    import cv2
-
     m = mask.astype(bool)
     if open_px > 0 and m.any():
         k = np.ones((2 * open_px + 1, 2 * open_px + 1), np.uint8)
@@ -89,8 +82,6 @@ def split_by_depth(mask: np.ndarray, depth: np.ndarray | None, min_gap: float = 
     and both sides hold at least `min_fraction` of the pixels; each side is split
     again until no such gap is left. Pixels without depth go to the nearest part.
     """
-    import cv2
-
     m = mask.astype(bool)
     if depth is None or not m.any():
         return [m]
@@ -216,15 +207,12 @@ def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, ste
     belong to the face, so sizes and IoU are not biased low. No pixel is taken
     from another mask.
     """
-    import cv2
-
     if depth is None or not masks:
         return masks
     h, w = depth.shape
     valid = np.isfinite(depth) & (depth > 0)
     if allowed is not None:
         valid = valid & allowed
-    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
     if rgb is not None:
         gray = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), (3, 3), 0)
         edge = cv2.Canny(gray, 40, 110) > 0
@@ -233,49 +221,73 @@ def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, ste
     taken = np.zeros((h, w), bool)
     for m in masks:
         taken |= m
+    free = valid & ~taken
     out = []
-    k = np.ones((3, 3), np.uint8)
     for m in masks:
         m = m.astype(bool)
-        ys, xs = np.nonzero(m & valid)
-        if len(xs) < 30:
+        plane = _face_plane(m & valid, depth, camera, tol)
+        if plane is None:
             out.append(m)
             continue
-        step = max(1, len(xs) // 3000)
-        ys, xs = ys[::step], xs[::step]
-        z = depth[ys, xs].astype(np.float64)
-        p = np.stack([(xs - cx) / fx * z, (ys - cy) / fy * z, z], axis=1)
-        c = np.median(p, axis=0)
-        _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-        n = vt[2]
-        res = np.abs((p - c) @ n)
-        inl = res < max(tol, 3 * float(np.median(res)))
-        if inl.sum() > 20:
-            c = p[inl].mean(axis=0)
-            _, _, vt = np.linalg.svd(p[inl] - c, full_matrices=False)
-            n = vt[2]
-        y0, y1 = max(0, ys.min() - steps - 1), min(h, ys.max() + steps + 2)
-        x0, x1 = max(0, xs.min() - steps - 1), min(w, xs.max() + steps + 2)
-        sub = m[y0:y1, x0:x1].copy()
-        zz = depth[y0:y1, x0:x1].astype(np.float64)
-        uu = (np.arange(x0, x1) - cx) / fx
-        vv = (np.arange(y0, y1) - cy) / fy
-        dist = np.abs(n[0] * (uu[None, :] * zz - c[0]) + n[1] * (vv[:, None] * zz - c[1]) + n[2] * (zz - c[2]))
-        ok = valid[y0:y1, x0:x1] & (dist < tol) & ~taken[y0:y1, x0:x1]
-        stop = edge[y0:y1, x0:x1]
-        for _ in range(steps):
-            # growth may enter a colour-edge pixel (the true outline) but not pass it
-            grown = (cv2.dilate((sub & ~stop).astype(np.uint8), k) > 0) & ok
-            new = grown & ~sub
-            if not new.any():
-                break
-            sub |= new
-        full = m.copy()
-        full[y0:y1, x0:x1] = sub
-        out.append(fill_holes(full))
+        out.append(_grow_one(m, plane, depth, camera, free, edge, steps, tol))
     # pixels claimed by two grown masks go to neither (they were a boundary)
     count = np.sum([o.astype(np.uint8) for o in out], axis=0)
     return [o & ((count == 1) | m) for o, m in zip(out, masks)]
+
+
+def _face_plane(sel: np.ndarray, depth: np.ndarray, camera,
+                tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(centre, normal, rows, cols) of the plane fitted (SVD, outliers beyond `tol` or 3x the
+    median residual dropped) to a sample of at most ~3000 of the selected pixels, the
+    sample's rows and columns; None with fewer than 30 pixels."""
+    ys, xs = np.nonzero(sel)
+    if len(xs) < 30:
+        return None
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    step = max(1, len(xs) // 3000)
+    ys, xs = ys[::step], xs[::step]
+    z = depth[ys, xs].astype(np.float64)
+    p = np.stack([(xs - cx) / fx * z, (ys - cy) / fy * z, z], axis=1)
+    c = np.median(p, axis=0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    n = vt[2]
+    res = np.abs((p - c) @ n)
+    inl = res < max(tol, 3 * float(np.median(res)))
+    if inl.sum() > 20:
+        c = p[inl].mean(axis=0)
+        _, _, vt = np.linalg.svd(p[inl] - c, full_matrices=False)
+        n = vt[2]
+    return c, n, ys, xs
+
+
+def _grow_one(m: np.ndarray, plane: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+              depth: np.ndarray, camera, free: np.ndarray, edge: np.ndarray, steps: int,
+              tol: float) -> np.ndarray:
+    """The mask grown `steps` times by one pixel onto `free` pixels within `tol` of its plane,
+    entering a colour-edge pixel but not passing it; holes filled."""
+    c, n, ys, xs = plane
+    h, w = depth.shape
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    k = np.ones((3, 3), np.uint8)
+    y0, y1 = max(0, ys.min() - steps - 1), min(h, ys.max() + steps + 2)
+    x0, x1 = max(0, xs.min() - steps - 1), min(w, xs.max() + steps + 2)
+    sub = m[y0:y1, x0:x1].copy()
+    zz = depth[y0:y1, x0:x1].astype(np.float64)
+    uu = (np.arange(x0, x1) - cx) / fx
+    vv = (np.arange(y0, y1) - cy) / fy
+    dist = np.abs(n[0] * (uu[None, :] * zz - c[0]) + n[1] * (vv[:, None] * zz - c[1]) + n[2] * (zz - c[2]))
+    ok = free[y0:y1, x0:x1] & (dist < tol)
+    stop = edge[y0:y1, x0:x1]
+    for _ in range(steps):
+        # growth may enter a colour-edge pixel (the true outline) but not pass it
+        grown = (cv2.dilate((sub & ~stop).astype(np.uint8), k) > 0) & ok
+        new = grown & ~sub
+        if not new.any():
+            break
+        sub |= new
+    full = m.copy()
+    full[y0:y1, x0:x1] = sub
+    return fill_holes(full)
 
 
 # the borders beyond which a box may stand on or beside the seen ones; below the view of a shelf

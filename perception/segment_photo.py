@@ -9,7 +9,8 @@ the background. This segmenter works on what a carton photo does show (at `work_
 2. candidate regions, from two sources: the connected low-edge components at several edge
    thresholds (`levels`), each after closing seam gaps of 0-3 px (`gaps`: erode, label,
    dilate back); and every node of a merge tree of watershed superpixels (neighbours joined
-   weakest mean border first, small pieces such as printed letters early);
+   weakest mean border first, small pieces such as printed letters early;
+   `perception.photo_tree`);
 3. a score per candidate: half shape (its hole-filled mask against its min-area rectangle or
    its convex hull: a face is a quadrilateral, a whole carton seen at an angle a hexagon;
    labels and tape inside a face are holes and are filled), half outline support (the share
@@ -27,10 +28,12 @@ No learned weights; opencv, numpy and scipy. Figures: docs/perception-photos.md.
 """
 from __future__ import annotations
 
-import heapq
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+
+from perception.photo_tree import merge_tree, superpixels
 
 Candidate = tuple[float, tuple[int, int, int, int], np.ndarray]   # score, (y0, x0, y1, x1), mask in that box
 
@@ -76,20 +79,9 @@ class PhotoConfig:
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
-@dataclass
-class _Node:
-    """A region of the superpixel merge tree."""
-
-    area: int
-    bbox: tuple[int, int, int, int]       # y0, x0, y1, x1 (exclusive)
-    leaves: list[int]
-
-
 def edge_maps(rgb: np.ndarray, cfg: PhotoConfig) -> tuple[np.ndarray, np.ndarray]:
     """(boundary strength, dark-seam strength), both per pixel in [0, 1]: the first is the
     larger of the colour gradient and the seam map."""
-    import cv2
-
     img = cv2.GaussianBlur(rgb, (0, 0), cfg.blur_sigma)
     lab = cv2.cvtColor(img, cv2.COLOR_RGB2LAB).astype(np.float32)
     g2 = np.zeros(lab.shape[:2], np.float32)
@@ -110,42 +102,6 @@ def edge_maps(rgb: np.ndarray, cfg: PhotoConfig) -> tuple[np.ndarray, np.ndarray
 def edge_map(rgb: np.ndarray, cfg: PhotoConfig) -> np.ndarray:
     """Per-pixel boundary strength in [0, 1]: colour gradient plus dark thin seams."""
     return edge_maps(rgb, cfg)[0]
-
-
-def superpixels(edges: np.ndarray, spacing: int) -> np.ndarray:
-    """Watershed of the edge map from one seed per `spacing` cell (at the cell's weakest edge)."""
-    from scipy import ndimage
-
-    h, w = edges.shape
-    markers = np.zeros((h, w), np.int32)
-    n = 0
-    for y0 in range(0, h, spacing):
-        for x0 in range(0, w, spacing):
-            cell = edges[y0:y0 + spacing, x0:x0 + spacing]
-            iy, ix = np.unravel_index(int(np.argmin(cell)), cell.shape)
-            n += 1
-            markers[y0 + iy, x0 + ix] = n
-    lab = ndimage.watershed_ift((edges * 255).astype(np.uint8), markers)
-    return lab.astype(np.int32) - 1
-
-
-def _adjacency(lab: np.ndarray, edges: np.ndarray, n: int) -> dict[tuple[int, int], tuple[float, int]]:
-    """(a, b) with a < b -> (sum of edge strength along their border, border length)."""
-    pa = [lab[:, :-1].ravel(), lab[:-1, :].ravel()]
-    pb = [lab[:, 1:].ravel(), lab[1:, :].ravel()]
-    ps = [np.maximum(edges[:, :-1], edges[:, 1:]).ravel(), np.maximum(edges[:-1, :], edges[1:, :]).ravel()]
-    a = np.concatenate(pa)
-    b = np.concatenate(pb)
-    s = np.concatenate(ps)
-    keep = a != b
-    a, b, s = a[keep], b[keep], s[keep]
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    code = lo.astype(np.int64) * n + hi
-    uniq, inv = np.unique(code, return_inverse=True)
-    sums = np.bincount(inv, weights=s)
-    cnts = np.bincount(inv)
-    return {(int(c // n), int(c % n)): (float(sm), int(ct)) for c, sm, ct in zip(uniq, sums, cnts)}
-
 
 
 def split_on_lines(mask: np.ndarray, strong: np.ndarray, cfg: PhotoConfig, min_pixels: int = 50,
@@ -220,8 +176,6 @@ class PhotoSegmenter:
 
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
         """One HxW bool mask per carton found, disjoint; `depth` is not used."""
-        import cv2
-
         cfg = self.config
         rgb = np.asarray(rgb)
         if rgb.ndim == 2:
@@ -259,8 +213,6 @@ class PhotoSegmenter:
         """Score = half shape quality, half outline support: the share of the region's outline
         that runs along an edge (a seam or a carton's border against the background); a piece
         cut out of one face by its printing, or a patch of wall, has less."""
-        import cv2
-
         cfg = self.config
         strong = cv2.dilate((edges >= cfg.support_edge).astype(np.uint8), np.ones((5, 5), np.uint8))
         out = []
@@ -282,7 +234,7 @@ class PhotoSegmenter:
         h, w = edges.shape
         total = h * w
         lab = superpixels(edges, cfg.seed_px)
-        nodes = self._merge_tree(rgb, lab, edges)
+        nodes = merge_tree(rgb, lab, edges, cfg)
         nl = int(lab.max()) + 1
         out = []
         for nd in nodes:
@@ -300,8 +252,6 @@ class PhotoSegmenter:
 
     def candidates(self, edges: np.ndarray) -> list[Candidate]:
         """(quality, bbox, filled mask in bbox) of every low-edge component at every level."""
-        import cv2
-
         cfg = self.config
         h, w = edges.shape
         total = h * w
@@ -339,8 +289,6 @@ class PhotoSegmenter:
         """How much the hole-filled region looks like one carton: its IoU with its min-area
         rectangle, and with its convex hull (a whole carton seen at an angle); and the hull,
         the mask the region is kept as."""
-        import cv2
-
         cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if not cnts:
             return None
@@ -431,74 +379,3 @@ class PhotoSegmenter:
             sub |= g
             n_parts += 1
         return n_parts >= 2 and float(np.logical_and(cover, f).sum()) >= cfg.split_cover * areas[i]
-
-    # ------------------------------------------------------------------
-    def _merge_tree(self, rgb: np.ndarray, lab: np.ndarray, edges: np.ndarray) -> list[_Node]:
-        """Superpixels joined pairwise, weakest border first (mean edge strength along it plus
-        the mean-colour difference; pieces below `small_frac` of the photo first), up to one
-        region: every join is a node."""
-        import cv2
-
-        cfg = self.config
-        h, w = lab.shape
-        n = int(lab.max()) + 1
-        flat = lab.ravel()
-        area = np.bincount(flat, minlength=n).astype(np.int64)
-        col = cv2.cvtColor(cv2.GaussianBlur(rgb, (0, 0), cfg.blur_sigma), cv2.COLOR_RGB2LAB).astype(np.float64)
-        csum = np.stack([np.bincount(flat, weights=col[..., c].ravel(), minlength=n) for c in range(3)], 1)
-        ys, xs = np.indices((h, w))
-        y0 = np.full(n, h, np.int64)
-        x0 = np.full(n, w, np.int64)
-        y1 = np.zeros(n, np.int64)
-        x1 = np.zeros(n, np.int64)
-        np.minimum.at(y0, flat, ys.ravel())
-        np.minimum.at(x0, flat, xs.ravel())
-        np.maximum.at(y1, flat, ys.ravel() + 1)
-        np.maximum.at(x1, flat, xs.ravel() + 1)
-        nodes = [_Node(int(area[i]), (int(y0[i]), int(x0[i]), int(y1[i]), int(x1[i])), [i]) for i in range(n)]
-        colsum = [csum[i] for i in range(n)]
-        nbr: list[dict[int, list[float]]] = [dict() for _ in range(n)]
-        for (a, b), (sm, ct) in _adjacency(lab, edges, n).items():
-            nbr[a][b] = [sm, ct]
-            nbr[b][a] = [sm, ct]
-        small = cfg.small_frac * h * w
-
-        def prio(a: int, b: int) -> float:
-            sm, ct = nbr[a][b]
-            ca = colsum[a] / nodes[a].area
-            cb = colsum[b] / nodes[b].area
-            dc = float(np.linalg.norm(ca - cb)) / 100.0
-            p = sm / ct + cfg.colour_weight * dc
-            return p * min(1.0, min(nodes[a].area, nodes[b].area) / small) ** 0.5
-
-        heap = [(prio(a, b), a, b) for a in range(n) for b in nbr[a] if a < b]
-        heapq.heapify(heap)
-        alive = [True] * n
-        while heap:
-            _, a, b = heapq.heappop(heap)
-            if not (alive[a] and alive[b]):
-                continue
-            na, nb = nodes[a], nodes[b]
-            c = len(nodes)
-            bb = (min(na.bbox[0], nb.bbox[0]), min(na.bbox[1], nb.bbox[1]),
-                  max(na.bbox[2], nb.bbox[2]), max(na.bbox[3], nb.bbox[3]))
-            nodes.append(_Node(na.area + nb.area, bb, na.leaves + nb.leaves))
-            colsum.append(colsum[a] + colsum[b])
-            alive[a] = alive[b] = False
-            alive.append(True)
-            merged: dict[int, list[float]] = {}
-            for src in (a, b):
-                for k, (s_, c_) in nbr[src].items():
-                    if k in (a, b):
-                        continue
-                    e = merged.setdefault(k, [0.0, 0])
-                    e[0] += s_
-                    e[1] += c_
-                    del nbr[k][src]
-            nbr.append(merged)
-            nbr[a] = {}
-            nbr[b] = {}
-            for k, e in merged.items():
-                nbr[k][c] = e
-                heapq.heappush(heap, (prio(c, k), c, k) if c < k else (prio(k, c), k, c))
-        return nodes
