@@ -34,7 +34,7 @@ from perception.errors import ShelfpickError
 from perception.scene import Box, Scene
 from planning.plan import Plan
 
-from console.robot_types import (EVENT_KINDS, HISTORY, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
+from console.robot_types import (EVENT_KINDS, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
                                  RobotOutcome, StepHistory, emit, finish, query_float)
 
 
@@ -282,4 +282,4 @@ def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDri
 
 
 __all__ = ["RobotEvent", "RobotOutcome", "RobotDriver", "RobotError", "SimRobot",
-           "StepHistory", "HISTORY", "match_boxes", "open_robot", "REPLAN", "EVENT_KINDS"]
+           "StepHistory", "match_boxes", "open_robot", "REPLAN", "EVENT_KINDS"]

@@ -32,7 +32,7 @@ from perception.errors import FormatError
 from perception.scene import Box, Scene, quat_to_matrix, read_json
 from planning.plan import Plan
 
-from console.robot_types import (HISTORY, RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
+from console.robot_types import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
                                  new_run_id, query_float)
 
 PROTOCOL = "shelfpick.robot/1"
@@ -309,7 +309,8 @@ class TcpRobot:
         # the console's look after each step: verify(step, box, None) -> None (go on) or why to hold
         self.verify: Callable[..., str | None] | None = None
         self.timeouts = timeouts or Timeouts()
-        self.history = history or HISTORY
+        # what this driver's runs did (skipped, never re-sent); the console hands each run its own
+        self.history = history if history is not None else StepHistory()
         self.robot_info: dict = {}
         self.run_id: str | None = None       # set by the console (recorded with the run); None: one per run
         self.last_run_id: str | None = None  # the id the last execute() sent

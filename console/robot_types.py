@@ -76,8 +76,11 @@ class RobotDriver(Protocol):
 class StepHistory:
     """Steps each plan hash has completed (and steps whose outcome is unknown), per robot endpoint.
 
-    Kept process-wide so that a fresh driver object for the same robot (the
-    console builds one per run) still never re-sends a completed step.
+    Owned by whoever opens the robot and handed to the driver: the console's
+    workflow makes one per run, seeded from the session database (the
+    persistent "never re-send a step", keyed by capture and plan), so every
+    reconnect within that run sees what the run already did; a driver made
+    without one owns its own (its reconnects share it, another driver's do not).
     """
 
     def __init__(self) -> None:
@@ -113,9 +116,6 @@ class StepHistory:
             for d in (self._done, self._unknown):
                 for k in [k for k in d if endpoint is None or k[0] == endpoint]:
                     del d[k]
-
-
-HISTORY = StepHistory()
 
 
 def emit(on_event: Callable[[RobotEvent], None], ev: RobotEvent) -> None:
@@ -168,4 +168,4 @@ def query_float(q: dict[str, list[str]], key: str, spec: str, default: float) ->
 
 
 __all__ = ["EVENT_KINDS", "REPLAN", "RobotError", "RobotEvent", "RobotOutcome", "RobotDriver", "StepHistory",
-           "HISTORY", "emit", "finish", "new_run_id", "query_float"]
+           "emit", "finish", "new_run_id", "query_float"]

@@ -1038,10 +1038,13 @@ def _look_once(source: Source, world: Scene | None, step: int, box: str, predict
 
 
 def _seed_history(robot: RobotDriver, plan_hash: str, done: dict[int, str]) -> None:
-    """The driver's step history for this run: what this session already did, nothing else.
+    """Give the driver the step history of this run: what this session already did, nothing else.
 
-    The drivers keep a process-wide history keyed by plan hash alone; a new
-    capture with the same sequence is a new run, so each run gets a fresh one.
+    The workflow owns it: seeded from the database (`store.step_states`, the
+    never-re-send that survives a restart) and handed to the driver, which
+    keys it by plan hash alone; a new capture with the same sequence is a new
+    run, so each run gets a fresh one. A driver without a `history` (the sim
+    robot, whose world is new every run) keeps its own.
     """
     if not hasattr(robot, "history"):
         return

@@ -20,8 +20,9 @@ from typing import Callable
 
 import pytest
 
-from console.robot import HISTORY, RobotEvent
+from console.robot import RobotEvent
 from console.robot_tcp import LineConn, ProtocolError, Timeouts, TcpRobot
+from console.robot_types import StepHistory
 from perception.scene import Box, Scene, Shelf
 from planning.plan import Plan
 
@@ -37,13 +38,6 @@ def row_scene() -> Scene:
 
 PLAN = Plan("clear", None, "physics", ("b0", "b1", "b2", "b3"))
 H = PLAN.content_hash()
-
-
-@pytest.fixture(autouse=True)
-def _fresh_history():
-    HISTORY.forget()
-    yield
-    HISTORY.forget()
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -187,11 +181,12 @@ class Peer:
 
 
 def drive(script: Callable[[Link], None], stop_when: Callable[[RobotEvent], bool] | None = None,
-          plan: Plan = PLAN):
+          plan: Plan = PLAN, history: StepHistory | None = None):
     """Run PLAN against a hostile peer; returns (outcome, events, peer, seconds).
 
     `stop_when(event)`: press Stop on that event (the peer's fault point); a
-    script may also press it itself (`link.peer.stop`).
+    script may also press it itself (`link.peer.stop`). `history`: the step
+    history the driver is handed (as the console hands one per run); None: its own.
     """
     peer = Peer(script)
     events: list[RobotEvent] = []
@@ -203,7 +198,8 @@ def drive(script: Callable[[Link], None], stop_when: Callable[[RobotEvent], bool
             peer.stop.set()
 
     t0 = time.monotonic()
-    out = TcpRobot("127.0.0.1", peer.port, timeouts=FAST).execute(plan, row_scene(), on_event, peer.stop)
+    out = TcpRobot("127.0.0.1", peer.port, timeouts=FAST, history=history).execute(plan, row_scene(), on_event,
+                                                                                   peer.stop)
     elapsed = time.monotonic() - t0
     peer.steps()  # the peer has finished
     return out, events, peer, elapsed
@@ -400,16 +396,17 @@ LIES = {
 
 @pytest.mark.parametrize("name", list(LIES))
 def test_a_peer_that_lies(name) -> None:
-    out, events, peer, elapsed = drive(LIES[name])
+    history = StepHistory()
+    out, events, peer, elapsed = drive(LIES[name], history=history)
     st = judged(out, events, peer, elapsed)
     lied_about = 1 if name == "duplicate-done" else 0
     assert st[lied_about] == "unknown", st
     assert "done" not in [st[i] for i in range(lied_about, 4)]
     assert events[-1].kind == "disconnected" and events[-1].detail["code"] == "PROTOCOL"
     assert "broke the protocol" in out.error and "unknown" in out.error
-    # the plan is blocked: a second run sends nothing, since that step may have moved
+    # the plan is blocked: a second run with the same history sends nothing, since that step may have moved
     events2: list[RobotEvent] = []
-    again = TcpRobot("127.0.0.1", peer.port, timeouts=FAST).execute(PLAN, row_scene(), events2.append,
+    again = TcpRobot("127.0.0.1", peer.port, timeouts=FAST, history=history).execute(PLAN, row_scene(), events2.append,
                                                                     threading.Event())
     assert not again.ok and "not sent again" in again.error and events2 == []
 

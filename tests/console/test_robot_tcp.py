@@ -10,9 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from console.robot import HISTORY, RobotError, RobotEvent, open_robot
+from console.robot import RobotError, RobotEvent, open_robot
 from console.robot_controller import RobotController
 from console.robot_tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
+from console.robot_types import StepHistory
 from perception.errors import FormatError
 from perception.scene import Box, Scene, Shelf, yaw_quat
 from planning.plan import Plan
@@ -34,13 +35,6 @@ def run(robot: TcpRobot, plan: Plan, scene: Scene, stop: threading.Event | None 
     events: list[RobotEvent] = []
     out = robot.execute(plan, scene, events.append, stop or threading.Event())
     return out, events
-
-
-@pytest.fixture(autouse=True)
-def _fresh_history():
-    HISTORY.forget()
-    yield
-    HISTORY.forget()
 
 
 def driver(ctl: RobotController, **kw) -> TcpRobot:
@@ -70,9 +64,9 @@ def test_full_plan_ok_and_messages_are_in_the_robot_frame() -> None:
 
 
 def test_disconnect_mid_plan_records_completed_and_never_resends() -> None:
-    plan, scene = clear_plan(), row_scene()
+    plan, scene, history = clear_plan(), row_scene(), StepHistory()   # the history the console would own
     with RobotController(drop_after=2) as ctl:
-        out, events = run(driver(ctl), plan, scene)
+        out, events = run(driver(ctl, history=history), plan, scene)
         assert not out.ok and out.needs_replan
         assert out.completed == ("b0", "b1")
         assert "new capture and plan" in out.error and "lost" in out.error
@@ -80,9 +74,9 @@ def test_disconnect_mid_plan_records_completed_and_never_resends() -> None:
         assert [s["status"] for s in out.steps][:2] == ["done", "done"]
         assert out.steps[2]["status"] in ("not_sent", "unacknowledged") and out.steps[3]["status"] == "not_sent"
         assert events[-1].kind == "disconnected"
-        # retry the same plan on a fresh driver object (as the console does): only steps 2 and 3 go out
+        # retry the same plan on a fresh driver object with the same history: only steps 2 and 3 go out
         ctl.drop_after = None
-        out2, events2 = run(driver(ctl), plan, scene)
+        out2, events2 = run(driver(ctl, history=history), plan, scene)
     assert out2.ok and out2.completed == ("b0", "b1", "b2", "b3")
     assert [s["status"] for s in out2.steps] == ["skipped", "skipped", "done", "done"]
     sent = [m["step"] for m in ctl.received("step")]
@@ -92,14 +86,14 @@ def test_disconnect_mid_plan_records_completed_and_never_resends() -> None:
 
 
 def test_step_in_flight_when_link_drops_is_unknown_and_blocks_the_plan() -> None:
-    plan, scene = clear_plan(), row_scene()
+    plan, scene, history = clear_plan(), row_scene(), StepHistory()
     with RobotController(drop_during=1) as ctl:
-        out, _ = run(driver(ctl), plan, scene)
+        out, _ = run(driver(ctl, history=history), plan, scene)
         assert out.completed == ("b0",)
         assert [s["status"] for s in out.steps][:2] == ["done", "unknown"]
         assert "in flight" in out.error
         ctl.drop_during = None
-        out2, events2 = run(driver(ctl), plan, scene)
+        out2, events2 = run(driver(ctl, history=history), plan, scene)
     assert not out2.ok and "not sent again" in out2.error and events2 == []
     assert [m["step"] for m in ctl.received("step")] == [0, 1]  # step 1 was executed once, never re-sent
 
@@ -283,8 +277,6 @@ def step_line(plan: str, step: int, box: str, run: str | None) -> dict:
 def test_two_runs_of_one_plan_hash_both_execute_each_with_its_own_run_id() -> None:
     """A new capture that gives the same sequence is a new run: the reference controller executes it
     (it used to answer DUPLICATE_STEP, keyed by plan hash and step alone)."""
-    from console.robot_types import StepHistory
-
     plan, scene = clear_plan(), row_scene()
     with RobotController() as ctl:
         outs = []
@@ -344,7 +336,6 @@ def test_a_repeated_step_within_one_run_is_refused() -> None:
 def test_the_driver_refused_as_duplicate_when_it_resends_within_its_run() -> None:
     """The robot's refusal is a second line of defence: a driver whose history was lost but whose run
     id is the same (a retry of one run) is refused before anything moves, and says so."""
-    from console.robot_types import StepHistory
 
     plan, scene = clear_plan(("b0", "b1")), row_scene()
     with RobotController() as ctl:
