@@ -17,16 +17,24 @@ Real (../shared/realdata, never copied into the repo):
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 
-from perception.scene import Scene, Shelf
+from perception.bench_scenes import sample_scene
+from perception.bench_truth import front_face_masks
+from perception.capture import Capture, read_depth, read_rgb
+from perception.errors import PerceptionError
+from perception.geometry import camera_from_matrix, matrix_to_quat, point_map
+from perception.render import DEFAULT_PITCH_DEG, _rot_x, default_camera, render
+from perception.scene import Scene, Shelf, quat_to_matrix
+from perception.segment import for_capture
 
 MIN_GT_PIXELS = 400
 DEFAULT_DISTANCE = 1.05     # m: perception.render.default_camera's distance to the shelf front
@@ -36,11 +44,6 @@ def camera_at(distance: float = DEFAULT_DISTANCE):
     """The default camera moved back along -y to `distance` m from the shelf front and
     re-pitched to look at the same point of the shelf front (at 1.05 m: the default camera).
     Why: perception must hold when the camera is set further back to see a whole stack."""
-    import dataclasses
-
-    from perception.errors import PerceptionError
-    from perception.render import DEFAULT_PITCH_DEG, _rot_x, default_camera
-
     if not 0.3 <= distance <= 4.0:
         raise PerceptionError(f"--distance: camera distance must be 0.3-4.0 m, got {distance}")
     base = default_camera()
@@ -97,17 +100,13 @@ class FrameResult:
 
 
 def _angle_of(box) -> float:
-    from perception.scene import quat_to_matrix
-
     r = np.asarray(quat_to_matrix(box.orientation))
     ex = r[:, 0]
     return math.degrees(math.atan2(ex[2], math.hypot(ex[0], ex[1])))
 
 
 def eval_rendered(scene: Scene, name: str, seed: int, segmenter=None, camera=None) -> FrameResult:
-    from perception.bench_truth import front_face_masks
     from perception.pipeline import perceive
-    from perception.render import render
 
     cap = render(scene, camera, seed=seed)
     least = MIN_GT_PIXELS if camera is None else min_gt_pixels(camera)
@@ -150,8 +149,6 @@ def summarise(frames: list[FrameResult]) -> dict:
 
 def scenes_from(dir_: str | Path | None, count: int, seed: int) -> list[tuple[str, Scene]]:
     """Scenes from JSON files in a folder, or `count` sampled ones (half structured)."""
-    from perception.bench_scenes import sample_scene
-
     if dir_:
         files = sorted(Path(dir_).glob("*.json"))
         out = []
@@ -219,9 +216,7 @@ def bench_photos(pairs: list[tuple[Path, Path]], segmenter, progress: bool = Tru
     import cv2
     from tqdm import tqdm
 
-    from perception.capture import read_rgb
     from perception.masks import refine
-    from perception.segment import for_capture
 
     segmenter = for_capture(segmenter, has_depth=False)
     rows = []
@@ -330,11 +325,6 @@ def neura_capture(root: Path, floor_gap: float = 0.03):
     (the floor is the back wall of a pallet seen from above; the pallet wood stays in front)."""
     import cv2
 
-    from perception.capture import Capture, read_depth, read_rgb
-    from perception.geometry import camera_from_matrix, point_map
-    from perception.geometry import matrix_to_quat
-    from perception.scene import quat_to_matrix
-
     d = root / "data" / "small_box"
     intr = json.loads((d / "intrinsics.json").read_text())
     cam2root = np.asarray(json.loads((d / "cam2root.json").read_text())["cam2root"])
@@ -350,8 +340,6 @@ def neura_capture(root: Path, floor_gap: float = 0.03):
     valid = depth > 0
     normal, on_floor = fit_floor(point_map(cam, depth)[valid])
     turn = _rotation_onto(normal, np.array([0.0, 1.0, 0.0]))
-    from dataclasses import replace
-
     rot = turn @ np.asarray(quat_to_matrix(cam.orientation))
     cam = replace(cam, position=tuple(float(v) for v in turn @ np.asarray(cam.position)),
                   orientation=matrix_to_quat(rot))

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from perception.errors import PerceptionError
-from perception.geometry import matrix_to_quat
+from perception.geometry import matrix_to_quat, project
 from perception.scene import Camera
 
 PLACEMENTS: dict[str, np.ndarray] = {
@@ -136,8 +136,6 @@ def board_in_view(camera: Camera, spec: BoardSpec, placement: BoardPlacement, ba
     """A synthetic RGB image of the printed board placed as `placement`, seen by `camera` (a pinhole
     warp of the board's print onto `background`): what `calibrate` is tested on."""
     import cv2
-
-    from perception.geometry import project
 
     margin = 0.5
     print_img = board_image(spec, px_per_square, margin)

@@ -9,6 +9,8 @@ whose size does not match, a depth map with no valid pixel.
 """
 from __future__ import annotations
 
+import io
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -86,8 +88,6 @@ def _jpeg_complete(data: bytes) -> bool:
     """Whether a JPEG that does not END with its end-of-image marker still holds a whole image:
     cameras and editors append data after the marker (a real RCAN photo carries 9.6 KB), and an
     embedded EXIF thumbnail has a marker of its own, so Pillow's full decode decides."""
-    import io
-
     from PIL import Image
 
     try:
@@ -239,8 +239,6 @@ def read_masks(path: Path, shape: tuple[int, int]) -> np.ndarray:
 
 def read_labels(path: Path) -> dict[int, str]:
     """`masks.json`: mask label (a decimal integer 1-65535, as a JSON key) -> box id."""
-    import re
-
     doc = read_json(path)
     if not isinstance(doc, dict):
         raise FormatError(str(path), "", f"expected an object of mask label -> box id, got {type(doc).__name__}")

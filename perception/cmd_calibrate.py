@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
+
+from perception.errors import PerceptionError
 
 log = logging.getLogger(__name__)
 
@@ -27,13 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import math
-
     import cv2
 
     from perception.calibrate import BoardPlacement, BoardSpec, board_image, calibrate
     from perception.capture import read_rgb
-    from perception.errors import PerceptionError
     from perception.scene import Camera
 
     for name in ("square", "marker"):

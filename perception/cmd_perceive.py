@@ -3,6 +3,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
+from pathlib import Path
+
+from perception.errors import PerceptionError
 
 log = logging.getLogger(__name__)
 
@@ -36,10 +40,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _check_numbers(args: argparse.Namespace) -> None:
     """Options that are sizes or distances: finite and > 0 (a scene written with a 0 m wide shelf
     cannot be loaded again)."""
-    import math
-
-    from perception.errors import PerceptionError
-
     for flag, vals in (("--front-distance", [args.front_distance] if args.front_distance is not None else []),
                        ("--box-size", list(args.box_size or [])), ("--shelf", list(args.shelf or []))):
         bad = [v for v in vals if not (math.isfinite(v) and v > 0)]
@@ -52,10 +52,6 @@ def _check_depth_given(args: argparse.Namespace) -> None:
     """An RGB-D capture folder (as `render`, a RealSense capture or Capture.save write it) perceived
     without its depth image: the distance to every box would be a guess (issue 13: a shelf-sized
     box, exit 0). Refused unless the colour alone is asked for with a distance or a box size."""
-    from pathlib import Path
-
-    from perception.errors import PerceptionError
-
     if args.depth is not None or args.front_distance is not None or args.box_size is not None:
         return
     rgb = Path(args.rgb)
@@ -89,8 +85,6 @@ def _write(path: str, what: str, write) -> None:
     user's to fix, so it becomes a one-line PerceptionError naming the file."""
     import cv2
 
-    from perception.errors import PerceptionError
-
     try:
         ok = write()
     except (OSError, cv2.error) as exc:
@@ -104,7 +98,6 @@ def run(args: argparse.Namespace) -> int:
     import cv2
 
     from perception.capture import check_depth_structure, load_capture
-    from perception.errors import PerceptionError
     from perception.pipeline import perceive
     from perception.scene import Shelf, write_json
     from perception.segment import load_segmenter

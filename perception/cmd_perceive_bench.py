@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from perception.errors import PerceptionError
+
 HELP = "measure perception (recall, precision, centre/size/angle error, time) on renders and real data"
 
 
@@ -26,7 +28,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from perception import bench
-    from perception.errors import PerceptionError
     from perception.scene import write_json
     from perception.segment import load_segmenter, segmenter_name
 

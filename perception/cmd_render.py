@@ -5,6 +5,7 @@ import argparse
 import logging
 import os
 import sys
+import time
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -48,8 +49,6 @@ def c_stdout_to_stderr(keep_stderr: bool = False) -> Iterator[None]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import time
-
     from perception.render import render
     from perception.scene import Camera, Scene
 

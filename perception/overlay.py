@@ -1,13 +1,14 @@
 """The picture a person checks perception by: masks, rectangles and box ids over the RGB."""
 from __future__ import annotations
 
+import colorsys
+
+import cv2
 import numpy as np
 
 
 def palette(n: int) -> np.ndarray:
     """n distinct saturated RGB colours (golden-ratio hues), deterministic."""
-    import colorsys
-
     return np.array([[int(255 * c) for c in colorsys.hsv_to_rgb((i * 0.618034) % 1.0, 0.85, 0.95)]
                      for i in range(max(n, 1))], np.uint8)
 
@@ -15,8 +16,6 @@ def palette(n: int) -> np.ndarray:
 def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | None = None,
                  alpha: float = 0.45) -> np.ndarray:
     """RGB uint8 image: each label tinted, its min-area rectangle outlined and its box id written."""
-    import cv2
-
     out = rgb.copy()
     ids = [int(k) for k in np.unique(labels) if k > 0]
     if not ids:

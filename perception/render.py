@@ -18,8 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from perception.capture import Capture
+from perception.cardboard import BACKGROUND_RGB, SHELF_RGB, box_texture, plain_box_texture, plain_texture, write_png
 from perception.geometry import pose_matrix, project  # noqa: F401 - project is part of this module's API
 from perception.scene import Camera, Scene, quat_to_matrix, wxyz_to_xyzw
+from perception.stdio import quiet_stdio
 
 NEAR, FAR = 0.05, 6.0          # clip planes, metres
 MAX_RANGE = 4.0                # beyond this a D435 reports nothing useful
@@ -148,8 +150,6 @@ class _Builder:
         self.n_tex = 0
 
     def texture(self, img: np.ndarray) -> int:
-        from perception.cardboard import write_png
-
         path = write_png(self.tmp / f"t{self.n_tex}.png", img)
         self.n_tex += 1
         return self.c.loadTexture(str(path))
@@ -170,8 +170,6 @@ class _Builder:
 
 
 def _build_shelf(b: _Builder, scene: Scene, rng: np.random.Generator) -> None:
-    from perception.cardboard import BACKGROUND_RGB, SHELF_RGB, plain_texture
-
     s = scene.shelf
     t = float(rng.uniform(0.015, 0.03))                       # board thickness
     shelf_rgb = SHELF_RGB[rng.integers(len(SHELF_RGB))]
@@ -218,9 +216,6 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
     """
     if looks not in LOOKS:
         raise ValueError(f"looks must be one of {LOOKS}, got {looks!r}")
-    from perception.cardboard import box_texture, plain_box_texture
-    from perception.stdio import quiet_stdio
-
     cam = camera or scene.camera or default_camera()
     rng = np.random.default_rng(seed)
     with quiet_stdio():   # pybullet prints its build time on import and "argv[0]=" on connect

@@ -16,14 +16,19 @@ which faces there are, the depth edges where they end (a photo is not snapped).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from scipy import ndimage as ndi
 
+from perception.bench import match
 from perception.errors import PerceptionError
+from perception.segment_depth import DepthEdgeSegmenter
 
 ROOT = Path(__file__).resolve().parent.parent
 LEARNED_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-learned.pt"
@@ -50,8 +55,19 @@ def _torch():
 
 
 def build_model(decoder_channels: int = 64):
-    """The untrained network (backbone + decoder); `load_backbone` / `load_model` fill it."""
+    """The untrained network (backbone + decoder); `load_backbone` / `load_model` fill it.
+    Its classes are made here, on first use, so that importing this module needs no torch."""
     torch = _torch()
+    conv, block = _backbone_layers(torch)
+    return _net_class(torch, conv, block)(decoder_channels)
+
+
+def _bn(nn, c: int):
+    return nn.BatchNorm2d(c, eps=1e-3, momentum=0.01)
+
+
+def _backbone_layers(torch) -> tuple[type, type]:
+    """(SamePadConv, Block): EfficientNet-Lite0's depthwise conv and MBConv block."""
     nn, F = torch.nn, torch.nn.functional
 
     class SamePadConv(nn.Conv2d):
@@ -66,9 +82,6 @@ def build_model(decoder_channels: int = 64):
             x = F.pad(x, [pw // 2, pw - pw // 2, ph // 2, ph - ph // 2])
             return F.conv2d(x, self.weight, self.bias, self.stride, 0, self.dilation, self.groups)
 
-    def bn(c):
-        return nn.BatchNorm2d(c, eps=1e-3, momentum=0.01)
-
     class Block(nn.Module):
         def __init__(self, k, s, e, cin, cout):
             super().__init__()
@@ -76,11 +89,11 @@ def build_model(decoder_channels: int = 64):
             self.expand = e != 1
             if self.expand:
                 self._expand_conv = nn.Conv2d(cin, mid, 1, bias=False)
-                self._bn0 = bn(mid)
+                self._bn0 = _bn(nn, mid)
             self._depthwise_conv = SamePadConv(mid, mid, k, stride=s, groups=mid, bias=False)
-            self._bn1 = bn(mid)
+            self._bn1 = _bn(nn, mid)
             self._project_conv = nn.Conv2d(mid, cout, 1, bias=False)
-            self._bn2 = bn(cout)
+            self._bn2 = _bn(nn, cout)
             self.skip = s == 1 and cin == cout
 
         def forward(self, x):
@@ -89,11 +102,18 @@ def build_model(decoder_channels: int = 64):
             y = self._bn2(self._project_conv(y))
             return y + x if self.skip else y
 
+    return SamePadConv, Block
+
+
+def _net_class(torch, SamePadConv: type, Block: type) -> type:
+    """The network: the Lite0 backbone, tapped at strides 4-32, and an FPN decoder."""
+    nn, F = torch.nn, torch.nn.functional
+
     class Net(nn.Module):
-        def __init__(self):
+        def __init__(self, decoder_channels: int):
             super().__init__()
             self._conv_stem = SamePadConv(3, 32, 3, stride=2, bias=False)
-            self._bn0 = bn(32)
+            self._bn0 = _bn(nn, 32)
             blocks = []
             for k, s, e, cin, cout, n in LITE0_STAGES:
                 for i in range(n):
@@ -124,7 +144,7 @@ def build_model(decoder_channels: int = 64):
                 y = self.smooth[i](y + self.lateral[i](taps[i]))
             return self.head(y)      # logits at 1/4 of the input size
 
-    return Net()
+    return Net
 
 
 def load_backbone(model, path: str | Path) -> None:
@@ -200,8 +220,6 @@ def instances(prob: np.ndarray, cfg: LearnedConfig) -> np.ndarray:
     """Instance labels (int32, 0 = none) from class probabilities (3xhxw): connected
     components of the interior are the seeds; every other foreground pixel (interior or
     boundary) joins its nearest seed (the boundary band is 2-3 px wide at this scale)."""
-    from scipy import ndimage as ndi
-
     interior = prob[1] >= cfg.interior_threshold
     fg = (prob[1] + prob[2]) >= cfg.foreground_threshold
     seeds, n = ndi.label(interior)
@@ -238,16 +256,12 @@ class LearnedSegmenter:
 
     def bind(self, camera, shelf) -> LearnedSegmenter:
         """A copy that knows the camera and shelf (for the depth-and-edge masks it snaps to)."""
-        import copy
-
         out = copy.copy(self)
         out.camera, out.shelf = camera, shelf
         return out
 
     def rgb_only(self) -> LearnedSegmenter:
         """A photo's stand-in depth has no edges to snap to."""
-        import copy
-
         out = copy.copy(self)
         out.depth_ok = False
         return out
@@ -255,9 +269,6 @@ class LearnedSegmenter:
     def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
         """Each instance that a depth-and-edge mask matches (IoU >= snap_iou, one to one) takes
         that mask's outline; later masks lose pixels already taken."""
-        from perception.bench import match
-        from perception.segment_depth import DepthEdgeSegmenter
-
         rules = DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
         out = list(masks)
         for i, j, _ in match(rules, masks, self.config.snap_iou):
@@ -270,16 +281,12 @@ class LearnedSegmenter:
 
     def with_config(self, config: LearnedConfig) -> LearnedSegmenter:
         """The same network with other inference settings (for tuning; shares the model)."""
-        import copy
-
         out = copy.copy(self)
         out.config = config
         return out
 
     def probabilities(self, rgb: np.ndarray) -> np.ndarray:
         """3xhxw class probabilities at 1/4 of the network input size."""
-        import cv2
-
         torch = _torch()
         h, w = rgb.shape[:2]
         iw = max(32, round(self.config.input_width / 32) * 32)
@@ -290,8 +297,6 @@ class LearnedSegmenter:
             return torch.softmax(logits, 1)[0].numpy()
 
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
-        import cv2
-
         h, w = rgb.shape[:2]
         prob = self.probabilities(rgb)
         if self.config.full_res:

