@@ -2,7 +2,10 @@
 
 The public API is listed in `__all__`; the names are imported when first used (PEP 562), so
 that `import perception.cmd_perceive` for a CLI's ``--help`` does not load OpenCV or the
-segmenters. See docs/perception.md for the stages and docs/ARCHITECTURE.md for the module map.
+segmenters. Inside the package, imports sit at module level, except optional packages (OpenCV,
+Pillow, tqdm, pybullet) in the modules that the core and a CLI's ``--help`` load, and torch,
+ultralytics and pyrealsense2 anywhere. See docs/perception.md for the stages and
+docs/ARCHITECTURE.md for the module map.
 """
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from typing import Any
 
 _WHERE = {
     "perceive": "perception.pipeline", "Perception": "perception.pipeline",
+    "DEFAULT_CATALOGUE": "perception.pipeline",
     "Capture": "perception.capture", "load_capture": "perception.capture",
     "Scene": "perception.scene", "Shelf": "perception.scene", "Box": "perception.scene",
     "Camera": "perception.scene", "BOX_TYPES": "perception.scene",
