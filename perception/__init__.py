@@ -20,7 +20,7 @@ _WHERE = {
     "Camera": "perception.scene", "BOX_TYPES": "perception.scene",
     "Segmenter": "perception.segment", "load_segmenter": "perception.segment",
     "Catalogue": "perception.box_catalogue", "apply_catalogue": "perception.box_catalogue",
-    "FrontFace": "perception.boxes", "make_valid": "perception.boxes",
+    "FrontFace": "perception.faces", "make_valid": "perception.boxes",
     "default_camera": "perception.render",   # (render() itself: perception.render is also the module's name)
     "ShelfpickError": "perception.errors", "FormatError": "perception.errors",
     "SceneError": "perception.errors", "PerceptionError": "perception.errors",

@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from perception.boxes import FrontFace
+from perception.faces import FrontFace
 from perception.masks import scaled_px
 from perception.repairs.bands import take_bridging_parts
 from perception.repairs.enclosed import absorb_enclosed

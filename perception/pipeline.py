@@ -15,10 +15,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.boxes import (FrontFace, boxes_from_masks, default_front_distance,
-                              distance_from_box_size, make_valid, measure_front, planar_depth)
 from perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
+from perception.boxes import boxes_from_masks, default_front_distance, distance_from_box_size, make_valid, planar_depth
 from perception.capture import Capture
+from perception.faces import FrontFace, measure_front
 from perception.geometry import check_intrinsics, point_map, pose_matrix
 from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from perception.overlay import draw_overlay

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.boxes import FrontFace, face_axes
+from perception.faces import FrontFace, face_axes
 from perception.masks import border_pixels, border_sides
 from perception.repairs.planes import coords
 from perception.scene import Camera

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from perception.boxes import FrontFace, measure_front
+from perception.faces import FrontFace, measure_front
 from perception.masks import border_sides
 from perception.repairs.planes import plane_dist
 from perception.scene import Camera

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from perception.boxes import FrontFace
+from perception.faces import FrontFace
 from perception.masks import border_sides
 from perception.repairs.measure import Measured, RepairContext
 from perception.repairs.planes import join_on_plane, largest_component, rect_fill

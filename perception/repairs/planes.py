@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from perception.boxes import FrontFace, face_axes
+from perception.faces import FrontFace, face_axes
 from perception.geometry import backproject, ray_plane
 from perception.scene import Camera
 

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.boxes import FrontFace, face_axes
+from perception.faces import FrontFace, face_axes
 from perception.geometry import backproject
 
 if TYPE_CHECKING:

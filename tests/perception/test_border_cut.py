@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from perception.box_catalogue import Catalogue
-from perception.boxes import measure_front
+from perception.faces import measure_front
 from perception.masks import border_sides
 from perception.pipeline import perceive
 from perception.repairs.border_cut import complete_cut_face, cut_directions

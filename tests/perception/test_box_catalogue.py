@@ -263,7 +263,7 @@ def test_a_type_face_mask_across_a_depth_step_whose_parts_complete_two_pieces_is
 
 
 def _size(mask: np.ndarray, cap) -> tuple[float, float]:
-    from perception.boxes import measure_front
+    from perception.faces import measure_front
 
     f = measure_front(mask, cap.depth, cap.camera)
     return f.width, f.height

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from perception.boxes import (_rect_long_edge, boxes_from_masks, distance_from_box_size, make_valid,
-                              measure_front)
+from perception.boxes import boxes_from_masks, distance_from_box_size, make_valid
+from perception.faces import _rect_long_edge, measure_front
 from perception.bench_truth import front_face_masks
 from perception.scene import Box, Scene, Shelf
 from synth_frames import SMALL_CAMERA, box, cast
@@ -119,7 +119,8 @@ def test_box_measured_partly_inside_the_box_below_rests_on_it():
 def test_faces_that_cannot_be_on_the_shelf_are_dropped_with_the_reason():
     """A wall, the floor or a region near the horizon in a photo back-projects to faces metres
     wide or far away; kept, make_valid would stack every other box on top of them."""
-    from perception.boxes import FrontFace, not_a_front
+    from perception.boxes import not_a_front
+    from perception.faces import FrontFace
 
     shelf = Shelf()
 

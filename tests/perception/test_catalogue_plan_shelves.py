@@ -41,7 +41,7 @@ def test_each_true_box_is_one_perceived_box(seed, rule):
 
 def test_band_trim_keeps_a_chance_face_within_the_pieces_band():
     from perception.repairs.planes import band_trim
-    from perception.boxes import measure_front
+    from perception.faces import measure_front
     from perception.scene import Scene, Shelf
     from synth_frames import COLOURS, box, cast
 

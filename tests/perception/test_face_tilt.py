@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from perception.bench_truth import front_face_masks
-from perception.boxes import box_from_face, face_axes, measure_front
+from perception.boxes import box_from_face
+from perception.faces import face_axes, measure_front
 from perception.geometry import matrix_to_quat
 from perception.scene import Box, Scene, Shelf, quat_to_matrix
 from synth_frames import cast
