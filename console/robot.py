@@ -207,53 +207,58 @@ class SimRobot:
                     statuses[i] = {"step": i, "box": box, "status": "aborted", "detail": {}}
                     error = f"stopped before step {i + 1} ({box})"
                     break
-                present = self._present_boxes()
-                mapping = match_boxes(scene, self._world_scene, present, self.match_tol) \
-                    if box in scene.ids else {}
-                if box not in mapping and box in present and self.truth is None:
-                    mapping[box] = box
-                tid = mapping.get(box)
-                if tid is None:
-                    detail = {"code": "NO_BOX_AT_GRASP",
-                              "message": f"no box on the real shelf where {box!r} was seen"}
-                    emit(on_event, RobotEvent("error", i, box, detail))
-                    statuses[i] = {"step": i, "box": box, "status": "error", "detail": detail}
-                    error = f"step {i + 1} ({box}): {detail['message']}"
-                    break
-                emit(on_event, RobotEvent("ack", i, box, {"true_box": tid, **note}))
-                t0 = time.monotonic()
-                res = sim.remove(tid, seed=self.seed * 1000 + i)
-                wait = self.step_delay - (time.monotonic() - t0)
-                if wait > 0:
-                    stop.wait(wait)
-                reverse = {t: p for p, t in match_boxes(scene, self._world_scene, {
-                    b.id: b for b in self._world_scene.boxes}, self.match_tol).items()}
-                detail = res.to_json()
-                detail.pop("box", None)
-                detail["true_box"] = tid
-                detail["collapsed_ids"] = [reverse.get(b, b) for b in res.collapsed]
-                detail["collided_ids"] = [reverse.get(b, b) for b in res.collided]
-                if not res.extracted:
-                    detail["code"] = "PICK_FAILED"
-                    detail["message"] = f"box {box!r} did not come out ({res.note or 'stuck'})"
-                    emit(on_event, RobotEvent("error", i, box, detail))
-                    statuses[i] = {"step": i, "box": box, "status": "error", "detail": detail}
-                    error = f"step {i + 1} ({box}): {detail['message']}"
-                    break
-                self._history.mark_done(self._endpoint, h, i, box)
-                emit(on_event, RobotEvent("done", i, box, detail))
-                statuses[i] = {"step": i, "box": box, "status": "done", "detail": detail}
-                held = self._verify(i, box)
-                if res.collapsed:
-                    msg = (f"step {i + 1} ({box}): boxes collapsed: {', '.join(detail['collapsed_ids'])}")
-                    emit(on_event, RobotEvent("error", i, box, {"code": "COLLAPSE", "message": msg,
-                                                                 "collapsed": detail["collapsed_ids"]}))
-                    error = msg + (f"; held: {held}" if held else "")
-                    break
-                if held is not None and i < len(plan.sequence) - 1:   # after the last step: evidence only
-                    error = f"held after step {i + 1} ({box}): {held}"
+                error = self._step(sim, plan, h, i, scene, on_event, stop, statuses, note)
+                if error is not None:
                     break
         return finish(plan, h, statuses, error, self._history, self._endpoint)
+
+    def _step(self, sim: Any, plan: Plan, h: str, i: int, scene: Scene, on_event: Callable[[RobotEvent], None],
+              stop: threading.Event, statuses: dict[int, dict], note: dict) -> str | None:
+        """Take out step `i`'s box (found where it was seen); None: done, go on; else why the run ends."""
+        box = plan.sequence[i]
+        present = self._present_boxes()
+        mapping = match_boxes(scene, self._world_scene, present, self.match_tol) \
+            if box in scene.ids else {}
+        if box not in mapping and box in present and self.truth is None:
+            mapping[box] = box
+        tid = mapping.get(box)
+        if tid is None:
+            detail = {"code": "NO_BOX_AT_GRASP",
+                      "message": f"no box on the real shelf where {box!r} was seen"}
+            emit(on_event, RobotEvent("error", i, box, detail))
+            statuses[i] = {"step": i, "box": box, "status": "error", "detail": detail}
+            return f"step {i + 1} ({box}): {detail['message']}"
+        emit(on_event, RobotEvent("ack", i, box, {"true_box": tid, **note}))
+        t0 = time.monotonic()
+        res = sim.remove(tid, seed=self.seed * 1000 + i)
+        wait = self.step_delay - (time.monotonic() - t0)
+        if wait > 0:
+            stop.wait(wait)
+        reverse = {t: p for p, t in match_boxes(scene, self._world_scene, {
+            b.id: b for b in self._world_scene.boxes}, self.match_tol).items()}
+        detail = res.to_json()
+        detail.pop("box", None)
+        detail["true_box"] = tid
+        detail["collapsed_ids"] = [reverse.get(b, b) for b in res.collapsed]
+        detail["collided_ids"] = [reverse.get(b, b) for b in res.collided]
+        if not res.extracted:
+            detail["code"] = "PICK_FAILED"
+            detail["message"] = f"box {box!r} did not come out ({res.note or 'stuck'})"
+            emit(on_event, RobotEvent("error", i, box, detail))
+            statuses[i] = {"step": i, "box": box, "status": "error", "detail": detail}
+            return f"step {i + 1} ({box}): {detail['message']}"
+        self._history.mark_done(self._endpoint, h, i, box)
+        emit(on_event, RobotEvent("done", i, box, detail))
+        statuses[i] = {"step": i, "box": box, "status": "done", "detail": detail}
+        held = self._verify(i, box)
+        if res.collapsed:
+            msg = (f"step {i + 1} ({box}): boxes collapsed: {', '.join(detail['collapsed_ids'])}")
+            emit(on_event, RobotEvent("error", i, box, {"code": "COLLAPSE", "message": msg,
+                                                         "collapsed": detail["collapsed_ids"]}))
+            return msg + (f"; held: {held}" if held else "")
+        if held is not None and i < len(plan.sequence) - 1:   # after the last step: evidence only
+            return f"held after step {i + 1} ({box}): {held}"
+        return None
 
 
 # --------------------------------------------------------------------------

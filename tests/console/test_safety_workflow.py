@@ -455,7 +455,8 @@ def test_after_an_error_or_unknown_step_a_new_capture_sends_again(tmp_path, faul
 def test_step_states_survive_a_restart_and_an_unknown_step_refuses_only_that_capture(tmp_path):
     """Keyed by session (capture) and plan, from the database: a fresh store sees the same."""
     from console.store import SessionStore
-    from console.workflow import Workflow, WorkflowError, _Run, PlanEntry
+    from console.workflow import Workflow, WorkflowError, PlanEntry
+    from console.workflow_state import RunLock
     from planning.plan import Plan
 
     from test_store import tiny_capture, tiny_scene
@@ -475,8 +476,8 @@ def test_step_states_survive_a_restart_and_an_unknown_step_refuses_only_that_cap
     sid2 = s.new_session("t", tiny_capture(), tiny_scene(), None, None)
     assert s.step_states(sid2, h) == {}                   # a new capture starts clean
     wf = Workflow(None, s, lambda t, seed: None, PASS)
-    run = _Run(h, PlanEntry(plan, h), sid, 0, "sue")
+    run = RunLock(h, PlanEntry(plan, h), sid, 0, "sue")
     with pytest.raises(WorkflowError, match=r"step 2 \(b1\) .* unknown outcome for this capture"):
         wf._steps_before(run)
-    assert wf._steps_before(_Run(h, PlanEntry(plan, h), sid2, 0, "sue")) == {}
+    assert wf._steps_before(RunLock(h, PlanEntry(plan, h), sid2, 0, "sue")) == {}
     s.close()

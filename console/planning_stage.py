@@ -1,0 +1,149 @@
+"""Planning: both planners on the perceived scene, in a background worker, recorded before they count."""
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+from perception.scene import Scene
+from planning.plan import PLANNERS
+
+from console.run_json import step_json
+from console.workflow_core import WorkflowCore
+from console.workflow_state import PlanEntry, State, problem_text, scene_problems
+
+if TYPE_CHECKING:
+    from planning.predict import Predictor
+
+
+class PlanningStage(WorkflowCore):
+    """`plan()` and its worker: plans for the current capture, dropped if a new capture arrives meanwhile."""
+
+    def plan(self, task: str, wait: bool = False) -> State:
+        """Run both planners on the perceived scene in a background worker."""
+        if task not in ("extract", "clear"):
+            self._refuse(f"unknown task {task!r}; expected extract or clear")
+        with self._lock:
+            st = self._state
+            if self._capturing:
+                self._refuse("planning refused: a capture is running")
+            self._held("planning")
+            if st.scene is None or not st.scene.boxes:
+                self._refuse("nothing to plan: capture a shelf with boxes first")
+            if st.needs_recapture:
+                self._refuse("the shelf has changed since this capture: press `Capture` again")
+            if st.planning or (self._plan_thread is not None and self._plan_thread.is_alive()):
+                self._refuse("planning is already running; wait for it to finish")
+            if task == "extract" and st.target is None:
+                self._refuse("select a target box first")
+            target = st.target if task == "extract" else None
+            gen = self._generation
+            scene, sid = st.scene, st.session_id
+            self._plan_thread = threading.Thread(target=self._plan_worker, name="shelfpick-plan",
+                                                 args=(gen, scene, sid, task, target), daemon=True)
+            keep = {k: e for k, e in st.plans.items() if k == "continue"}
+            self._set(planning=True, task=task, plans=keep, approved=None, approval=None, progress=0.0,
+                      progress_text="starting", scene_problems=(), repairs=(), error=None,
+                      message=f"planning {task}" + (f" {target}" if target else "") + "...")
+            thread = self._plan_thread
+        thread.start()
+        if wait:
+            thread.join()
+        return self.state
+
+    def wait_planning(self, timeout: float | None = None) -> State:
+        t = self._plan_thread
+        if t is not None:
+            t.join(timeout)
+        return self.state
+
+    def _progress(self, gen: int, frac: float, text: str) -> None:
+        with self._lock:
+            if gen == self._generation:
+                self._set(progress=frac, progress_text=text)
+
+    def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
+        predictor = None
+        try:
+            from planning.predict import Predictor
+
+            self._progress(gen, 0.05, f"building {self.samples} depth samples")
+            t_setup = time.perf_counter()
+            predictor = Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
+                                  clients=self._client_pool())
+            t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
+            repairs = tuple(str(r) for r in getattr((predictor.sims or [None])[0], "repairs", ()) or ())
+            entries = {p: self._one_plan(gen, i, p, scene, task, target, predictor, t_setup, repairs)
+                       for i, p in enumerate(PLANNERS)}
+            for e in entries.values():
+                if sid is not None and self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid,
+                                                    e.plan, [step_json(r) for r in e.preview]) is not None:
+                    with self._lock:
+                        self._recorded.add((sid, e.hash))
+            self._plans_ready(gen, entries, repairs)
+        except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
+            traceback.print_exc()
+            with self._lock:
+                if gen == self._generation:
+                    self._set(planning=False, progress=0.0, progress_text="failed",
+                              error=f"planning failed: {exc}")
+        finally:
+            if predictor is not None:
+                try:
+                    predictor.close()
+                except Exception:  # noqa: BLE001
+                    pass
+            with self._lock:
+                if self._state.planning and gen != self._generation:
+                    self._state = replace(self._state, planning=False)
+
+    def _one_plan(self, gen: int, i: int, planner: str, scene: Scene, task: str, target: str | None,
+                  predictor: Predictor, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
+        from planning.planner import make_plan
+
+        n = len(PLANNERS)
+        self._progress(gen, 0.1 + 0.85 * i / n, f"{planner} planner: searching")
+        t0 = time.perf_counter()
+        plan = make_plan(scene, task, target, planner=planner, samples=self.samples,
+                         seed=self.seed, predictor=predictor)
+        timing = dict(plan.timing)
+        timing.setdefault("planning_s", time.perf_counter() - t0)
+        if planner == "physics":
+            timing["setup_s"] = timing.get("setup_s", 0.0) + t_setup
+        extra = dict(plan.extra)
+        if repairs:
+            extra["repairs"] = list(repairs)       # stored with the plan, shown in the replay
+        plan = replace(plan, timing=timing, extra=extra)
+        self._progress(gen, 0.1 + 0.85 * (i + 0.6) / n, f"{planner} planner: recording preview")
+        preview = tuple(predictor.preview(plan.sequence, 0)) if plan.sequence else ()
+        from planning.predicted import predicted_shelves
+
+        shelves = tuple(predicted_shelves(scene, plan.sequence, preview)) if preview else ()
+        return PlanEntry(plan, plan.content_hash(), preview, shelves)
+
+    def _plans_ready(self, gen: int, entries: dict[str, PlanEntry], repairs: tuple[str, ...]) -> None:
+        phys = entries["physics"].plan
+        problems = scene_problems(phys)
+        with self._lock:
+            if gen != self._generation:
+                return  # a new capture arrived meanwhile: these plans are for the old shelf
+            err = None
+            if problems:
+                err = ("the shelf does not stand as seen: " + "; ".join(problem_text(p) for p in problems)
+                       + ". No plan on it is safe: check the shelf and capture again, or a supervisor "
+                         "approves only by accepting the predicted risk")
+            elif not phys.safe:
+                err = (f"no safe plan: the least risky sequence still has a predicted collapse "
+                       f"risk of {100 * phys.risk:.0f}%; a supervisor may approve it only by "
+                       f"accepting that risk. Or rearrange the shelf and capture again")
+            cont = self._state.plans.get("continue")   # continuing the held plan stays on offer
+            if cont is not None:
+                entries = {**entries, "continue": cont}
+            self._set(plans=entries, planning=False, progress=1.0, progress_text="done", error=err,
+                      scene_problems=problems, repairs=repairs,
+                      message="plans ready: compare them, preview, then a supervisor approves one")
+
+
+__all__ = ["PlanningStage"]

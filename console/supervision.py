@@ -1,0 +1,146 @@
+"""The supervisor's decisions: approve (takes the run lock) or reject, behind a throttled passphrase.
+
+An approval counts once its decision is committed; every refusal reads the
+same whether the passphrase was wrong or the try came too soon.
+"""
+from __future__ import annotations
+
+import hmac
+import time
+from typing import Mapping
+
+from console.workflow_core import WorkflowCore
+from console.workflow_state import AUTH_REFUSED, PlanEntry, RunLock, State, problem_text
+
+
+class Supervision(WorkflowCore):
+    """`approve()` and `reject()`: exactly this plan for exactly the current capture."""
+
+    def _authenticate(self, plan_hash: str, passphrase: str, who: str, action: str, client: str) -> None:
+        """Throttled passphrase check; every refusal reads the same, wrong or too soon."""
+        secret = self._passphrase.encode()
+        given = (passphrase or "").encode()
+        verdict = self.throttle.check(client, lambda: hmac.compare_digest(given, secret))
+        if verdict:
+            return
+        st = self.state
+        if verdict is False:
+            if st.session_id is not None:
+                # the store's decisions are approve/reject only: a refused attempt is an event
+                self._record("the refused attempt", self.store.add_robot_event, st.session_id, plan_hash,
+                             "auth_refused", None, None,
+                             {"who": who or "?", "action": action, "client": client,
+                              "reason": "wrong supervisor passphrase",
+                              "throttled_so_far": self.throttle.throttled})
+            with self._lock:
+                self._set(decisions=self._state.decisions + (
+                    {"decision": "refused", "plan": plan_hash, "who": who,
+                     "reason": f"{action}: wrong passphrase", "at": time.time()},))
+        self._refuse(f"{action} refused: {AUTH_REFUSED}")
+
+    def _decidable(self, plan_hash: str, action: str) -> tuple[PlanEntry, int]:
+        """What every decision needs, checked before the passphrase (so no refusal tells it was right)."""
+        st = self._state
+        if self._capturing:
+            self._refuse(f"{action} refused: a capture is running")
+        if st.planning:
+            self._refuse(f"{action} refused: planning is still running")
+        entry = st.plan_by_hash(plan_hash)
+        if entry is None:
+            self._refuse(f"{action} refused: plan {plan_hash} is not a plan for the current capture")
+        if st.session_id is None:
+            self._refuse(f"{action} refused: this capture has no session record ({st.audit or 'database'}); "
+                         f"capture again once the database can be written")
+        if (st.session_id, plan_hash) not in self._recorded:
+            self._refuse(f"{action} refused: plan {plan_hash} was not recorded ({st.audit or 'database'}); "
+                         f"plan again once the database can be written")
+        return entry, st.session_id
+
+    def approve(self, plan_hash: str, passphrase: str, who: str = "supervisor",
+                accept_risk: bool = False, client: str = "local") -> State:
+        """Approve exactly this plan for exactly the current capture; takes the run lock.
+
+        A plan predicted unsafe (the least risky one when no safe plan exists,
+        or any plan on a shelf that does not stand as seen) needs
+        `accept_risk`. The approval counts once its decision is committed; of
+        two supervisors approving at once exactly one gets it.
+        """
+        who = (who or "supervisor")[:80]
+        with self._lock:
+            entry, sid = self._decidable(plan_hash, "approval")
+            if self._state.needs_recapture:
+                self._refuse("approval refused: the shelf has changed, capture and plan again")
+            self._held("approval")
+            risk_note = self._risk_note(entry, accept_risk)
+        self._authenticate(plan_hash, passphrase, who, "approval", client)
+        with self._lock:   # the state may have moved while the passphrase was checked
+            entry, sid = self._decidable(plan_hash, "approval")
+            self._held("approval")
+            run = self._run = RunLock(plan_hash, entry, sid, self._generation, who)
+            self._live_stops.add(run.stop)
+        try:
+            run.decision_id = self.store.add_decision(sid, plan_hash, "approve", who, risk_note)
+        except Exception as exc:  # noqa: BLE001 - audit first: an unrecorded approval is no approval
+            with self._lock:
+                self._release(run)
+            msg = self._audit_failed("the approval", exc)
+            self._refuse(f"approval refused: the decision could not be recorded, nothing will run ({msg})")
+        with self._lock:
+            if self._run is not run:     # Stop withdrew it while it was being recorded
+                self._refuse("approval withdrawn: `Stop robot` was pressed while it was being recorded")
+            dec = {"decision": "approve", "plan": plan_hash, "planner": entry.plan.planner,
+                   "who": who, "reason": risk_note, "at": time.time()}
+            approval = {"plan": plan_hash, "session": sid, "capture": self._state.frame_name,
+                        "who": who, "decision": run.decision_id}
+            return self._set(approved=plan_hash, approval=approval, decisions=self._state.decisions + (dec,),
+                             error=None, message=f"{who} approved the {entry.plan.planner} plan {plan_hash}")
+
+    def _risk_note(self, entry: PlanEntry, accept_risk: bool) -> str | None:
+        cont = (entry.plan.extra or {}).get("continues")
+        if isinstance(cont, Mapping):
+            # the shelf already did not do what this plan predicted: continuing is a risk taken knowingly
+            what = (f"continue plan {cont.get('plan')} as planned after a deviation at step "
+                    f"{int(cont.get('after_step', 0)) + 1} (session {cont.get('session')})")
+            if not accept_risk:
+                self._refuse(f"approval refused: to {what}, tick 'Accept predicted risk' (the shelf "
+                             f"differs from the prediction); or plan again from the new capture")
+            return f"accepted: {what}"
+        if entry.plan.safe:
+            return None
+        risk = f"{100 * entry.plan.risk:.0f}%"
+        why = (f"the shelf does not stand as seen ({len(entry.scene_problems)} problem(s))"
+               if entry.scene_problems else f"collapse risk up to {risk}")
+        if not accept_risk:
+            self._refuse(f"approval refused: the {entry.plan.planner} plan is predicted unsafe "
+                         f"({why}); tick 'Accept predicted risk' to approve it anyway")
+        return f"accepted predicted risk {risk}" + (
+            f"; scene problems: {'; '.join(problem_text(p) for p in entry.scene_problems)}"
+            if entry.scene_problems else "")
+    def reject(self, plan_hash: str, passphrase: str, who: str = "supervisor", reason: str = "",
+               client: str = "local") -> State:
+        """Reject a plan; rejecting the approved plan before it runs withdraws the approval."""
+        if not (reason or "").strip():
+            self._refuse("reject needs a reason")
+        who, reason = (who or "supervisor")[:80], reason.strip()[:500]
+        with self._lock:
+            entry, sid = self._decidable(plan_hash, "rejection")
+            if self._run is not None and self._run.started:
+                self._refuse("rejection refused: the robot is running; press `Stop robot`")
+        self._authenticate(plan_hash, passphrase, who, "rejection", client)
+        with self._lock:
+            run = self._run
+            if run is not None and run.plan_hash == plan_hash and not run.started:
+                self._release(run)
+            elif run is not None and run.started:
+                self._refuse("rejection refused: the robot is running; press `Stop robot`")
+            dec = {"decision": "reject", "plan": plan_hash, "planner": entry.plan.planner,
+                   "who": who, "reason": reason, "at": time.time()}
+            approved = None if self._state.approved == plan_hash else self._state.approved
+            self._set(approved=approved, approval=None if approved is None else self._state.approval,
+                      decisions=self._state.decisions + (dec,), error=None,
+                      message=f"{who} rejected the {entry.plan.planner} plan: {reason}")
+        self._record("the rejection", self.store.add_decision, sid, plan_hash, "reject", who, reason)
+        return self.state
+
+
+__all__ = ["Supervision"]
