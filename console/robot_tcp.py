@@ -1,4 +1,8 @@
-"""The TCP robot driver and the wire protocol `shelfpick.robot/1` (docs/robot-protocol.md).
+"""The TCP robot driver of the wire protocol `shelfpick.robot/1` (docs/robot-protocol.md).
+
+The framing (`LineConn`, its caps and errors) and the shelf-to-robot
+`Transform` are shared with the robot side and live in `robotsim.wire` and
+`robotsim.transform`; they are re-exported here for the console's users.
 
 One JSON object per line (UTF-8, `\\n` terminated) in each direction over one
 TCP connection per plan run. Per step the console sends the box id, the
@@ -19,27 +23,21 @@ plan hash is executed while a repeated step within one run is refused.
 from __future__ import annotations
 
 import json
-import math
 import socket
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping
 from urllib.parse import parse_qs, urlsplit
 
-from perception.errors import FormatError
-from perception.scene import Box, Scene, quat_to_matrix, read_json
+from perception.scene import Box, Scene, quat_to_matrix
 from planning.plan import Plan
+from robotsim.transform import Transform
+from robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 
 from console.robot_types import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
                                  new_run_id, query_float)
 
-PROTOCOL = "shelfpick.robot/1"
-MAX_LINE = 1 << 20      # bytes in one line
-MAX_BLANK = 100         # blank lines tolerated on one connection
-MAX_RATE = 200.0        # lines a second a peer may send on average ...
-MAX_BURST = 400         # ... after a burst of this many (a robot sends a few a second)
 MAX_TEXT = 500          # characters of a peer's code/message kept in events and errors
 STEP_REPLIES = frozenset({"ack", "done", "error", "aborted"})
 DISTRUSTED = ("PROTOCOL",)  # link failures after which an unacknowledged step may have moved
@@ -47,98 +45,6 @@ PULL_CLEARANCE = 0.05   # m beyond the shelf's front edge the box's back face is
 ERROR_CODES = ("BAD_REQUEST", "REFUSED", "BUSY", "DUPLICATE_STEP", "NO_BOX_AT_GRASP", "PICK_FAILED",
                "ABORTED", "INTERNAL")
 
-Vec3 = tuple[float, float, float]
-
-
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Transform:
-    """Rigid shelf-to-robot-base transform: p_robot = R @ p_shelf + t (metres)."""
-
-    rotation: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    translation: Vec3 = (0.0, 0.0, 0.0)
-
-    @classmethod
-    def identity(cls) -> "Transform":
-        return cls()
-
-    @classmethod
-    def from_pose(cls, position: Sequence[float], wxyz: Sequence[float]) -> "Transform":
-        n = math.sqrt(sum(float(c) * float(c) for c in wxyz))
-        if not 0.999 <= n <= 1.001:
-            raise FormatError("", "orientation", f"quaternion (w, x, y, z) is not unit length (|q|={n:.4f})")
-        r = quat_to_matrix([float(c) / n for c in wxyz])
-        return cls(tuple(tuple(float(v) for v in row) for row in r), tuple(float(v) for v in position))
-
-    @classmethod
-    def from_json(cls, doc: Any, origin: str = "") -> "Transform":
-        """`{"matrix": 4x4}` or `{"position": [x,y,z], "orientation": [w,x,y,z]}` (shelf pose in robot base)."""
-        if not isinstance(doc, Mapping):
-            raise FormatError(origin, "transform", f"expected an object, got {type(doc).__name__}")
-        if "matrix" in doc:
-            m = doc["matrix"]
-            if (not isinstance(m, list) or len(m) != 4
-                    or not all(isinstance(r, list) and len(r) == 4 for r in m)
-                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                               for r in m for v in r)):
-                raise FormatError(origin, "matrix", f"expected 4 rows of 4 numbers, got {m!r}")
-            if [float(v) for v in m[3]] != [0.0, 0.0, 0.0, 1.0]:
-                raise FormatError(origin, "matrix[3]", f"last row must be [0, 0, 0, 1], got {m[3]!r}")
-            rot = tuple(tuple(float(v) for v in m[i][:3]) for i in range(3))
-            t = cls(rot, tuple(float(m[i][3]) for i in range(3)))
-        elif "position" in doc or "orientation" in doc:
-            pos = doc.get("position", [0.0, 0.0, 0.0])
-            quat = doc.get("orientation", [1.0, 0.0, 0.0, 0.0])
-            for name, v, n in (("position", pos, 3), ("orientation", quat, 4)):
-                if (not isinstance(v, list) or len(v) != n
-                        or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                                   for x in v)):
-                    raise FormatError(origin, name, f"expected a list of {n} numbers, got {v!r}")
-            norm = math.sqrt(sum(c * c for c in quat))
-            if abs(norm - 1.0) > 1e-3:
-                raise FormatError(origin, "orientation", f"quaternion (w, x, y, z) is not unit length "
-                                  f"(|q|={norm:.4f}): {quat!r}")
-            t = cls.from_pose(pos, [c / norm for c in quat])
-        else:
-            raise FormatError(origin, "transform", "expected 'matrix' or 'position'/'orientation'")
-        t.check(origin)
-        return t
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Transform":
-        return cls.from_json(read_json(path), str(path))
-
-    def check(self, origin: str = "") -> None:
-        r = self.rotation
-        for i in range(3):
-            for j in range(3):
-                dot = sum(r[k][i] * r[k][j] for k in range(3))
-                if abs(dot - (1.0 if i == j else 0.0)) > 1e-4:
-                    raise FormatError(origin, "matrix", "rotation part is not orthonormal")
-        det = (r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-               + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]))
-        if det < 0:
-            raise FormatError(origin, "matrix", "rotation part is a reflection (determinant -1)")
-
-    def direction(self, v: Sequence[float]) -> Vec3:
-        r = self.rotation
-        return tuple(r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2] for i in range(3))  # type: ignore
-
-    def point(self, p: Sequence[float]) -> Vec3:
-        d = self.direction(p)
-        return tuple(d[i] + self.translation[i] for i in range(3))  # type: ignore[return-value]
-
-    def inverse(self) -> "Transform":
-        rt = tuple(tuple(self.rotation[j][i] for j in range(3)) for i in range(3))
-        inv = Transform(rt, (0.0, 0.0, 0.0))
-        t = inv.direction(self.translation)
-        return Transform(rt, (-t[0], -t[1], -t[2]))
-
-    def matrix(self) -> list[list[float]]:
-        return [list(self.rotation[i]) + [self.translation[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
-
-    def to_json(self) -> dict:
-        return {"matrix": self.matrix()}
 
 
 def grasp_for(box: Box, scene: Scene, transform: Transform) -> dict:
@@ -169,112 +75,6 @@ def step_message(plan_hash: str, step: int, box: Box, scene: Scene, transform: T
         msg["run"] = run
     return msg
 
-
-
-# --------------------------------------------------------------------------
-class ProtocolError(Exception):
-    """The peer sent something that is not a protocol message."""
-
-
-class FloodError(ProtocolError):
-    """The peer went past a cap (line length, blank lines, line rate): the connection is done for."""
-
-
-def _no_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not JSON")
-
-
-def _parse_message(line: bytes) -> dict:
-    """One protocol message from one line: a JSON object with a string `type`, strict JSON only
-    (no NaN/Infinity; nesting or numbers too big for the parser are refused, never a crash)."""
-    try:
-        msg = json.loads(line, parse_constant=_no_constant)
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
-        raise ProtocolError(f"not JSON: {line[:80]!r} ({str(exc)[:120]})") from None
-    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        raise ProtocolError(f"expected an object with a string 'type', got {line[:80]!r}")
-    return msg
-
-
-class LineConn:
-    """Line-delimited JSON on a socket: send(dict), recv(timeout) -> dict | None (None = nothing yet).
-
-    A peer cannot make it recurse, buffer without bound or spin: a line over
-    MAX_LINE bytes, more than MAX_BLANK blank lines on one connection, or more
-    than MAX_RATE lines a second (beyond a burst of MAX_BURST) is a
-    ProtocolError, which ends the run.
-    """
-
-    def __init__(self, sock: socket.socket, *, max_line: int = MAX_LINE, max_blank: int = MAX_BLANK,
-                 max_rate: float = MAX_RATE, max_burst: int = MAX_BURST) -> None:
-        self.sock = sock
-        self._buf = b""
-        self._send_lock = threading.Lock()
-        self.max_line, self.max_blank = int(max_line), int(max_blank)
-        self.max_rate, self.max_burst = float(max_rate), float(max_burst)
-        self.blank_lines = 0
-        self._tokens = self.max_burst
-        self._refilled = time.monotonic()
-
-    def send(self, msg: Mapping[str, Any]) -> None:
-        data = (json.dumps(msg, separators=(",", ":")) + "\n").encode()
-        with self._send_lock:
-            self.sock.sendall(data)
-
-    def recv(self, timeout: float) -> dict | None:
-        """Next message, None if none within `timeout`; ConnectionError on EOF, ProtocolError on abuse."""
-        deadline = time.monotonic() + max(timeout, 0.0)
-        while True:
-            line = self._next_line(deadline)
-            if line is None:
-                return None
-            self._count_line()
-            if line.strip():
-                return _parse_message(line)
-            self.blank_lines += 1
-            if self.blank_lines > self.max_blank:
-                raise FloodError(f"more than {self.max_blank} blank lines")
-
-    def _next_line(self, deadline: float) -> bytes | None:
-        """One raw line (without its newline), None at the deadline."""
-        while True:
-            nl = self._buf.find(b"\n")
-            if nl >= 0:
-                if nl > self.max_line:
-                    raise FloodError(f"line longer than {self.max_line} bytes")
-                line, self._buf = self._buf[:nl], self._buf[nl + 1:]
-                return line
-            if len(self._buf) > self.max_line:
-                raise FloodError(f"line longer than {self.max_line} bytes")
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return None
-            self.sock.settimeout(left)
-            try:
-                chunk = self.sock.recv(65536)
-            except socket.timeout:
-                return None
-            except OSError as exc:
-                raise ConnectionError(f"connection lost ({exc})") from None
-            if not chunk:
-                raise ConnectionError("connection closed by the peer")
-            self._buf += chunk
-
-    def _count_line(self) -> None:
-        """Token bucket over every line received, blank or not."""
-        now = time.monotonic()
-        self._tokens = min(self.max_burst, self._tokens + (now - self._refilled) * self.max_rate)
-        self._refilled = now
-        self._tokens -= 1.0
-        if self._tokens < 0:
-            raise FloodError(f"more than {self.max_rate:g} lines a second (flood)")
-
-    def close(self) -> None:
-        try:
-            self.sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self.sock.close()
 
 
 # --------------------------------------------------------------------------

@@ -22,7 +22,9 @@ Fault injection for tests: refuse given steps, drop the connection after k
 completed steps or while step k is in flight, hang (go silent) on a step,
 take `step_time` seconds per step.
 
-    python -m console.robot_controller --port 9000 [--truth scene.json] [--transform t.json]
+    python -m robotsim --port 9000 [--truth scene.json] [--transform t.json]
+
+It imports nothing of the console: the wire it speaks is `robotsim.wire`.
 """
 from __future__ import annotations
 
@@ -38,7 +40,8 @@ from dataclasses import replace
 from typing import Any, Iterable
 
 from perception.scene import Scene
-from console.robot_tcp import PROTOCOL, FloodError, LineConn, ProtocolError, Transform
+from robotsim.transform import Transform
+from robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 
 log = logging.getLogger(__name__)
 
@@ -341,7 +344,7 @@ def _hard_close(conn: LineConn) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m console.robot_controller", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m robotsim", description=__doc__.split("\n\n")[0])
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=9000)
     ap.add_argument("--truth", help="scene JSON the robot acts on in its own simulation")

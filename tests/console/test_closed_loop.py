@@ -58,7 +58,7 @@ class CameraThatDoesNotLookAgain:
 def make_console(tmp_path, camera, seed=None):
     from console.app import ClientView, ConsoleApp
     from console.robot import open_robot
-    from console.robot_controller import RobotController
+    from robotsim.controller import RobotController
     from console.store import SessionStore
     from console.workflow import Workflow
     from perception.render import default_camera

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from console.robot import RobotError, RobotEvent, open_robot
-from console.robot_controller import RobotController
+from robotsim.controller import RobotController
 from console.robot_tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
 from console.robot_types import StepHistory
 from perception.errors import FormatError
@@ -227,14 +227,14 @@ def test_controller_executes_on_a_truth_scene_through_the_transform() -> None:
 
 
 def test_controller_as_a_separate_process(tmp_path: Path) -> None:
-    """`python -m console.robot_controller` in its own process, driven through open_robot's spec."""
+    """`python -m robotsim` in its own process, driven through open_robot's spec."""
     import subprocess
     import sys
 
     root = Path(__file__).resolve().parents[2]
     tf = tmp_path / "cell.json"
     tf.write_text(json.dumps({"position": [0.6, 0.0, -0.2], "orientation": [1, 0, 0, 0]}))
-    proc = subprocess.Popen([sys.executable, "-m", "console.robot_controller", "--port", "0", "--step-time", "0.05",
+    proc = subprocess.Popen([sys.executable, "-m", "robotsim", "--port", "0", "--step-time", "0.05",
                              "--transform", str(tf), "--refuse", "3"],
                             cwd=root, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:

@@ -229,7 +229,7 @@ def test_locked_database_is_a_message_not_a_crash(make_wf, tmp_path):
 def test_tcp_robot_disconnect_or_refusal_is_recorded(make_wf, fault):
     """A real robot-side TCP server that drops the connection after one step / refuses step 2."""
     from console.robot import open_robot
-    from console.robot_controller import RobotController
+    from robotsim.controller import RobotController
 
     kw = {"drop_after": 1} if fault == "drop_after" else {"refuse_steps": [1]}
     with RobotController(**kw).start() as ctl:
