@@ -59,7 +59,7 @@ class CatalogueTap:
         self.save_dir, self.name, self.calls, self.seconds = save_dir, "", [], 0.0
         pl.apply_catalogue = self
 
-    def __call__(self, masks, depth, camera, rgb, cat, notes=None):
+    def __call__(self, masks, depth, camera, rgb, cat):
         if self.save_dir is not None:
             self.save_dir.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(self.save_dir / f"{self.name}-{len(self.calls)}.npz",
@@ -68,15 +68,12 @@ class CatalogueTap:
                                 camera=np.frombuffer(pickle.dumps(camera), np.uint8),
                                 cat=json.dumps(_cat_json(cat)))
         got = _h(*[np.asarray(m, bool) for m in masks]) if masks else "none"
-        mine: list[str] = []
         t = time.process_time()
-        out, faces = self.inner(masks, depth, camera, rgb, cat, mine)
+        out, faces, mine = self.inner(masks, depth, camera, rgb, cat)
         self.seconds += time.process_time() - t
-        if notes is not None:
-            notes.extend(mine)
         self.calls.append({"in": got, "out": _h(*out) if out else "none", "notes": mine,
                            "faces": _hs(json.dumps([None if f is None else f.to_json() for f in faces]))})
-        return out, faces
+        return out, faces, mine
 
     def close(self) -> None:
         self.pl.apply_catalogue = self.inner
@@ -163,9 +160,8 @@ def replay(save: Path) -> dict:
         cat["types"] = tuple(tuple(t) for t in cat["types"])
         rgb = z["rgb"] if z["rgb"].size else None
         camera = pickle.loads(z["camera"].tobytes())   # from_json normalises the quaternion
-        notes: list[str] = []
         t = time.process_time()
-        masks, faces = apply_catalogue(list(z["masks"]), z["depth"], camera, rgb, Catalogue(**cat), notes)
+        masks, faces, notes = apply_catalogue(list(z["masks"]), z["depth"], camera, rgb, Catalogue(**cat))
         total += time.process_time() - t
         out[f.stem] = {"out": _h(*masks) if masks else "none", "notes": notes,
                        "faces": _hs(json.dumps([None if q is None else q.to_json() for q in faces]))}
