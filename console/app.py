@@ -222,7 +222,7 @@ class ClientView:
             self.shown_capture = None
             self.shown_plans = None
             self.operator.results.content = rec.plans_md
-            self.sessions.start_replay(rec)
+            self.sessions.start_replay(rec.summary_md, [lk.label for lk in rec.looks])
             self.preview.load()
             self.render(self.wf.state)
 
@@ -238,7 +238,7 @@ class ClientView:
                 self._draw_scene(self.replay.scene, self.replay.camera)
             else:
                 self._draw_scene(look.observed, self.replay.camera)
-                self.sessions.show_look(self.client.scene, look)
+                self.sessions.show_look(self.client.scene, look.predicted, look.md)
             self._highlight()
 
     def _live(self, event: Any) -> None:

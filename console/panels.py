@@ -25,8 +25,6 @@ from planning.plan import Plan
 if TYPE_CHECKING:
     import viser
 
-    from console.replay_view import LookView, ReplayView
-
 PLACEHOLDER = np.full((48, 64, 3), 220, dtype=np.uint8)
 MAX_SHOWN = 500              # characters of any outside text shown in the page
 WORD_JOINER = "\u2060"
@@ -385,10 +383,11 @@ class SessionsPanel:
         self.session_pick.options = opts
         self.session_pick.value = cur if cur in opts else opts[0]
 
-    def start_replay(self, rec: ReplayView) -> None:
-        self.replay_md.content = rec.summary_md
+    def start_replay(self, summary_md: str, look_labels: Sequence[str]) -> None:
+        """A stored session's summary, and its looks after each step to pick from."""
+        self.replay_md.content = summary_md
         self.clear_look()
-        self.look_pick.options = ("—",) + tuple(lk.label for lk in rec.looks)
+        self.look_pick.options = ("—",) + tuple(look_labels)
         self.look_pick.value = "—"
 
     def end_replay(self) -> None:
@@ -403,11 +402,11 @@ class SessionsPanel:
         self.look_nodes = []
         self.look_md.content = ""
 
-    def show_look(self, scene_api: viser.SceneApi, look: LookView) -> None:
+    def show_look(self, scene_api: viser.SceneApi, predicted: Scene | None, table_md: str) -> None:
         """A look's predicted poses as outlines and its table (the observed shelf is drawn by the view)."""
-        if look.predicted is not None:
-            self.look_nodes = sv.draw_outlines(scene_api, look.predicted.boxes, prefix="/look")
-        self.look_md.content = look.md
+        if predicted is not None:
+            self.look_nodes = sv.draw_outlines(scene_api, predicted.boxes, prefix="/look")
+        self.look_md.content = table_md
 
 
 def _fmt_time(t: float | str | None) -> str:

@@ -40,8 +40,8 @@ from planning.plan import Plan
 
 DEFAULT_DB = Path("data") / "shelfpick.db"
 SCHEMA_VERSION = 3          # 2: the runs table (crash recovery); 3: verifications (the look after each step)
-OUR_TABLES = {"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes", "runs",
-              "verifications"}
+OUR_TABLES = frozenset({"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes",
+                        "runs", "verifications"})
 ROBOT_KINDS = ("start", "ack", "done", "error", "aborted", "disconnected", "unknown")
 
 _SCHEMA = """
