@@ -39,6 +39,7 @@ from planning.physics import PhysicsConfig
 from planning.planner import make_plan
 from planning.predict import Predictor
 from planning.sim import ShelfSim
+from planning.uncertainty import Uncertainty
 
 __all__ = ["BenchConfig", "Job", "RecordLog", "TruthModel", "comparable", "derive_seed", "draw_truth",
            "observe", "read_records", "TIMING_KEYS", "run_bench", "run_scene", "summarize", "to_markdown", "true_world"]
@@ -85,6 +86,12 @@ class BenchConfig:
     # the truth plans are judged on: a perturbed one (default), or None for the planner's own
     # world (depths hidden, nothing else differs: the old bench, which flatters the planner)
     truth: TruthModel | None = TruthModel()
+    # the planner's prior that a face of a stock box type has that type's depth (Uncertainty.catalogue)
+    catalogue: bool = True
+
+    def model(self) -> Uncertainty:
+        """What the planner draws per sample world."""
+        return Uncertainty() if self.catalogue else Uncertainty(catalogue=())
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -225,7 +232,7 @@ def _plan_and_run(job: Job, seen: "Scene", truth: "Scene", physics: "PhysicsConf
     plan_seed = derive_seed(cfg.seed, job.name, "plan")
     t1 = time.perf_counter()
     try:
-        predictor = shared or Predictor(seen, samples=cfg.samples, seed=plan_seed)
+        predictor = shared or Predictor(seen, samples=cfg.samples, seed=plan_seed, model=cfg.model())
         try:
             plan = make_plan(seen, "extract", target, planner, cfg.samples, plan_seed, predictor=predictor)
         finally:
@@ -264,7 +271,8 @@ def run_scene(job: Job) -> list[dict]:
                     for t in job.targets]
         t0 = time.perf_counter()
         plan_seed = derive_seed(cfg.seed, job.name, "plan")
-        shared = Predictor(seen, samples=cfg.samples, seed=plan_seed) if cfg.shared_predictor else None
+        shared = (Predictor(seen, samples=cfg.samples, seed=plan_seed, model=cfg.model())
+                  if cfg.shared_predictor else None)
         setup_s = time.perf_counter() - t0
         exhaustive = None
         if len(truth.boxes) <= cfg.exhaustive_max_boxes:

@@ -30,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "with depths hidden (flatters the planner)")
     parser.add_argument("--noise", type=float, default=0.01,
                         help="perception error on each front face's centre and size, m (default 0.01; perturbed only)")
+    parser.add_argument("--no-catalogue", action="store_true",
+                        help="the planner does not take a face of a stock box type to have that type's depth")
     parser.add_argument("--shared-predictor", action="store_true",
                         help="one Predictor per scene for all its targets (faster; planning times then "
                              "exclude its build and reuse cached trials)")
@@ -59,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("--noise", "", f"expected metres in [0, 0.1], got {args.noise!r}")
     truth = TruthModel(noise=args.noise) if args.truth == "perturbed" else None
     config = BenchConfig(planners, args.samples, args.seed, max(0, args.exhaustive_max_boxes), args.robot_time,
-                         shared_predictor=args.shared_predictor, truth=truth)
+                         shared_predictor=args.shared_predictor, truth=truth,
+                         catalogue=not args.no_catalogue)
     summary = run_bench(args.scenes, args.out, config, workers=args.workers, ray_address=args.ray,
                         limit=args.limit)
     from planning.bench import to_markdown

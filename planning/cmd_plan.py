@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None,
                         help="processes over the sample worlds (default: 2 where the machine has 2 cores "
                              "or more, else 1; the same plan whatever the count)")
+    parser.add_argument("--no-catalogue", action="store_true",
+                        help="the stock is not the reference box types: a box's depth is drawn from the "
+                             "shelf alone, never from the type its front face matches")
     parser.add_argument("--out", default=None, help="write the plan here (default: stdout)")
 
 
@@ -41,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from perception.errors import FormatError, SceneError
     from perception.scene import Scene
     from planning.planner import check_request, make_plan
+    from planning.uncertainty import Uncertainty
 
     if args.samples < 1:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
@@ -61,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
                              seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene,
-                             workers=args.workers)
+                             workers=args.workers,
+                             model=Uncertainty(catalogue=()) if args.no_catalogue else None)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
     plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk)

@@ -20,11 +20,11 @@ from planning.heuristic import heuristic_order
 from planning.oracle import Predicting, Screening
 from planning.plan import PLANNERS, TASKS, Plan, StepPrediction
 from planning.predict import Predictor
+from planning.uncertainty import Uncertainty
 
 if TYPE_CHECKING:  # pragma: no cover
     from planning.bullet_clients import ClientPool
     from planning.physics import PhysicsConfig
-    from planning.uncertainty import Uncertainty
     from planning.worker_pool import WorkerPool
 
 
@@ -98,7 +98,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
               samples: int = 10, seed: int = 0, risk: float = 0.0,
               config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
               *, budget_s: float | None = None, origin: str = "", workers: int = 1,
-              model: "Uncertainty | None" = None, pool: "WorkerPool | None" = None,
+              model: Uncertainty | None = None, pool: "WorkerPool | None" = None,
               clients: "ClientPool | None" = None) -> Plan:
     """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
 
@@ -121,6 +121,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
 
     own = predictor is None
     if own:
+        search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
         predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers, model=model,
                               pool=pool, clients=clients)
     sampling = predictor if isinstance(predictor, Screening) else None

@@ -19,7 +19,7 @@ import random
 import zlib
 from dataclasses import dataclass, replace
 
-from perception.scene import Box, Scene, quat_to_matrix
+from perception.scene import BOX_TYPES, Box, Scene, quat_to_matrix
 from planning.physics import PhysicsConfig
 
 PULL_MODES = ("lift", "drag", "ride")
@@ -132,12 +132,20 @@ class Uncertainty:
     # support, the arm holding the height), "ride" (on its support, height free: the method's
     # original drive, kept for comparisons); one mode per world, drawn evenly
     pull_modes: tuple[str, ...] = ("lift", "drag")
+    # the stock's box types (w, d, h, m): a front face within `catalogue_tol` of a type's face is
+    # that type in a share `catalogue_trust` of the worlds, its depth the type's third side
+    # +- `catalogue_depth_error`; the other worlds (and faces no type explains) draw the depth
+    # uniformly in `depth_range`. () turns the prior off.
+    catalogue: tuple[tuple[float, float, float], ...] = tuple(BOX_TYPES.values())
+    catalogue_tol: float = 0.025
+    catalogue_trust: float = 1.0
+    catalogue_depth_error: float = 0.01
 
     @classmethod
     def none(cls) -> "Uncertainty":
         """Only the depth is drawn (the method's original model): for comparisons and tests."""
         return cls(mass=(0.0, 0.0), friction=(0.0, 0.0), face_error=0.0, pull_speed=(0.0, 0.0),
-                   pull_force=(0.0, 0.0), pull_modes=())
+                   pull_force=(0.0, 0.0), pull_modes=(), catalogue=())
 
     @property
     def draws_mass(self) -> bool:
@@ -146,7 +154,9 @@ class Uncertainty:
     def to_json(self) -> dict:
         return {"mass_kg": list(self.mass), "friction": list(self.friction), "face_error_m": self.face_error,
                 "pull_speed_m_s": list(self.pull_speed), "pull_force_n": list(self.pull_force),
-                "pull_modes": list(self.pull_modes)}
+                "pull_modes": list(self.pull_modes), "catalogue": [list(t) for t in self.catalogue],
+                "catalogue_tol_m": self.catalogue_tol, "catalogue_trust": self.catalogue_trust,
+                "catalogue_depth_error_m": self.catalogue_depth_error}
 
 
 def _rng(seed: int, k: int, what: str) -> random.Random:
@@ -179,6 +189,38 @@ def draw_config(config: PhysicsConfig, seed: int, k: int, model: Uncertainty) ->
     return config.replace(**changes) if changes else config
 
 
+def type_depths(box: Box, catalogue: tuple[tuple[float, float, float], ...], tol: float,
+                highest: float) -> tuple[float, ...]:
+    """The depths a box may have if it is one of the `catalogue` types: the third side of every
+    type that has a face within `tol` of the box's front face (width x height) and that fits in
+    front of `highest` (+ tol). Empty when no type explains the face."""
+    w, h = box.size[0], box.size[2]
+    out = set()
+    for t in catalogue:
+        for i in range(3):
+            for j in range(3):
+                if i == j:
+                    continue
+                d = t[3 - i - j]
+                if abs(t[i] - w) <= tol and abs(t[j] - h) <= tol and d <= highest + tol:
+                    out.add(round(float(d), 4))
+    return tuple(sorted(out))
+
+
+def _catalogue_depth(box: Box, model: Uncertainty, lo_hi: tuple[float, float],
+                     rng: random.Random) -> float | None:
+    """A depth for `box` from the stock's types, or None when this world does not take it as a type."""
+    if not model.catalogue or rng.random() >= model.catalogue_trust:
+        return None
+    lo, hi = lo_hi
+    depths = type_depths(box, model.catalogue, model.catalogue_tol, hi)
+    if not depths:
+        return None
+    d = depths[rng.randrange(len(depths))]
+    d += rng.uniform(-model.catalogue_depth_error, model.catalogue_depth_error)
+    return min(max(d, 0.01), hi)
+
+
 def depth_of(box: Box, depth: float) -> Box:
     """`box` with `depth`, its front face kept."""
     return box.with_depth(depth)
@@ -190,16 +232,21 @@ def draw_scene(scene: Scene, seed: int, k: int, model: Uncertainty,
     each unknown mass log-uniform, each face moved by up to `face_error` in x and z.
 
     `ranges` are the depth ranges of the boxes with unknown depth (`depth_ranges`).
+    A face that one of the stock's types explains takes that type's depth (`type_depths`;
+    only at full reach: a redraw that reaches less deep is looking for another explanation).
     The depth draws use the same stream as the method's original sampler, so with
     `Uncertainty.none()` a draw is exactly the old depth sample.
     """
     depth_rng = random.Random(f"shelfpick-depth:{int(seed)}:{int(k)}")
+    type_rng = _rng(seed, k, "types")
     other = _rng(seed, k, "boxes")
     out = []
     for b in scene.boxes:
         if not b.depth_known:
             lo, hi = ranges[b.id]
-            b = depth_of(b, depth_rng.uniform(lo, lo + (hi - lo) * reach))
+            d = depth_rng.uniform(lo, lo + (hi - lo) * reach)
+            typed = _catalogue_depth(b, model, (lo, hi), type_rng) if reach >= 1.0 else None
+            b = depth_of(b, d if typed is None else typed)
         if model.face_error > 0:
             dx = other.uniform(-model.face_error, model.face_error)
             dz = other.uniform(-model.face_error, model.face_error)

@@ -216,3 +216,18 @@ def test_workers_give_the_same_plan(tmp_path, capsys):
 def test_bad_workers(tmp_path, capsys):
     line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "bot", "--workers", "0"])
     assert "--workers" in line and "0" in line
+
+
+def test_the_plan_says_which_box_types_it_assumed_and_no_catalogue_turns_them_off(tmp_path, capsys):
+    scene = Scene(Shelf(), (_box("bot", -0.3, 0.1), _box("top", -0.3, 0.3))).hide_depths()
+    path = tmp_path / "seen.json"
+    scene.save(path)
+    docs = {}
+    for flag in ([], ["--no-catalogue"]):
+        out = tmp_path / f"plan{len(flag)}.json"
+        assert main(["plan", str(path), "--target", "bot", "--samples", "3", "--workers", "1",
+                     "--out", str(out)] + flag) == 0
+        docs[bool(flag)] = json.loads(out.read_text())["search"]["uncertainty"]
+    capsys.readouterr()
+    assert [0.2, 0.2, 0.2] in docs[False]["catalogue"] and docs[False]["catalogue_trust"] == 1.0
+    assert docs[True]["catalogue"] == []

@@ -71,3 +71,50 @@ def test_an_unknown_pull_mode_is_refused():
     with pytest.raises(ValueError, match="pull mode 'yank'"):
         draw_config(PhysicsConfig(), 0, 0, replace(Uncertainty(), pull_modes=("yank",)))
     assert math.isfinite(draw_config(PhysicsConfig(), 0, 0, Uncertainty()).pull_force)
+
+
+def _face(w: float, h: float, y_front: float = 0.0) -> Box:
+    """A box seen only by its front face (w x h) at `y_front`, depth unknown (10 cm placeholder)."""
+    return Box("f", (w, 0.10, h), (0.0, y_front + 0.05, h / 2), depth_known=False)
+
+
+def test_a_face_of_a_stock_type_has_that_types_depth():
+    from planning.uncertainty import type_depths
+
+    types = Uncertainty().catalogue
+    assert type_depths(_face(0.23, 0.25), types, 0.025, 0.30) == (0.31,)
+    assert type_depths(_face(0.31, 0.24), types, 0.025, 0.30) == (0.23, 0.25)  # 31x25 or 31x23: either
+    assert type_depths(_face(0.31, 0.255), types, 0.01, 0.30) == (0.23,)
+    assert type_depths(_face(0.20, 0.21), types, 0.025, 0.30) == (0.2,)
+    assert type_depths(_face(0.50, 0.17), types, 0.025, 0.30) == (0.17,)
+    assert type_depths(_face(0.40, 0.40), types, 0.025, 0.30) == ()        # no type: the shelf decides
+    assert type_depths(_face(0.23, 0.25), types, 0.025, 0.20) == ()        # 31 cm deep cannot fit there
+    assert type_depths(_face(0.17, 0.17), types, 0.025, 0.30) == ()        # the long box end-on: 50 cm deep
+
+
+def test_draws_take_the_type_depth_and_the_shelf_range_without_a_catalogue():
+    scene = Scene(Shelf(), (_face(0.23, 0.25), _face(0.40, 0.40, 0.0).__class__(
+        "g", (0.40, 0.10, 0.40), (0.3, 0.05, 0.2), depth_known=False)))
+    ranges = depth_ranges(scene)
+    with_types, without = Uncertainty(face_error=0.0), Uncertainty(face_error=0.0, catalogue=())
+    typed = [draw_scene(scene, 0, k, with_types, ranges) for k in range(20)]
+    plain = [draw_scene(scene, 0, k, without, ranges) for k in range(20)]
+    assert all(abs(s.box("f").size[1] - 0.31) <= 0.01 + 1e-9 or s.box("f").size[1] == ranges["f"][1]
+               for s in typed)
+    assert max(s.box("f").size[1] for s in plain) - min(s.box("f").size[1] for s in plain) > 0.05
+    # a face no type explains is drawn from the shelf, the same stream with or without types
+    assert [s.box("g").size[1] for s in typed] == [s.box("g").size[1] for s in plain]
+    # the front face never moves: the box grows backwards
+    assert all(s.box("f").front_center == scene.box("f").front_center for s in typed)
+    # a redraw that reaches less deep looks for another explanation than the type
+    shallow = draw_scene(scene, 0, 0, with_types, ranges, reach=0.0)
+    assert shallow.box("f").size[1] == pytest.approx(ranges["f"][0])
+
+
+def test_half_trust_draws_the_type_in_about_half_the_worlds():
+    scene = Scene(Shelf(), (_face(0.23, 0.25, -0.02),))    # 2 cm proud: 31 cm deep fits
+    ranges = depth_ranges(scene)
+    model = Uncertainty(face_error=0.0, catalogue_trust=0.5, catalogue_depth_error=0.0)
+    typed = sum(draw_scene(scene, 3, k, model, ranges).box("f").size[1] == pytest.approx(0.31)
+                for k in range(200))
+    assert 70 <= typed <= 130
