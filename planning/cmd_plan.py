@@ -5,6 +5,10 @@ import argparse
 import json
 import logging
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # pragma: no cover
+    from planning.plan import Plan
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +40,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _warn(msg: str) -> None:
     log.warning("%s", msg)
+
+
+def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
+    """What the user must know before trusting the plan: a budget that ran out, a shelf that
+    does not stand as seen, no safe plan (and the least risky one's risk)."""
+    search = plan.extra.get("search", {})
+    if search.get("timed_out"):
+        _warn(f"the planning budget of {args.budget:g} s ran out; the plan is the best "
+              "found so far, not a complete search")
+    check = plan.extra.get("scene_check", {})
+    for prob in check.get("problems", []):
+        who = f"box {prob['box']}" if prob.get("box") else "the scene"
+        _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
+    if not plan.safe and plan.predicted:
+        worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
+        step = plan.predicted[worst]
+        moved = ", ".join(step.moved) or "nothing named"
+        _warn(f"no safe plan found (risk threshold {args.risk:g}); the least risky plan found has "
+              f"risk {plan.risk:.2f} (chance that nothing collapses {search.get('success_prob', 0):.2f}): "
+              f"step {worst + 1} (pull {step.box}) may move {moved}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,21 +99,7 @@ def run(args: argparse.Namespace) -> int:
     log.debug("timing: %s", ", ".join(f"{k} {v:.2f} s" for k, v in plan.timing.items()))
     for w in caught:
         _warn(str(w.message))
-    search = plan.extra.get("search", {})
-    if search.get("timed_out"):
-        _warn(f"the planning budget of {args.budget:g} s ran out; the plan is the best "
-              "found so far, not a complete search")
-    check = plan.extra.get("scene_check", {})
-    for prob in check.get("problems", []):
-        who = f"box {prob['box']}" if prob.get("box") else "the scene"
-        _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
-    if not plan.safe and plan.predicted:
-        worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
-        step = plan.predicted[worst]
-        moved = ", ".join(step.moved) or "nothing named"
-        _warn(f"no safe plan found (risk threshold {args.risk:g}); the least risky plan found has "
-              f"risk {plan.risk:.2f} (chance that nothing collapses {search.get('success_prob', 0):.2f}): "
-              f"step {worst + 1} (pull {step.box}) may move {moved}")
+    _warn_about(plan, args)
     if args.out:
         try:
             plan.save(args.out)

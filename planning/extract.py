@@ -134,49 +134,71 @@ def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float =
         raise ValueError(f"target {target!r} is not among the boxes {present!r}")
     oracle = trial if isinstance(trial, CountingOracle) else CountingOracle(trial)
     depth_bound = len(present) if max_depth is None else max(0, int(max_depth))
-    clock = _Deadline(deadline)
-    known = set(present)
+    search = _ExtractSearch(oracle, screen, risk, depth_bound, _Deadline(deadline), frozenset(present))
+    out = search.extract(target, frozenset(), ())
+    return SearchResult(out.sequence, out.predicted, out.risk <= risk, oracle.calls, search.clock.hit)
 
-    def extract(box: str, removed: frozenset[str], stack: tuple[str, ...]) -> _Outcome:
+
+@dataclass
+class _ExtractSearch:
+    """The backtracking of `search_extract`: pull a box; if that is unsafe, first get out the
+    boxes it would move (recursively), else compare pulling it now with the likeliest blocker plan."""
+
+    oracle: CountingOracle
+    screen: Oracle | None
+    risk: float
+    depth_bound: int
+    clock: "_Deadline"
+    known: frozenset[str]
+
+    def _ask(self, removed: frozenset[str], box: str) -> StepPrediction:
+        return self.screen(removed, box) if self.screen is not None else self.oracle(removed, box)
+
+    def extract(self, box: str, removed: frozenset[str], stack: tuple[str, ...]) -> _Outcome:
         seq: list[str] = []
         preds: list[StepPrediction] = []
         cur = removed
         while True:
-            pred = screen(cur, box) if screen is not None else oracle(cur, box)
-            if pred.risk <= risk:
-                return _Outcome((*seq, box), (*preds, oracle(cur, box) if screen is not None else pred))
-            on_stack = set(stack) | {box}
-            candidates = [m for m in dict.fromkeys(pred.moved)
-                          if m in known and m not in cur and m not in on_stack]
-            best: _Outcome | None = None
-            progressed = False
-            if len(stack) < depth_bound:
-                for m in candidates:
-                    if clock.passed():
-                        break
-                    sub = extract(m, cur, (*stack, box))
-                    if sub.risk <= risk:
-                        seq += sub.sequence
-                        preds += sub.predicted
-                        cur = cur | set(sub.sequence)
-                        progressed = True
-                        break
-                    if best is None or sub.success > best.success:
-                        best = sub
-            if progressed:
+            pred = self._ask(cur, box)
+            if pred.risk <= self.risk:
+                full = self.oracle(cur, box) if self.screen is not None else pred
+                return _Outcome((*seq, box), (*preds, full))
+            cleared, best = self._clear_blocker(box, cur, stack, pred)
+            if cleared is not None:
+                seq += cleared.sequence
+                preds += cleared.predicted
+                cur = cur | set(cleared.sequence)
                 continue  # retry the box with its blocker gone
-            # Dead end: no blocker comes out safely. Compare two complete plans:
-            # pull the box now, or run the blocker plan most likely to go well
-            # and then plan this box again from there; keep the likelier success.
-            if screen is not None:
-                pred = oracle(cur, box)  # the full prediction: risks are compared from here on
-            now = _Outcome((*seq, box), (*preds, pred))
-            if best is None or success_prob(preds) * best.success <= now.success:
-                return now  # the blocker alone is already a worse bet than pulling now
-            rest = extract(box, cur | set(best.sequence), stack)
-            then = _Outcome((*seq, *best.sequence, *rest.sequence),
-                            (*preds, *best.predicted, *rest.predicted))
-            return then if then.success > now.success else now
+            return self._dead_end(box, cur, stack, seq, preds, pred, best)
 
-    out = extract(target, frozenset(), ())
-    return SearchResult(out.sequence, out.predicted, out.risk <= risk, oracle.calls, clock.hit)
+    def _clear_blocker(self, box: str, cur: frozenset[str], stack: tuple[str, ...],
+                       pred: StepPrediction) -> tuple[_Outcome | None, _Outcome | None]:
+        """(the first blocker plan that is safe, None) or (None, the blocker plan likeliest to go well)."""
+        on_stack = set(stack) | {box}
+        candidates = [m for m in dict.fromkeys(pred.moved)
+                      if m in self.known and m not in cur and m not in on_stack]
+        best: _Outcome | None = None
+        if len(stack) < self.depth_bound:
+            for m in candidates:
+                if self.clock.passed():
+                    break
+                sub = self.extract(m, cur, (*stack, box))
+                if sub.risk <= self.risk:
+                    return sub, None
+                if best is None or sub.success > best.success:
+                    best = sub
+        return None, best
+
+    def _dead_end(self, box: str, cur: frozenset[str], stack: tuple[str, ...], seq: list[str],
+                  preds: list[StepPrediction], pred: StepPrediction, best: _Outcome | None) -> _Outcome:
+        """No blocker comes out safely. Compare two complete plans: pull the box now, or run
+        the blocker plan most likely to go well and then plan this box again from there;
+        keep the likelier success."""
+        if self.screen is not None:
+            pred = self.oracle(cur, box)  # the full prediction: risks are compared from here on
+        now = _Outcome((*seq, box), (*preds, pred))
+        if best is None or success_prob(preds) * best.success <= now.success:
+            return now  # the blocker alone is already a worse bet than pulling now
+        rest = self.extract(box, cur | set(best.sequence), stack)
+        then = _Outcome((*seq, *best.sequence, *rest.sequence), (*preds, *best.predicted, *rest.predicted))
+        return then if then.success > now.success else now

@@ -94,6 +94,18 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
             len(screened | oracle.keys))
 
 
+def _verdict(predicted: tuple[StepPrediction, ...], risk: float, search: dict[str, Any],
+             check: Any) -> tuple[bool, dict[str, Any]]:
+    """(safe, the plan's extra): every step within `risk`, on a shelf that stands as seen."""
+    safe = all(p.risk <= risk for p in predicted)
+    extra: dict[str, Any] = {"search": search}
+    if isinstance(check, dict):
+        extra["scene_check"] = check
+        # a shelf that does not stand as seen was not observed right: nothing planned on it is safe
+        safe = safe and bool(check.get("stands_as_seen", True))
+    return safe, extra
+
+
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
               samples: int = 10, seed: int = 0, risk: float = 0.0,
               config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
@@ -146,14 +158,8 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     finally:
         if own:
             predictor.close()  # type: ignore[union-attr]
-    safe = all(p.risk <= risk for p in predicted)
     search["success_prob"] = success_prob(predicted)
-    extra: dict[str, Any] = {"search": search}
-    check = sampling.scene_check if sampling is not None else None
-    if isinstance(check, dict):
-        extra["scene_check"] = check
-        # a shelf that does not stand as seen was not observed right: nothing planned on it is safe
-        safe = safe and bool(check.get("stands_as_seen", True))
+    safe, extra = _verdict(predicted, risk, search, sampling.scene_check if sampling is not None else None)
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench
     return plan.with_provenance(scene, config, samples, risk)

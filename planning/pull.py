@@ -76,6 +76,38 @@ class CollapseMonitor:
         return disp, rot
 
 
+class _SetPoint:
+    """Where the drive holds the front face at each step: up by the lift first, then out along -y
+    (speed ramped up over `pull_ramp`), plus the seeded, smoothed vibration of a real arm
+    (a sideways offset `jx`, and a vertical force `jz` the caller applies)."""
+
+    def __init__(self, front0: tuple, lift: float, lift_steps: int, travel_needed: float, cfg, rng: random.Random,
+                 weight: float) -> None:
+        self.front0, self.lift, self.lift_steps, self.travel_needed = front0, lift, lift_steps, travel_needed
+        self.cfg, self.rng, self.weight = cfg, rng, weight
+        self.ramp = max(cfg.pull_ramp, cfg.time_step)
+        self.period = max(1, int(round(cfg.disturbance_period / cfg.time_step)))
+        self.dist = 0.0
+        self.jx = self.jz = self.tx = self.tz = 0.0
+
+    def at(self, step: int) -> list[float]:
+        cfg, dt = self.cfg, self.cfg.time_step
+        z = self.front0[2]
+        if step < self.lift_steps:
+            z += self.lift * (step + 1) / self.lift_steps
+        else:
+            z += self.lift
+            t = (step - self.lift_steps) * dt
+            speed = cfg.pull_speed * min(1.0, (t + dt) / self.ramp)
+            self.dist = min(self.travel_needed + 0.01, self.dist + speed * dt)
+        if step % self.period == 0:
+            self.tx = self.rng.uniform(-cfg.disturbance, cfg.disturbance)
+            self.tz = self.rng.uniform(-cfg.disturbance_force, cfg.disturbance_force) * self.weight
+        self.jx += (self.tx - self.jx) * cfg.disturbance_smoothing
+        self.jz += (self.tz - self.jz) * cfg.disturbance_smoothing
+        return [self.front0[0] + self.jx, self.front0[1] - self.dist, z]
+
+
 class PullTrial:
     """The state of one pull: the drive's target, the vibration, the contacts, the frames."""
 
@@ -167,7 +199,7 @@ class PullTrial:
 
     def drive(self, stop_on_collapse: bool) -> bool:
         """Pull until the box is out (True), stuck, or (with `stop_on_collapse`) something collapsed."""
-        p, cfg, dt = self.p, self.cfg, self.cfg.time_step
+        p, cfg = self.p, self.cfg
         joint = p.JOINT_FIXED if (self.lift > 0 or cfg.pull_hold) else p.JOINT_PRISMATIC
         cid = p.createConstraint(self.body, -1, -1, -1, joint, [0, 0, 1], list(self.front_local),
                                  list(self.front0), [0, 0, 0, 1], list(self.orn0))
@@ -178,40 +210,18 @@ class PullTrial:
             if self.record:
                 self.record_frame(True)
             self._place_gripper()
-            ramp = max(cfg.pull_ramp, dt)
-            dist_ = 0.0
-            period = max(1, int(round(cfg.disturbance_period / dt)))
-            jx = jz = tx = tz = 0.0
+            set_point = _SetPoint(self.front0, self.lift, self.lift_steps, self.travel_needed, cfg,
+                                  self.rng, self.weight)
             free_steps = 0
             pos = self.pos0
-            max_steps = int(math.ceil(cfg.pull_timeout / dt))
+            max_steps = int(math.ceil(cfg.pull_timeout / cfg.time_step))
             while True:
-                z = self.front0[2]
-                if self.step < self.lift_steps:
-                    z += self.lift * (self.step + 1) / self.lift_steps
-                else:
-                    z += self.lift
-                    t = (self.step - self.lift_steps) * dt
-                    speed = cfg.pull_speed * min(1.0, (t + dt) / ramp)
-                    dist_ = min(self.travel_needed + 0.01, dist_ + speed * dt)
-                if self.step % period == 0:
-                    tx = self.rng.uniform(-cfg.disturbance, cfg.disturbance)
-                    tz = self.rng.uniform(-cfg.disturbance_force, cfg.disturbance_force) * self.weight
-                jx += (tx - jx) * cfg.disturbance_smoothing
-                jz += (tz - jz) * cfg.disturbance_smoothing
-                target = [self.front0[0] + jx, self.front0[1] - dist_, z]
+                target = set_point.at(self.step)
                 p.changeConstraint(cid, target, jointChildFrameOrientation=list(self.orn0),
                                    maxForce=self.max_force)
-                if jz:
-                    p.applyExternalForce(self.body, -1, [0.0, 0.0, jz], list(pos), p.WORLD_FRAME)
-                self.sim.step()
-                self.step += 1
-                pos = self._place_gripper()
-                if self.step % self.every == 0:
-                    self.monitor.look(self.step)
-                engaged = self._engaged()
-                if self.record and self.step % self.frame_every == 0:
-                    self.record_frame(True)
+                if set_point.jz:
+                    p.applyExternalForce(self.body, -1, [0.0, 0.0, set_point.jz], list(pos), p.WORLD_FRAME)
+                pos, engaged = self._one_step()
                 if stop_on_collapse and self.monitor.collapse_at:
                     self.note = "stopped at the first collapse"
                     return False
@@ -227,6 +237,18 @@ class PullTrial:
             p.removeConstraint(cid)
             p.setCollisionFilterPair(self.sim.gripper_body, self.body, -1, -1, 1)
             self.sim.park_gripper()
+
+    def _one_step(self) -> tuple[tuple, bool]:
+        """One physics step of the pull: (the box's position, whether something is engaged with it)."""
+        self.sim.step()
+        self.step += 1
+        pos = self._place_gripper()
+        if self.step % self.every == 0:
+            self.monitor.look(self.step)
+        engaged = self._engaged()
+        if self.record and self.step % self.frame_every == 0:
+            self.record_frame(True)
+        return pos, engaged
 
     def settle(self, stop_on_collapse: bool, extracted: bool) -> None:
         """Let the rest settle after the pull, watching for collapses."""

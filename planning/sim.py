@@ -25,6 +25,7 @@ from planning.geometry3 import dist as _dist
 from planning.geometry3 import norm as _norm
 from planning.geometry3 import rot_angle_deg as _rot_angle_deg
 from planning.locality import neighbourhood as _neighbourhood
+from planning.overlap_repair import repair_overlaps
 from planning.physics import PhysicsConfig
 from planning.pull import pull
 from planning.step_result import StepResult
@@ -86,7 +87,11 @@ class ShelfSim:
     def _repair_and_settle(self) -> dict[str, tuple[Vec3, Quat]]:
         """Push overlaps apart, settle, and say what moved (`repairs`, `settle_moves`); the poses at rest."""
         cfg = self.config
-        repairs = list(self._repair_overlaps())
+        try:
+            repairs = repair_overlaps(self._p, self._ids, self._body, self._static, cfg)
+        except SceneError:
+            self.close()
+            raise
         before = self.raw_poses(self._ids)
         if not self._settle(cfg.initial_settle_time):
             moving = self._moving()
@@ -169,101 +174,6 @@ class ShelfSim:
         vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.2, 0.3, 0.8, 1]) \
             if self._gui else -1
         return p.createMultiBody(0.0, col, vis, list(_GRIPPER_PARK))
-
-    # ----------------------------------------------------------------- repair
-    def _penetrations(self) -> list[tuple[float, str, str | None, tuple, int]]:
-        """(depth, box, other box or None, normal pointing out of the other, other body).
-
-        Overlaps under `repair_min_overlap` are left to the contact solver: a settled
-        Bullet stack rests ~1 mm deep in its contacts, and "repairing" that on every
-        reload of a settled scene would only lift boxes that then drop back.
-        """
-        p = self._p
-        eps = -self.config.repair_min_overlap
-        out = []
-        ids = self._ids
-        aabb = {bid: p.getAABB(self._body[bid]) for bid in ids}
-
-        def overlaps(a, b) -> bool:
-            return all(a[0][k] < b[1][k] and b[0][k] < a[1][k] for k in range(3))
-
-        for i, a in enumerate(ids):
-            ba = self._body[a]
-            for sbody, sname in self._static.items():
-                if sname == "ground":
-                    continue
-                if not overlaps(aabb[a], p.getAABB(sbody)):
-                    continue
-                for c in p.getClosestPoints(ba, sbody, 0.0):
-                    if c[8] < eps:
-                        out.append((-c[8], a, None, tuple(c[7]), sbody))
-            for b in ids[i + 1:]:
-                if not overlaps(aabb[a], aabb[b]):
-                    continue
-                cs = p.getClosestPoints(ba, self._body[b], 0.0)
-                if cs:
-                    c = min(cs, key=lambda c: c[8])
-                    if c[8] < eps:
-                        out.append((-c[8], a, b, tuple(c[7]), self._body[b]))
-        return out
-
-    def _repair_overlaps(self) -> list[str]:
-        """Push apart overlaps up to the tolerance; refuse deeper ones (SceneError)."""
-        tol = self.config.repair_tolerance
-        p = self._p
-        pens = self._penetrations()
-        for depth, a, b, _, sbody in sorted(pens, key=lambda x: -x[0]):
-            if depth > tol:
-                other = f"box {b!r}" if b else f"the shelf's {self._static[sbody]}"
-                self.close()
-                raise SceneError(f"box {a!r} and {other} overlap by {depth:.3f} m "
-                                 f"(more than the {tol:.3f} m that can be repaired)")
-        moved: dict[str, list] = {}
-        for _ in range(self.config.repair_rounds):
-            if not pens:
-                break
-            for depth, a, b, n, _ in pens:
-                # normal points from the other body to `a`: moving a along n separates them.
-                if b is None:
-                    self._shift(a, n, depth, "the shelf", moved)
-                elif abs(n[2]) > 0.5:
-                    # stacked: lift the upper box only
-                    za = self.raw_poses((a,))[a][0][2]
-                    zb = self.raw_poses((b,))[b][0][2]
-                    if za >= zb:
-                        self._shift(a, n, depth, b, moved)
-                    else:
-                        self._shift(b, tuple(-x for x in n), depth, a, moved)
-                else:
-                    self._shift(a, n, depth / 2, b, moved)
-                    self._shift(b, tuple(-x for x in n), depth / 2, a, moved)
-            pens = self._penetrations()
-        if pens:
-            worst = max(pens, key=lambda x: x[0])
-            raise SceneError(f"box {worst[1]!r} overlaps {worst[2] or 'the shelf'} and the overlap "
-                             f"cannot be repaired")
-        msgs = []
-        for bid in self._ids:
-            if bid in moved:
-                off, others = moved[bid]
-                d = _norm(off)
-                if d > 1e-4:
-                    msgs.append(f"box {bid!r} moved {d:.3f} m by ({off[0]:+.3f}, {off[1]:+.3f}, "
-                                f"{off[2]:+.3f}) to undo its overlap with {', '.join(others)}")
-        _ = p
-        return msgs
-
-    def _shift(self, bid: str, n: tuple, d: float, other: str, moved: dict) -> None:
-        p = self._p
-        body = self._body[bid]
-        pos, orn = p.getBasePositionAndOrientation(body)
-        step = tuple(n[k] * (d + self.config.repair_push) for k in range(3))
-        p.resetBasePositionAndOrientation(body, [pos[k] + step[k] for k in range(3)], orn)
-        off, others = moved.setdefault(bid, [(0.0, 0.0, 0.0), []])
-        moved[bid][0] = tuple(off[k] + step[k] for k in range(3))
-        name = repr(other) if other != "the shelf" else other
-        if name not in others:
-            others.append(name)
 
     # ---------------------------------------------------------------- queries
     def raw_poses(self, ids) -> dict[str, tuple[Vec3, Quat]]:

@@ -1,0 +1,118 @@
+"""Pushing apart the boxes of a perceived shelf that overlap a little, before it settles.
+
+Perceived faces are off by about a centimetre, so two boxes built from them may
+overlap by a few millimetres, and a box may reach into a wall. Overlaps up to
+`repair_tolerance` are pushed apart (a stacked pair lifts the upper box, a
+side-by-side pair moves each box by half, a box in a wall is pushed out);
+deeper ones raise `SceneError` naming both. Overlaps under `repair_min_overlap`
+are left to the contact solver (docs/physics.md, "Repair and refusal").
+"""
+from __future__ import annotations
+
+from perception.errors import SceneError
+from planning.bullet_clients import Client
+from planning.geometry3 import norm
+from planning.physics import PhysicsConfig
+
+# (depth, box, other box or None for a shelf part, normal pointing out of the other, other body)
+Penetration = tuple[float, str, "str | None", tuple, int]
+
+
+def _overlaps(a, b) -> bool:
+    return all(a[0][k] < b[1][k] and b[0][k] < a[1][k] for k in range(3))
+
+
+def penetrations(p: Client, ids: tuple[str, ...], body: dict[str, int], static: dict[int, str],
+                 config: PhysicsConfig) -> list[Penetration]:
+    """Every overlap deeper than `repair_min_overlap`: a settled Bullet stack rests ~1 mm deep
+    in its contacts, and "repairing" that on every reload of a settled scene would only lift
+    boxes that then drop back."""
+    eps = -config.repair_min_overlap
+    out: list[Penetration] = []
+    aabb = {bid: p.getAABB(body[bid]) for bid in ids}
+    for i, a in enumerate(ids):
+        ba = body[a]
+        for sbody, sname in static.items():
+            if sname == "ground" or not _overlaps(aabb[a], p.getAABB(sbody)):
+                continue
+            for c in p.getClosestPoints(ba, sbody, 0.0):
+                if c[8] < eps:
+                    out.append((-c[8], a, None, tuple(c[7]), sbody))
+        for b in ids[i + 1:]:
+            if not _overlaps(aabb[a], aabb[b]):
+                continue
+            cs = p.getClosestPoints(ba, body[b], 0.0)
+            if cs:
+                c = min(cs, key=lambda c: c[8])
+                if c[8] < eps:
+                    out.append((-c[8], a, b, tuple(c[7]), body[b]))
+    return out
+
+
+class _Shifts:
+    """Moves boxes along a normal and remembers, per box, the total offset and from what."""
+
+    def __init__(self, p: Client, body: dict[str, int], push: float) -> None:
+        self.p, self.body, self.push = p, body, push
+        self.moved: dict[str, list] = {}
+
+    def shift(self, bid: str, n: tuple, d: float, other: str) -> None:
+        pos, orn = self.p.getBasePositionAndOrientation(self.body[bid])
+        step = tuple(n[k] * (d + self.push) for k in range(3))
+        self.p.resetBasePositionAndOrientation(self.body[bid], [pos[k] + step[k] for k in range(3)], orn)
+        off, others = self.moved.setdefault(bid, [(0.0, 0.0, 0.0), []])
+        self.moved[bid][0] = tuple(off[k] + step[k] for k in range(3))
+        name = repr(other) if other != "the shelf" else other
+        if name not in others:
+            others.append(name)
+
+    def apart(self, pen: Penetration) -> None:
+        """Undo one overlap; the normal points from the other body to the box."""
+        depth, a, b, n, _ = pen
+        if b is None:
+            self.shift(a, n, depth, "the shelf")
+        elif abs(n[2]) > 0.5:   # stacked: lift the upper box only
+            za = self.p.getBasePositionAndOrientation(self.body[a])[0][2]
+            zb = self.p.getBasePositionAndOrientation(self.body[b])[0][2]
+            if za >= zb:
+                self.shift(a, n, depth, b)
+            else:
+                self.shift(b, tuple(-x for x in n), depth, a)
+        else:
+            self.shift(a, n, depth / 2, b)
+            self.shift(b, tuple(-x for x in n), depth / 2, a)
+
+    def messages(self, ids: tuple[str, ...]) -> list[str]:
+        msgs = []
+        for bid in ids:
+            if bid in self.moved:
+                off, others = self.moved[bid]
+                if norm(off) > 1e-4:
+                    msgs.append(f"box {bid!r} moved {norm(off):.3f} m by ({off[0]:+.3f}, {off[1]:+.3f}, "
+                                f"{off[2]:+.3f}) to undo its overlap with {', '.join(others)}")
+        return msgs
+
+
+def repair_overlaps(p: Client, ids: tuple[str, ...], body: dict[str, int], static: dict[int, str],
+                    config: PhysicsConfig) -> list[str]:
+    """Push apart overlaps up to `repair_tolerance` (what moved, one line a box); a deeper one,
+    or one that does not go away in `repair_rounds`, raises SceneError."""
+    tol = config.repair_tolerance
+    pens = penetrations(p, ids, body, static, config)
+    for depth, a, b, _, sbody in sorted(pens, key=lambda x: -x[0]):
+        if depth > tol:
+            other = f"box {b!r}" if b else f"the shelf's {static[sbody]}"
+            raise SceneError(f"box {a!r} and {other} overlap by {depth:.3f} m "
+                             f"(more than the {tol:.3f} m that can be repaired)")
+    shifts = _Shifts(p, body, config.repair_push)
+    for _ in range(config.repair_rounds):
+        if not pens:
+            break
+        for pen in pens:
+            shifts.apart(pen)
+        pens = penetrations(p, ids, body, static, config)
+    if pens:
+        worst = max(pens, key=lambda x: x[0])
+        raise SceneError(f"box {worst[1]!r} overlaps {worst[2] or 'the shelf'} and the overlap "
+                         f"cannot be repaired")
+    return shifts.messages(ids)
