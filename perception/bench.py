@@ -32,6 +32,7 @@ from perception.bench_truth import front_face_masks
 from perception.capture import Capture, read_depth, read_rgb
 from perception.errors import PerceptionError
 from perception.geometry import camera_from_matrix, matrix_to_quat, point_map
+from perception.mask_match import mask_iou, match  # noqa: F401 - re-exported for scripts
 from perception.render import DEFAULT_PITCH_DEG, _rot_x, default_camera, render
 from perception.scene import Scene, Shelf, quat_to_matrix
 from perception.segment import for_capture
@@ -57,31 +58,6 @@ def min_gt_pixels(camera) -> int:
     """MIN_GT_PIXELS at 1.05 m, scaled with the camera's distance so the same face AREA counts."""
     d = max(1e-3, -float(camera.position[1]))
     return max(50, int(round(MIN_GT_PIXELS * (DEFAULT_DISTANCE / d) ** 2)))
-
-
-def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
-    u = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum()) / float(u) if u else 0.0
-
-
-def match(pred: list[np.ndarray], truth: list[np.ndarray], thr: float = 0.5) -> list[tuple[int, int, float]]:
-    """Greedy one-to-one matching by IoU: (truth index, pred index, IoU) for IoU >= thr."""
-    cands = []
-    for i, g in enumerate(truth):
-        for j, p in enumerate(pred):
-            if np.logical_and(g, p).any():
-                v = mask_iou(g, p)
-                if v >= thr:
-                    cands.append((v, i, j))
-    cands.sort(reverse=True)
-    used_t, used_p, out = set(), set(), []
-    for v, i, j in cands:
-        if i in used_t or j in used_p:
-            continue
-        used_t.add(i)
-        used_p.add(j)
-        out.append((i, j, v))
-    return out
 
 
 @dataclass

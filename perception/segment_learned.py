@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 from scipy import ndimage as ndi
 
-from perception.bench import match
 from perception.errors import PerceptionError
+from perception.mask_match import match
 from perception.segment_depth import DepthEdgeSegmenter
 
 ROOT = Path(__file__).resolve().parent.parent

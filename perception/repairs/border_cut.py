@@ -13,7 +13,7 @@ from perception.repairs.planes import coords
 from perception.scene import Camera
 
 if TYPE_CHECKING:
-    from perception.box_catalogue import Catalogue
+    from perception.catalogue import Catalogue
 
 
 def cut_directions(face: FrontFace, mask: np.ndarray, camera: Camera, sides: tuple[str, ...] | None = None,

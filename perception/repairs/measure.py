@@ -15,7 +15,7 @@ from perception.repairs.planes import plane_dist
 from perception.scene import Camera
 
 if TYPE_CHECKING:
-    from perception.box_catalogue import Catalogue
+    from perception.catalogue import Catalogue
 
 
 @dataclass(frozen=True, eq=False)

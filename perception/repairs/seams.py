@@ -11,7 +11,7 @@ from perception.faces import FrontFace, face_axes
 from perception.geometry import backproject
 
 if TYPE_CHECKING:
-    from perception.box_catalogue import Catalogue
+    from perception.catalogue import Catalogue
     from perception.repairs.measure import RepairContext
 
 _LINE_R, _STEP_W = 3, 5       # bins: a line against the bands this far either side; a step over this many
