@@ -189,3 +189,24 @@ def test_concurrent_writers_from_threads(tmp_path: Path) -> None:
     rec = store.load_session(sid)
     assert sorted(e["step"] for e in rec.robot_events) == list(range(40))
     assert json.loads(json.dumps(rec.robot_events[0]["detail"]))["i"] == rec.robot_events[0]["step"]
+
+
+def test_owner_lock_says_which_console_is_alive(tmp_path: Path) -> None:
+    """An open writable store holds `<db>.owners/<pid>-<token>.lock` (flock); close drops it, and a
+    lock file a crash left unlocked is taken for a dead console and swept by recover_interrupted."""
+    from console.store_owner import owner_alive, owners_dir
+
+    db = tmp_path / "o.db"
+    a = SessionStore(db)
+    folder = owners_dir(db)
+    [held] = list(folder.iterdir())
+    assert owner_alive(a.owner, db)                       # held by an open store of this very process
+    SessionStore(db, readonly=True).close()               # a reader holds no lock
+    assert list(folder.iterdir()) == [held]
+    a.close()
+    assert list(folder.iterdir()) == [] and not owner_alive(a.owner, db)
+    crashed = folder / f"{os.getpid() + 1}-deadbeef.lock"  # left by a console killed with -9
+    crashed.write_text("")
+    b = SessionStore(db)
+    assert b.recover_interrupted() == [] and not crashed.exists()
+    b.close()
