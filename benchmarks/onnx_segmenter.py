@@ -49,30 +49,39 @@ def timed(fn, runs: int) -> tuple[float, float]:
     return statistics.median(times) * 1000, min(times) * 1000
 
 
-def main() -> int:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--weights", default=str(ROOT / "static" / "weights" / "shelfpick-seg.pt"),
                    help="YOLO11n-seg weights (.pt)")
     p.add_argument("--imgsz", type=int, default=320, help="network input size (the segmenter's default: 320)")
     p.add_argument("--runs", type=int, default=30, help="timed forward passes each (default 30)")
     p.add_argument("--out", help="also write the markdown here")
-    args = p.parse_args()
-    os.environ.setdefault("YOLO_OFFLINE", "1")
-    os.environ.setdefault("YOLO_CONFIG_DIR", str(ROOT / ".yolo"))
+    return p.parse_args(argv)
+
+
+def demo_input(imgsz: int):
+    """The rendered demo shelf as the network's input: 1 x 3 x imgsz x imgsz, float32 in [0, 1]."""
+    import cv2
+    import numpy as np
+
+    from perception.render import render
+    from perception.scene import Scene
+
+    capture = render(Scene.load(ROOT / "static" / "demo" / "demo-small-6.json"), seed=0)
+    img = cv2.resize(capture.rgb, (imgsz, imgsz)).astype(np.float32) / 255.0
+    return np.ascontiguousarray(img.transpose(2, 0, 1)[None])
+
+
+def measure(args: argparse.Namespace) -> dict:
+    """Export the weights to ONNX, time both forward passes on one thread, compare their raw outputs."""
     import numpy as np
     import onnxruntime as ort
     import torch
     from ultralytics import YOLO
 
-    from perception.render import render
-    from perception.scene import Scene
-
     torch.set_num_threads(1)
-    capture = render(Scene.load(ROOT / "static" / "demo" / "demo-small-6.json"), seed=0)
-    import cv2
-
-    img = cv2.resize(capture.rgb, (args.imgsz, args.imgsz)).astype(np.float32) / 255.0
-    x = np.ascontiguousarray(img.transpose(2, 0, 1)[None])
+    x = demo_input(args.imgsz)
     with tempfile.TemporaryDirectory() as tmp:
         pt = Path(tmp) / "seg.pt"
         shutil.copy(args.weights, pt)
@@ -94,25 +103,39 @@ def main() -> int:
         name = sess.get_inputs()[0].name
         out0 = sess.run(None, {name: x})[0]
         ort_ms = timed(lambda: sess.run(None, {name: x}), args.runs)
-    diff = float(np.abs(out0 - ref0).max())
-    scale = float(np.abs(ref0).max())
+    return {"torch_ms": torch_ms, "ort_ms": ort_ms, "onnx_mib": onnx_mib,
+            "diff": float(np.abs(out0 - ref0).max()), "scale": float(np.abs(ref0).max()),
+            "torch_version": torch.__version__, "ort_version": ort.__version__}
+
+
+def report(args: argparse.Namespace, m: dict) -> str:
+    """The markdown written up in docs/results/onnx-segmenter.md, with the packages' installed sizes."""
+    torch_ms, ort_ms = m["torch_ms"], m["ort_ms"]
     torch_pkgs = installed_mib("torch", "torchvision", "ultralytics")
     ort_pkgs = installed_mib("onnxruntime")
-    md = "\n".join([
+    return "\n".join([
         "# The YOLO11n-seg segmenter on ONNX Runtime vs torch", "",
         f"`PYTHONPATH=<onnx packages> OMP_NUM_THREADS=1 python benchmarks/onnx_segmenter.py "
-        f"--imgsz {args.imgsz} --runs {args.runs}` (Python {sys.version.split()[0]}, torch {torch.__version__}, "
-        f"onnxruntime {ort.__version__}, one thread each, {time.strftime('%Y-%m-%d')})", "",
+        f"--imgsz {args.imgsz} --runs {args.runs}` (Python {sys.version.split()[0]}, torch {m['torch_version']}, "
+        f"onnxruntime {m['ort_version']}, one thread each, {time.strftime('%Y-%m-%d')})", "",
         "| | torch + ultralytics | ONNX Runtime |", "|---|---:|---:|",
         f"| forward pass, median (min) ms | {torch_ms[0]:.1f} ({torch_ms[1]:.1f}) | {ort_ms[0]:.1f} ({ort_ms[1]:.1f}) |",
-        f"| weights file MiB | {Path(args.weights).stat().st_size / 2**20:.1f} (.pt) | {onnx_mib:.1f} (.onnx) |",
+        f"| weights file MiB | {Path(args.weights).stat().st_size / 2**20:.1f} (.pt) | {m['onnx_mib']:.1f} (.onnx) |",
         f"| installed packages MiB | {torch_pkgs:.0f} (torch, torchvision, ultralytics) | {ort_pkgs:.0f} (onnxruntime) |",
         "", "Installed sizes are the packages' own folders; torch from PyPI also pulls the CUDA libraries",
         "(nvidia-*, triton), which the `learned` extra's venv counts (docs/results/install-footprint.md).",
-        "", f"Largest difference between the raw outputs: {diff:.2e} (outputs up to {scale:.1f}).",
+        "", f"Largest difference between the raw outputs: {m['diff']:.2e} (outputs up to {m['scale']:.1f}).",
         "Forward pass only: the mask post-processing ultralytics does after it (confidence filter, NMS,",
         "prototype masks scaled to the image) is not measured and would have to be written for ONNX Runtime.",
     ]) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Measure, print the markdown, and write it to --out when given."""
+    args = parse_args(argv)
+    os.environ.setdefault("YOLO_OFFLINE", "1")
+    os.environ.setdefault("YOLO_CONFIG_DIR", str(ROOT / ".yolo"))
+    md = report(args, measure(args))
     print(md)
     if args.out:
         Path(args.out).write_text(md, encoding="utf-8")

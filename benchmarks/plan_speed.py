@@ -48,7 +48,8 @@ def _cpu(pool=None) -> float:
     return own + ch.ru_utime + ch.ru_stime + workers
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=6, help="scenes per group and kind (default 6)")
     ap.add_argument("--targets", type=int, default=3, help="extraction targets per scene (default 3)")
@@ -64,82 +65,106 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--physics", default=None, metavar="JSON",
                     help='PhysicsConfig overrides, to measure a lever on and off, '
                          'e.g. \'{"prediction_local": false}\'')
-    args = ap.parse_args(argv)
+    return ap.parse_args(argv)
 
+
+def build_work(args: argparse.Namespace) -> list[tuple[str, str, str, int, int]]:
+    """(group, task, kind, seed, box count) for every scene of every group and kind."""
     import numpy as np
-    from tqdm import tqdm
 
-    from planning.execute import execute_plan
-    from planning.physics import PhysicsConfig
-    from planning.planner import make_plan
-    from perception.scene import Scene
-    from planning.predict import Predictor
-    from planning.shelves import generate
-    from planning.worker_pool import WorkerPool
-
-    config = PhysicsConfig.from_json(json.loads(args.physics), "--physics") if args.physics else None
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    scene_dir = Path(args.scene_dir) if args.scene_dir else out / "scenes"
-    scene_dir.mkdir(parents=True, exist_ok=True)
-    groups = args.groups.split(",")
     work = []
-    for g in groups:
+    for g in args.groups.split(","):
         task, lo, hi = g.split("-")[0], int(g.split("-")[1]), int(g.split("-")[2])
         for kind in ("structured", "unstructured"):
             for i in range(args.scenes):
                 s = derive_seed(args.seed, g, kind, i)
                 n = int(np.random.default_rng(s).integers(lo, hi + 1))
                 work.append((g, task, kind, s, n))
-    import os
+    return work
 
-    load_start = os.getloadavg()
-    pool = WorkerPool(args.workers) if args.workers > 1 else None
+
+def true_scene(cached: Path, kind: str, seed: int, n: int):
+    """The true scene from the scene folder, or generated and written there (the same shelves next run)."""
+    from perception.scene import Scene
+    from planning.shelves import generate
+
+    if cached.exists():
+        return Scene.load(cached)
+    truth = generate(kind, seed, n)
+    truth.save(cached)
+    return truth
+
+
+def timed_plan(hidden, task: str, target: str | None, seed: int, args: argparse.Namespace, config, pool):
+    """make_plan, with its own Predictor on the pool when there are workers; (plan, wall s, CPU s)."""
+    from planning.planner import make_plan
+    from planning.predict import Predictor
+
+    t0 = time.perf_counter()
+    c0 = _cpu(pool)
+    pred = (Predictor(hidden, args.samples, seed, config, workers=args.workers, pool=pool)
+            if args.workers > 1 else None)
+    try:
+        plan = make_plan(hidden, task, target, "physics", args.samples, seed, risk=0.0, config=config,
+                         predictor=pred)
+    finally:
+        if pred is not None:
+            pred.close()
+    return plan, time.perf_counter() - t0, _cpu(pool) - c0
+
+
+def scene_rows(item: tuple[str, str, str, int, int], args: argparse.Namespace, config, pool,
+               scene_dir: Path, out: Path) -> list[dict]:
+    """Every target of one scene planned (timed) on the hidden-depth scene and executed on the truth."""
+    import numpy as np
+
+    from planning.execute import execute_plan
+
+    g, task, kind, s, n = item
+    try:
+        truth = true_scene(scene_dir / f"{g}-{kind}-{s}.json", kind, s, n)
+    except Exception as exc:  # a seed the generator cannot fill: say so, go on
+        return [{"group": g, "kind": kind, "seed": s, "error": str(exc)}]
+    hidden = truth.hide_depths()
+    rng = np.random.default_rng([s, 1])
+    targets = ([None] if task == "clear" else
+               [truth.ids[int(i)] for i in rng.choice(len(truth.ids), min(args.targets, len(truth.ids)), replace=False)])
     rows = []
+    for t in targets:
+        plan, dt, dc = timed_plan(hidden, task, t, s, args, config, pool)
+        ex = execute_plan(truth, plan.sequence, seed=s)   # the default physics: the truth
+        row = {"group": g, "kind": kind, "seed": s, "n_boxes": n, "target": t,
+               "plan_s": dt, "cpu_s": dc, "ok": bool(ex.ok), "removed": len(plan.sequence),
+               "safe": plan.safe, "sequence": list(plan.sequence),
+               "oracle_calls": plan.extra.get("search", {}).get("oracle_calls")}
+        rows.append(row)
+        with open(out / "rows.jsonl", "a") as fh:   # what is done survives a stopped run
+            fh.write(json.dumps(row) + "\n")
+    return rows
+
+
+def run_work(work: list, args: argparse.Namespace, config, out: Path, scene_dir: Path) -> list[dict]:
+    """All scenes in turn (one worker pool for all of them when --workers > 1), with a progress bar."""
+    from tqdm import tqdm
+
+    from planning.worker_pool import WorkerPool
+
+    pool = WorkerPool(args.workers) if args.workers > 1 else None
+    rows: list[dict] = []
     bar = tqdm(total=len(work), desc="plan speed", unit="scene")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for g, task, kind, s, n in work:
-            cached = scene_dir / f"{g}-{kind}-{s}.json"
-            try:
-                if cached.exists():
-                    truth = Scene.load(cached)
-                else:
-                    truth = generate(kind, s, n)
-                    truth.save(cached)
-            except Exception as exc:  # a seed the generator cannot fill: say so, go on
-                rows.append({"group": g, "kind": kind, "seed": s, "error": str(exc)})
-                bar.update()
-                continue
-            hidden = truth.hide_depths()
-            rng = np.random.default_rng([s, 1])
-            targets = ([None] if task == "clear" else
-                       [truth.ids[int(i)] for i in rng.choice(len(truth.ids), min(args.targets, len(truth.ids)), replace=False)])
-            for t in targets:
-                t0 = time.perf_counter()
-                c0 = _cpu(pool)
-                pred = (Predictor(hidden, args.samples, s, config, workers=args.workers, pool=pool)
-                        if args.workers > 1 else None)
-                try:
-                    plan = make_plan(hidden, task, t, "physics", args.samples, s, risk=0.0, config=config,
-                                     predictor=pred)
-                finally:
-                    if pred is not None:
-                        pred.close()
-                dt = time.perf_counter() - t0
-                dc = _cpu(pool) - c0
-                ex = execute_plan(truth, plan.sequence, seed=s)   # the default physics: the truth
-                row = {"group": g, "kind": kind, "seed": s, "n_boxes": n, "target": t,
-                             "plan_s": dt, "cpu_s": dc, "ok": bool(ex.ok), "removed": len(plan.sequence),
-                             "safe": plan.safe, "sequence": list(plan.sequence),
-                             "oracle_calls": plan.extra.get("search", {}).get("oracle_calls")}
-                rows.append(row)
-                with open(out / "rows.jsonl", "a") as fh:   # what is done survives a stopped run
-                    fh.write(json.dumps(row) + "\n")
+        for item in work:
+            rows += scene_rows(item, args, config, pool, scene_dir, out)
             bar.update()
     bar.close()
     if pool is not None:
         pool.close()
+    return rows
+
+
+def summarize(rows: list[dict], groups: list[str]) -> dict:
+    """Per group: plan wall and CPU time percentiles, success on the true scene, boxes removed."""
     summary = {}
     for g in groups:
         r = [x for x in rows if x["group"] == g and "plan_s" in x]
@@ -153,10 +178,11 @@ def main(argv: list[str] | None = None) -> int:
                       "success_rate": sum(x["ok"] for x in r) / len(r),
                       "mean_removed": statistics.fmean(x["removed"] for x in r),
                       "skipped_scenes": sum(1 for x in rows if x["group"] == g and "error" in x)}
-    load_end = os.getloadavg()
-    doc = {"config": vars(args), "load_average": {"start": load_start, "end": load_end},
-           "summary": summary, "rows": rows}
-    (out / "plan_speed.json").write_text(json.dumps(doc, indent=2) + "\n")
+    return summary
+
+
+def report(args: argparse.Namespace, summary: dict, load_start, load_end) -> str:
+    """The markdown table, headed by the settings and the machine's load at the start and the end."""
     md = ["| group | plans | p50 wall (s) | p90 wall (s) | p50 CPU (s) | p90 CPU (s) "
           "| success on true scene | boxes removed |",
           "|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -164,10 +190,33 @@ def main(argv: list[str] | None = None) -> int:
         md.append(f"| {g} | {v['plans']} | {v['p50_s']:.2f} | {v['p90_s']:.2f} | "
                   f"{v['cpu_p50_s']:.2f} | {v['cpu_p90_s']:.2f} | "
                   f"{v['success_rate'] * 100:.1f}% | {v['mean_removed']:.2f} |")
-    text = (f"Planning speed, {args.samples} depth samples, risk 0, seed {args.seed}, "
+    return (f"Planning speed, {args.samples} depth samples, risk 0, seed {args.seed}, "
             f"{args.scenes} scenes per kind and group, {args.workers} worker(s); load average "
             f"(1/5/15 min) {'/'.join(f'{x:.1f}' for x in load_start)} at the start, "
             f"{'/'.join(f'{x:.1f}' for x in load_end)} at the end\n\n" + "\n".join(md) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Plan every scene, write rows.jsonl, plan_speed.json and plan_speed.md under --out, print the table."""
+    import os
+
+    from planning.physics import PhysicsConfig
+
+    args = parse_args(argv)
+    config = PhysicsConfig.from_json(json.loads(args.physics), "--physics") if args.physics else None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    scene_dir = Path(args.scene_dir) if args.scene_dir else out / "scenes"
+    scene_dir.mkdir(parents=True, exist_ok=True)
+    work = build_work(args)
+    load_start = os.getloadavg()
+    rows = run_work(work, args, config, out, scene_dir)
+    summary = summarize(rows, args.groups.split(","))
+    load_end = os.getloadavg()
+    doc = {"config": vars(args), "load_average": {"start": load_start, "end": load_end},
+           "summary": summary, "rows": rows}
+    (out / "plan_speed.json").write_text(json.dumps(doc, indent=2) + "\n")
+    text = report(args, summary, load_start, load_end)
     (out / "plan_speed.md").write_text(text)
     print(text)
     return 0

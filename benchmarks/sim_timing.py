@@ -134,55 +134,82 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
     verdict, and counts steps and CPU time of both ways.
     """
     from planning.uncertainty import sample_depths
-    from planning.sim import ShelfSim
 
-    rows = []
+    rows: list[dict] = []
     tot = {"full": [0.0, 0], "local": [0.0, 0]}
     for name, base in scenes.items():
         hidden = base.hide_depths()
         for i in range(samples):
             sc = sample_depths(hidden, seed, i, config)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                try:
-                    sim = ShelfSim(sc, config, local=True)
-                except Exception as exc:  # an unstable draw: skip it, as the Predictor would redraw
-                    print(f"{name} sample {i}: {exc}", file=sys.stderr)
-                    continue
-            base_snap = sim.snapshot()
-            tops = [b for b in sc.ids if not _above(sim, b)]   # nothing stands on them
-            sets = [frozenset()] + [frozenset({b}) for b in tops[:pairs]]
-            for removed in sets:
-                snaps = {}
-                for mode in ("full", "local"):
-                    sim.restore(base_snap)
-                    sim.delete_many(sorted(removed), local=mode == "local")
-                    snaps[mode] = sim.snapshot()
-                for b in sc.ids:
-                    if b in removed:
-                        continue
-                    out = {}
-                    for mode in ("full", "local", "seed"):
-                        sim.restore(snaps["full" if mode == "seed" else mode])
-                        t = time.process_time()
-                        r = sim.remove(b, seed=8 if mode == "seed" else 7, stop_on_collapse=True,
-                                       local=mode == "local")
-                        if mode == "seed":
-                            out[mode] = (bool(r.collapsed), r.collapsed[0] if r.collapsed else None,
-                                         bool(r.collided))
-                            continue
-                        tot[mode][0] += time.process_time() - t
-                        tot[mode][1] += round(r.sim_time / config.time_step)
-                        out[mode] = (bool(r.collapsed), r.collapsed[0] if r.collapsed else None,
-                                     bool(r.collided))
-                    sim.restore(snaps["local"])
-                    rows.append({"scene": name, "sample": i, "removed": sorted(removed), "box": b,
-                                 "full": out["full"], "local": out["local"], "seed": out["seed"],
-                                 "kept": len(sim.neighbourhood([b], corridor=True)),
-                                 "of": len(sim.present())})
-            for s_ in snaps.values():
-                sim.forget(s_)
+            sim = _local_sim(sc, config, f"{name} sample {i}")
+            if sim is None:
+                continue
+            rows += _sample_rows(sim, sc, config, pairs, tot, name, i)
             sim.close()
+    return _locality_summary(rows, tot)
+
+
+def _local_sim(sc: Scene, config: PhysicsConfig, label: str):
+    """A ShelfSim that can run local trials, or None for an unstable draw (the Predictor would redraw)."""
+    from planning.sim import ShelfSim
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            return ShelfSim(sc, config, local=True)
+        except Exception as exc:  # an unstable draw: skip it, as the Predictor would redraw
+            print(f"{label}: {exc}", file=sys.stderr)
+            return None
+
+
+def _sample_rows(sim, sc: Scene, config: PhysicsConfig, pairs: int, tot: dict, name: str, i: int) -> list[dict]:
+    """One depth sample: every pull from the full shelf, then from the shelf less each of `pairs` top boxes."""
+    rows = []
+    base_snap = sim.snapshot()
+    tops = [b for b in sc.ids if not _above(sim, b)]   # nothing stands on them
+    sets = [frozenset()] + [frozenset({b}) for b in tops[:pairs]]
+    for removed in sets:
+        snaps = {}
+        for mode in ("full", "local"):
+            sim.restore(base_snap)
+            sim.delete_many(sorted(removed), local=mode == "local")
+            snaps[mode] = sim.snapshot()
+        for b in sc.ids:
+            if b in removed:
+                continue
+            out = _pull_three_ways(sim, snaps, b, config, tot)
+            sim.restore(snaps["local"])
+            rows.append({"scene": name, "sample": i, "removed": sorted(removed), "box": b,
+                         "full": out["full"], "local": out["local"], "seed": out["seed"],
+                         "kept": len(sim.neighbourhood([b], corridor=True)),
+                         "of": len(sim.present())})
+    for s_ in snaps.values():
+        sim.forget(s_)
+    return rows
+
+
+def _pull_three_ways(sim, snaps: dict, b: str, config: PhysicsConfig, tot: dict) -> dict:
+    """Pull `b` fully, locally, and fully with another vibration seed (the noise floor); CPU and steps
+    of the first two are added to `tot`. Each: (collapsed, first collapsing box, collided)."""
+    out = {}
+    for mode in ("full", "local", "seed"):
+        sim.restore(snaps["full" if mode == "seed" else mode])
+        t = time.process_time()
+        r = sim.remove(b, seed=8 if mode == "seed" else 7, stop_on_collapse=True,
+                       local=mode == "local")
+        if mode == "seed":
+            out[mode] = (bool(r.collapsed), r.collapsed[0] if r.collapsed else None,
+                         bool(r.collided))
+            continue
+        tot[mode][0] += time.process_time() - t
+        tot[mode][1] += round(r.sim_time / config.time_step)
+        out[mode] = (bool(r.collapsed), r.collapsed[0] if r.collapsed else None,
+                     bool(r.collided))
+    return out
+
+
+def _locality_summary(rows: list[dict], tot: dict) -> dict:
+    """Agreement of local with full trials (and of full with itself under another seed), costs, misses."""
     n = len(rows)
     agree = lambda k: sum(r["full"][k] == r["local"][k] for r in rows) / max(1, n)  # noqa: E731
     first = sum(r["full"][:2] == r["local"][:2] for r in rows) / max(1, n)
