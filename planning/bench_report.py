@@ -9,6 +9,8 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
+from perception.scene import write_json
+
 if TYPE_CHECKING:  # pragma: no cover
     from planning.bench import BenchConfig
 
@@ -203,7 +205,6 @@ def plot(summary: dict, path: str | Path) -> None:
 
 
 def write_reports(out: Path, summary: dict) -> None:
-    from perception.scene import write_json
 
     write_json(out / "results.json", summary)
     (out / "results.md").write_text(to_markdown(summary), encoding="utf-8")

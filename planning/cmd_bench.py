@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
+
+from perception.errors import FormatError
 
 log = logging.getLogger(__name__)
 
@@ -38,10 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import math
-
-    from perception.errors import FormatError
-    from planning.bench import BenchConfig, TruthModel, run_bench
+    from planning.bench import BenchConfig, TruthModel, run_bench, to_markdown
 
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     for p in planners:
@@ -65,7 +65,6 @@ def run(args: argparse.Namespace) -> int:
                          catalogue=not args.no_catalogue)
     summary = run_bench(args.scenes, args.out, config, workers=args.workers, ray_address=args.ray,
                         limit=args.limit)
-    from planning.bench import to_markdown
     print(to_markdown(summary), end="")
     log.info("wrote %s/results.md, results.json, results.png, records.jsonl", args.out)
     return 0

@@ -4,8 +4,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
+import warnings
 from typing import TYPE_CHECKING
+
+from perception.errors import FormatError, SceneError
 
 if TYPE_CHECKING:  # pragma: no cover
     from planning.plan import Plan
@@ -63,9 +67,6 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import warnings
-
-    from perception.errors import FormatError, SceneError
     from perception.scene import Scene
     from planning.planner import check_request, make_plan
     from planning.uncertainty import Uncertainty
@@ -75,7 +76,6 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
     if args.workers is None:
-        import os
         args.workers = 2 if (os.cpu_count() or 1) >= 2 else 1
     if args.workers < 1:
         raise FormatError("", "--workers", f"expected a positive integer, got {args.workers}")

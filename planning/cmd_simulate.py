@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import warnings
 
 log = logging.getLogger(__name__)
 
@@ -21,9 +23,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import warnings
-
     from perception.scene import Scene, write_json
     from planning.execute import execute_plan
     from planning.plan import Plan, scene_hash

@@ -9,6 +9,7 @@ from typing import Any, Mapping
 
 from perception.errors import FormatError
 from perception.scene import Scene, read_json, write_json
+from planning.physics import PhysicsConfig
 
 PLAN_FORMAT = "shelfpick.plan/1"
 TASKS = ("extract", "clear")
@@ -38,7 +39,6 @@ def scene_hash(scene: Scene) -> str:
 def provenance(scene: Scene, config: Any = None, samples: int | None = None,
                risk: float | None = None) -> dict[str, Any]:
     """What made a plan, so that a plan file can be checked against its scene and reproduced."""
-    from planning.physics import PhysicsConfig
 
     cfg = asdict(config if config is not None else PhysicsConfig())
     physics = {k: cfg[k] for k in PHYSICS_RECORDED if k in cfg}

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Mapping, Sequence
 
+from perception.errors import FormatError
 from perception.scene import Box, Scene, quat_to_matrix
 
 Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
@@ -65,7 +66,6 @@ def _on_shelf(pose: Pose) -> bool:
 
 def inside(scene: Scene, box: Box) -> bool:
     """`box` stands within `scene`'s shelf as a scene file may hold it (Scene.check_bounds)."""
-    from perception.errors import FormatError
 
     try:
         scene.with_boxes([box]).check_bounds()
