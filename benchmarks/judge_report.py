@@ -71,6 +71,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", default=None, help="rows (JSONL); the report goes to <out>.md, the plot to <out>.png")
     ap.add_argument("--resume", action="store_true", help="keep rows already in --out made with the same settings")
     ap.add_argument("--plot", default=None, help="reliability plot (PNG; default <out>.png, none without --out)")
+    ap.add_argument("--see-truth", action="store_true",
+                    help="diagnostic: plan from the true shelf (depths and masses known, no perception error) "
+                         "instead of the camera's view: the ceiling of what prediction can gain")
     return ap.parse_args(argv)
 
 
@@ -107,9 +110,10 @@ def build_units(a: argparse.Namespace, noises: list[float], planners: list[str],
     judge_dir = str(Path(a.judge_dir).resolve())
     tasks = load_tasks(Path(judge_dir), a.tasks, a.limit)
     settings = cli_plan_settings({"samples": a.samples, "risk": a.risk})
-    settings_id = json.dumps({"plan": settings, "engines": engines}, sort_keys=True)
+    ident = {"plan": settings, "engines": engines, **({"see_truth": True} if a.see_truth else {})}
+    settings_id = json.dumps(ident, sort_keys=True)
     units = [{"task": t, "noise": n, "planner": p, "engines": engines, "settings": settings,
-              "settings_id": settings_id, "judge_dir": judge_dir}
+              "settings_id": settings_id, "judge_dir": judge_dir, "see_truth": bool(a.see_truth)}
              for n in noises for p in planners for t in tasks]
     # the slowest (largest shelves) first keeps both processes busy to the end
     units.sort(key=lambda u: -(u["task"].get("n_boxes") or 0))
