@@ -166,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--thresholds", default="0.4,0.5,0.6", help="--tune: interior thresholds")
     p.add_argument("--snaps", default="0", help="--tune: snap_iou values (0: off)")
     p.add_argument("--full-res-both", action="store_true", help="--tune: maps at 1/4 size and upsampled")
+    p.add_argument("--ungated", action="store_true",
+                   help="also the learned segmenter without its depth gate (LearnedConfig.depth_gate off)")
     a = p.parse_args(argv)
     import torch
 
@@ -179,7 +181,12 @@ def main(argv: list[str] | None = None) -> int:
         Path(a.out).mkdir(parents=True, exist_ok=True)
         (Path(a.out) / "tune.json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
         return 0
-    segs = {"rules": load_segmenter(None, "auto"), "learned": load_segmenter(a.weights, "learned")}
+    segs = {"rules": load_segmenter(None, "depth"), "learned": load_segmenter(a.weights, "learned")}
+    if a.ungated:
+        import dataclasses
+
+        segs["learned-ungated"] = segs["learned"].with_config(dataclasses.replace(segs["learned"].config,
+                                                                                  depth_gate=False))
     report: dict = {"weights": a.weights or "static/weights/shelfpick-learned.pt", "threads": a.threads, "sets": {}}
     wanted = a.sets.split(",")
     if "renders" in wanted:

@@ -13,7 +13,7 @@ back wall just above the floor. Two camera files are written from the capture's 
 The shelf's extents come from the points (1st/99th percentiles, 5 cm over the top layer, 3 cm
 over the floor), as a user would measure the cell once.
 
-    .venv/bin/python benchmarks/perceive_neura.py --out /tmp/neura
+    .venv/bin/python benchmarks/perceive_neura.py --out /tmp/neura [--segmenter learned]
 """
 from __future__ import annotations
 
@@ -66,7 +66,8 @@ def camera_files(neura: Path, out: Path) -> dict[str, tuple[Path, tuple[float, f
     return files
 
 
-def perceive_through_cli(neura: Path, cam_file: Path, shelf, out: Path, tag: str) -> dict:
+def perceive_through_cli(neura: Path, cam_file: Path, shelf, out: Path, tag: str,
+                         segmenter: str = "auto") -> dict:
     import cv2
 
     from console.cli import main
@@ -76,7 +77,7 @@ def perceive_through_cli(neura: Path, cam_file: Path, shelf, out: Path, tag: str
     masks = out / f"masks_{tag}.png"
     rc = main(["perceive", "--rgb", str(d / "color_image.png"), "--depth", str(d / "raw_depth.png"),
                "--camera", str(cam_file), "--out", str(out / f"scene_{tag}.json"), "--masks", str(masks),
-               "--overlay", str(out / f"overlay_{tag}.png"), "--no-catalogue",
+               "--overlay", str(out / f"overlay_{tag}.png"), "--no-catalogue", "--segmenter", segmenter,
                "--shelf", *(f"{v:.4f}" for v in shelf)])
     if rc != 0:
         return {"rc": rc}
@@ -95,13 +96,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--realdata", default=str(ROOT.parent / "shared" / "realdata"))
     ap.add_argument("--out", default="perceive-neura")
+    ap.add_argument("--segmenter", default="auto", help="as `perceive --segmenter` (auto, depth, learned, ...)")
     args = ap.parse_args(argv)
     neura = Path(args.realdata) / "neura_smart_palletizer"
     if not neura.is_dir():
         print(f"{neura}: not found", file=sys.stderr)
         return 2
     out = Path(args.out)
-    res = {name: perceive_through_cli(neura, f, shelf, out, name)
+    res = {name: perceive_through_cli(neura, f, shelf, out, name, args.segmenter)
            for name, (f, shelf) in camera_files(neura, out).items()}
     (out / "report.json").write_text(json.dumps(res, indent=1))
     for name, r in res.items():

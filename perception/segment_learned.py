@@ -12,7 +12,9 @@ face boundary. Instances are the connected components of the interior, grown bac
 over interior + boundary pixels by a watershed on the interior probability. RGB
 only: depth is not an input to the network. In an RGB-D capture an instance that a
 depth-and-edge mask matches (IoU >= `snap_iou`) takes that mask's outline: the network says
-which faces there are, the depth edges where they end (a photo is not snapped).
+which faces there are, the depth edges where they end (a photo is not snapped). Before that,
+instances the depth does not confirm as front faces (mostly outside the shelf volume, or
+their largest plane not facing the camera: `perception.face_gate`) are dropped.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from perception.errors import PerceptionError
+from perception.face_gate import keep_faces
 from perception.mask_match import match
 from perception.segment_depth import DepthEdgeSegmenter
 
@@ -181,6 +184,8 @@ class LearnedConfig:
     snap_iou: float = 0.7          # RGB-D: an instance is replaced by the depth-and-edge mask it
     #                                overlaps at IoU >= this (0: off); the network decides which
     #                                faces there are, the rules' depth edges where they end
+    depth_gate: bool = True        # RGB-D: instances the depth does not confirm as front faces
+    #                                (outside the shelf, not facing the camera) are dropped
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -311,6 +316,10 @@ class LearnedSegmenter:
         if full.max() == 0:
             return []
         masks = [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]
-        if self.config.snap_iou > 0 and depth is not None and self.depth_ok:
+        if depth is None or not self.depth_ok:
+            return masks
+        if self.config.depth_gate and self.camera is not None and self.shelf is not None:
+            masks = keep_faces(masks, depth, self.camera, self.shelf)
+        if self.config.snap_iou > 0:
             masks = self.snap(masks, rgb, depth)
         return masks
