@@ -44,7 +44,7 @@ if str(ROOT) not in sys.path:
 from benchmarks.judge_markdown import to_markdown  # noqa: E402
 from benchmarks.judge_plot import plot  # noqa: E402
 from benchmarks.judge_rows import (TASK_FILTERS, UsageError, cli_plan_settings, collect_rows,  # noqa: E402
-                                   load_tasks, read_rows, row_key, run_unit)
+                                   clear_tasks, load_tasks, read_rows, row_key, run_unit)
 from benchmarks.judge_summary import (ENGINES, RISK_BINS, engine_agreement, engine_summary,  # noqa: E402
                                       evaluate_line, percentile, reliability, risk_bin, summarize)
 
@@ -64,6 +64,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--planners", default="physics", help="comma list: physics, heuristic (default physics)")
     ap.add_argument("--tasks", default="all",
                     help=f"{', '.join(TASK_FILTERS)}, or a comma list of scene / scene:target (default all)")
+    ap.add_argument("--task", choices=("extract", "clear"), default="extract",
+                    help="extract the tasks' targets (default) or clear each of their shelves (ok: every box out)")
     ap.add_argument("--limit", type=int, default=None, help="only the first N tasks (after --tasks)")
     ap.add_argument("--samples", type=int, default=None, help="make_plan samples (default: shelfpick plan's)")
     ap.add_argument("--risk", type=float, default=None, help="make_plan risk (default: shelfpick plan's)")
@@ -108,7 +110,10 @@ def build_units(a: argparse.Namespace, noises: list[float], planners: list[str],
                 engines: list[str]) -> tuple[list[dict], str]:
     """Every (noise, planner, task) to run, and the settings id that rows must match to be reused."""
     judge_dir = str(Path(a.judge_dir).resolve())
-    tasks = load_tasks(Path(judge_dir), a.tasks, a.limit)
+    tasks = load_tasks(Path(judge_dir), a.tasks, None)
+    if a.task == "clear":
+        tasks = clear_tasks(tasks)
+    tasks = tasks[:a.limit] if a.limit is not None else tasks
     settings = cli_plan_settings({"samples": a.samples, "risk": a.risk})
     ident = {"plan": settings, "engines": engines, **({"see_truth": True} if a.see_truth else {})}
     settings_id = json.dumps(ident, sort_keys=True)
@@ -125,7 +130,7 @@ def run(a: argparse.Namespace) -> dict:
     noises, planners, engines = check_args(a)
     units, settings_id = build_units(a, noises, planners, engines)
     out = Path(a.out) if a.out else None
-    keys = {u["task"]["scene"] + ":" + u["task"]["target"] for u in units}
+    keys = {u["task"]["scene"] + ":" + (u["task"]["target"] or "clear") for u in units}
     rows: list[dict] = []
     if out and a.resume:
         wanted = {row_key(u["noise"], u["planner"], u["task"]) for u in units}

@@ -52,6 +52,15 @@ def load_tasks(judge_dir: Path, which: str, limit: int | None) -> list[dict]:
     return out[:limit] if limit is not None else out
 
 
+def clear_tasks(tasks: Sequence[dict]) -> list[dict]:
+    """One clearance task per shelf of `tasks` (target None: every box out), in first-seen order."""
+    out: dict[str, dict] = {}
+    for t in tasks:
+        out.setdefault(t["scene"], {"scene": t["scene"], "target": None, "kind": t["kind"],
+                                    "n_boxes": t.get("n_boxes"), "exhaustive": False, "min_removals": None})
+    return list(out.values())
+
+
 def observe_seed(scene: str) -> int:
     """The perception-error seed evaluate.py gives a scene (s07 / u07 -> 24)."""
     return int(scene[1:]) + 17
@@ -59,7 +68,7 @@ def observe_seed(scene: str) -> int:
 
 def row_key(noise: float, planner: str, task: dict) -> str:
     """A row's identity: what `--resume` matches on (with the settings id)."""
-    return f"{noise:g}|{planner}|{task['scene']}:{task['target']}"
+    return f"{noise:g}|{planner}|{task['scene']}:{task['target'] or 'clear'}"
 
 
 # --------------------------------------------------------------------------
@@ -96,7 +105,7 @@ def cli_plan_settings(overrides: dict) -> dict:
     return settings
 
 
-def make_timed_plan(obs: dict, target: str, planner: str, settings: dict) -> tuple[dict, dict]:
+def make_timed_plan(obs: dict, target: str | None, planner: str, settings: dict) -> tuple[dict, dict]:
     """make_plan on the observed scene, in this process; (plan fields for the row, plan document)."""
     from perception.errors import ShelfpickError
     from perception.scene import Scene
@@ -106,7 +115,8 @@ def make_timed_plan(obs: dict, target: str, planner: str, settings: dict) -> tup
         warnings.simplefilter("always")
         t0 = time.perf_counter()
         try:
-            plan = make_plan(Scene.from_json(obs, "observed"), "extract", target, planner=planner, **settings)
+            plan = make_plan(Scene.from_json(obs, "observed"), "extract" if target else "clear", target,
+                             planner=planner, **settings)
         except ShelfpickError as exc:
             return {"plan_s": round(time.perf_counter() - t0, 4), "error": str(exc)[:300]}, {}
         plan_s = time.perf_counter() - t0

@@ -110,7 +110,7 @@ def engine_agreement(rows: Sequence[dict]) -> dict:
 def groups(rows: Sequence[dict]) -> dict[tuple[float, str], list[dict]]:
     """Rows by (noise, planner), in report order."""
     out: dict[tuple[float, str], list[dict]] = {}
-    for r in sorted(rows, key=lambda r: (r["noise"], r["planner"], r["scene"], r["target"])):
+    for r in sorted(rows, key=lambda r: (r["noise"], r["planner"], r["scene"], r["target"] or "")):
         out.setdefault((r["noise"], r["planner"]), []).append(r)
     return out
 

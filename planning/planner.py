@@ -139,8 +139,8 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     sampling = predictor if isinstance(predictor, Screening) else None
     try:
         if own and scene.depth_known and sampling is not None:
-            # the predictor keeps its worlds quiet; with known depths its one world
-            # is the scene itself, so what it repaired is worth telling the user
+            # the predictor keeps its worlds quiet; with known depths every world has the
+            # scene's own geometry, so what it repaired is worth telling the user
             for msg in sampling.scene_check.get("repairs", ()):
                 warnings.warn(f"scene repaired: {msg}", stacklevel=2)
         t_ready = time.perf_counter()

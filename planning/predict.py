@@ -53,7 +53,8 @@ class Predictor:
         self.samples = samples
         self.early_stop_risk = early_stop_risk
         self.model = model if model is not None else Uncertainty()
-        self._n = samples if not scene.depth_known else 1
+        # a known shelf needs more than one world only while something else is still drawn
+        self._n = samples if not scene.depth_known or self.model.draws_physics else 1
         self._order = {b: i for i, b in enumerate(scene.ids)}
         self._local: SampleWorlds | None = None
         self._workers: list[tuple[Worker, list[int]]] = []

@@ -7,7 +7,7 @@ boxes that did not are reported (`scene_check`), never silently planned on.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 from perception.errors import SceneError
@@ -84,10 +84,14 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     `clients`: where the worlds' Bullet clients come from (a fresh one each when None).
     """
     model = model if model is not None else Uncertainty()
-    if scene.depth_known:   # a known shelf is the truth: one world, as given
+    if scene.depth_known:
+        # a known shelf is given as it stands: its geometry is not drawn, but what no scene file
+        # says still is (a box's mass when it has none, the friction, the pull)
+        sc = draw_scene(scene, seed, sample, replace(model, face_error=0.0), {}, 1.0)
+        cfg = draw_config(config, seed, sample, model)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sim = ShelfSim(scene, config, local=config.prediction_local, clients=clients)
+            sim = ShelfSim(sc, cfg, local=config.prediction_local, clients=clients)
         off = contradictions(sim, config)
         return Draw(sim, (off,) if off else (), not off, off)
     rejected: list[dict[str, str]] = []

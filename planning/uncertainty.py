@@ -151,6 +151,12 @@ class Uncertainty:
     def draws_mass(self) -> bool:
         return self.mass[1] > 0
 
+    @property
+    def draws_physics(self) -> bool:
+        """Whether a draw changes more than the geometry: masses, friction or the pull."""
+        return (self.draws_mass or self.friction[1] > 0 or self.pull_speed[1] > 0 or self.pull_force[1] > 0
+                or bool(self.pull_modes))
+
     def to_json(self) -> dict:
         return {"mass_kg": list(self.mass), "friction": list(self.friction), "face_error_m": self.face_error,
                 "pull_speed_m_s": list(self.pull_speed), "pull_force_n": list(self.pull_force),

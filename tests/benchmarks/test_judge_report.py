@@ -80,3 +80,29 @@ def test_one_task_judged_by_both_engines(tmp_path: Path) -> None:
     # resumed: nothing left to run, the same rows
     assert jr.main(args + ["--resume"]) == 0
     assert [json.loads(line) for line in out.read_text().splitlines()] == rows
+
+
+def test_clear_tasks_one_per_shelf() -> None:
+    tasks = [{"scene": "s00", "target": "b1", "kind": "structured", "n_boxes": 8, "exhaustive": True,
+              "min_removals": ["b1"]},
+             {"scene": "s00", "target": "b2", "kind": "structured", "n_boxes": 8, "exhaustive": True,
+              "min_removals": None},
+             {"scene": "u01", "target": "b0", "kind": "unstructured", "n_boxes": 9, "exhaustive": False}]
+    out = jr.clear_tasks(tasks)
+    assert [(t["scene"], t["target"], t["kind"]) for t in out] == [("s00", None, "structured"),
+                                                                  ("u01", None, "unstructured")]
+    # a clearance has no exhaustive minimum: it never counts as solvable or unsolvable
+    assert all(t["exhaustive"] is False and t["min_removals"] is None for t in out)
+    assert jr.row_key(0.01, "physics", out[0]) == "0.01|physics|s00:clear"
+
+
+@pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
+def test_a_clearance_and_a_plan_from_the_true_shelf_are_judged(tmp_path: Path) -> None:
+    out = tmp_path / "rows.jsonl"
+    assert jr.main(["--judge-dir", str(JUDGE), "--tasks", "s00", "--task", "clear", "--planners", "heuristic",
+                    "--see-truth", "--out", str(out)]) == 0
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    truth = json.loads((JUDGE / "scenes" / "s00.json").read_text())
+    assert len(rows) == 1 and rows[0]["key"] == "0|heuristic|s00:clear"
+    assert sorted(rows[0]["sequence"]) == sorted(b["id"] for b in truth["boxes"])   # every box
+    assert json.loads(rows[0]["settings"])["see_truth"] is True

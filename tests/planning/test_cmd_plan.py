@@ -11,7 +11,8 @@ from planning.plan import Plan
 
 
 def _box(bid, x, z, h=0.2):
-    return Box(bid, (0.2, 0.2, h), (x, 0.15, z), (1.0, 0.0, 0.0, 0.0))
+    # masses given: a known shelf then leaves only friction and the pull to draw
+    return Box(bid, (0.2, 0.2, h), (x, 0.15, z), (1.0, 0.0, 0.0, 0.0), mass=1.0)
 
 
 def _stack(tmp_path):

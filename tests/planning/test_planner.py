@@ -23,8 +23,9 @@ class FakePredictor:
         self.closed = True
 
 
-def _box(bid, x, z, h=0.2, w=0.2, y=0.15, d=0.2):
-    return Box(bid, (w, d, h), (x, y, z), (1.0, 0.0, 0.0, 0.0))
+def _box(bid, x, z, h=0.2, w=0.2, y=0.15, d=0.2, mass=1.0):
+    # masses given: a known shelf then leaves only friction and the pull to draw
+    return Box(bid, (w, d, h), (x, y, z), (1.0, 0.0, 0.0, 0.0), mass=mass)
 
 
 # left: "bot" on the floor carrying "top"; right: "free" alone
@@ -138,7 +139,7 @@ def test_same_seed_same_plan():
 def _grid_scene():
     """Three columns of three 20 cm cubes, a board bridging the middle and right columns."""
     boxes = [_box(f"c{c}r{r}", x, 0.1 + 0.2 * r) for c, x in enumerate((-0.3, 0.0, 0.3)) for r in range(3)]
-    boxes.append(Box("bridge", (0.5, 0.2, 0.1), (0.15, 0.15, 0.65), (1.0, 0.0, 0.0, 0.0)))
+    boxes.append(Box("bridge", (0.5, 0.2, 0.1), (0.15, 0.15, 0.65), (1.0, 0.0, 0.0, 0.0), mass=1.0))
     return Scene(Shelf(), tuple(boxes))
 
 

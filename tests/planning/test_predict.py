@@ -6,7 +6,7 @@ import pytest
 from perception.scene import Box, Scene, Shelf, yaw_quat
 from planning.physics import PhysicsConfig
 from planning.predict import Predictor
-from planning.uncertainty import depth_range, depth_ranges, sample_depths
+from planning.uncertainty import Uncertainty, depth_range, depth_ranges, sample_depths
 from tests.planning.sim_scenes import column, stacked, twelve
 
 
@@ -77,8 +77,20 @@ def test_top_box_collapse_is_predicted_and_named_first():
         assert pred.stats["cache_hits"] == 1
 
 
-def test_known_depths_use_one_world():
-    with Predictor(stacked(), samples=10) as pred:
+def test_known_shelf_still_draws_friction_masses_and_pull():
+    # the scene file gives the geometry, not the masses, friction or pull: those are still drawn
+    with Predictor(stacked(), samples=4) as pred:
+        assert pred.worlds == 4
+        cfgs = {(round(s.config.lateral_friction, 3), s.config.pull_lift) for s in pred._local.sims.values()}
+        assert len(cfgs) > 1
+        masses = {tuple(b.mass for b in s.scene.boxes) for s in pred._local.sims.values()}
+        assert len(masses) == 4 and all(m is not None for ms in masses for m in ms)
+        # the geometry is the scene's own in every world
+        assert all(s.scene.boxes[i].size == b.size for s in pred._local.sims.values() for i, b in enumerate(stacked().boxes))
+
+
+def test_known_depths_and_nothing_else_to_draw_use_one_world():
+    with Predictor(stacked(), samples=10, model=Uncertainty.none()) as pred:
         assert pred.worlds == 1
         assert pred.trial(frozenset(), "a").collapse_prob == 1.0
         # with known depths the wide, heavy-enough lower box does not tip when the top one slides off
