@@ -7,6 +7,10 @@ renders use seeds >= 30000):
 - `varied`: the varied renders' held-out role 22000-22039 (`sample_varied_scene` +
   `varied_camera`, plain cardboard on even seeds and mixed on odd, varied light), as
   benchmarks/perceive_angles.py renders them;
+- `shelves`: the planning shelves 5000-5039 (`planning.shelves.generate`, structured on even
+  seeds, 10 boxes, settled) through benchmarks/perceive_plan.py's framing camera (backed off
+  until every front face is in view, 1.3-2 m): the captures `perceive` -> `plan` sees; never a
+  tuning or training role of either segmenter;
 - `rcan`: the RCAN photos' held-out half (`bench.RCAN_HELD_OUT`), through `bench.bench_rcan`;
 - `tele`: the telexistence overhead pallet photos (held out entirely), `bench.bench_telexistence`.
 Each rendered frame is rendered once and perceived by both segmenters through
@@ -77,6 +81,13 @@ def rendered_set(name: str, seeds: list[int], segmenters: dict, progress: bool =
             scene, cam = sample_varied_scene(s), varied_camera(s)
             cap = render(scene, cam, seed=s, looks="plain" if s % 2 == 0 else "mixed", varied_light=True)
             least = min_gt_pixels(cam)
+        elif name == "shelves":
+            from benchmarks.perceive_plan import framing_camera
+            from planning.shelves import generate
+
+            scene = generate("structured" if s % 2 == 0 else "unstructured", s, 10)
+            cam = framing_camera(scene)
+            cap, least = render(scene, cam, seed=s), min_gt_pixels(cam)
         else:
             scene = sample_scene(s, "structured" if i % 2 == 0 else "unstructured", 10)
             cap, least = render(scene, None, seed=s), MIN_GT_PIXELS
@@ -154,7 +165,8 @@ def markdown(report: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--sets", default="renders,varied,rcan,tele", help="comma list of renders, varied, rcan, tele")
+    p.add_argument("--sets", default="renders,varied,rcan,tele",
+                   help="comma list of renders, varied, shelves, rcan, tele")
     p.add_argument("--weights", default=None, help="learned checkpoint (default: the shipped one)")
     p.add_argument("--count", type=int, default=0, help="first N frames of each rendered set only (0: all)")
     p.add_argument("--realdata", default=str(ROOT.parent / "shared" / "realdata"))
@@ -195,6 +207,9 @@ def main(argv: list[str] | None = None) -> int:
     if "varied" in wanted:
         seeds = list(range(22000, 22040))[: a.count or None]
         report["sets"]["varied held out 22000-22039"] = rendered_set("varied", seeds, segs)
+    if "shelves" in wanted:
+        seeds = list(range(5000, 5040))[: a.count or None]
+        report["sets"]["planning shelves 5000-5039, framing camera"] = rendered_set("shelves", seeds, segs)
     if "rcan" in wanted:
         report["sets"]["RCAN held-out half"] = photo_set(Path(a.realdata) / "RCAN_scd_samples" / "back", segs, "rcan")
     if "tele" in wanted:

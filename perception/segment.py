@@ -1,4 +1,4 @@
-"""Choosing a segmenter: depth and edges for RGB-D, YOLO11n-seg or the photo segmenter when asked for.
+"""Choosing a segmenter: learned or depth-and-edge for RGB-D, YOLO11n-seg or the photo segmenter when asked for.
 
 A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
 (one mask per box front face). `load_segmenter` picks one:
@@ -11,13 +11,15 @@ A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
 - `kind="photo"`: the photo segmenter (`perception/segment_photo.py`: edge map, candidate
   regions, carton-shaped ones kept), no learned weights, depth ignored;
 - `kind="auto"` (default): the given weights when there are some; otherwise the
-  segmenter that measured best on `perceive-bench` for the kind of capture
-  (`AutoSegmenter`): depth-and-edge for RGB-D and, for photos without depth,
-  `RGB_ONLY` (see docs/perception-photos.md for the figures behind the choice).
+  segmenter that measured best for the kind of capture (`AutoSegmenter`): for RGB-D
+  `RGBD` (the learned segmenter where its weights and torch are installed, else
+  depth-and-edge; docs/perception.md "Learned segmenter"), for photos without depth
+  `RGB_ONLY` (docs/perception-photos.md has the figures).
 `for_capture(seg, has_depth)` is what the pipeline calls to settle the choice.
 """
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -43,23 +45,51 @@ class Segmenter(Protocol):
 # 0.05 vs 0.13); tests/perception/test_segment_depth.py also asserts "depth".
 RGB_ONLY = "depth"
 
+# which segmenter `auto` uses for RGB-D captures: "learned" (segment_learned.LearnedSegmenter,
+# where its weights and torch are installed; the rules otherwise) or "depth"
+# (segment_depth.DepthEdgeSegmenter). "learned" since issue 14 (docs/perception.md "Learned
+# segmenter"): with its depth gate and split it beats the rules on the held-out renders
+# (1000-1049 1.000 / 1.000 vs 0.994 / 0.994, varied 0.976 / 0.988 vs 0.906 / 0.978) and the
+# neura pallet (1.000 / 0.923 vs 0.833 / 0.769), and ties on the planning shelves (0.985 /
+# 0.992 vs 0.988 / 0.988); tests/perception/test_segment_learned.py asserts "learned".
+RGBD = "learned"
+
 
 class AutoSegmenter:
-    """Depth-and-edge for RGB-D captures; `RGB_ONLY` for photos (settled by `choose`)."""
+    """`RGBD` for RGB-D captures, `RGB_ONLY` for photos (settled by `choose`). Holds the learned
+    network once loaded, so a console that perceives frame after frame loads it once."""
 
     name = "auto"
 
-    def __init__(self, rgb_only: str = RGB_ONLY):
+    def __init__(self, rgb_only: str = RGB_ONLY, rgbd: str = RGBD, learned_weights: str | Path | None = None):
         self.rgb_only_kind = rgb_only
+        self.rgbd_kind = rgbd
+        self.learned_weights = Path(learned_weights) if learned_weights is not None else None
+        self._learned: Segmenter | None = None
+
+    def learned_available(self) -> bool:
+        """The learned segmenter's weights file is there and torch is installed (the
+        `perception` extra alone has no torch: the rules stay its segmenter)."""
+        if self.learned_weights is None:
+            from perception.segment_learned import LEARNED_WEIGHTS
+
+            self.learned_weights = LEARNED_WEIGHTS
+        return self.learned_weights.is_file() and importlib.util.find_spec("torch") is not None
 
     def choose(self, has_depth: bool) -> Segmenter:
         from perception.segment_depth import DepthEdgeSegmenter
 
-        if not has_depth and self.rgb_only_kind == "photo":
+        if has_depth:
+            if self.rgbd_kind != "learned" or not self.learned_available():
+                return DepthEdgeSegmenter()
+            if self._learned is None:
+                self._learned = load_segmenter(self.learned_weights, "learned")
+            return self._learned
+        if self.rgb_only_kind == "photo":
             from perception.segment_photo import PhotoSegmenter
 
             return PhotoSegmenter()
-        if has_depth or self.rgb_only_kind == "depth" or not DEFAULT_WEIGHTS.is_file():
+        if self.rgb_only_kind == "depth" or not DEFAULT_WEIGHTS.is_file():
             return DepthEdgeSegmenter()
         return load_segmenter(DEFAULT_WEIGHTS, "yolo")
 

@@ -184,6 +184,8 @@ class LearnedConfig:
     snap_iou: float = 0.7          # RGB-D: an instance is replaced by the depth-and-edge mask it
     #                                overlaps at IoU >= this (0: off); the network decides which
     #                                faces there are, the rules' depth edges where they end
+    split_inside: float = 0.8      # RGB-D: an unmatched instance holding >= 2 depth-and-edge masks
+    #                                that each lie this much inside it is replaced by them (0: off)
     depth_gate: bool = True        # RGB-D: instances the depth does not confirm as front faces
     #                                (outside the shelf, not facing the camera) are dropped
 
@@ -243,6 +245,25 @@ def instances(prob: np.ndarray, cfg: LearnedConfig) -> np.ndarray:
     return np.where(fg | (seeds > 0), grown, 0).astype(np.int32)
 
 
+def split_merged(masks: list[np.ndarray], rules: list[np.ndarray], snapped: set[int], used: set[int],
+                 inside: float, cover: float = 0.5) -> list[np.ndarray]:
+    """Instances the network merged: an instance not snapped that holds two or more unused
+    depth-and-edge masks, each lying at least `inside` within it and together covering at
+    least `cover` of it, is replaced by those masks (the depth steps and seams the rules cut
+    at are between boxes the colour image shows as one)."""
+    free = [j for j in range(len(rules)) if j not in used]
+    area = {j: int(rules[j].sum()) for j in free}
+    out: list[np.ndarray] = []
+    for i, m in enumerate(masks):
+        held = [j for j in free if area[j] and (rules[j] & m).sum() >= inside * area[j]] if i not in snapped else []
+        if len(held) >= 2 and sum(int((rules[j] & m).sum()) for j in held) >= cover * m.sum():
+            out.extend(rules[j] for j in held)
+            free = [j for j in free if j not in held]
+        else:
+            out.append(m)
+    return out
+
+
 class LearnedSegmenter:
     """`segment(rgb, depth) -> list[HxW bool]`; holds its network (create once, reuse)."""
 
@@ -276,8 +297,12 @@ class LearnedSegmenter:
         that mask's outline; later masks lose pixels already taken."""
         rules = DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
         out = list(masks)
-        for i, j, _ in match(rules, masks, self.config.snap_iou):
+        pairs = match(rules, masks, self.config.snap_iou)
+        for i, j, _ in pairs:
             out[i] = rules[j]
+        if self.config.split_inside > 0:
+            out = split_merged(out, rules, {i for i, _, _ in pairs}, {j for _, j, _ in pairs},
+                               self.config.split_inside)
         taken = np.zeros(rgb.shape[:2], bool)
         for k, m in enumerate(out):
             out[k] = m & ~taken

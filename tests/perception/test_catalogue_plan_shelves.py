@@ -1,6 +1,8 @@
 """Round 11 catalogue rules on the planning shelves where they were found (rendered with
 PyBullet, seen by benchmarks/perceive_plan.py's framing camera): every true box is perceived
-as one box, each true box's visible front face mostly in one perceived mask."""
+as one box, each true box's visible front face mostly in one perceived mask. The rules repair
+the depth-and-edge segmenter's pieces, so it is named here (since issue 14 `auto` takes the
+learned segmenter for RGB-D, which does not cut these faces into those pieces)."""
 from __future__ import annotations
 
 import numpy as np
@@ -13,11 +15,12 @@ def _perceived_per_true_box(seed: int) -> tuple[dict[str, list[str]], list[str]]
     from perception.bench_truth import front_face_masks
     from perception.pipeline import perceive
     from perception.render import render
+    from perception.segment_depth import DepthEdgeSegmenter
     from planning.shelves import generate
 
     truth = generate("unstructured", seed, 10)
     cap = render(truth, pp.framing_camera(truth), seed=seed)
-    res = perceive(cap, None, truth.shelf)
+    res = perceive(cap, DepthEdgeSegmenter(), truth.shelf)
     ids = pp.map_ids(res.masks, res.scene, front_face_masks(truth, cap))
     per: dict[str, list[str]] = {b.id: [] for b in truth.boxes}
     for pid, tid in ids.items():

@@ -53,11 +53,12 @@ def test_unbound_segmenter_still_finds_faces():
     assert len(masks) >= 2 and min(ious.values()) > 0.65
 
 
-def test_auto_picks_depth_segmenter_and_photo_settings():
+def test_auto_picks_depth_segmenter_and_photo_settings(tmp_path):
     from perception.segment import AutoSegmenter, for_capture, load_segmenter
 
-    seg = load_segmenter(None, "auto")
-    assert isinstance(seg, AutoSegmenter)
+    assert isinstance(load_segmenter(None, "auto"), AutoSegmenter)
+    # RGB-D: the learned segmenter where its weights are (test_segment_learned), else the rules
+    seg = AutoSegmenter(learned_weights=tmp_path / "missing.pt")
     rgbd = for_capture(seg, has_depth=True)
     photo = for_capture(seg, has_depth=False)
     assert isinstance(rgbd, DepthEdgeSegmenter) and isinstance(photo, DepthEdgeSegmenter)

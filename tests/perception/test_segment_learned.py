@@ -155,3 +155,49 @@ def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segm
     assert outlines_from_rules(off) == 0
     photo = seg.rgb_only().segment(cap.rgb, cap.depth)
     assert len(photo) == len(off) and all(np.array_equal(a, b) for a, b in zip(photo, off))
+
+
+def test_auto_takes_the_learned_segmenter_for_rgbd_when_it_can(monkeypatch, tmp_path):
+    """Issue 14: `auto` takes the learned segmenter for RGB-D (segment.RGBD) where its weights
+    and torch are there (loaded once per AutoSegmenter); the rules without either, and for photos."""
+    import importlib.util
+
+    from perception.segment import RGBD, AutoSegmenter, for_capture, load_segmenter
+    from perception.segment_depth import DepthEdgeSegmenter
+
+    assert RGBD == "learned"
+    seg = load_segmenter(None, "auto")
+    rgbd = for_capture(seg, has_depth=True)
+    assert isinstance(rgbd, LearnedSegmenter) and for_capture(seg, has_depth=True) is rgbd
+    assert isinstance(for_capture(seg, has_depth=False), DepthEdgeSegmenter)
+    assert isinstance(for_capture(AutoSegmenter(rgbd="depth"), True), DepthEdgeSegmenter)
+    missing = AutoSegmenter(learned_weights=tmp_path / "none.pt")
+    assert isinstance(for_capture(missing, True), DepthEdgeSegmenter)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real(name, *a))
+    assert isinstance(for_capture(AutoSegmenter(), True), DepthEdgeSegmenter)
+
+
+def test_an_instance_holding_two_rule_faces_is_split_into_them():
+    """Issue 14: boxes the network merged (flush cartons of one colour) are split where the
+    depth-and-edge masks lying inside the instance say; one face inside, faces sticking out, or
+    a snapped instance are left as they are."""
+    from perception.segment_learned import split_merged
+
+    def rect(r0, r1, c0, c1):
+        m = np.zeros((40, 60), bool)
+        m[r0:r1, c0:c1] = True
+        return m
+
+    merged = rect(0, 20, 0, 40)
+    left, right = rect(1, 19, 1, 19), rect(1, 19, 21, 39)
+    other = rect(25, 35, 0, 60)
+    out = split_merged([merged, other], [left, right], set(), set(), inside=0.8)
+    assert len(out) == 3 and out[0] is left and out[1] is right and out[2] is other
+    assert split_merged([merged], [left], set(), set(), 0.8)[0] is merged          # one face only
+    assert split_merged([merged], [left, right], {0}, set(), 0.8)[0] is merged      # snapped
+    assert split_merged([merged], [left, right], set(), {1}, 0.8)[0] is merged      # right used
+    sticking_out = rect(1, 19, 21, 60)                                             # 19/39 inside
+    assert split_merged([merged], [left, sticking_out], set(), set(), 0.8)[0] is merged
+    small = [rect(1, 4, 1, 4), rect(1, 4, 30, 33)]                                 # cover < half
+    assert split_merged([merged], small, set(), set(), 0.8)[0] is merged

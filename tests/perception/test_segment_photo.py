@@ -155,7 +155,7 @@ def test_auto_uses_the_photo_segmenter_for_photos_and_depth_edges_for_rgbd():
     from perception.segment import AutoSegmenter, for_capture, load_segmenter
     from perception.segment_depth import DepthEdgeSegmenter
 
-    seg = AutoSegmenter("photo")
+    seg = AutoSegmenter("photo", rgbd="depth")      # RGB-D: the rules asked for (default: learned)
     assert isinstance(for_capture(seg, has_depth=False), PhotoSegmenter)
     assert isinstance(for_capture(seg, has_depth=True), DepthEdgeSegmenter)
     # asked for explicitly, the depth segmenter still runs on photos with its rgb_only settings
