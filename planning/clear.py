@@ -1,14 +1,15 @@
 """Physics-aware clearing search (the method's Algorithm 2), physics-free.
 
-Visit the remaining boxes in a fixed order; pull every box whose predicted
-risk is at or under the threshold, skip the others, and revisit the skipped
-ones in the next pass until the shelf is empty. A pass that removes nothing
-would loop forever, so then the least risky box is pulled anyway (the plan
-becomes ``safe=False``): every pass removes at least one box, so the search
-ends after at most n passes and n*(n+1)/2 oracle calls.
+Visit the remaining boxes in a fixed order (top-down); pull the first box whose
+predicted risk is at or under the threshold, then visit again from the top (a box
+skipped above may be safe now). When no box is safe the least risky box is pulled
+anyway (the plan becomes ``safe=False``; a higher box whose risk the samples
+cannot tell from the least is preferred): every step removes a box, so the search
+ends after n steps and at most n*(n+1)/2 distinct oracle calls.
 """
 from __future__ import annotations
 
+import math
 from typing import Callable, Iterable
 
 from perception.scene import Scene
@@ -27,9 +28,17 @@ def visit_order(scene: Scene) -> tuple[str, ...]:
     return tuple(b.id for b in sorted(scene.boxes, key=key))
 
 
+def sampling_error(risk: float, samples: int) -> float:
+    """Two standard errors of a risk estimated from `samples` worlds (a risk of 0 counts as 1/samples):
+    risks closer than this are the same risk as far as `samples` worlds can tell."""
+    p = min(max(risk, 1.0 / samples), 1.0)
+    return 2.0 * math.sqrt(p * (1.0 - p) / samples)
+
+
 def search_clear(ids: Iterable[str], trial: Oracle, risk: float = 0.0,
                  deadline: float | None = None, *, screen: Oracle | None = None,
-                 least_risky: Callable[[frozenset[str], list[str]], str] | None = None) -> SearchResult:
+                 least_risky: Callable[[frozenset[str], list[str]], str] | None = None,
+                 samples: int | None = None) -> SearchResult:
     """Plan the removal of every box in ``ids`` (visited in the given order).
 
     After ``deadline`` (a ``time.monotonic()`` instant) no box is skipped any
@@ -58,13 +67,15 @@ def search_clear(ids: Iterable[str], trial: Oracle, risk: float = 0.0,
     while pending:
         skipped: list[tuple[str, StepPrediction]] = []
         progressed = False
-        for box in pending:
+        for i, box in enumerate(pending):
             pred = (screen or oracle)(removed, box)
             if pred.risk <= risk or clock.passed():
                 take(box, oracle(removed, box) if screen is not None else pred)
                 progressed = True
-            else:
-                skipped.append((box, pred))
+                # look again from the top: a box skipped above may be safe now
+                skipped += [(b, pred) for b in pending[i + 1:]]
+                break
+            skipped.append((box, pred))
         if skipped and not progressed:
             # Nothing came out this pass, so every prediction is for the current
             # state: pull the least risky box (first in visiting order on a tie).
@@ -72,9 +83,24 @@ def search_clear(ids: Iterable[str], trial: Oracle, risk: float = 0.0,
                 box = least_risky(removed, [b for b, _ in skipped])
             else:
                 box = min(skipped, key=lambda bp: bp[1].risk)[0]
+            if samples:
+                box = _first_alike(box, [b for b, _ in skipped], removed, oracle, samples)
             take(box, oracle(removed, box))
             skipped = [(b, p) for b, p in skipped if b != box]
         pending = [b for b, _ in skipped]
 
     safe = all(p.risk <= risk for p in preds)
     return SearchResult(tuple(seq), tuple(preds), safe, oracle.calls, clock.hit)
+
+
+def _first_alike(best: str, boxes: list[str], removed: frozenset[str], oracle: CountingOracle,
+                 samples: int) -> str:
+    """The first of `boxes` (visiting order) whose risk is within sampling error of `best`'s."""
+    floor = oracle(removed, best).risk
+    margin = sampling_error(floor, samples)
+    for box in boxes:
+        if box == best:
+            return best
+        if oracle(removed, box).risk <= floor + margin + 1e-9:
+            return box
+    return best

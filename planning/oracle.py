@@ -29,6 +29,9 @@ class Screening(Predicting, Protocol):
     stats: dict[str, Any]        # "pulls": physics pulls run so far, ...
     scene_check: dict[str, Any]  # planning.sample_worlds.scene_check of its worlds
 
+    @property
+    def worlds(self) -> int: ...  # the sample worlds behind every risk it gives
+
     def screen(self, removed: frozenset[str], box: str, risk: float = 0.0) -> StepPrediction: ...
 
     def least_risky(self, removed: frozenset[str], boxes: Sequence[str]) -> str: ...

@@ -88,7 +88,7 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
                              screen=fast)
     else:
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
-                           screen=fast, least_risky=least)
+                           screen=fast, least_risky=least, samples=sampling.worlds if sampling is not None else None)
     timing = {"planning_s": time.perf_counter() - t0}
     return (tuple(res.sequence), tuple(res.predicted), res.timed_out, timing,
             len(screened | oracle.keys))
