@@ -193,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         Path(a.out).mkdir(parents=True, exist_ok=True)
         (Path(a.out) / "tune.json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
         return 0
-    segs = {"rules": load_segmenter(None, "depth"), "learned": load_segmenter(a.weights, "learned")}
+    segs = {"rules": load_segmenter(None, "depth"), "learned": load_segmenter(a.weights, "learned").with_threads(a.threads)}
     if a.ungated:
         import dataclasses
 

@@ -269,12 +269,14 @@ class LearnedSegmenter:
 
     name = "learned"
 
-    def __init__(self, weights: str | Path = LEARNED_WEIGHTS, threads: int | None = None):
-        torch = _torch()
+    def __init__(self, weights: str | Path = LEARNED_WEIGHTS, threads: int | None = 1):
+        """`threads`: torch threads for this segmenter's network pass only (restored after it;
+        None: torch's own setting). 1 by default: torch's one thread per core oversubscribes
+        2 shared cores when anything else runs (the neura frame took 2.8-5.5 s with 2 threads
+        beside other jobs, 0.39-0.46 s with 1)."""
         self.model, self.config = load_model(weights)
         self.weights = str(weights)
-        if threads is not None:
-            torch.set_num_threads(threads)
+        self.threads = threads
 
     camera = None
     shelf = None
@@ -322,9 +324,21 @@ class LearnedSegmenter:
         iw = max(32, round(self.config.input_width / 32) * 32)
         ih = max(32, round(iw * h / w / 32) * 32)
         small = cv2.resize(np.ascontiguousarray(rgb[..., :3]), (iw, ih), interpolation=cv2.INTER_AREA)
-        with torch.inference_mode():
-            logits = self.model(to_tensor(small))
-            return torch.softmax(logits, 1)[0].numpy()
+        before = torch.get_num_threads()
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        try:
+            with torch.inference_mode():
+                logits = self.model(to_tensor(small))
+                return torch.softmax(logits, 1)[0].numpy()
+        finally:
+            torch.set_num_threads(before)
+
+    def with_threads(self, threads: int | None) -> LearnedSegmenter:
+        """The same network run with `threads` torch threads (None: torch's own setting)."""
+        out = copy.copy(self)
+        out.threads = threads
+        return out
 
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
         h, w = rgb.shape[:2]
