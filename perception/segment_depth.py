@@ -27,6 +27,7 @@ from scipy import ndimage
 
 from perception.masks import pixel_scale, scaled_px
 from perception.piece_merge import merge_pieces, merge_tape
+from perception.face_gate import inside_shelf
 from perception.scene import Camera, Shelf, quat_to_matrix
 
 
@@ -231,8 +232,7 @@ def _inside_shelf(pts: tuple[np.ndarray, np.ndarray, np.ndarray], camera: Camera
     sx = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + t[0]
     sy = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + t[1]
     sz = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + t[2]
-    return (sy < s.depth - m) & (np.abs(sx) < s.width / 2 - 0.003) & (sz > 0.005) \
-        & (sz < s.height - 0.003)
+    return inside_shelf(np.stack((sx, sy, sz), axis=-1), s, m)
 
 
 def _colour_edges(rgb: np.ndarray, fg: np.ndarray, depth: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:

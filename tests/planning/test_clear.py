@@ -8,6 +8,7 @@ import pytest
 from fake_oracles import STILL, SupportGraph, risky, table_oracle
 from perception.scene import Box, Scene, Shelf
 from planning.clear import search_clear, visit_order
+from planning.plan import StepPrediction
 
 
 def test_skipped_boxes_are_revisited_until_the_shelf_is_empty():
@@ -80,3 +81,27 @@ def test_visit_order_is_top_down_then_front_first():
         _box("floor", 0.35, 0.05, 0.1),
     ))
     assert visit_order(scene) == ("top", "front", "back", "low", "floor")
+
+
+def test_a_forced_pull_goes_to_a_higher_box_the_samples_cannot_tell_apart():
+    from planning.clear import sampling_error
+    assert abs(sampling_error(0.1, 10) - 0.19) < 0.01 and sampling_error(1.0, 10) == 0.0
+
+    def oracle(risks):
+        return lambda removed, box: StepPrediction(box, risks(removed)[box], 0.0, ())
+    # nothing is safe: 'hi' (0.25) is within 2 standard errors of 'lo' (0.1) at 10 worlds, not at 100
+    first = {"hi": 0.25, "lo": 0.1}
+    trial = oracle(lambda removed: {b: (0.0 if removed else r) for b, r in first.items()})
+    assert search_clear(["hi", "lo"], trial, samples=10).sequence[0] == "hi"
+    assert search_clear(["hi", "lo"], trial, samples=100).sequence[0] == "lo"
+    assert search_clear(["hi", "lo"], trial).sequence[0] == "lo"           # no samples: least risky
+    far = {"hi": 0.6, "lo": 0.1}
+    trial = oracle(lambda removed: {b: (0.0 if removed else r) for b, r in far.items()})
+    assert search_clear(["hi", "lo"], trial, samples=10).sequence[0] == "lo"
+
+
+def test_after_each_pull_the_visit_starts_again_from_the_top():
+    # 'a' is unsafe until 'b' is out; once 'b' is out, 'a' comes before 'c'
+    def trial(removed, box):
+        return StepPrediction(box, 1.0 if box == "a" and "b" not in removed else 0.0, 0.0, ())
+    assert search_clear(["a", "b", "c"], trial).sequence == ("b", "a", "c")
