@@ -186,16 +186,19 @@ def read_rows(path: Path) -> list[dict]:
     return list(rows.values())
 
 
-def iter_rows(units: Sequence[dict], jobs: int) -> Iterator[dict]:
-    """Rows as units finish: in this process, or in `jobs` spawned processes (no forked PyBullet)."""
+def iter_rows(units: Sequence[dict], jobs: int, work: Callable[[dict], dict] | None = None) -> Iterator[dict]:
+    """Rows as units finish: in this process, or in `jobs` spawned processes (no forked PyBullet).
+    `work` (default run_unit; an importable module-level function) makes one unit's row."""
+    work = work or run_unit
     if jobs <= 1:
         for u in units:
-            yield init_and_run(u)
+            init_worker(u["judge_dir"])
+            yield work(u)
         return
     import multiprocessing as mp
 
     with mp.get_context("spawn").Pool(jobs, initializer=init_worker, initargs=(units[0]["judge_dir"],)) as pool:
-        yield from pool.imap_unordered(run_unit, units, chunksize=1)
+        yield from pool.imap_unordered(work, units, chunksize=1)
 
 
 def _write(f: TextIO | None, row: dict) -> None:

@@ -127,6 +127,14 @@ def map_ids(perc_masks: np.ndarray, perc_scene, gt: dict[str, np.ndarray]) -> di
     return out
 
 
+def perceived_target(res, ids: dict[str, str], gt: dict[str, np.ndarray], target: str) -> str | None:
+    """The perceived box that covers most of the true `target`'s visible face (None: not perceived)."""
+    cands = [pid for pid, tid in ids.items() if tid == target]
+    if not cands:
+        return None
+    return max(cands, key=lambda p: int(((res.masks == res.scene.require(p).mask_label) & gt[target]).sum()))
+
+
 def run_one(kind: str, seed: int, n_boxes: int, samples: int, task: str, segmenter,
             cameras: tuple[str, ...] = ("default",)) -> list[dict]:
     """One shelf: the true-scene plan once, then perceive and plan per camera (one row each).
@@ -182,12 +190,7 @@ def _perceived_plan(truth, cap, gt, target, task, samples, seed, segmenter) -> d
                  "perceived_to_true": dict(ids)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ptarget = None
-        if target is not None:
-            cands = [pid for pid, tid in ids.items() if tid == target]
-            if cands:   # the perceived box that covers most of the target
-                ptarget = max(cands, key=lambda p: int(((res.masks == res.scene.require(p).mask_label)
-                                                        & gt[target]).sum()))
+        ptarget = perceived_target(res, ids, gt, target) if target is not None else None
         row["target_perceived"] = ptarget is not None or task != "extract"
         if task == "extract" and ptarget is None:
             row["perceived_safe"] = False
