@@ -14,6 +14,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from perception.contact import face_sweep, sweep
 from perception.errors import PerceptionError
 from perception.faces import FrontFace, face_axes, measure_front
 from perception.geometry import matrix_to_quat
@@ -37,6 +38,9 @@ def box_from_face(face: FrontFace, box_id: str, label: int, shelf: Shelf,
 
 # --------------------------------------------------------------------------
 # physically valid scene
+UP = (0.0, 0.0, 1.0)
+
+
 def _aabb(b: Box) -> np.ndarray:
     c = np.asarray(b.corners())
     return np.stack([c.min(axis=0), c.max(axis=0)])
@@ -74,28 +78,53 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
 
 
 def _push_apart(boxes: list[Box], snap: float, min_contact: float) -> tuple[list[Box], list[str]]:
-    """Neighbours side by side at one height that overlap sideways by at most `snap`, moved
-    apart by half the overlap each; and what was moved."""
+    """Neighbours side by side at one height whose measured faces overlap sideways by at most
+    `snap` (on their oriented shapes, `contact.face_sweep`), moved apart by half the overlap
+    each; and what was moved. Placeholder depths that cross behind the faces move nothing."""
     out = list(boxes)
     notes: list[str] = []
     order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 0])
     for ii, i in enumerate(order):
         for j in order[ii + 1:]:
             a, c = _aabb(out[i]), _aabb(out[j])
-            ox = _overlap(a, c, 0)
-            if ox <= 0 or _overlap(a, c, 2) < min_contact or _overlap(a, c, 1) <= 0:
+            if _overlap(a, c, 0) <= 0 or _overlap(a, c, 2) < min_contact or _overlap(a, c, 1) <= 0:
                 continue
             # only neighbours side by side (their centres apart more in x than z)
             dxc = abs((a[0, 0] + a[1, 0]) - (c[0, 0] + c[1, 0])) / 2
             dzc = abs((a[0, 2] + a[1, 2]) - (c[0, 2] + c[1, 2])) / 2
-            if ox > snap or dzc > dxc:
+            if dzc > dxc:
                 continue
-            left, right = (i, j) if a[0, 0] <= c[0, 0] else (j, i)
-            half = ox / 2 + 1e-4
+            left, right = (i, j) if a[0, 0] + a[1, 0] <= c[0, 0] + c[1, 0] else (j, i)
+            s = face_sweep(out[left], out[right], (1.0, 0.0, 0.0))
+            if s is None or not s[0] < 0 < s[1] or -s[0] > snap:
+                continue
+            half = -s[0] / 2 + 1e-4
             out[left] = _moved(out[left], np.array([-half, 0, 0]))
             out[right] = _moved(out[right], np.array([half, 0, 0]))
-            notes.append(f"{out[left].id}/{out[right].id}: pushed apart sideways by {ox * 100:.1f} cm overlap")
+            notes.append(f"{out[left].id}/{out[right].id}: pushed apart sideways by {-s[0] * 100:.1f} cm overlap")
     return out, notes
+
+
+def _support(b: Box, other: Box, bottom: float, snap: float) -> tuple[float | None, str]:
+    """The upward move that rests `b` on `other` (None: `other` is not under it), on their
+    oriented shapes (`contact.sweep`); and a note when a deep overlap is left alone.
+
+    Touching, a gap or an overlap up to `snap`: rest on it. A deeper overlap with `other`
+    lower: `b` was measured partly inside it and rests on it, but only when a measured face is
+    in the overlap; one between placeholder depths only (turned neighbours whose unseen backs
+    cross) says nothing about where the faces are: not a support (the note says so; the caller
+    then never drops `b` through it)."""
+    s = sweep(b, other, UP)
+    if s is None or s[0] >= 0:
+        return None, ""
+    if s[1] <= snap:
+        return s[1], ""
+    if min(c[2] for c in other.corners()) >= bottom - 1e-3:
+        return None, ""
+    f = face_sweep(b, other, UP)
+    if f is not None and f[0] < 0 < f[1]:
+        return f[1], ""
+    return None, f"{b.id}/{other.id}: overlap behind their measured faces only (depths unknown); not moved"
 
 
 def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tuple[list[Box], list[str]]:
@@ -108,16 +137,19 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tupl
     for i in order:
         a = _aabb(out[i])
         bottom = a[0, 2]
-        support, under = 0.0, "the floor"
+        delta, under, held = -bottom, "the floor", False
         for j in placed:
             c = _aabb(out[j])
             if _overlap(a, c, 0) < min_contact or _overlap(a, c, 1) <= 0:
                 continue
-            # under this box: its top within `snap` above our bottom, or (a larger overlap)
-            # its bottom below ours: we were measured partly inside it, so we rest on it
-            if (c[1, 2] <= bottom + snap or c[0, 2] < bottom - 1e-3) and c[1, 2] > support:
-                support, under = float(c[1, 2]), out[j].id
-        delta = support - bottom
+            up, note = _support(out[i], out[j], bottom, snap)
+            if note:
+                notes.append(note)
+                held = True
+            if up is not None and up > delta:
+                delta, under = up, out[j].id
+        if held and delta < -snap:
+            delta = 0.0         # its unseen back may rest on that box: the measured face stays
         if abs(delta) > 1e-3:
             if delta > 0:
                 notes.append(f"{out[i].id}: pushed up {delta * 100:.1f} cm out of {under}")
@@ -125,8 +157,7 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tupl
                 notes.append(f"{out[i].id}: lowered {-delta * 100:.1f} cm onto {under} (gap closed)")
             else:
                 notes.append(f"{out[i].id}: hung {-delta * 100:.1f} cm in the air; dropped onto {under}")
-            out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
-        elif delta != 0:
+        if delta != 0:
             out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
         placed.append(i)
     return out, notes
