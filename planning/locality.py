@@ -23,10 +23,15 @@ def _in_front(a: AABB, c: AABB, m: float) -> bool:
 
 
 def stands_on(c: AABB, d: AABB, overlap: float, tilt: float, margin: float) -> bool:
-    """`c`'s bottom is at `d`'s top (`tilt` below to `margin` above) and their footprints overlap."""
+    """`c`'s bottom is at `d`'s top (`tilt` below to `margin` above) and their footprints overlap.
+
+    Bounding boxes of turned or leaning boxes overlap in z where the boxes only touch: a
+    bottom anywhere above `d`'s middle still counts (a box left frozen on top of a moving
+    one would pin it in place)."""
     ov = overlap
+    low = min(d[1][2] - tilt, 0.5 * (d[0][2] + d[1][2]))
     return (c[0][0] < d[1][0] - ov and d[0][0] < c[1][0] - ov and c[0][1] < d[1][1] - ov
-            and d[0][1] < c[1][1] - ov and d[1][2] - tilt < c[0][2] < d[1][2] + margin)
+            and d[0][1] < c[1][1] - ov and low < c[0][2] < d[1][2] + margin)
 
 
 def neighbourhood(box: Mapping[str, AABB], seeds: Iterable[str], *, margin: float, overlap: float,

@@ -123,3 +123,19 @@ def test_a_box_in_front_of_the_pulled_one_is_in_its_way_whatever_the_gap():
         assert "front" in full.collided
         assert (local.extracted, local.collapsed, local.collided) == \
             (full.extracted, full.collapsed, full.collided)
+
+
+def test_a_leaning_box_on_a_leaning_support_moves_with_it():
+    """Bounding boxes of tilted boxes interpenetrate in z: the box on top is still 'on' its support,
+    so a trial never leaves it frozen on a box that moves (a static box there pins the pile)."""
+    from planning.locality import neighbourhood
+    # p (pulled) props up `lean` (tilted: its AABB reaches down past p's top); `top` rests on `lean`
+    # with its AABB bottom 5 cm below lean's AABB top (more than the 3 cm allowed for tilt)
+    box = {
+        "p": ((-0.46, 0.0, 0.50), (-0.23, 0.25, 0.81)),
+        "lean": ((-0.26, 0.0, 0.67), (0.02, 0.25, 1.02)),
+        "top": ((-0.25, 0.0, 0.97), (-0.03, 0.2, 1.20)),
+        "far": ((0.30, 0.0, 0.0), (0.50, 0.2, 0.2)),
+    }
+    keep = neighbourhood(box, ["p"], margin=0.02, overlap=0.005, tilt=0.03, corridor=True)
+    assert keep == {"p", "lean", "top"}
