@@ -30,6 +30,7 @@ class GateConfig:
     plane_tol: float = 0.012      # m: a point this close to a plane lies on it
     wall_margin: float = 0.012    # m: points this close to the back wall are the shelf
     min_points: int = 30          # fewer depth points inside the shelf: no plane test
+    min_on_plane: float = 0.5     # `plausible_faces`: share of the points on the dominant plane
     sample: int = 2000            # points a plane is fitted to (a sample of the instance)
     tries: int = 100              # RANSAC draws per instance
 
@@ -108,3 +109,22 @@ def keep_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf
     inside = inside_shelf(points, shelf, cfg.wall_margin)
     return [m for m in masks
             if evidence(m, points, valid, inside, cfg, np.random.default_rng(seed)).is_face(cfg)]
+
+
+def plausible_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
+                    cfg: GateConfig = GateConfig(), seed: int = 0) -> list[np.ndarray]:
+    """The masks the depth makes front faces on its own: the gate's tests with evidence
+    required (enough points inside the shelf for a plane) and most points (`min_on_plane`) on
+    that plane. Why: for a region the RGB network saw nothing in, there is no colour evidence
+    of a face to fall back on, so the depth alone must show a flat facing surface."""
+    if not masks:
+        return []
+    points = point_map(camera, depth)
+    valid = np.isfinite(depth) & (depth > 0)
+    inside = inside_shelf(points, shelf, cfg.wall_margin)
+    out = []
+    for m in masks:
+        ev = evidence(m, points, valid, inside, cfg, np.random.default_rng(seed))
+        if ev.normal_cos is not None and ev.is_face(cfg) and (ev.on_plane or 0.0) >= cfg.min_on_plane:
+            out.append(m)
+    return out

@@ -29,7 +29,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from perception.errors import PerceptionError
-from perception.face_gate import keep_faces
+from perception.face_gate import keep_faces, plausible_faces
 from perception.mask_match import match
 from perception.segment_depth import DepthEdgeSegmenter
 
@@ -188,6 +188,9 @@ class LearnedConfig:
     #                                that each lie this much inside it is replaced by them (0: off)
     depth_gate: bool = True        # RGB-D: instances the depth does not confirm as front faces
     #                                (outside the shelf, not facing the camera) are dropped
+    add_unseen: float = 0.8        # RGB-D: a depth-and-edge mask lying at least this much outside
+    #                                every network instance (gated or not) is added when the depth
+    #                                says it is a planar front face (`face_gate.plausible_faces`; 0: off)
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -264,6 +267,20 @@ def split_merged(masks: list[np.ndarray], rules: list[np.ndarray], snapped: set[
     return out
 
 
+def unseen_faces(rules: list[np.ndarray], used: set[int], seen: np.ndarray, outside: float) -> list[int]:
+    """Indices of the unused depth-and-edge masks that lie at least `outside` of their pixels
+    where the network has no instance at all (`seen`: the union of its instances before the depth
+    gate, and of the masks already taken). Why: the network has never seen some poses (boxes
+    leaning 40 deg and more: its training renders lean at most 18), and gives them no interior;
+    the rules cut faces by depth and do not care how a face is turned in its plane."""
+    out = []
+    for j, r in enumerate(rules):
+        n = int(r.sum())
+        if j not in used and n and (r & ~seen).sum() >= outside * n:
+            out.append(j)
+    return out
+
+
 class LearnedSegmenter:
     """`segment(rgb, depth) -> list[HxW bool]`; holds its network (create once, reuse)."""
 
@@ -294,17 +311,25 @@ class LearnedSegmenter:
         out.depth_ok = False
         return out
 
-    def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
+    def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray,
+             seen: np.ndarray | None = None) -> list[np.ndarray]:
         """Each instance that a depth-and-edge mask matches (IoU >= snap_iou, one to one) takes
-        that mask's outline; later masks lose pixels already taken."""
+        that mask's outline; instances holding several such masks are split into them; masks
+        where the network saw nothing are added when the depth makes them faces (`seen`: the
+        network's instances before the gate); later masks lose pixels already taken."""
         rules = DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
         out = list(masks)
         pairs = match(rules, masks, self.config.snap_iou)
         for i, j, _ in pairs:
             out[i] = rules[j]
+        used = {j for _, j, _ in pairs}
         if self.config.split_inside > 0:
-            out = split_merged(out, rules, {i for i, _, _ in pairs}, {j for _, j, _ in pairs},
-                               self.config.split_inside)
+            out = split_merged(out, rules, {i for i, _, _ in pairs}, used, self.config.split_inside)
+            used |= {j for j, r in enumerate(rules) if any(m is r for m in out)}
+        if self.config.add_unseen > 0 and rules:
+            covered = np.logical_or.reduce([*out, seen if seen is not None else np.zeros(rgb.shape[:2], bool)])
+            cand = unseen_faces(rules, used, covered, self.config.add_unseen)
+            out.extend(plausible_faces([rules[j] for j in cand], depth, self.camera, self.shelf))
         taken = np.zeros(rgb.shape[:2], bool)
         for k, m in enumerate(out):
             out[k] = m & ~taken
@@ -357,8 +382,9 @@ class LearnedSegmenter:
         masks = [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]
         if depth is None or not self.depth_ok:
             return masks
+        seen = full > 0
         if self.config.depth_gate and self.camera is not None and self.shelf is not None:
             masks = keep_faces(masks, depth, self.camera, self.shelf)
         if self.config.snap_iou > 0:
-            masks = self.snap(masks, rgb, depth)
+            masks = self.snap(masks, rgb, depth, seen)
         return masks

@@ -117,3 +117,54 @@ def test_the_learned_segmenter_gates_rgbd_instances_but_not_photos(monkeypatch):
     off = bound.with_config(dataclasses.replace(bound.config, depth_gate=False))
     assert len(off.segment(rgb, depth)) == 2
     assert len(bound.rgb_only().segment(rgb, depth)) == 2
+
+
+def test_a_face_the_network_never_saw_is_added_from_the_depth(monkeypatch):
+    """Issue 14: boxes leaning 40+ deg (never in the training renders) got no instance at all;
+    a depth-and-edge mask lying where the network has no instance is added when the depth makes
+    it a planar front face in the shelf. Fails with `add_unseen` 0 (the network's mask alone)."""
+    from perception.segment_learned import LearnedConfig, LearnedSegmenter
+
+    cam = _camera()
+    depth = _plane_depth(cam, (0, 1, 0), SHELF.depth)          # the back wall ...
+    face = _plane_depth(cam, (0, 1, 0), 0.05)
+    seen, unseen = (_box_mask(depth.shape, slice(40, 80), slice(c, c + 40)) for c in (20, 100))
+    for m in (seen, unseen):                                   # ... and two box fronts
+        depth[m] = face[m]
+    prob = np.zeros((3, 30, 40), np.float32)
+    prob[0] = 1.0
+    prob[:, 10:20, 5:15] = 0.0                                 # the network sees the left one only
+    prob[1, 10:20, 5:15] = 1.0
+    seg = object.__new__(LearnedSegmenter)                     # no network: its maps are given
+    seg.config, seg.model, seg.threads = LearnedConfig(), None, None
+    monkeypatch.setattr(LearnedSegmenter, "probabilities", lambda self, rgb: prob)
+    rgb = np.zeros((cam.height, cam.width, 3), np.uint8)
+    bound = seg.bind(cam, SHELF)
+    out = bound.segment(rgb, depth)
+    assert len(out) == 2 and out[0][60, 40] and out[1][60, 120]
+    assert (out[1] & unseen).sum() >= 0.95 * out[1].sum() and out[1].sum() >= 0.5 * unseen.sum()
+    off = bound.with_config(dataclasses.replace(bound.config, add_unseen=0.0))
+    assert len(off.segment(rgb, depth)) == 1
+    # where the network had an instance, even one the depth gate then dropped (mostly beyond the
+    # back wall, the face a quarter of it), nothing is added: the network saw the region
+    prob[:, 5:28, 22:40] = 0.0
+    prob[1, 5:28, 22:40] = 1.0
+    big = _box_mask(depth.shape, slice(20, 112), slice(88, 160))
+    depth[big & ~unseen] = _plane_depth(cam, (0, 1, 0), SHELF.depth + 0.4)[big & ~unseen]
+    assert len(bound.segment(rgb, depth)) == 1
+
+
+def test_only_planar_facing_masks_in_the_shelf_are_plausible_faces():
+    from perception.face_gate import plausible_faces
+
+    cam = _camera()
+    depth = _plane_depth(cam, (0, 1, 0), SHELF.depth)
+    flat = _box_mask(depth.shape, slice(40, 80), slice(20, 60))
+    depth[flat] = _plane_depth(cam, (0, 1, 0), 0.05)[flat]
+    steps = _box_mask(depth.shape, slice(40, 80), slice(90, 150))   # three 5 cm steps: no plane
+    for k, y in enumerate((0.04, 0.10, 0.16)):
+        part = _box_mask(depth.shape, slice(40, 80), slice(90 + 20 * k, 110 + 20 * k))
+        depth[part] = _plane_depth(cam, (0, 1, 0), y)[part]
+    on_wall = _box_mask(depth.shape, slice(90, 110), slice(60, 100))
+    kept = plausible_faces([flat, steps, on_wall], depth, cam, SHELF)
+    assert len(kept) == 1 and kept[0] is flat
