@@ -14,7 +14,9 @@ only: depth is not an input to the network. In an RGB-D capture an instance that
 depth-and-edge mask matches (IoU >= `snap_iou`) takes that mask's outline: the network says
 which faces there are, the depth edges where they end (a photo is not snapped). Before that,
 instances the depth does not confirm as front faces (mostly outside the shelf volume, or
-their largest plane not facing the camera: `perception.face_gate`) are dropped.
+their largest plane not facing the camera: `perception.face_gate`) are dropped; after it, a
+depth-and-edge mask where the network has no instance at all is added when the depth alone makes
+it a planar front face (poses the network never saw: `unseen_faces`).
 """
 from __future__ import annotations
 
@@ -316,7 +318,8 @@ class LearnedSegmenter:
         """Each instance that a depth-and-edge mask matches (IoU >= snap_iou, one to one) takes
         that mask's outline; instances holding several such masks are split into them; masks
         where the network saw nothing are added when the depth makes them faces (`seen`: the
-        network's instances before the gate); later masks lose pixels already taken."""
+        network's instances before the gate; needs `bind`: the depth is judged in the shelf
+        frame); later masks lose pixels already taken."""
         rules = DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
         out = list(masks)
         pairs = match(rules, masks, self.config.snap_iou)
@@ -326,7 +329,7 @@ class LearnedSegmenter:
         if self.config.split_inside > 0:
             out = split_merged(out, rules, {i for i, _, _ in pairs}, used, self.config.split_inside)
             used |= {j for j, r in enumerate(rules) if any(m is r for m in out)}
-        if self.config.add_unseen > 0 and rules:
+        if self.config.add_unseen > 0 and rules and self.camera is not None and self.shelf is not None:
             covered = np.logical_or.reduce([*out, seen if seen is not None else np.zeros(rgb.shape[:2], bool)])
             cand = unseen_faces(rules, used, covered, self.config.add_unseen)
             out.extend(plausible_faces([rules[j] for j in cand], depth, self.camera, self.shelf))
