@@ -15,6 +15,7 @@ import statistics
 import sys
 import time
 import warnings
+from pathlib import Path
 
 from perception.scene import Box, Scene, Shelf
 from planning.physics import PhysicsConfig
@@ -248,16 +249,32 @@ def locality_scenes(quick: bool = False) -> dict[str, Scene]:
     return out
 
 
+def _scene_files(pattern: str) -> dict[str, Scene]:
+    """The scenes a glob names (the judge's shelves are read where they are, never copied)."""
+    import glob
+
+    paths = sorted(glob.glob(pattern))
+    if not paths:
+        raise SystemExit(f"sim_timing: --scenes: no file matches {pattern!r}")
+    return {Path(p).stem: Scene.from_json(json.loads(Path(p).read_text(encoding="utf-8"))) for p in paths}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=["timing", "accuracy", "locality"])
     ap.add_argument("--quick", action="store_true", help="accuracy on 2 depth samples only")
     ap.add_argument("--levers", action="store_true",
                     help="accuracy of the speed levers of docs/speed.md instead of the step sizes")
+    ap.add_argument("--scenes", metavar="GLOB",
+                    help="locality on these scene files (e.g. '../shared/judge/scenes/u*.json') "
+                         "instead of the built-in set, one depth sample each")
     args = ap.parse_args(argv)
     cfg = PhysicsConfig()
     if args.what == "locality":
-        res = locality(locality_scenes(args.quick), cfg, samples=1 if args.quick else 2)
+        if args.scenes:
+            res = locality(_scene_files(args.scenes), cfg, samples=1)
+        else:
+            res = locality(locality_scenes(args.quick), cfg, samples=1 if args.quick else 2)
         print(json.dumps(res, indent=2))
         return 0
     if args.what == "timing":
