@@ -87,7 +87,12 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
     if task == "extract":
         res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
                              screen=fast)
-        res = shorten_extraction(res, oracle, risk, screen=fast,
+        bounded = None
+        if sampling is not None:
+            def bounded(r: frozenset[str], b: str, bound: float) -> StepPrediction:
+                screened.add((frozenset(r), b))
+                return sampling.screen(r, b, bound)
+        res = shorten_extraction(res, oracle, risk, screen=bounded,
                                  passed=lambda: deadline is not None and time.monotonic() >= deadline)
     else:
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,

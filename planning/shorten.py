@@ -17,43 +17,59 @@ from planning.extract import Oracle, SearchResult, success_prob
 from planning.plan import StepPrediction
 
 
-def _replay(sequence: tuple[str, ...], start: int, removed: frozenset[str], ask: Oracle,
-            limit: float | None) -> list[StepPrediction] | None:
-    """Predictions of `sequence[start:]` after `removed`; None as soon as a step is over `limit`."""
+Screen = Callable[[frozenset[str], str, float], StepPrediction]
+
+
+def _replay(sequence: tuple[str, ...], start: int, removed: frozenset[str], oracle: Oracle,
+            screen: Screen | None, limit: float | None, floor: float) -> list[StepPrediction] | None:
+    """Predictions of `sequence[start:]` after `removed`, or None as soon as the candidate cannot
+    be kept: a step over `limit` (a safe plan), or a chance of no collapse under `floor` (an
+    unsafe plan; `floor` is that chance before `start`'s step, relative to it)."""
     out: list[StepPrediction] = []
+    left = 1.0
     for box in sequence[start:]:
-        pred = ask(removed, box)
-        if limit is not None and pred.risk > limit:
+        if limit is not None:
+            bound = limit
+        else:   # the most this step may risk with every later step at risk 0
+            bound = 1.0 - floor / left if left > 0 else -1.0
+            if bound < -1e-12:
+                return None
+            bound = max(bound, 0.0)
+        if screen is not None and screen(removed, box, bound).risk > bound + 1e-12:
+            return None   # stopped early: the step alone already loses
+        pred = oracle(removed, box)   # exact (a screen that passed sampled every world)
+        if pred.risk > bound + 1e-12:
             return None
         out.append(pred)
+        left *= 1.0 - pred.risk
         removed = removed | {box}
     return out
 
 
 def shorten_extraction(result: SearchResult, oracle: Oracle, risk: float = 0.0, *,
-                       screen: Oracle | None = None,
+                       screen: Screen | None = None,
                        passed: Callable[[], bool] = lambda: False) -> SearchResult:
     """`result` (an extraction plan, target last) without the blockers it does not need.
 
-    ``screen`` (optional) is asked first and may stop a candidate early; every kept
-    step carries the full ``oracle`` prediction. ``passed()`` True stops the pass
-    (the search's deadline).
+    ``screen(removed, box, bound)`` (optional, ``Predictor.screen``) is asked first with
+    the most risk the step may carry for the candidate to be kept, and stops sampling
+    as soon as it cannot; every kept step carries the full ``oracle`` prediction.
+    ``passed()`` True stops the pass (the search's deadline).
     """
     seq, preds = tuple(result.sequence), tuple(result.predicted)
     safe = all(p.risk <= risk for p in preds)
     for i in range(len(seq) - 2, -1, -1):
-        if passed() or i >= len(seq) - 1:
-            continue
+        if passed():
+            break
         cand = seq[:i] + seq[i + 1:]
-        before = frozenset(seq[:i])
-        if safe and screen is not None and _replay(cand, i, before, screen, risk) is None:
-            continue
-        tail = _replay(cand, i, before, oracle, risk if safe else None)
+        # an unsafe plan: the candidate's later steps must keep prod(1 - r) >= the plan's
+        floor = success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
+        tail = _replay(cand, i, frozenset(seq[:i]), oracle, screen, risk if safe else None, floor)
         if tail is None:
             continue
         new = preds[:i] + tuple(tail)
         if (all(p.risk <= risk for p in new) if safe
-                else success_prob(new) >= success_prob(preds)):
+                else success_prob(new) >= success_prob(preds) - 1e-12):
             seq, preds = cand, new
     if len(seq) == len(result.sequence):
         return result

@@ -46,17 +46,40 @@ def test_an_unsafe_plan_is_shortened_only_when_no_likelier_to_collapse(alone, ke
     assert [p.risk for p in short.predicted] == ([alone] if kept == ("t",) else [0.1, 0.2])
 
 
-def test_the_screen_rejects_early_and_the_kept_steps_carry_full_predictions():
+def test_the_screen_is_asked_with_the_most_a_step_may_risk():
     oracle = table_oracle(_wasted_blocker)
-    screened = []
+    asked = []
 
-    def screen(removed, box):
-        screened.append((removed, box))
+    def screen(removed, box, bound):
+        asked.append((removed, box, bound))
         return oracle(removed, box)
     greedy = search_extract(["a", "b", "t"], "t", oracle)
     short = shorten_extraction(greedy, oracle, screen=screen)
     assert short.sequence == ("b", "t")
-    assert (frozenset({"b"}), "t") in screened
+    assert (frozenset({"b"}), "t", 0.0) in asked
+
+
+def test_an_unsafe_candidate_is_dropped_at_its_first_losing_step():
+    # plan a, b, t with success 0.9 * 1 * 0.9 = 0.81; without a, b risks 0.5: lost at b, t never asked
+    def rules(removed, box):
+        if box == "b":
+            return risky(0.0 if "a" in removed else 0.5, "x")
+        if box == "t":
+            return risky(0.1 if "b" in removed else 0.5, "b")
+        return risky(0.1, "x")
+    oracle = table_oracle(rules)
+    plan = SearchResult(("a", "b", "t"), (oracle(frozenset(), "a"), oracle(frozenset({"a"}), "b"),
+                                          oracle(frozenset({"a", "b"}), "t")), False)
+    bounds = []
+
+    def screen(removed, box, bound):
+        bounds.append((box, removed, round(bound, 6)))
+        return oracle(removed, box)
+    short = shorten_extraction(plan, oracle, screen=screen)
+    assert short.sequence == ("a", "b", "t")
+    # dropping a: b may risk at most 1 - 0.81 = 0.19 (0.5 loses), so t without a is never asked
+    assert ("b", frozenset(), 0.19) in bounds
+    assert not [x for x in bounds if x[:2] == ("t", frozenset({"b"}))]
 
 
 def test_a_passed_deadline_leaves_the_plan_alone():
