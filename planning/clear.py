@@ -13,8 +13,9 @@ import math
 from typing import Callable, Iterable
 
 from perception.scene import Scene
-from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
+from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline, success_prob
 from planning.plan import StepPrediction
+from planning.shorten import Screen, bounded_replay
 
 
 def visit_order(scene: Scene) -> tuple[str, ...]:
@@ -104,3 +105,18 @@ def _first_alike(best: str, boxes: list[str], removed: frozenset[str], oracle: C
         if oracle(removed, box).risk <= floor + margin + 1e-9:
             return box
     return best
+
+
+def prefer_baseline(result: SearchResult, baseline: Iterable[str], oracle: Oracle, risk: float = 0.0,
+                    *, screen: Screen | None = None) -> SearchResult:
+    """The baseline's order (highest first) instead of an unsafe clearance plan when the physics
+    gives it a higher chance that no step collapses: the search must never hand the operator a
+    plan it predicts worse than the order a person would use. A safe plan is kept as it is."""
+    if result.safe:
+        return result
+    order = tuple(baseline)
+    preds = bounded_replay(order, 0, frozenset(), oracle, screen, None, result.success_prob)
+    if preds is None or success_prob(preds) <= result.success_prob:
+        return result
+    return SearchResult(order, tuple(preds), all(p.risk <= risk for p in preds), result.calls,
+                        result.timed_out)

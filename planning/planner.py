@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from perception.errors import FormatError
 from perception.scene import Scene
-from planning.clear import search_clear, visit_order
+from planning.clear import prefer_baseline, search_clear, visit_order
 from planning.extract import CountingOracle, search_extract, success_prob
 from planning.heuristic import heuristic_order
 from planning.oracle import Predicting, Screening
@@ -76,27 +76,28 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
     deadline = None if budget_s is None else time.monotonic() + budget_s
     # the fast path (docs/speed.md): a Predictor samples a candidate only until it
     # can no longer be safe, and finds the least risky box without sampling all
-    fast = least = None
+    # (`bounded`: the same, with the most risk a step may carry given by the caller)
+    fast = least = bounded = None
     if sampling is not None:
         screen = sampling.screen
 
-        def fast(r: frozenset[str], b: str) -> StepPrediction:
+        def bounded(r: frozenset[str], b: str, bound: float) -> StepPrediction:
             screened.add((frozenset(r), b))
-            return screen(r, b, risk)
+            return screen(r, b, bound)
+
+        def fast(r: frozenset[str], b: str) -> StepPrediction:
+            return bounded(r, b, risk)
         least = sampling.least_risky
     if task == "extract":
         res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
                              screen=fast)
-        bounded = None
-        if sampling is not None:
-            def bounded(r: frozenset[str], b: str, bound: float) -> StepPrediction:
-                screened.add((frozenset(r), b))
-                return sampling.screen(r, b, bound)
         res = shorten_extraction(res, oracle, risk, screen=bounded,
                                  passed=lambda: deadline is not None and time.monotonic() >= deadline)
     else:
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
                            screen=fast, least_risky=least, samples=sampling.worlds if sampling is not None else None)
+        if not res.timed_out:
+            res = prefer_baseline(res, heuristic_order(scene, None), oracle, risk, screen=bounded)
     timing = {"planning_s": time.perf_counter() - t0}
     return (tuple(res.sequence), tuple(res.predicted), res.timed_out, timing,
             len(screened | oracle.keys))

@@ -20,7 +20,7 @@ from planning.plan import StepPrediction
 Screen = Callable[[frozenset[str], str, float], StepPrediction]
 
 
-def _replay(sequence: tuple[str, ...], start: int, removed: frozenset[str], oracle: Oracle,
+def bounded_replay(sequence: tuple[str, ...], start: int, removed: frozenset[str], oracle: Oracle,
             screen: Screen | None, limit: float | None, floor: float) -> list[StepPrediction] | None:
     """Predictions of `sequence[start:]` after `removed`, or None as soon as the candidate cannot
     be kept: a step over `limit` (a safe plan), or a chance of no collapse under `floor` (an
@@ -64,7 +64,7 @@ def shorten_extraction(result: SearchResult, oracle: Oracle, risk: float = 0.0, 
         cand = seq[:i] + seq[i + 1:]
         # an unsafe plan: the candidate's later steps must keep prod(1 - r) >= the plan's
         floor = success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
-        tail = _replay(cand, i, frozenset(seq[:i]), oracle, screen, risk if safe else None, floor)
+        tail = bounded_replay(cand, i, frozenset(seq[:i]), oracle, screen, risk if safe else None, floor)
         if tail is None:
             continue
         new = preds[:i] + tuple(tail)

@@ -7,7 +7,8 @@ import pytest
 
 from fake_oracles import STILL, SupportGraph, risky, table_oracle
 from perception.scene import Box, Scene, Shelf
-from planning.clear import search_clear, visit_order
+from planning.clear import prefer_baseline, search_clear, visit_order
+from planning.extract import SearchResult
 from planning.plan import StepPrediction
 
 
@@ -105,3 +106,20 @@ def test_after_each_pull_the_visit_starts_again_from_the_top():
     def trial(removed, box):
         return StepPrediction(box, 1.0 if box == "a" and "b" not in removed else 0.0, 0.0, ())
     assert search_clear(["a", "b", "c"], trial).sequence == ("b", "a", "c")
+
+
+def test_an_unsafe_plan_gives_way_to_the_baseline_order_when_that_is_predicted_likelier_to_hold():
+    # the search's order pulls b (low) first: risk 0.3; the baseline's top-down a, b: 0.1 then 0
+    def rules(removed, box):
+        if box == "b":
+            return (0.0, ()) if "a" in removed else (0.3, ("a",))
+        return (0.1, ("x",))
+    oracle = table_oracle(rules)
+    plan = SearchResult(("b", "a"), (oracle(frozenset(), "b"), oracle(frozenset({"b"}), "a")), False)
+    better = prefer_baseline(plan, ["a", "b"], oracle)
+    assert better.sequence == ("a", "b") and better.success_prob == pytest.approx(0.9)
+    # a baseline no likelier to hold, or a safe plan, leaves the plan alone
+    worse = SearchResult(("a", "b"), (oracle(frozenset(), "a"), oracle(frozenset({"a"}), "b")), False)
+    assert prefer_baseline(worse, ["b", "a"], oracle) is worse
+    safe = SearchResult(("b", "a"), (StepPrediction("b", 0.0), StepPrediction("a", 0.0)), True)
+    assert prefer_baseline(safe, ["a", "b"], oracle) is safe
