@@ -99,16 +99,21 @@ def evidence(mask: np.ndarray, points: np.ndarray, valid: np.ndarray, inside: np
     return FaceEvidence(n, k / n, abs(float(normal[1])), share)
 
 
-def keep_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
-               cfg: GateConfig = GateConfig(), seed: int = 0) -> list[np.ndarray]:
-    """The instances the depth confirms as front faces (see the module docstring), in order."""
+def _judged(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf, cfg: GateConfig,
+            seed: int) -> list[tuple[np.ndarray, FaceEvidence]]:
+    """Each mask with the depth's evidence on it (the frame's points computed once)."""
     if not masks:
         return []
     points = point_map(camera, depth)
     valid = np.isfinite(depth) & (depth > 0)
     inside = inside_shelf(points, shelf, cfg.wall_margin)
-    return [m for m in masks
-            if evidence(m, points, valid, inside, cfg, np.random.default_rng(seed)).is_face(cfg)]
+    return [(m, evidence(m, points, valid, inside, cfg, np.random.default_rng(seed))) for m in masks]
+
+
+def keep_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
+               cfg: GateConfig = GateConfig(), seed: int = 0) -> list[np.ndarray]:
+    """The instances the depth confirms as front faces (see the module docstring), in order."""
+    return [m for m, ev in _judged(masks, depth, camera, shelf, cfg, seed) if ev.is_face(cfg)]
 
 
 def plausible_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
@@ -117,14 +122,5 @@ def plausible_faces(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, 
     required (enough points inside the shelf for a plane) and most points (`min_on_plane`) on
     that plane. Why: for a region the RGB network saw nothing in, there is no colour evidence
     of a face to fall back on, so the depth alone must show a flat facing surface."""
-    if not masks:
-        return []
-    points = point_map(camera, depth)
-    valid = np.isfinite(depth) & (depth > 0)
-    inside = inside_shelf(points, shelf, cfg.wall_margin)
-    out = []
-    for m in masks:
-        ev = evidence(m, points, valid, inside, cfg, np.random.default_rng(seed))
-        if ev.normal_cos is not None and ev.is_face(cfg) and (ev.on_plane or 0.0) >= cfg.min_on_plane:
-            out.append(m)
-    return out
+    return [m for m, ev in _judged(masks, depth, camera, shelf, cfg, seed)
+            if ev.normal_cos is not None and ev.is_face(cfg) and (ev.on_plane or 0.0) >= cfg.min_on_plane]

@@ -62,15 +62,12 @@ def shorten_extraction(result: SearchResult, oracle: Oracle, risk: float = 0.0, 
         if passed():
             break
         cand = seq[:i] + seq[i + 1:]
-        # an unsafe plan: the candidate's later steps must keep prod(1 - r) >= the plan's
-        floor = success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
+        # an unsafe plan: the candidate's later steps must keep prod(1 - r) >= the plan's, so the
+        # replay's per-step bounds already make a returned tail no worse than the plan
+        floor = 0.0 if safe else success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
         tail = bounded_replay(cand, i, frozenset(seq[:i]), oracle, screen, risk if safe else None, floor)
-        if tail is None:
-            continue
-        new = preds[:i] + tuple(tail)
-        if (all(p.risk <= risk for p in new) if safe
-                else success_prob(new) >= success_prob(preds) - 1e-12):
-            seq, preds = cand, new
+        if tail is not None:
+            seq, preds = cand, preds[:i] + tuple(tail)
     if len(seq) == len(result.sequence):
         return result
     return SearchResult(seq, preds, all(p.risk <= risk for p in preds), result.calls, result.timed_out)
