@@ -193,6 +193,9 @@ class LearnedConfig:
     add_unseen: float = 0.8        # RGB-D: a depth-and-edge mask lying at least this much outside
     #                                every network instance (gated or not) is added when the depth
     #                                says it is a planar front face (`face_gate.plausible_faces`; 0: off)
+    grow_inside: float = 0.8       # RGB-D: an unmatched instance lying at least this much inside one
+    #                                unused depth-and-edge mask that holds no other instance takes
+    #                                that mask (a partial face grown to its depth edges; 0: off)
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -269,6 +272,31 @@ def split_merged(masks: list[np.ndarray], rules: list[np.ndarray], snapped: set[
     return out
 
 
+def grow_partial(masks: list[np.ndarray], rules: list[np.ndarray], snapped: set[int], used: set[int],
+                 inside: float, other: float = 0.1) -> dict[int, int]:
+    """{instance: rules mask} for instances the network gave only part of a face: an instance
+    not snapped that lies at least `inside` of its pixels within one unused depth-and-edge mask,
+    where that mask holds no more than `other` of any other instance. Why: the network's interior
+    can stop short of a face's edge (a long box upright, a face beside a proud box) and differ
+    from one look to the next; the rules end a face where the depth and edges do. A rules mask
+    that also holds another instance may be two boxes the rules merged: left to the network."""
+    out: dict[int, int] = {}
+    free = [j for j in range(len(rules)) if j not in used]
+    for i, m in enumerate(masks):
+        n = int(m.sum())
+        if i in snapped or not n:
+            continue
+        for j in free:
+            r = rules[j]
+            if j in out.values() or (r & m).sum() < inside * n:
+                continue
+            if any(k != i and (r & o).sum() > other * o.sum() for k, o in enumerate(masks)):
+                continue
+            out[i] = j
+            break
+    return out
+
+
 def unseen_faces(rules: list[np.ndarray], used: set[int], seen: np.ndarray, outside: float) -> list[int]:
     """Indices of the unused depth-and-edge masks that lie at least `outside` of their pixels
     where the network has no instance at all (`seen`: the union of its instances before the depth
@@ -316,7 +344,8 @@ class LearnedSegmenter:
     def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray,
              seen: np.ndarray | None = None) -> list[np.ndarray]:
         """Each instance that a depth-and-edge mask matches (IoU >= snap_iou, one to one) takes
-        that mask's outline; instances holding several such masks are split into them; masks
+        that mask's outline; an instance lying inside an unused mask that holds no other instance
+        grows to it (`grow_partial`); instances holding several such masks are split into them; masks
         where the network saw nothing are added when the depth makes them faces (`seen`: the
         network's instances before the gate; needs `bind`: the depth is judged in the shelf
         frame); later masks lose pixels already taken."""
@@ -326,8 +355,15 @@ class LearnedSegmenter:
         for i, j, _ in pairs:
             out[i] = rules[j]
         used = {j for _, j, _ in pairs}
+        snapped = {i for i, _, _ in pairs}
+        if self.config.grow_inside > 0:
+            grown = grow_partial(out, rules, snapped, used, self.config.grow_inside)
+            for i, j in grown.items():
+                out[i] = rules[j]
+            used |= set(grown.values())
+            snapped |= set(grown)
         if self.config.split_inside > 0:
-            out = split_merged(out, rules, {i for i, _, _ in pairs}, used, self.config.split_inside)
+            out = split_merged(out, rules, snapped, used, self.config.split_inside)
             used |= {j for j, r in enumerate(rules) if any(m is r for m in out)}
         if self.config.add_unseen > 0 and rules and self.camera is not None and self.shelf is not None:
             covered = np.logical_or.reduce([*out, seen if seen is not None else np.zeros(rgb.shape[:2], bool)])

@@ -178,6 +178,30 @@ def test_auto_takes_the_learned_segmenter_for_rgbd_when_it_can(monkeypatch, tmp_
     assert isinstance(for_capture(AutoSegmenter(), True), DepthEdgeSegmenter)
 
 
+def test_a_partial_instance_grows_to_the_rule_face_it_lies_in():
+    """Issue 14 (closed-loop false holds): the network's interior can stop short of a face's
+    edge, and differ from one look to the next; an instance lying inside one unused
+    depth-and-edge mask takes that mask, unless the mask also holds another instance (two boxes
+    the rules merged), the instance was snapped, or the mask is used."""
+    from perception.segment_learned import grow_partial
+
+    def rect(r0, r1, c0, c1):
+        m = np.zeros((40, 60), bool)
+        m[r0:r1, c0:c1] = True
+        return m
+
+    face = rect(0, 20, 0, 40)
+    part = rect(2, 18, 0, 22)                       # the left half of the face
+    other = rect(25, 35, 0, 60)
+    assert grow_partial([part, other], [face], set(), set(), inside=0.8) == {0: 0}
+    assert grow_partial([part, other], [face], {0}, set(), 0.8) == {}              # snapped
+    assert grow_partial([part, other], [face], set(), {0}, 0.8) == {}              # used
+    beside = rect(2, 18, 24, 40)                    # a second instance in the same rules mask
+    assert grow_partial([part, beside], [face], set(), set(), 0.8) == {}
+    spilling = rect(2, 18, 30, 60)                  # 10/30 of its columns inside the face
+    assert grow_partial([spilling], [face], set(), set(), 0.8) == {}
+
+
 def test_an_instance_holding_two_rule_faces_is_split_into_them():
     """Issue 14: boxes the network merged (flush cartons of one colour) are split where the
     depth-and-edge masks lying inside the instance say; one face inside, faces sticking out, or
