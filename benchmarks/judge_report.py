@@ -69,6 +69,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--limit", type=int, default=None, help="only the first N tasks (after --tasks)")
     ap.add_argument("--samples", type=int, default=None, help="make_plan samples (default: shelfpick plan's)")
     ap.add_argument("--risk", type=float, default=None, help="make_plan risk (default: shelfpick plan's)")
+    ap.add_argument("--physics", default=None,
+                    help="JSON of PhysicsConfig fields for the planner's worlds (a lever to measure; default none)")
     ap.add_argument("--jobs", type=int, default=1, help="processes over tasks (spawned; default 1)")
     ap.add_argument("--out", default=None, help="rows (JSONL); the report goes to <out>.md, the plot to <out>.png")
     ap.add_argument("--resume", action="store_true", help="keep rows already in --out made with the same settings")
@@ -102,6 +104,13 @@ def check_args(a: argparse.Namespace) -> tuple[list[float], list[str], list[str]
             raise UsageError(f"--judge-dir: {judge_dir} has no {f} (the independent judge's folder)")
     if a.resume and not a.out:
         raise UsageError("--resume: needs --out (the rows to continue)")
+    if a.physics is not None:
+        from planning.physics import PhysicsConfig
+        try:
+            fields = json.loads(a.physics)
+            PhysicsConfig(**fields)
+        except (ValueError, TypeError):
+            raise UsageError(f"--physics: expected a JSON object of PhysicsConfig fields, got {a.physics!r}") from None
     engines = list(ENGINES) if a.engine == "both" else [a.engine]
     return noises, planners, engines
 
@@ -114,7 +123,8 @@ def build_units(a: argparse.Namespace, noises: list[float], planners: list[str],
     if a.task == "clear":
         tasks = clear_tasks(tasks)
     tasks = tasks[:a.limit] if a.limit is not None else tasks
-    settings = cli_plan_settings({"samples": a.samples, "risk": a.risk})
+    settings = cli_plan_settings({"samples": a.samples, "risk": a.risk,
+                                  "physics": json.loads(a.physics) if a.physics else None})
     ident = {"plan": settings, "engines": engines, **({"see_truth": True} if a.see_truth else {})}
     settings_id = json.dumps(ident, sort_keys=True)
     units = [{"task": t, "noise": n, "planner": p, "engines": engines, "settings": settings,

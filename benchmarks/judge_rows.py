@@ -109,8 +109,12 @@ def make_timed_plan(obs: dict, target: str | None, planner: str, settings: dict)
     """make_plan on the observed scene, in this process; (plan fields for the row, plan document)."""
     from perception.errors import ShelfpickError
     from perception.scene import Scene
+    from planning.physics import PhysicsConfig
     from planning.planner import make_plan
 
+    settings = dict(settings)
+    if settings.get("physics"):
+        settings["config"] = PhysicsConfig(**settings.pop("physics"))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()

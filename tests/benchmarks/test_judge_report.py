@@ -62,6 +62,8 @@ def test_bad_arguments_exit_2(capsys) -> None:
     assert "--noise" in capsys.readouterr().err
     assert jr.main(["--judge-dir", str(ROOT)]) == 2
     assert "--judge-dir" in capsys.readouterr().err
+    assert jr.main(["--physics", '{"no_such_field": 1}']) == 2
+    assert "--physics" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
