@@ -20,6 +20,7 @@ from planning.heuristic import heuristic_order
 from planning.oracle import Predicting, Screening
 from planning.plan import PLANNERS, TASKS, Plan, StepPrediction
 from planning.predict import Predictor
+from planning.reorder import reorder_extraction
 from planning.shorten import shorten_extraction
 from planning.uncertainty import Uncertainty
 
@@ -91,8 +92,9 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
     if task == "extract":
         res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
                              screen=fast)
-        res = shorten_extraction(res, oracle, risk, screen=bounded,
-                                 passed=lambda: deadline is not None and time.monotonic() >= deadline)
+        passed = (lambda: deadline is not None and time.monotonic() >= deadline)
+        res = shorten_extraction(res, oracle, risk, screen=bounded, passed=passed)
+        res = reorder_extraction(res, scene, oracle, risk, screen=bounded, passed=passed)
     else:
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
                            screen=fast, least_risky=least, samples=sampling.worlds if sampling is not None else None)

@@ -1,0 +1,47 @@
+"""Take an unsafe extraction plan's blockers from the top down when that is predicted better.
+
+Algorithm 1 pulls blockers in the order the failed pulls moved them: the first
+collapser first. Where a blocker still carries another box, that order pulls a
+box from under a load; the plans that held on the independent judge where ours
+collapsed were often the same boxes taken highest first. This pass asks the
+oracle about one other order of the same boxes: the blockers highest top first
+(`heuristic.height_key`, the order a person clears a stack in), then the
+target. It is kept only when the physics predicts it a higher chance that no
+step collapses. A safe plan is left as it is; the pass never adds or drops a box.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from perception.scene import Scene
+from planning.extract import Oracle, SearchResult, success_prob
+from planning.heuristic import height_key
+from planning.shorten import Screen, bounded_replay
+
+
+def top_first(scene: Scene, sequence: tuple[str, ...]) -> tuple[str, ...]:
+    """The blockers of `sequence` (all but its last box) highest first, then the target."""
+    boxes = {b.id: b for b in scene.boxes}
+    return tuple(sorted(sequence[:-1], key=lambda i: height_key(boxes[i]))) + sequence[-1:]
+
+
+def reorder_extraction(result: SearchResult, scene: Scene, oracle: Oracle, risk: float = 0.0, *,
+                       screen: Screen | None = None,
+                       passed: Callable[[], bool] = lambda: False) -> SearchResult:
+    """`result` with its blockers taken top first, when that order is predicted likelier to go
+    without a collapse (`screen` bounds each step as in `shorten`; `passed()` True skips)."""
+    seq, preds = tuple(result.sequence), tuple(result.predicted)
+    if len(seq) < 3 or all(p.risk <= risk for p in preds) or passed():
+        return result
+    cand = top_first(scene, seq)
+    if cand == seq:
+        return result
+    i = next(k for k, (a, b) in enumerate(zip(seq, cand)) if a != b)
+    floor = success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
+    tail = bounded_replay(cand, i, frozenset(seq[:i]), oracle, screen, None, floor)
+    if tail is None:
+        return result
+    new = preds[:i] + tuple(tail)
+    if success_prob(new) <= success_prob(preds) + 1e-9:
+        return result   # a tie keeps the search's order
+    return SearchResult(cand, new, all(p.risk <= risk for p in new), result.calls, result.timed_out)
