@@ -1,0 +1,119 @@
+"""Which of the judge's tasks can any plan hold? A search with the judge itself as the oracle.
+
+A diagnostic of the target, not a planner: for each task it judges, on the TRUE shelf with the
+independent judge's pybullet engine (../shared/judge, imported at run time, never copied), the
+plans "remove these k boxes top first, then the target" for k = 0, 1, ... --max-remove over the
+--candidates boxes nearest the target that are not wholly below it, and stops at the first plan
+that holds. A plan found proves the task solvable; none found says only that no plan of that
+shape holds. The count of tasks proven solvable bounds what any planner can reach from above only
+where the search is exhaustive (the judge's own `min_removals` tasks); elsewhere it is a floor on
+the ceiling, reported beside the tasks that no plan of ours ever held.
+
+    .venv/bin/python benchmarks/judge_ceiling.py --tasks s03:b0,u06:b2 --out ceiling.jsonl
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.judge_rows import UsageError, init_worker, iter_rows, load_tasks  # noqa: E402
+
+
+def candidates(scene: dict, target: str, n: int) -> list[str]:
+    """The `n` boxes nearest the target (centre distance) whose top is above its bottom."""
+    boxes = {b["id"]: b for b in scene["boxes"]}
+    t = boxes[target]
+    bottom = t["position"][2] - t["size"][2] / 2
+
+    def dist(b: dict) -> float:
+        return sum((p - q) ** 2 for p, q in zip(b["position"], t["position"])) ** 0.5
+    above = [b for b in scene["boxes"] if b["id"] != target and b["position"][2] + b["size"][2] / 2 > bottom + 0.01]
+    return [b["id"] for b in sorted(above, key=dist)[:n]]
+
+
+def plans(scene: dict, target: str, n: int, k_max: int) -> list[list[str]]:
+    """Every removal set up to `k_max` of the candidates, top first, then the target; smallest first."""
+    z = {b["id"]: b["position"][2] for b in scene["boxes"]}
+    cand = candidates(scene, target, n)
+    out = []
+    for k in range(k_max + 1):
+        for subset in itertools.combinations(cand, k):
+            out.append(sorted(subset, key=lambda i: -z[i]) + [target])
+    return out
+
+
+def search_task(unit: dict) -> dict:
+    """Judge the task's plans in order until one holds."""
+    init_worker(unit["judge_dir"])
+    from judge import judge
+
+    task = unit["task"]
+    scene = json.loads((Path(unit["judge_dir"]) / "scenes" / f"{task['scene']}.json").read_text(encoding="utf-8"))
+    t0 = time.perf_counter()
+    tried = 0
+    for seq in plans(scene, task["target"], unit["candidates"], unit["max_remove"]):
+        tried += 1
+        v = judge(scene, {"format": "shelfpick.plan/1", "task": "extract", "target": task["target"],
+                          "sequence": seq}, stop_on_collapse=True)
+        if v["ok"]:
+            return {"task": f"{task['scene']}:{task['target']}", "found": seq, "tried": tried,
+                    "s": round(time.perf_counter() - t0, 1)}
+    return {"task": f"{task['scene']}:{task['target']}", "found": None, "tried": tried,
+            "s": round(time.perf_counter() - t0, 1)}
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--judge-dir", default=str(ROOT.parent / "shared" / "judge"))
+    ap.add_argument("--tasks", default="all", help="as judge_report.py --tasks")
+    ap.add_argument("--candidates", type=int, default=7, help="boxes nearest the target to remove from")
+    ap.add_argument("--max-remove", type=int, default=3, help="largest removal set tried")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--out", default=None, help="rows (JSONL)")
+    return ap.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    a = parse_args(argv)
+    try:
+        if a.candidates < 0 or a.max_remove < 0 or a.jobs < 1:
+            raise UsageError(f"--candidates, --max-remove, --jobs: expected counts, got "
+                             f"{a.candidates}, {a.max_remove}, {a.jobs}")
+        judge_dir = str(Path(a.judge_dir).resolve())
+        if not (Path(judge_dir) / "judge.py").is_file():
+            raise UsageError(f"--judge-dir: {judge_dir} has no judge.py (the independent judge's folder)")
+        tasks = load_tasks(Path(judge_dir), a.tasks, None)
+    except UsageError as exc:
+        print(f"judge_ceiling: {exc}", file=sys.stderr)
+        return 2
+    units = [{"task": t, "judge_dir": judge_dir, "candidates": a.candidates, "max_remove": a.max_remove}
+             for t in tasks]
+    rows = []
+    out = open(a.out, "w", encoding="utf-8") if a.out else None
+    try:
+        for i, row in enumerate(iter_rows(units, a.jobs, search_task), 1):
+            rows.append(row)
+            print(f"[{i}/{len(units)}] {row['task']}: {'holds: ' + ' '.join(row['found']) if row['found'] else 'none'}"
+                  f" ({row['tried']} plans, {row['s']} s)", file=sys.stderr, flush=True)
+            if out:
+                out.write(json.dumps(row) + "\n")
+                out.flush()
+    finally:
+        if out:
+            out.close()
+    found = sum(r["found"] is not None for r in rows)
+    print(f"judge_ceiling: a plan of {a.max_remove} removals or fewer among the {a.candidates} nearest boxes "
+          f"holds on {found} of {len(rows)} tasks")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
