@@ -2,24 +2,13 @@
 by the independent judge (../shared/judge, imported at run time)."""
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+from bench_scripts import JUDGE, ROOT, load
 
-ROOT = Path(__file__).resolve().parents[2]
-JUDGE = ROOT.parent / "shared" / "judge"
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location("judge_ceiling", ROOT / "benchmarks" / "judge_ceiling.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-jc = _module()
+jc = load("judge_ceiling")
 
 
 def _box(i, x, z, h=0.2):

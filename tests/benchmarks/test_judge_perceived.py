@@ -2,24 +2,13 @@
 perceived, planned twice and judged by the independent judge (../shared/judge, imported at run time)."""
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+from bench_scripts import JUDGE, ROOT, load
 
-ROOT = Path(__file__).resolve().parents[2]
-JUDGE = ROOT.parent / "shared" / "judge"
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location("judge_perceived", ROOT / "benchmarks" / "judge_perceived.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-jp = _module()
+jp = load("judge_perceived")
 
 
 def test_translate_keeps_steps_aligned_and_flags_boxes_that_are_no_true_box() -> None:

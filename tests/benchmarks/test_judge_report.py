@@ -2,24 +2,13 @@
 by the independent judge (../shared/judge, imported at run time) with both engines."""
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+from bench_scripts import JUDGE, ROOT, load
 
-ROOT = Path(__file__).resolve().parents[2]
-JUDGE = ROOT.parent / "shared" / "judge"
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location("judge_report", ROOT / "benchmarks" / "judge_report.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-jr = _module()
+jr = load("judge_report")
 
 
 def _row(scene, risks, collapses, ok, safe, min_removals=None, exhaustive=False, planner="physics"):
