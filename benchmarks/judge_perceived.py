@@ -24,7 +24,6 @@ with the same settings) and `<out>.md` (the summary, also printed).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 import json
 import sys
@@ -38,8 +37,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.judge_rows import (TASK_FILTERS, UsageError, cli_plan_settings,  # noqa: E402
-                                   iter_rows, judged, load_tasks, make_timed_plan, observe_seed, read_rows,
-                                   run_unit)
+                                   collect_rows, judged, kept_rows, load_tasks, make_timed_plan,
+                                   observe_seed, run_unit)
 from benchmarks.judge_summary import ENGINES, engine_summary, percentile  # noqa: E402
 
 SEGMENTER = "auto"
@@ -191,24 +190,14 @@ def run_task(unit: dict) -> dict:
 
 
 def collect(rows: list[dict], todo: Sequence[dict], jobs: int, out: Path | None) -> None:
-    """Run `todo` with a progress bar, appending rows; `out` is rewritten with the kept rows and gets
-    each new row flushed as it finishes, so a stopped run can be resumed."""
+    """`judge_rows.collect_rows` over `run_task`, with a progress bar."""
     from tqdm import tqdm
 
-    if out:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    with (open(out, "w", encoding="utf-8") if out else contextlib.nullcontext()) as f, \
-            tqdm(total=len(todo), desc="tasks", file=sys.stderr, dynamic_ncols=True) as bar:
-        if f:
-            f.writelines(json.dumps(r) + "\n" for r in rows)
-            f.flush()
-        for row in iter_rows(todo, jobs, run_task) if todo else ():
-            rows.append(row)
-            if f:
-                f.write(json.dumps(row) + "\n")
-                f.flush()
+    with tqdm(total=len(todo), desc="tasks", file=sys.stderr, dynamic_ncols=True) as bar:
+        def shown(row: dict) -> None:
             bar.set_postfix_str(f"{row['scene']}:{row['target']} {_verdicts(row)}")
             bar.update()
+        collect_rows(rows, todo, jobs, out, run_task, shown)
 
 
 def _verdicts(row: dict) -> str:
@@ -303,10 +292,7 @@ def run(a: argparse.Namespace) -> dict:
     engines = check_args(a)
     units, settings_id = build_units(a, engines)
     out = Path(a.out) if a.out else None
-    rows: list[dict] = []
-    if out and a.resume:
-        wanted = {task_key(u["task"]) for u in units}
-        rows = [r for r in read_rows(out) if r.get("settings") == settings_id and r["key"] in wanted]
+    rows = kept_rows(out, a.resume, settings_id, {task_key(u["task"]) for u in units})
     done = {r["key"] for r in rows}
     todo = [u for u in units if task_key(u["task"]) not in done]
     print(f"judge_perceived: {len(units)} tasks, engines {'+'.join(engines)}; {len(rows)} rows kept, "

@@ -44,7 +44,7 @@ if str(ROOT) not in sys.path:
 from benchmarks.judge_markdown import to_markdown  # noqa: E402
 from benchmarks.judge_plot import plot  # noqa: E402
 from benchmarks.judge_rows import (TASK_FILTERS, UsageError, cli_plan_settings, collect_rows,  # noqa: E402
-                                   clear_tasks, load_tasks, read_rows, row_key, run_unit)
+                                   clear_tasks, kept_rows, load_tasks, read_rows, row_key, run_unit)
 from benchmarks.judge_summary import (ENGINES, RISK_BINS, engine_agreement, engine_summary,  # noqa: E402
                                       evaluate_line, percentile, reliability, risk_bin, summarize)
 
@@ -141,10 +141,7 @@ def run(a: argparse.Namespace) -> dict:
     units, settings_id = build_units(a, noises, planners, engines)
     out = Path(a.out) if a.out else None
     keys = {u["task"]["scene"] + ":" + (u["task"]["target"] or "clear") for u in units}
-    rows: list[dict] = []
-    if out and a.resume:
-        wanted = {row_key(u["noise"], u["planner"], u["task"]) for u in units}
-        rows = [r for r in read_rows(out) if r.get("settings") == settings_id and r["key"] in wanted]
+    rows = kept_rows(out, a.resume, settings_id, {row_key(u["noise"], u["planner"], u["task"]) for u in units})
     done = {r["key"] for r in rows}
     todo = [u for u in units if row_key(u["noise"], u["planner"], u["task"]) not in done]
     print(f"judge_report: {len(keys)} tasks x {len(noises)} noise x {len(planners)} planners, engines "

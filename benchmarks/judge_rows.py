@@ -190,6 +190,13 @@ def read_rows(path: Path) -> list[dict]:
     return list(rows.values())
 
 
+def kept_rows(out: Path | None, resume: bool, settings_id: str, wanted: set[str]) -> list[dict]:
+    """The rows in `out` that `--resume` keeps: made with the same settings, for a wanted key."""
+    if not (out and resume):
+        return []
+    return [r for r in read_rows(out) if r.get("settings") == settings_id and r["key"] in wanted]
+
+
 def iter_rows(units: Sequence[dict], jobs: int, work: Callable[[dict], dict] | None = None) -> Iterator[dict]:
     """Rows as units finish: in this process, or in `jobs` spawned processes (no forked PyBullet).
     `work` (default run_unit; an importable module-level function) makes one unit's row."""
@@ -211,9 +218,20 @@ def _write(f: TextIO | None, row: dict) -> None:
         f.flush()
 
 
-def collect_rows(rows: list[dict], todo: Sequence[dict], jobs: int, out: Path | None) -> None:
-    """Run `todo`, appending each row to `rows` as it finishes; `out` (when given) is rewritten with the
-    kept rows first and gets every new row flushed at once, so a stopped run can be resumed."""
+def collect_rows(rows: list[dict], todo: Sequence[dict], jobs: int, out: Path | None,
+                 work: Callable[[dict], dict] | None = None,
+                 on_row: Callable[[dict], None] | None = None) -> None:
+    """Run `todo` (`work`, default run_unit), appending each row to `rows` as it finishes; `out`
+    (when given) is rewritten with the kept rows first and gets every new row flushed at once, so
+    a stopped run can be resumed. `on_row(row)` shows progress (default: a line per row)."""
+    count = iter(range(1, len(todo) + 1))
+
+    def line(row: dict) -> None:
+        oks = " ".join(f"{e}={'ok' if v['ok'] else 'FAIL'}" for e, v in row["judges"].items())
+        print(f"[{next(count)}/{len(todo)}] {row['key']} plan {row['plan_s']:.2f}s "
+              f"{'safe' if row.get('declared_safe') else 'UNSAFE'} {oks or row.get('error', '')}",
+              file=sys.stderr, flush=True)
+    on_row = on_row or line
     f = None
     if out:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -222,13 +240,10 @@ def collect_rows(rows: list[dict], todo: Sequence[dict], jobs: int, out: Path | 
             f.write(json.dumps(r) + "\n")
         f.flush()
     try:
-        for i, row in enumerate(iter_rows(todo, jobs) if todo else (), start=1):
+        for row in iter_rows(todo, jobs, work) if todo else ():
             rows.append(row)
             _write(f, row)
-            oks = " ".join(f"{e}={'ok' if v['ok'] else 'FAIL'}" for e, v in row["judges"].items())
-            print(f"[{i}/{len(todo)}] {row['key']} plan {row['plan_s']:.2f}s "
-                  f"{'safe' if row.get('declared_safe') else 'UNSAFE'} {oks or row.get('error', '')}",
-                  file=sys.stderr, flush=True)
+            on_row(row)
     finally:
         if f:
             f.close()

@@ -13,9 +13,9 @@ import math
 from typing import Callable, Iterable
 
 from perception.scene import Scene
-from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline, success_prob
+from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
 from planning.plan import StepPrediction
-from planning.shorten import Screen, bounded_replay
+from planning.shorten import Screen, alternative
 
 
 def visit_order(scene: Scene) -> tuple[str, ...]:
@@ -114,9 +114,7 @@ def prefer_baseline(result: SearchResult, baseline: Iterable[str], oracle: Oracl
     plan it predicts worse than the order a person would use. A safe plan is kept as it is."""
     if result.safe:
         return result
-    order = tuple(baseline)
-    preds = bounded_replay(order, 0, frozenset(), oracle, screen, None, result.success_prob)
-    if preds is None or success_prob(preds) <= result.success_prob:
+    new = alternative(result, tuple(baseline), 0, oracle, risk, screen)
+    if new is None or new.success_prob <= result.success_prob:
         return result
-    return SearchResult(order, tuple(preds), all(p.risk <= risk for p in preds), result.calls,
-                        result.timed_out)
+    return new

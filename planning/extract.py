@@ -53,6 +53,12 @@ class SearchResult:
         """Predicted chance that no step collapses (steps taken as independent)."""
         return success_prob(self.predicted)
 
+    def replaced(self, sequence: tuple[str, ...], predicted: tuple[StepPrediction, ...],
+                 risk: float) -> "SearchResult":
+        """Another plan found by the same search (its calls, its deadline), safe at `risk` or not."""
+        return SearchResult(tuple(sequence), tuple(predicted), all(p.risk <= risk for p in predicted),
+                            self.calls, self.timed_out)
+
 
 def success_prob(predicted: Iterable[StepPrediction]) -> float:
     """prod(1 - risk) over the steps: how the fallback ranks unsafe plans."""

@@ -14,9 +14,9 @@ from __future__ import annotations
 from typing import Callable
 
 from perception.scene import Scene
-from planning.extract import Oracle, SearchResult, success_prob
+from planning.extract import Oracle, SearchResult
 from planning.heuristic import height_key
-from planning.shorten import Screen, bounded_replay
+from planning.shorten import Screen, alternative
 
 
 def top_first(scene: Scene, sequence: tuple[str, ...]) -> tuple[str, ...]:
@@ -30,18 +30,14 @@ def reorder_extraction(result: SearchResult, scene: Scene, oracle: Oracle, risk:
                        passed: Callable[[], bool] = lambda: False) -> SearchResult:
     """`result` with its blockers taken top first, when that order is predicted likelier to go
     without a collapse (`screen` bounds each step as in `shorten`; `passed()` True skips)."""
-    seq, preds = tuple(result.sequence), tuple(result.predicted)
-    if len(seq) < 3 or all(p.risk <= risk for p in preds) or passed():
+    seq = tuple(result.sequence)
+    if len(seq) < 3 or result.safe or passed():
         return result
     cand = top_first(scene, seq)
     if cand == seq:
         return result
-    i = next(k for k, (a, b) in enumerate(zip(seq, cand)) if a != b)
-    floor = success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
-    tail = bounded_replay(cand, i, frozenset(seq[:i]), oracle, screen, None, floor)
-    if tail is None:
-        return result
-    new = preds[:i] + tuple(tail)
-    if success_prob(new) <= success_prob(preds) + 1e-9:
+    start = next(k for k, (a, b) in enumerate(zip(seq, cand)) if a != b)
+    new = alternative(result, cand, start, oracle, risk, screen)
+    if new is None or new.success_prob <= result.success_prob + 1e-9:
         return result   # a tie keeps the search's order
-    return SearchResult(cand, new, all(p.risk <= risk for p in new), result.calls, result.timed_out)
+    return new

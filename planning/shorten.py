@@ -46,6 +46,20 @@ def bounded_replay(sequence: tuple[str, ...], start: int, removed: frozenset[str
     return out
 
 
+def alternative(result: SearchResult, cand: tuple[str, ...], start: int, oracle: Oracle, risk: float,
+                screen: Screen | None = None) -> SearchResult | None:
+    """`result` with `cand` from step `start` on (the steps before are the same boxes), or None
+    when the physics predicts it worse: for a safe plan a step over `risk`, for an unsafe one a
+    lower chance that no step collapses (the replay stops at the first step that decides it)."""
+    preds = tuple(result.predicted)
+    safe = all(p.risk <= risk for p in preds)
+    # an unsafe plan: the candidate's later steps must keep prod(1 - r) >= the plan's, so the
+    # replay's per-step bounds already make a returned tail no worse than the plan
+    floor = 0.0 if safe else success_prob(preds) / max(success_prob(preds[:start]), 1e-12)
+    tail = bounded_replay(cand, start, frozenset(cand[:start]), oracle, screen, risk if safe else None, floor)
+    return None if tail is None else result.replaced(cand, preds[:start] + tuple(tail), risk)
+
+
 def shorten_extraction(result: SearchResult, oracle: Oracle, risk: float = 0.0, *,
                        screen: Screen | None = None,
                        passed: Callable[[], bool] = lambda: False) -> SearchResult:
@@ -56,18 +70,10 @@ def shorten_extraction(result: SearchResult, oracle: Oracle, risk: float = 0.0, 
     as soon as it cannot; every kept step carries the full ``oracle`` prediction.
     ``passed()`` True stops the pass (the search's deadline).
     """
-    seq, preds = tuple(result.sequence), tuple(result.predicted)
-    safe = all(p.risk <= risk for p in preds)
-    for i in range(len(seq) - 2, -1, -1):
+    out = result
+    for i in range(len(result.sequence) - 2, -1, -1):
         if passed():
             break
-        cand = seq[:i] + seq[i + 1:]
-        # an unsafe plan: the candidate's later steps must keep prod(1 - r) >= the plan's, so the
-        # replay's per-step bounds already make a returned tail no worse than the plan
-        floor = 0.0 if safe else success_prob(preds) / max(success_prob(preds[:i]), 1e-12)
-        tail = bounded_replay(cand, i, frozenset(seq[:i]), oracle, screen, risk if safe else None, floor)
-        if tail is not None:
-            seq, preds = cand, preds[:i] + tuple(tail)
-    if len(seq) == len(result.sequence):
-        return result
-    return SearchResult(seq, preds, all(p.risk <= risk for p in preds), result.calls, result.timed_out)
+        seq = out.sequence
+        out = alternative(out, seq[:i] + seq[i + 1:], i, oracle, risk, screen) or out
+    return result if out.sequence == tuple(result.sequence) else out
