@@ -69,6 +69,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--limit", type=int, default=None, help="only the first N tasks (after --tasks)")
     ap.add_argument("--samples", type=int, default=None, help="make_plan samples (default: shelfpick plan's)")
     ap.add_argument("--risk", type=float, default=None, help="make_plan risk (default: shelfpick plan's)")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="make_plan seed (default: shelfpick plan's): rerun with others to see how many "
+                         "verdicts the draws alone change")
     ap.add_argument("--physics", default=None,
                     help="JSON of PhysicsConfig fields for the planner's worlds (a lever to measure; default none)")
     ap.add_argument("--jobs", type=int, default=1, help="processes over tasks (spawned; default 1)")
@@ -123,7 +126,7 @@ def build_units(a: argparse.Namespace, noises: list[float], planners: list[str],
     if a.task == "clear":
         tasks = clear_tasks(tasks)
     tasks = tasks[:a.limit] if a.limit is not None else tasks
-    settings = cli_plan_settings({"samples": a.samples, "risk": a.risk,
+    settings = cli_plan_settings({"samples": a.samples, "risk": a.risk, "seed": a.seed,
                                   "physics": json.loads(a.physics) if a.physics else None})
     ident = {"plan": settings, "engines": engines, **({"see_truth": True} if a.see_truth else {})}
     settings_id = json.dumps(ident, sort_keys=True)
