@@ -60,6 +60,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--jobs", type=int, default=1, help="processes over tasks (spawned; default 1)")
     ap.add_argument("--out", default=None, help="rows (JSONL); the summary goes to <out>.md")
     ap.add_argument("--resume", action="store_true", help="keep rows already in --out made with the same settings")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="plan seed of both plans (default: shelfpick plan's); other seeds show the draws' share")
     return ap.parse_args(argv)
 
 
@@ -88,7 +90,7 @@ def build_units(a: argparse.Namespace, engines: list[str]) -> tuple[list[dict], 
     a process perceives each shelf once; and the settings id rows must match to be reused."""
     judge_dir = str(Path(a.judge_dir).resolve())
     tasks = load_tasks(Path(judge_dir), a.tasks, a.limit)
-    settings = cli_plan_settings({})
+    settings = cli_plan_settings({"seed": a.seed})
     settings_id = json.dumps({"plan": settings, "engines": engines, "segmenter": SEGMENTER, "camera": "frame",
                               "render_seed": "observe_seed"}, sort_keys=True)
     units = [{"task": t, "noise": 0.0, "planner": "physics", "engines": engines, "settings": settings,

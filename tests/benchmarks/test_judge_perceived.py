@@ -24,6 +24,15 @@ def test_bad_arguments_exit_2(capsys) -> None:
 
 
 @pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
+def test_the_seed_reaches_both_plans_and_the_settings_id() -> None:
+    default = jp.build_units(jp.parse_args(["--judge-dir", str(JUDGE), "--tasks", "s00:b5"]), ["pybullet"])
+    seeded = jp.build_units(jp.parse_args(["--judge-dir", str(JUDGE), "--tasks", "s00:b5", "--seed", "3"]),
+                            ["pybullet"])
+    assert default[0][0]["settings"]["seed"] == 0 and seeded[0][0]["settings"]["seed"] == 3
+    assert default[1] != seeded[1]      # rows of another seed are never resumed as this one's
+
+
+@pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
 def test_one_task_perceived_planned_and_judged(tmp_path: Path) -> None:
     pytest.importorskip("mujoco")
     out = tmp_path / "rows.jsonl"
