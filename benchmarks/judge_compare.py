@@ -3,7 +3,7 @@
 A plan's verdict on the judge flips for some marginal tasks whenever the sample worlds are
 drawn again, so a difference of a few tasks between two single runs says little. This
 script reads `judge_report.py` rows (one file per plan seed, made with `--seed`) of a
-baseline A and a variant B, and prints, per noise level and engine:
+baseline A and a variant B, and prints, per noise level, planner and engine:
 
 - ok (and declared safe that collapsed) per seed, and the mean over the seeds;
 - the seed noise: how many task verdicts differ between two seeds of the same code
@@ -22,95 +22,83 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import sys
 from pathlib import Path
 from typing import Sequence
 
-ENGINES = ("pybullet", "mujoco")
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.judge_rows import read_rows  # noqa: E402
+from benchmarks.judge_summary import ENGINES, engine_summary  # noqa: E402
+
+Run = dict[str, dict]   # one rows file: key (noise|planner|task) -> row
 
 
 class UsageError(ValueError):
     """A bad argument or rows file, told in one line."""
 
 
-def read(path: str) -> dict[str, dict]:
-    """The rows of one judge_report file by key (noise|planner|task)."""
-    rows: dict[str, dict] = {}
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise UsageError(f"{path}: cannot read ({exc.strerror})") from None
-    for n, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            row = json.loads(line)
-            rows[row["key"]] = row
-        except (ValueError, KeyError, TypeError):
-            raise UsageError(f"{path}: line {n}: not a judge_report row") from None
+def read(path: str) -> Run:
+    """The rows of one judge_report file by key (`judge_rows.read_rows`: a torn last line of a run
+    still going is dropped)."""
+    if not Path(path).is_file():
+        raise UsageError(f"{path}: no such rows file")
+    rows = {r["key"]: r for r in read_rows(Path(path))}
+    if not rows:
+        raise UsageError(f"{path}: no judge_report rows in it")
     return rows
 
 
-def _held(row: dict, engine: str) -> bool | None:
-    j = row.get("judges", {}).get(engine)
-    return None if j is None else bool(j.get("ok"))
+def _held(row: dict, engine: str) -> bool:
+    return bool(row.get("judges", {}).get(engine, {}).get("ok"))
 
 
-def figures(rows: dict[str, dict], noise: float, engine: str,
-            keys: set[str] | None = None) -> tuple[int, int, int, int]:
-    """(ok, tasks, declared safe that collapsed, declared safe) at one noise level and engine
-    (over `keys` only, when given)."""
-    at = [r for k, r in rows.items() if (keys is None or k in keys)
-          and r["noise"] == noise and _held(r, engine) is not None]
-    safe = [r for r in at if r.get("declared_safe")]
-    return (sum(1 for r in at if _held(r, engine)), len(at),
-            sum(1 for r in safe if not _held(r, engine)), len(safe))
+def figures(run: Run, engine: str) -> tuple[int, int, int, int]:
+    """(ok, tasks, declared safe that collapsed, declared safe): `engine_summary`'s figures."""
+    s = engine_summary(list(run.values()), engine)
+    return s["ok"], s["tasks"], s["declared_safe_collapsed"], s["declared_safe"]
 
 
-def flips(a: dict[str, dict], b: dict[str, dict], noise: float, engine: str) -> list[str]:
-    """The tasks (keys present in both) whose verdict differs between two row sets."""
-    return sorted(k for k in a.keys() & b.keys()
-                  if a[k]["noise"] == noise and _held(a[k], engine) is not None
-                  and _held(a[k], engine) != _held(b[k], engine))
+def flips(a: Run, b: Run, engine: str) -> int:
+    """How many tasks have another verdict in `b` than in `a` (the same keys)."""
+    return sum(1 for k in a if _held(a[k], engine) != _held(b[k], engine))
 
 
-def seed_noise(runs: Sequence[dict[str, dict]], noise: float, engine: str) -> float | None:
+def seed_noise(runs: Sequence[Run], engine: str) -> float | None:
     """Mean number of verdicts that differ between two seeds of the same code (None: one seed)."""
     pairs = list(itertools.combinations(runs, 2))
-    return sum(len(flips(x, y, noise, engine)) for x, y in pairs) / len(pairs) if pairs else None
+    return sum(flips(x, y, engine) for x, y in pairs) / len(pairs) if pairs else None
 
 
-def steady_changes(a_runs: Sequence[dict[str, dict]], b_runs: Sequence[dict[str, dict]], noise: float,
-                   engine: str) -> tuple[list[str], list[str]]:
+def steady_changes(a_runs: Sequence[Run], b_runs: Sequence[Run], engine: str) -> tuple[list[str], list[str]]:
     """(gained, lost): tasks that B holds in every seed and A in none, and the reverse."""
-    keys = set.intersection(*(set(r) for r in list(a_runs) + list(b_runs)))
-    keys = {k for k in keys if a_runs[0][k]["noise"] == noise}
-
     def every(runs, k, want):
         return all(_held(r[k], engine) is want for r in runs)
-    gained = sorted(k for k in keys if every(b_runs, k, True) and every(a_runs, k, False))
-    lost = sorted(k for k in keys if every(b_runs, k, False) and every(a_runs, k, True))
-    return gained, lost
+    keys = sorted(a_runs[0])
+    return ([k for k in keys if every(b_runs, k, True) and every(a_runs, k, False)],
+            [k for k in keys if every(b_runs, k, False) and every(a_runs, k, True)])
 
 
-def compare(a_runs: Sequence[dict[str, dict]], b_runs: Sequence[dict[str, dict]]) -> list[dict]:
-    """One record per (noise, engine) that both variants have."""
-    # only the tasks every file has: a run still going (or cut short) compares on what it did
+def compare(a_runs: Sequence[Run], b_runs: Sequence[Run]) -> list[dict]:
+    """One record per (noise, planner, engine) that the rows hold, over the tasks every file has
+    (a run still going, or cut short, compares on what it did)."""
     common = set.intersection(*(set(r) for r in list(a_runs) + list(b_runs)))
-    noises = sorted({run[k]["noise"] for run in a_runs for k in common})
+    first = a_runs[0]
     out = []
-    for noise in noises:
+    for noise, planner in sorted({(first[k]["noise"], first[k]["planner"]) for k in common}):
+        keys = {k for k in common if (first[k]["noise"], first[k]["planner"]) == (noise, planner)}
+        a = [{k: r[k] for k in keys} for r in a_runs]
+        b = [{k: r[k] for k in keys} for r in b_runs]
         for engine in ENGINES:
-            fa = [figures(r, noise, engine, common) for r in a_runs]
-            fb = [figures(r, noise, engine, common) for r in b_runs]
-            if not any(f[1] for f in fa) or not any(f[1] for f in fb):
+            if not any(engine in r.get("judges", {}) for r in a[0].values()):
                 continue
-            gained, lost = steady_changes(a_runs, b_runs, noise, engine)
-            out.append({"noise": noise, "engine": engine, "a": fa, "b": fb,
+            gained, lost = steady_changes(a, b, engine)
+            fa, fb = [figures(r, engine) for r in a], [figures(r, engine) for r in b]
+            out.append({"noise": noise, "planner": planner, "engine": engine, "a": fa, "b": fb,
                         "a_mean": sum(f[0] for f in fa) / len(fa), "b_mean": sum(f[0] for f in fb) / len(fb),
-                        "a_seed_noise": seed_noise(a_runs, noise, engine),
-                        "b_seed_noise": seed_noise(b_runs, noise, engine),
+                        "a_seed_noise": seed_noise(a, engine), "b_seed_noise": seed_noise(b, engine),
                         "gained": gained, "lost": lost})
     return out
 
@@ -122,11 +110,11 @@ def to_markdown(records: Sequence[dict], a_names: Sequence[str], b_names: Sequen
     def noise_txt(x):
         return "-" if x is None else f"{x:.1f}"
     lines = [f"A: {', '.join(a_names)}", f"B: {', '.join(b_names)}", "",
-             "| noise | engine | A ok per seed (declared safe collapsed) | B ok per seed | A mean | B mean "
+             "| noise | planner | engine | A ok per seed (declared safe collapsed) | B ok per seed | A mean | B mean "
              "| B - A | verdicts that differ between seeds: A / B | B gains in every seed | B loses in every seed |",
-             "|---|---|---|---|---:|---:|---:|---|---|---|"]
+             "|---|---|---|---|---|---:|---:|---:|---|---|---|"]
     for r in records:
-        lines.append(f"| {r['noise']:g} | {r['engine']} | {runs(r['a'])} | {runs(r['b'])} | {r['a_mean']:.1f} "
+        lines.append(f"| {r['noise']:g} | {r['planner']} | {r['engine']} | {runs(r['a'])} | {runs(r['b'])} | {r['a_mean']:.1f} "
                      f"| {r['b_mean']:.1f} | {r['b_mean'] - r['a_mean']:+.1f} | {noise_txt(r['a_seed_noise'])} / "
                      f"{noise_txt(r['b_seed_noise'])} | {' '.join(r['gained']) or '-'} | {' '.join(r['lost']) or '-'} |")
     return "\n".join(lines) + "\n"

@@ -8,11 +8,15 @@ from bench_scripts import load
 jc = load("judge_compare")
 
 
-def _row(task: str, ok: bool, safe: bool = False, noise: float = 0.0, mujoco: bool | None = None) -> dict:
+def _row(task: str, ok: bool, safe: bool = False, noise: float = 0.0, mujoco: bool | None = None,
+         planner: str = "physics") -> dict:
+    """A judge_report row as far as the comparison reads it."""
     judges = {"pybullet": {"ok": ok}}
     if mujoco is not None:
         judges["mujoco"] = {"ok": mujoco}
-    return {"key": f"{noise:g}|physics|{task}", "noise": noise, "declared_safe": safe, "judges": judges}
+    return {"key": f"{noise:g}|{planner}|{task}", "noise": noise, "planner": planner, "declared_safe": safe,
+            "judges": judges, "scene": task, "target": "b0", "kind": "structured", "sequence": ["b0"],
+            "exhaustive": False, "min_removals": None}
 
 
 def _write(path, rows) -> str:
@@ -36,8 +40,16 @@ def test_a_change_in_every_seed_is_told_from_the_draws(tmp_path, capsys):
     assert r["gained"] == ["0|physics|t2"] and r["lost"] == []
     out = tmp_path / "cmp.md"
     assert jc.main(["--a", f"{a0},{a1}", "--b", f"{b0},{b1}", "--out", str(out)]) == 0
-    assert "| 0 | pybullet | 2/3 (0/0), 1/3 (0/0) | 1/3 (1/1), 3/3 (0/0) | 1.5 | 2.0 | +0.5 | 1.0 / 2.0 " \
+    assert "| 0 | physics | pybullet | 2/3 (0/0), 1/3 (0/0) | 1/3 (1/1), 3/3 (0/0) | 1.5 | 2.0 | +0.5 | 1.0 / 2.0 " \
            "| 0|physics|t2 | - |" in out.read_text()
+
+
+def test_planners_and_noise_levels_are_compared_apart(tmp_path):
+    rows = [_row("t1", True), _row("t1", False, planner="heuristic"), _row("t1", False, noise=0.01)]
+    run = _write(tmp_path / "run", rows)
+    recs = jc.compare([jc.read(run)], [jc.read(run)])
+    assert [(r["noise"], r["planner"], r["a"]) for r in recs] == [
+        (0.0, "heuristic", [(0, 1, 0, 0)]), (0.0, "physics", [(1, 1, 0, 0)]), (0.01, "physics", [(0, 1, 0, 0)])]
 
 
 def test_only_the_tasks_every_file_holds_are_counted(tmp_path):
@@ -49,11 +61,17 @@ def test_only_the_tasks_every_file_holds_are_counted(tmp_path):
     assert recs[0]["a_seed_noise"] is None     # one seed: no seed noise to tell
 
 
-def test_a_missing_or_bad_rows_file_exits_2_naming_it(tmp_path, capsys):
+def test_a_missing_or_empty_rows_file_exits_2_naming_it(tmp_path, capsys):
     good = _write(tmp_path / "good", [_row("t1", True)])
     assert jc.main(["--a", str(tmp_path / "nope.jsonl"), "--b", good]) == 2
-    assert "nope.jsonl: cannot read" in capsys.readouterr().err
+    assert "nope.jsonl: no such rows file" in capsys.readouterr().err
     bad = tmp_path / "bad"
-    bad.write_text('{"key": "x"}\nnot json\n')
+    bad.write_text('{"no key": 1}\nnot json\n')
     assert jc.main(["--a", good, "--b", str(bad)]) == 2
-    assert "bad: line 2: not a judge_report row" in capsys.readouterr().err
+    assert "bad: no judge_report rows in it" in capsys.readouterr().err
+
+
+def test_a_torn_last_line_of_a_run_still_going_is_left_out(tmp_path):
+    path = tmp_path / "going"
+    path.write_text(json.dumps(_row("t1", True)) + "\n" + json.dumps(_row("t2", True))[:30])
+    assert list(jc.read(str(path))) == ["0|physics|t1"]
