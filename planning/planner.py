@@ -122,7 +122,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
               config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
               *, budget_s: float | None = None, origin: str = "", workers: int = 1,
               model: Uncertainty | None = None, pool: "WorkerPool | None" = None,
-              clients: "ClientPool | None" = None) -> Plan:
+              clients: "ClientPool | None" = None, verify: int = 10) -> Plan:
     """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
 
     `predictor` (a `planning.oracle.Predicting`; a `Screening` one is used to the full) is
@@ -132,7 +132,9 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     error, the pull) and `seed` (over `workers` processes of `pool`, or of a pool
     of its own: same plan, less wait; Bullet clients from `clients` when given),
     and closed afterwards. `budget_s` bounds the physics search; when it runs out
-    the plan says so (``extra["search"]["timed_out"]``).
+    the plan says so (``extra["search"]["timed_out"]``). A plan the search calls safe is
+    asked again of `verify` more sample worlds (a `Screening` predictor's), and is safe
+    only if it holds in all of them: its predictions are then over every world.
     """
     check_request(scene, task, target, planner, samples, risk, origin)
     if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
@@ -166,11 +168,18 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             search["pulls"] = stats["pulls"] - pulls0  # physics pulls (samples actually run)
         if budget_s is not None:
             search["budget_s"] = budget_s
+        check = sampling.scene_check if sampling is not None else None
+        safe, _ = _verdict(predicted, risk, search, check)
+        if safe and verify and hasattr(predictor, "verify"):
+            t1 = time.perf_counter()
+            predicted = predictor.verify(sequence, verify)  # type: ignore[union-attr]
+            timing["verify_s"] = time.perf_counter() - t1
+            search["verified_worlds"] = getattr(predictor, "verified_worlds", None)
     finally:
         if own:
             predictor.close()  # type: ignore[union-attr]
     search["success_prob"] = success_prob(predicted)
-    safe, extra = _verdict(predicted, risk, search, sampling.scene_check if sampling is not None else None)
+    safe, extra = _verdict(predicted, risk, search, check)
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench
     return plan.with_provenance(scene, config, samples, risk)

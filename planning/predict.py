@@ -22,7 +22,7 @@ from planning.sample_worlds import SampleWorlds, build_sample, not_standing, sce
 from planning.sim import ShelfSim
 from planning.step_result import StepResult
 from planning.uncertainty import Uncertainty
-from planning.worker_pool import Build, Preview, Pull, Worker, WorkerPool
+from planning.worker_pool import Build, Extend, Preview, Pull, Worker, WorkerPool
 
 
 class Predictor:
@@ -55,6 +55,9 @@ class Predictor:
         self.model = model if model is not None else Uncertainty()
         # a known shelf needs more than one world only while something else is still drawn
         self._n = samples if not scene.depth_known or self.model.draws_physics else 1
+        self._drawn = not scene.depth_known or self.model.draws_physics
+        self.verified_worlds = 0   # the worlds behind the last `verify`
+        self._built = self._n   # worlds built: the first `_n` answer every trial, the rest only `verify`
         self._order = {b: i for i, b in enumerate(scene.ids)}
         self._local: SampleWorlds | None = None
         self._workers: list[tuple[Worker, list[int]]] = []
@@ -136,7 +139,8 @@ class Predictor:
             self._check(*key)
             runs = self._runs[key] = []
         m = len(runs)
-        upto = min(upto, self._n)
+        cap = self._n if upto <= self._n else self._built   # search questions never run the extra worlds
+        upto = min(upto, cap)
         if upto <= m:
             return runs
         t0 = time.perf_counter()
@@ -145,7 +149,7 @@ class Predictor:
             for i in range(m, upto):
                 runs.append(self._local.pull(i, removed, box))
         else:
-            hi = min(self._n, max(upto, m + len(self._workers)))
+            hi = min(cap, max(upto, m + len(self._workers)))
             busy = []
             merged: dict[int, StepResult] = {}
             try:
@@ -175,7 +179,7 @@ class Predictor:
         if self.early_stop_risk is not None:
             pred = self.screen(removed, box, self.early_stop_risk)
         else:
-            pred = self._aggregate(box, self._run(key, self._n), self._n)
+            pred = self._aggregate(box, self._run(key, self._n)[:self._n], self._n)
         self._cache[key] = pred
         self.stats["trials"] += 1
         return pred
@@ -213,7 +217,7 @@ class Predictor:
 
     def risk_bound(self, removed: frozenset[str], box: str) -> tuple[float, bool]:
         """(lower bound of the risk from the samples run so far, whether that is all of them)."""
-        runs = self._runs.get((frozenset(removed), box), [])
+        runs = self._runs.get((frozenset(removed), box), [])[:self._n]
         c = sum(1 for r in runs if r.collapsed)
         x = sum(1 for r in runs if r.collided or r.note.startswith("stuck"))
         return max(c, x) / self._n, len(runs) >= self._n
@@ -238,7 +242,59 @@ class Predictor:
 
     def results(self, removed: frozenset[str], box: str) -> list[StepResult]:
         """The per-sample StepResults behind a trial (runs them if needed)."""
-        return list(self._run((frozenset(removed), box), self._n))
+        return list(self._run((frozenset(removed), box), self._n)[:self._n])
+
+    def _extend(self, total: int) -> None:
+        """Build sample worlds `_built`..`total`-1: the same worlds a Predictor of `total` samples has."""
+        new = list(range(self._built, total))
+        if not new:
+            return
+        if self._local is not None:
+            self._local.add(new)
+        else:
+            workers = len(self._workers)
+            busy = []
+            try:
+                for k, (w, share) in enumerate(self._workers):
+                    mine = tuple(i for i in new if i % workers == k)
+                    if mine:
+                        w.send(Extend(mine))
+                        busy.append((w, share, mine))
+                error: BaseException | None = None
+                for w, share, mine in busy:   # every reply is read, so no pipe keeps a stale one
+                    try:
+                        w.recv()
+                        share.extend(mine)
+                    except Exception as exc:  # noqa: BLE001 - the worker's, raised after all replies
+                        error = error or exc
+            except BaseException:
+                self._broken = True
+                raise
+            if error is not None:
+                self._broken = True
+                raise error
+        self._built = total
+
+    def verify(self, sequence: Sequence[str], extra: int) -> tuple[StepPrediction, ...]:
+        """Each step of `sequence` over the search's worlds and `extra` more (built once, kept).
+
+        The search decides with `worlds` draws; a plan it calls safe is then asked of
+        more, so that "safe" rests on `worlds + extra` draws that all held (the extra
+        worlds are those a Predictor of that many samples would have, so the answer is
+        the same for every worker count). A known shelf with nothing else drawn has one
+        world, and nothing more to ask.
+        """
+        total = self._n + (max(0, int(extra)) if self._drawn else 0)
+        self.verified_worlds = total
+        t0 = time.perf_counter()
+        self._extend(total)
+        self.stats["build_s"] += time.perf_counter() - t0
+        out = []
+        removed: frozenset[str] = frozenset()
+        for box in sequence:
+            out.append(self._aggregate(box, self._run((removed, box), total)[:total], total))
+            removed = removed | {box}
+        return tuple(out)
 
     def _aggregate(self, box: str, results: list[StepResult], n: int) -> StepPrediction:
         order = self._order

@@ -184,23 +184,36 @@ class SampleWorlds:
                  clients: ClientPool | None = None):
         """`known`: the boxes that did not stand in sample 0 (found here when 0 is in `indices`)."""
         self.seed = seed
+        self.scene, self.config, self.model, self.clients = scene, config, model, clients
+        self.known = known
         self.local = config.prediction_local
         self.order = {b: i for i, b in enumerate(scene.ids)}
         self.sims: dict[int, ShelfSim] = {}
         self.draws: dict[int, Draw] = {}
-        ranges = depth_ranges(scene, config) if not scene.depth_known else None
+        self.states: dict[int, dict] = {}
+        self._ranges = depth_ranges(scene, config) if not scene.depth_known else None
         try:
-            for i in indices:   # sample 0 first: the others learn from it what does not stand
-                self.draws[i] = d = build_sample(scene, seed, i, config, ranges, model,
-                                                 frozenset() if i == 0 else known, clients)
-                self.sims[i] = d.sim
-                if i == 0:
-                    known = not_standing(d)
+            self.add(indices)
         except BaseException:
             self.close()
             raise
-        self.states = {i: {frozenset(): sim.snapshot()} for i, sim in self.sims.items()}
         self.new_states = 0
+
+    def add(self, indices: Sequence[int]) -> dict[int, Draw]:
+        """Build the worlds of `indices` as well (sample 0 first: the others learn from it what does
+        not stand); a world is the same whether it was built here or with the first ones."""
+        out = {}
+        for i in indices:
+            if i in self.sims:
+                raise ValueError(f"sample {i} is already built")
+            d = build_sample(self.scene, self.seed, i, self.config, self._ranges, self.model,
+                             frozenset() if i == 0 else self.known, self.clients)
+            self.draws[i] = out[i] = d
+            self.sims[i] = d.sim
+            self.states[i] = {frozenset(): d.sim.snapshot()}
+            if i == 0:
+                self.known = not_standing(d)
+        return out
 
     def state(self, i: int, removed: frozenset[str]):
         st = self.states[i]

@@ -38,6 +38,13 @@ class Build:
 
 
 @dataclass(frozen=True)
+class Extend:
+    """Build these sample worlds as well, beside the ones held."""
+
+    indices: tuple[int, ...]
+
+
+@dataclass(frozen=True)
 class Pull:
     """Pull `box` with `removed` taken away in the held worlds `which`."""
 
@@ -66,6 +73,8 @@ class Reply:
 
 
 def _answer(worlds: SampleWorlds | None, msg: Any) -> Reply:
+    if isinstance(msg, Extend):
+        return Reply({i: DrawSummary.of(d) for i, d in worlds.add(msg.indices).items()})  # type: ignore[union-attr]
     if isinstance(msg, Pull):
         return Reply({i: replace(worlds.pull(i, msg.removed, msg.box), frames=())  # type: ignore[union-attr]
                       for i in msg.which})
@@ -103,7 +112,11 @@ def serve(conn) -> None:
                 elif msg is None:
                     break
                 else:
-                    conn.send(_answer(worlds, msg))
+                    try:
+                        reply = _answer(worlds, msg)
+                    except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it
+                        reply = Reply(error=exc)
+                    conn.send(reply)
         except (EOFError, KeyboardInterrupt):
             pass
         finally:
