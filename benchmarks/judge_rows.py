@@ -100,7 +100,7 @@ def cli_plan_settings(overrides: dict) -> dict:
     cmd_plan.add_arguments(parser)
     args = parser.parse_args(["scene.json", "--target", "x"])
     settings = {"samples": args.samples, "seed": args.seed, "risk": args.risk,
-                "budget_s": args.budget, "workers": args.workers or 1}  # None: the CLI picks by cores; --jobs already uses them
+                "budget_s": args.budget, "workers": args.workers or 1, "verify": args.verify}  # None: the CLI picks by cores; --jobs already uses them
     settings.update({k: v for k, v in overrides.items() if v is not None})
     return settings
 

@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=int, default=10,
                         help="depth samples per prediction for boxes of unknown depth (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the depth samples and pulls (default 0)")
+    parser.add_argument("--verify", type=int, default=10, metavar="N",
+                        help="a plan found safe is asked again of N more sample worlds and is safe only if "
+                             "it holds in all of them (default 10; 0: not asked again)")
     parser.add_argument("--risk", type=float, default=0.0,
                         help="highest acceptable collapse probability per step (default 0: no sample collapses)")
     parser.add_argument("--budget", type=float, default=None, metavar="SECONDS",
@@ -57,6 +60,9 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
     for prob in check.get("problems", []):
         who = f"box {prob['box']}" if prob.get("box") else "the scene"
         _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
+    if not plan.safe and plan.predicted and search.get("verified_worlds"):
+        _warn(f"the plan held in the search's {search.get('samples')} sample worlds but not in all "
+              f"{search['verified_worlds']} it was then checked in: risk {plan.risk:.2f}; it is not safe")
     if not plan.safe and plan.predicted:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
         step = plan.predicted[worst]
@@ -75,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
+    if args.verify < 0:
+        raise FormatError("", "--verify", f"expected a number of sample worlds >= 0, got {args.verify}")
     if args.workers is None:
         args.workers = 2 if (os.cpu_count() or 1) >= 2 else 1
     if args.workers < 1:
@@ -89,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
                              seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene,
-                             workers=args.workers,
+                             workers=args.workers, verify=args.verify,
                              model=Uncertainty(catalogue=()) if args.no_catalogue else None)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None

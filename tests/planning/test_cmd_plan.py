@@ -219,6 +219,21 @@ def test_bad_workers(tmp_path, capsys):
     assert "--workers" in line and "0" in line
 
 
+def test_bad_verify(tmp_path, capsys):
+    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "bot", "--verify", "-1"])
+    assert "--verify" in line and "-1" in line
+
+
+def test_a_safe_plan_is_checked_in_more_worlds_unless_told_not_to(tmp_path, capsys):
+    scene = str(_stack(tmp_path))
+    assert main(["plan", scene, "--target", "top", "--workers", "1"]) == 0
+    checked = Plan.from_json(json.loads(capsys.readouterr().out))
+    assert main(["plan", scene, "--target", "top", "--workers", "1", "--verify", "0"]) == 0
+    unchecked = Plan.from_json(json.loads(capsys.readouterr().out))
+    assert checked.sequence == unchecked.sequence == ("top",) and checked.safe and unchecked.safe
+    assert checked.extra["search"]["verified_worlds"] == 20 and "verified_worlds" not in unchecked.extra["search"]
+
+
 def test_the_plan_says_which_box_types_it_assumed_and_no_catalogue_turns_them_off(tmp_path, capsys):
     scene = Scene(Shelf(), (_box("bot", -0.3, 0.1), _box("top", -0.3, 0.3))).hide_depths()
     path = tmp_path / "seen.json"

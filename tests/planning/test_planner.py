@@ -46,6 +46,32 @@ def test_physics_extract_removes_the_box_above_first():
     Plan.from_json(plan.to_json())  # a valid document
 
 
+class DoubtingPredictor(FakePredictor):
+    """A predictor whose extra worlds see the last step of any plan tip a box in one of 20."""
+
+    def verify(self, sequence, extra):
+        from planning.plan import StepPrediction
+        self.verified_worlds = 10 + extra
+        out = [self.graph(frozenset(sequence[:k]), b) for k, b in enumerate(sequence)]
+        out[-1] = StepPrediction(out[-1].box, 1 / self.verified_worlds, 0.0, ("free",))
+        return tuple(out)
+
+
+def test_a_plan_the_search_calls_safe_is_safe_only_if_the_extra_worlds_agree():
+    doubting = DoubtingPredictor(SupportGraph(GRAPH, ids=STACK.ids))
+    plan = make_plan(STACK, "extract", "bot", predictor=doubting)
+    assert plan.sequence == ("top", "bot") and not plan.safe
+    assert plan.predicted[-1].collapse_prob == 0.05 and plan.extra["search"]["verified_worlds"] == 20
+    assert plan.extra["search"]["success_prob"] == 0.95
+    unasked = make_plan(STACK, "extract", "bot", predictor=doubting, verify=0)
+    assert unasked.sequence == plan.sequence and unasked.safe and "verified_worlds" not in unasked.extra["search"]
+    # a plan already unsafe is not asked again: its risk stands over the search's worlds
+    risky = make_plan(STACK, "extract", "free", planner="heuristic",
+                      predictor=DoubtingPredictor(SupportGraph({"free": ["bot"]}, ids=STACK.ids)))
+    assert not risky.safe and "verified_worlds" not in risky.extra["search"]
+    assert [p.collapse_prob for p in risky.predicted] == [0.0, 1.0, 0.0]
+
+
 def test_heuristic_plan_carries_predictions_for_every_step():
     # the heuristic takes the highest first: top (0.4), then bot and free tie at 0.2 -> left first
     fake = FakePredictor(SupportGraph(GRAPH, ids=STACK.ids))

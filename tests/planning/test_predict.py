@@ -233,3 +233,42 @@ def test_turned_box_whose_deep_samples_hit_a_neighbour_still_gets_samples():
         assert pred.collapse_prob == 0.0
     finally:
         p.close()
+
+
+def _steps(pred, sequence):
+    out, removed = [], frozenset()
+    for b in sequence:
+        out.append(pred.trial(removed, b))
+        removed = removed | {b}
+    return out
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_verify_asks_the_worlds_a_larger_predictor_has_and_leaves_the_search_alone(workers):
+    scene = column(3).hide_depths()
+    seq = ["c2", "c1"]
+    with Predictor(scene, samples=3, seed=6, workers=workers) as pred, Predictor(scene, samples=5, seed=6) as big:
+        before = _steps(pred, seq)
+        verified = pred.verify(seq, 2)
+        assert list(verified) == _steps(big, seq)           # the same 5 worlds, whoever built them
+        assert pred.verified_worlds == 5 and pred.worlds == 3
+        pred._cache.clear()
+        assert _steps(pred, seq) == before                   # trials still answer over the first 3
+        assert pred.risk_bound(frozenset(), "c2") == (0.0, True)
+        assert pred.verify(seq, 2) == verified               # built once, kept
+    assert all(p.risk == 0.0 for p in verified)
+
+
+def test_verify_counts_a_collapse_in_every_world_it_asks():
+    # pulling the bottom of a column tips it in every world, the extra ones as well
+    scene = column(3).hide_depths()
+    with Predictor(scene, samples=1, seed=0) as pred:
+        first = pred.trial(frozenset(), "c0")
+        v = pred.verify(["c0"], 3)
+        assert first.collapse_prob == 1.0 and v[0].collapse_prob == 1.0 and pred.verified_worlds == 4
+
+
+def test_verify_has_nothing_more_to_ask_of_a_known_shelf_with_nothing_drawn():
+    with Predictor(stacked(), samples=10, model=Uncertainty.none()) as pred:
+        v = pred.verify(["b", "a"], 10)
+        assert pred.verified_worlds == 1 and [p.risk for p in v] == [0.0, 0.0]
