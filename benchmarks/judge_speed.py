@@ -42,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise", type=float, default=0.0, help="perception error of observe.py, m (default 0)")
     ap.add_argument("--workers", type=int, default=1, help="make_plan workers (default 1)")
     ap.add_argument("--samples", type=int, default=10)
+    ap.add_argument("--verify", type=int, default=10, help="make_plan verify: extra worlds a safe plan is asked of "
+                                                          "(default 10, as shelfpick plan; 0: off)")
     ap.add_argument("--limit", type=int, default=None, help="only the first N tasks")
     ap.add_argument("--min-boxes", type=int, default=10)
     ap.add_argument("--max-boxes", type=int, default=14)
@@ -71,17 +73,19 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             plan = make_plan(scene, "extract", t["target"], samples=args.samples, workers=args.workers,
-                             pool=pool, clients=clients)
+                             pool=pool, clients=clients, verify=args.verify)
         walls.append(time.perf_counter() - w0)
         if dump:
             dump.write(json.dumps(_fingerprint(t, plan.to_json()), sort_keys=True) + "\n")
         cpus.append(_cpu() - c0)
         print(f"{t['scene']}:{t['target']} {len(scene.boxes)} boxes  wall {walls[-1]:.2f} s  cpu {cpus[-1]:.2f} s  "
-              f"pulls {plan.extra['search'].get('pulls', 0)}  steps {len(plan.sequence)}", flush=True)
+              f"pulls {plan.extra['search'].get('pulls', 0)}  steps {len(plan.sequence)}  "
+              f"verify {plan.timing.get('verify_s', 0.0):.2f} s", flush=True)
     clients.close()
     if pool is not None:
         pool.close()
-    print(f"{len(tasks)} tasks of {args.min_boxes}-{args.max_boxes} boxes, workers {args.workers}, noise {args.noise}: "
+    print(f"{len(tasks)} tasks of {args.min_boxes}-{args.max_boxes} boxes, workers {args.workers}, noise {args.noise}, "
+          f"verify {args.verify}: "
           f"wall p50 {percentile(walls, 0.5):.2f} s p90 {percentile(walls, 0.9):.2f} s; "
           f"cpu p50 {percentile(cpus, 0.5):.2f} s p90 {percentile(cpus, 0.9):.2f} s; load {os.getloadavg()[0]:.1f}")
     return 0
