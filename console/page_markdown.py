@@ -30,6 +30,7 @@ def results_markdown(state: State) -> str:
         f"{md(p.box)} {pct(p.collapse_prob)}" for p in e.plan.predicted) or "—")
     row("max risk", lambda e: pct(e.plan.risk))
     row("predicted safe", lambda e: "yes" if e.plan.safe else "**NO**")
+    row("sample worlds behind the risks", lambda e: str(_worlds(e.plan)))
     row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
         if e.scene_problems else "stands as seen")
     row(f"est. execution ({SECONDS_PER_BOX:g} s/box)", lambda e: f"{e.est_seconds:.1f} s")
@@ -45,9 +46,17 @@ def results_markdown(state: State) -> str:
 
 
 def _planning_seconds(plan: Plan) -> float:
-    """Search time plus the depth-sample set-up it needed (both in the plan's timing)."""
+    """Search time plus the depth-sample set-up it needed and the extra worlds a safe plan was
+    asked of (all in the plan's timing)."""
     t = dict(plan.timing or {})
-    return float(t.get("planning_s", 0.0)) + float(t.get("setup_s", 0.0))
+    return sum(float(t.get(k, 0.0)) for k in ("planning_s", "setup_s", "verify_s"))
+
+
+def _worlds(plan: Plan) -> str:
+    """How many sample worlds the plan's risks are over: the search's, or more for a plan found safe."""
+    search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
+    n = search.get("verified_worlds") or search.get("samples")
+    return str(n) if isinstance(n, int) and not isinstance(n, bool) else "—"
 
 
 def robot_markdown(state: State) -> str:

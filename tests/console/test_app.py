@@ -16,7 +16,8 @@ def two_plans():
 
     phys = Plan("extract", "b0", "physics", ("b1", "b0"),
                 (StepPrediction("b1", 0.0), StepPrediction("b0", 0.0)), True,
-                {"planning_s": 1.5, "setup_s": 0.5}, 0)
+                {"planning_s": 1.5, "setup_s": 0.5, "verify_s": 0.25}, 0,
+                {"search": {"samples": 10, "verified_worlds": 20}})
     heur = Plan("extract", "b0", "heuristic", ("b2", "b1", "b0"),
                 (StepPrediction("b2", 0.0), StepPrediction("b1", 0.5, 0.0, ("b3",)), StepPrediction("b0", 0.0)),
                 False, {"planning_s": 0.01}, 0)
@@ -50,8 +51,9 @@ def test_results_table_side_by_side():
     assert row["boxes removed"] == ["2", "3"]
     assert row["collapse risk per step"] == ["b1 0%, b0 0%", "b2 0%, b1 50%, b0 0%"]
     assert row["est. execution (12.5 s/box)"] == ["25.0 s", "37.5 s"]
-    assert row["planning time"] == ["2.00 s", "0.01 s"]
+    assert row["planning time"] == ["2.25 s", "0.01 s"]
     assert row["predicted safe"] == ["yes", "**NO**"]
+    assert row["sample worlds behind the risks"] == ["20", "—"]
     assert "Planning" in results_markdown(State(planning=True, progress_text="physics"))
 
 
