@@ -20,8 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", help="YOLO11n-seg weights (.pt); implies --segmenter yolo "
                    "(with --segmenter learned: a shelfpick-learned checkpoint)")
     p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo", "learned"), default="auto",
-                   help="auto: given weights, else depth-and-edge (default); photo: the experimental "
-                        "segmenter for photos without depth (docs/perception-photos.md)")
+                   help="auto (default): given weights, else the learned segmenter (the depth-and-edge "
+                        "rules where its weights or torch are missing); depth: the rules; photo: the "
+                        "experimental segmenter for photos without depth (docs/perception-photos.md)")
     p.add_argument("--out", required=True, help="scene JSON to write")
     p.add_argument("--overlay", help="PNG of masks, rectangles and box ids over the RGB")
     p.add_argument("--masks", help="uint16 PNG label image (label k = box with mask_label k)")

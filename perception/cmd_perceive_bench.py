@@ -21,7 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="render from the default camera moved back to this many m from the shelf front "
                         "(re-pitched to the same aim point; default 1.05)")
     p.add_argument("--segmenter", choices=("auto", "depth", "photo", "yolo", "learned"), default="auto",
-                   help="auto: depth-and-edge for RGB-D, the photo segmenter for photos without depth")
+                   help="auto: the learned segmenter for RGB-D and photos (the depth-and-edge rules "
+                        "where its weights or torch are missing)")
     p.add_argument("--weights", help="YOLO11n-seg weights for --segmenter yolo/auto")
     p.add_argument("--out", default="perceive-bench", help="folder for report.md and report.json")
 

@@ -14,7 +14,8 @@ A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
   segmenter that measured best for the kind of capture (`AutoSegmenter`): for RGB-D
   `RGBD` (the learned segmenter where its weights and torch are installed, else
   depth-and-edge; docs/perception.md "Learned segmenter"), for photos without depth
-  `RGB_ONLY` (docs/perception-photos.md has the figures).
+  `RGB_ONLY` (the learned segmenter too since its second training round, on the same
+  fallback; docs/perception.md "Second training round").
 `for_capture(seg, has_depth)` is what the pipeline calls to settle the choice.
 """
 from __future__ import annotations
@@ -37,13 +38,16 @@ class Segmenter(Protocol):
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None) -> list[np.ndarray]: ...
 
 
-# which segmenter `auto` uses for photos without depth: "photo" (segment_photo.PhotoSegmenter),
-# "depth" (the depth-and-edge segmenter on a flat stand-in depth) or "yolo" (the shipped
-# weights); chosen by perceive-bench on the real photos (docs/perception-photos.md).
-# Still "depth": the photo segmenter is better on the photos it was tuned on and pooled over
-# RCAN (recall 0.43 vs 0.37) but worse on the held-out ones (RCAN 0.34 vs 0.40, telexistence
-# 0.05 vs 0.13); tests/perception/test_segment_depth.py also asserts "depth".
-RGB_ONLY = "depth"
+# which segmenter `auto` uses for photos without depth: "learned" (segment_learned.LearnedSegmenter,
+# not snapped or gated on a photo; the rules where its weights or torch are missing, as for RGB-D),
+# "photo" (segment_photo.PhotoSegmenter), "depth" (the depth-and-edge segmenter on a flat
+# stand-in depth) or "yolo" (the shipped weights). "learned" since the second training round
+# (issue 14, docs/perception.md "Second training round: photo-like walls"): on the RCAN tune
+# half, where the choice is made, recall 0.500 vs the rules' 0.338 (precision 0.366 vs 0.258);
+# held out it also leads (RCAN 0.519 / 0.471 vs 0.403 / 0.397, telexistence 0.400 / 0.348 vs
+# 0.125 / 0.357). Before: "depth" (the photo segmenter and the first learned weights were worse
+# held out, docs/perception-photos.md); tests/perception/test_segment_learned.py asserts "learned".
+RGB_ONLY = "learned"
 
 # which segmenter `auto` uses for RGB-D captures: "learned" (segment_learned.LearnedSegmenter,
 # where its weights and torch are installed; the rules otherwise) or "depth"
@@ -76,15 +80,23 @@ class AutoSegmenter:
             self.learned_weights = LEARNED_WEIGHTS
         return self.learned_weights.is_file() and importlib.util.find_spec("torch") is not None
 
+    def _learned_or_rules(self) -> Segmenter:
+        """The learned segmenter (loaded once), or the rules where its weights or torch are missing."""
+        from perception.segment_depth import DepthEdgeSegmenter
+
+        if not self.learned_available():
+            return DepthEdgeSegmenter()
+        if self._learned is None:
+            self._learned = load_segmenter(self.learned_weights, "learned")
+        return self._learned
+
     def choose(self, has_depth: bool) -> Segmenter:
         from perception.segment_depth import DepthEdgeSegmenter
 
         if has_depth:
-            if self.rgbd_kind != "learned" or not self.learned_available():
-                return DepthEdgeSegmenter()
-            if self._learned is None:
-                self._learned = load_segmenter(self.learned_weights, "learned")
-            return self._learned
+            return self._learned_or_rules() if self.rgbd_kind == "learned" else DepthEdgeSegmenter()
+        if self.rgb_only_kind == "learned":
+            return self._learned_or_rules()   # for_capture then takes its rgb_only() copy
         if self.rgb_only_kind == "photo":
             from perception.segment_photo import PhotoSegmenter
 

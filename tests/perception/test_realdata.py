@@ -98,15 +98,18 @@ def test_photo_segmenter_recall_over_rcan_and_telexistence():
 @pytest.mark.slow
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
 def test_rcan_recall_over_all_photos():
-    """`auto` (for photos still the depth-and-edge segmenter, `segment.RGB_ONLY`): all 11 photos,
-    151 cartons: recall 56/151 = 0.37, mean IoU 0.72 when this was written."""
+    """`auto` (for photos the learned segmenter since its second training round,
+    `segment.RGB_ONLY`; docs/perception.md "Second training round"): all 11 photos, 151 cartons:
+    recall 77/151 = 0.51 (held-out half 40/77), mean IoU 0.78 when this was written (the
+    depth-and-edge segmenter before it: 56/151 = 0.37, 31/77, 0.72; the asserts were 0.33 / 0.65)."""
     from perception.bench import bench_rcan
     from perception.segment import load_segmenter
 
     r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False)
     assert r["cartons"] == 151
-    assert r["recall"] >= 0.33, r
-    assert r["mean_iou_matched"] >= 0.65, r
+    assert r["recall"] >= 0.47, r
+    assert r["subsets"]["held_out"]["recall"] >= 0.45, r["subsets"]
+    assert r["mean_iou_matched"] >= 0.72, r
 
 
 def test_fit_floor_finds_a_tilted_floor_under_boxes():

@@ -57,7 +57,7 @@ def test_auto_picks_depth_segmenter_and_photo_settings(tmp_path):
     from perception.segment import AutoSegmenter, for_capture, load_segmenter
 
     assert isinstance(load_segmenter(None, "auto"), AutoSegmenter)
-    # RGB-D: the learned segmenter where its weights are (test_segment_learned), else the rules
+    # RGB-D and photos: the learned segmenter where its weights are (test_segment_learned), else the rules
     seg = AutoSegmenter(learned_weights=tmp_path / "missing.pt")
     rgbd = for_capture(seg, has_depth=True)
     photo = for_capture(seg, has_depth=False)

@@ -157,25 +157,32 @@ def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segm
     assert len(photo) == len(off) and all(np.array_equal(a, b) for a, b in zip(photo, off))
 
 
-def test_auto_takes_the_learned_segmenter_for_rgbd_when_it_can(monkeypatch, tmp_path):
-    """Issue 14: `auto` takes the learned segmenter for RGB-D (segment.RGBD) where its weights
-    and torch are there (loaded once per AutoSegmenter); the rules without either, and for photos."""
+def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
+    """Issue 14: `auto` takes the learned segmenter for RGB-D (segment.RGBD) and, since its second
+    training round, for photos (segment.RGB_ONLY: unsnapped, its `rgb_only()` copy of the same
+    network, loaded once per AutoSegmenter); the rules for both where the weights or torch are
+    missing, or where asked for."""
     import importlib.util
 
-    from perception.segment import RGBD, AutoSegmenter, for_capture, load_segmenter
+    from perception.segment import RGB_ONLY, RGBD, AutoSegmenter, for_capture, load_segmenter
     from perception.segment_depth import DepthEdgeSegmenter
 
-    assert RGBD == "learned"
+    assert RGBD == "learned" and RGB_ONLY == "learned"
     seg = load_segmenter(None, "auto")
     rgbd = for_capture(seg, has_depth=True)
     assert isinstance(rgbd, LearnedSegmenter) and for_capture(seg, has_depth=True) is rgbd
-    assert isinstance(for_capture(seg, has_depth=False), DepthEdgeSegmenter)
+    photo = for_capture(seg, has_depth=False)
+    assert isinstance(photo, LearnedSegmenter) and not photo.depth_ok and rgbd.depth_ok
+    assert photo.model is rgbd.model                    # one network for both kinds of capture
     assert isinstance(for_capture(AutoSegmenter(rgbd="depth"), True), DepthEdgeSegmenter)
+    assert isinstance(for_capture(AutoSegmenter(rgb_only="depth"), False), DepthEdgeSegmenter)
     missing = AutoSegmenter(learned_weights=tmp_path / "none.pt")
     assert isinstance(for_capture(missing, True), DepthEdgeSegmenter)
+    assert isinstance(for_capture(missing, False), DepthEdgeSegmenter)
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real(name, *a))
     assert isinstance(for_capture(AutoSegmenter(), True), DepthEdgeSegmenter)
+    assert isinstance(for_capture(AutoSegmenter(), False), DepthEdgeSegmenter)
 
 
 def test_a_partial_instance_grows_to_the_rule_face_it_lies_in():
