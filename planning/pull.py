@@ -27,7 +27,6 @@ class CollapseMonitor:
     def __init__(self, sim: "ShelfSim", others: list[str]) -> None:
         self.p, self.cfg = sim.client, sim.config
         self.others = others
-        self.untrusted = getattr(sim, "untrusted", frozenset())
         self.bodies = [sim.body(b) for b in others]
         self.start = [self.p.getBasePositionAndOrientation(ob) for ob in self.bodies]
         self.onset: dict[str, int] = {}
@@ -45,7 +44,7 @@ class CollapseMonitor:
             w = norm(ang)
             if v > cfg.rest_velocity or w > cfg.rest_angular_velocity:
                 moving = True
-            if bid in self.collapse_at or bid in self.untrusted:
+            if bid in self.collapse_at:
                 continue
             d = dist(pos, self.start[k][0])
             if bid not in self.onset and (d > cfg.onset_displacement or v > cfg.onset_velocity):
@@ -70,8 +69,6 @@ class CollapseMonitor:
         disp = {b: dist(end[k][0], self.start[k][0]) for k, b in enumerate(self.others)}
         rot = {b: rot_angle_deg(end[k][1], self.start[k][1]) for k, b in enumerate(self.others)}
         for b in self.others:
-            if b in self.untrusted:
-                continue
             if b not in self.collapse_at and (disp[b] > cfg.collapse_displacement
                                               or rot[b] > cfg.collapse_rotation):
                 self.collapse_at[b] = step
@@ -278,7 +275,7 @@ class PullTrial:
         order = {b: i for i, b in enumerate(self.sim.ids)}
         moved = tuple(sorted(mon.onset, key=lambda b: (mon.onset[b], order[b])))
         collapsed = tuple(b for b in moved if b in mon.collapse_at)
-        collided = tuple(b for b in self.others if b in self.touched and b not in mon.untrusted
+        collided = tuple(b for b in self.others if b in self.touched
                          and (disp[b] > cfg.collision_threshold or b in mon.collapse_at))
         return StepResult(self.box_id, extracted, collapsed, collided, disp, rot, moved,
                           tuple(self.frames), round(self.step * cfg.time_step, 6), self.note)

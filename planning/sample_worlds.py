@@ -210,9 +210,6 @@ class SampleWorlds:
                              frozenset() if i == 0 else self.known, self.clients)
             self.draws[i] = out[i] = d
             self.sims[i] = d.sim
-            # a box this draw could not make stand is not evidence about the shelf: the image
-            # says it stands, so only the worlds where it does speak for it
-            d.sim.untrusted = frozenset(b for b in d.off if b != "*")
             self.states[i] = {frozenset(): d.sim.snapshot()}
             if i == 0:
                 self.known = not_standing(d)

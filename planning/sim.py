@@ -72,9 +72,6 @@ class ShelfSim:
         self._gripper = self._add_gripper()
         self._parked: set[str] = set()
         self.sim_time = 0.0
-        # boxes this world could not make stand as observed (set by whoever judged the draw):
-        # what they do in a trial says nothing about the shelf, so no verdict counts them
-        self.untrusted: frozenset[str] = frozenset()
 
         after = self._repair_and_settle()
         if local:
