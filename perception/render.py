@@ -14,6 +14,7 @@ import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -200,7 +201,8 @@ LOOKS = ("printed", "plain", "mixed")
 
 
 def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: bool = True,
-           front_only: bool = True, looks: str = "printed", varied_light: bool = False) -> Capture:
+           front_only: bool = True, looks: str = "printed", varied_light: bool = False,
+           textures: Sequence[np.ndarray] | None = None) -> Capture:
     """Render `scene` into a Capture with ground-truth masks (labels 1..N, visible boxes only).
 
     Masks hold each box's visible FRONT face (its local -y face), the part
@@ -212,8 +214,13 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
     `looks`: "printed" (tape, labels, print: what the rules were tuned on), "plain"
     (`cardboard.plain_box_texture`: no tape, no label) or "mixed" (each box either);
     `varied_light`: dimmer to brighter ambient light, harder shadows and a wider colour cast
-    than the tuned renders. The defaults draw exactly what they drew before (same seed, same image).
+    than the tuned renders. `textures`: one texture per box, in scene order, instead of drawn ones
+    (cartons that share a print); what the seed draws after the boxes (the light, the noise) then
+    differs from the same seed without them. The defaults
+    draw exactly what they drew before (same seed, same image).
     """
+    if textures is not None and len(textures) != len(scene.boxes):
+        raise ValueError(f"textures: expected one per box ({len(scene.boxes)}), got {len(textures)}")
     if looks not in LOOKS:
         raise ValueError(f"looks must be one of {LOOKS}, got {looks!r}")
     cam = camera or scene.camera or default_camera()
@@ -228,9 +235,10 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
             builder = _Builder(client, Path(tmp))
             _build_shelf(builder, scene, rng)
             body_to_box: dict[int, str] = {}
-            for box in scene.boxes:
+            for k, box in enumerate(scene.boxes):
                 plain = looks == "plain" or (looks == "mixed" and rng.random() < 0.5)
-                tex = (plain_box_texture if plain else box_texture)(rng, size=int(rng.choice([64, 96, 128])))
+                size = int(rng.choice([64, 96, 128]))
+                tex = textures[k] if textures is not None else (plain_box_texture if plain else box_texture)(rng, size=size)
                 body = builder.box(tuple(x / 2 for x in box.size), box.position,
                                    wxyz_to_xyzw(box.orientation), texture=tex)
                 body_to_box[body] = box.id

@@ -12,12 +12,10 @@ first round used 30000-30799; every fixed role lives below 30000).
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 
 import cv2
 import numpy as np
 
-from perception import render as render_mod
 from perception.bench_truth import front_face_masks
 from perception.cardboard import INK_RGB, box_texture, plain_box_texture
 from perception.geometry import matrix_to_quat
@@ -164,19 +162,6 @@ def wall_camera(rng: np.random.Generator, scene: Scene) -> Camera:
                   tuple(float(v) for v in pos), tuple(float(v) for v in matrix_to_quat(r)))  # type: ignore[arg-type]
 
 
-@contextmanager
-def _textures(per_box: list[np.ndarray]):
-    """`render` draws one texture per box in scene order; hand it these instead (so a print
-    group shares one print). Only inside this block, only in this process."""
-    it = iter(per_box)
-    saved = render_mod.box_texture, render_mod.plain_box_texture
-    render_mod.box_texture = render_mod.plain_box_texture = lambda rng, size=96: next(it)
-    try:
-        yield
-    finally:
-        render_mod.box_texture, render_mod.plain_box_texture = saved
-
-
 def wall_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(RGB uint8 HxWx3, front-face instance labels uint16) of wall training frame `seed`."""
     rng = np.random.default_rng(seed + 2_000_003)
@@ -184,8 +169,7 @@ def wall_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
     cam = wall_camera(rng, scene)
     prints = [_group_texture(rng) for _ in range(max(groups, default=0) + 1)]
     per_box = [_variant(prints[g], rng) for g in groups]
-    with _textures(per_box):
-        cap = render(scene, cam, seed=seed, looks="printed", varied_light=bool(rng.random() < 0.6))
+    cap = render(scene, cam, seed=seed, looks="printed", varied_light=bool(rng.random() < 0.6), textures=per_box)
     labels = np.zeros(cap.shape, np.uint16)
     for k, m in enumerate(front_face_masks(scene, cap).values(), start=1):
         labels[m] = k

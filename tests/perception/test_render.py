@@ -89,6 +89,21 @@ def test_same_seed_same_image_other_seed_other_looks():
     assert not np.array_equal(a.rgb, c.rgb)
 
 
+def test_given_textures_paint_the_boxes():
+    red = np.zeros((64, 64, 3), np.uint8)
+    red[..., 0] = 220
+    drawn = render(_scene(CENTRED), seed=5, noise=False)
+    given = render(_scene(CENTRED), seed=5, noise=False, textures=[red])
+    face = given.masks == 1
+    r, g, b = (given.rgb[face][:, k].astype(float).mean() for k in range(3))
+    assert r > 2 * max(g, b, 1.0)                                  # the face shows the given print
+    r0, g0, b0 = (drawn.rgb[face][:, k].astype(float).mean() for k in range(3))
+    assert r0 < 2 * max(g0, b0)                                    # a drawn carton is not that red
+    assert np.array_equal(given.masks, drawn.masks)
+    with pytest.raises(ValueError, match="one per box"):
+        render(_scene(CENTRED), seed=5, textures=[red, red])
+
+
 def test_noise_model_grows_with_distance_and_makes_holes(clean3):
     noisy = render(SCENE3, seed=1, noise=True)
     assert np.array_equal(noisy.masks, clean3.masks)         # ground truth is not noisy
