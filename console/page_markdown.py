@@ -55,7 +55,7 @@ def _planning_seconds(plan: Plan) -> float:
 def _worlds(plan: Plan) -> str:
     """How many sample worlds the plan's risks are over: the search's, or more for a plan found safe."""
     search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
-    n = search.get("verified_worlds") or search.get("samples")
+    n = search.get("verified_worlds") or search.get("worlds")
     return str(n) if isinstance(n, int) and not isinstance(n, bool) else "—"
 
 

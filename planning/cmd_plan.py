@@ -61,7 +61,7 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
         who = f"box {prob['box']}" if prob.get("box") else "the scene"
         _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
     if not plan.safe and plan.predicted and search.get("verified_worlds"):
-        _warn(f"the plan held in the search's {search.get('samples')} sample worlds but not in all "
+        _warn(f"the plan held in the search's {search.get('worlds')} sample worlds but not in all "
               f"{search['verified_worlds']} it was then checked in: risk {plan.risk:.2f}; it is not safe")
     if not plan.safe and plan.predicted:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)

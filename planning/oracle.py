@@ -35,3 +35,12 @@ class Screening(Predicting, Protocol):
     def screen(self, removed: frozenset[str], box: str, risk: float = 0.0) -> StepPrediction: ...
 
     def least_risky(self, removed: frozenset[str], boxes: Sequence[str]) -> str: ...
+
+
+@runtime_checkable
+class Verifying(Predicting, Protocol):
+    """A predictor that can ask a plan of more sample worlds than the search used."""
+
+    verified_worlds: int         # the worlds behind the last `verify`
+
+    def verify(self, sequence: Sequence[str], extra: int) -> tuple[StepPrediction, ...]: ...

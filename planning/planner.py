@@ -17,7 +17,7 @@ from perception.scene import Scene
 from planning.clear import prefer_baseline, search_clear, visit_order
 from planning.extract import CountingOracle, search_extract, success_prob
 from planning.heuristic import heuristic_order
-from planning.oracle import Predicting, Screening
+from planning.oracle import Predicting, Screening, Verifying
 from planning.plan import PLANNERS, TASKS, Plan, StepPrediction
 from planning.predict import Predictor
 from planning.reorder import reorder_extraction
@@ -169,12 +169,14 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         if budget_s is not None:
             search["budget_s"] = budget_s
         check = sampling.scene_check if sampling is not None else None
+        if sampling is not None:
+            search["worlds"] = sampling.worlds
         safe, _ = _verdict(predicted, risk, search, check)
-        if safe and verify and hasattr(predictor, "verify"):
+        if safe and verify and isinstance(predictor, Verifying):
             t1 = time.perf_counter()
-            predicted = predictor.verify(sequence, verify)  # type: ignore[union-attr]
+            predicted = predictor.verify(sequence, verify)
             timing["verify_s"] = time.perf_counter() - t1
-            search["verified_worlds"] = getattr(predictor, "verified_worlds", None)
+            search["verified_worlds"] = predictor.verified_worlds
     finally:
         if own:
             predictor.close()  # type: ignore[union-attr]

@@ -54,8 +54,8 @@ class Predictor:
         self.early_stop_risk = early_stop_risk
         self.model = model if model is not None else Uncertainty()
         # a known shelf needs more than one world only while something else is still drawn
-        self._n = samples if not scene.depth_known or self.model.draws_physics else 1
         self._drawn = not scene.depth_known or self.model.draws_physics
+        self._n = samples if self._drawn else 1
         self.verified_worlds = 0   # the worlds behind the last `verify`
         self._built = self._n   # worlds built: the first `_n` answer every trial, the rest only `verify`
         self._order = {b: i for i, b in enumerate(scene.ids)}
@@ -94,11 +94,18 @@ class Predictor:
         for w, share in zip(self._pool.lease(workers), shares):
             self._workers.append((w, share))
             w.send(Build(self.scene, self.seed, self.config, tuple(share), self.model, known))
-        draws: dict = {}
+        draws = self._gather([w for w, _ in self._workers])
+        self.sample_scenes = [draws[i].scene for i in range(self._n)]
+        self.scene_check = scene_check([draws[i] for i in range(self._n)])
+
+    def _gather(self, workers: Sequence[Worker]) -> dict:
+        """One reply from each of `workers`, merged. Every reply is read, so no pipe keeps a stale
+        one; a worker's exception is raised after that, a broken pipe at once."""
+        merged: dict = {}
         error: BaseException | None = None
-        for w, _ in self._workers:  # every reply is read, so no pipe keeps a stale one
+        for w in workers:
             try:
-                draws.update(w.recv())
+                merged.update(w.recv())
             except (EOFError, OSError, KeyboardInterrupt):   # a pipe that may hold a stale reply
                 self._broken = True
                 raise
@@ -106,8 +113,7 @@ class Predictor:
                 error = error or exc
         if error is not None:
             raise error
-        self.sample_scenes = [draws[i].scene for i in range(self._n)]
-        self.scene_check = scene_check([draws[i] for i in range(self._n)])
+        return merged
 
     @property
     def worlds(self) -> int:
@@ -252,27 +258,19 @@ class Predictor:
         if self._local is not None:
             self._local.add(new)
         else:
-            workers = len(self._workers)
-            busy = []
+            n = len(self._workers)
+            asked = [(w, share, tuple(i for i in new if i % n == k))
+                     for k, (w, share) in enumerate(self._workers)]
+            asked = [a for a in asked if a[2]]
             try:
-                for k, (w, share) in enumerate(self._workers):
-                    mine = tuple(i for i in new if i % workers == k)
-                    if mine:
-                        w.send(Extend(mine))
-                        busy.append((w, share, mine))
-                error: BaseException | None = None
-                for w, share, mine in busy:   # every reply is read, so no pipe keeps a stale one
-                    try:
-                        w.recv()
-                        share.extend(mine)
-                    except Exception as exc:  # noqa: BLE001 - the worker's, raised after all replies
-                        error = error or exc
-            except BaseException:
+                for w, _, mine in asked:
+                    w.send(Extend(mine))
+                self._gather([w for w, _, _ in asked])
+            except BaseException:   # a worker may hold part of its new worlds: not reused
                 self._broken = True
                 raise
-            if error is not None:
-                self._broken = True
-                raise error
+            for _, share, mine in asked:
+                share.extend(mine)
         self._built = total
 
     def verify(self, sequence: Sequence[str], extra: int) -> tuple[StepPrediction, ...]:

@@ -17,7 +17,7 @@ def two_plans():
     phys = Plan("extract", "b0", "physics", ("b1", "b0"),
                 (StepPrediction("b1", 0.0), StepPrediction("b0", 0.0)), True,
                 {"planning_s": 1.5, "setup_s": 0.5, "verify_s": 0.25}, 0,
-                {"search": {"samples": 10, "verified_worlds": 20}})
+                {"search": {"samples": 10, "worlds": 10, "verified_worlds": 20}})
     heur = Plan("extract", "b0", "heuristic", ("b2", "b1", "b0"),
                 (StepPrediction("b2", 0.0), StepPrediction("b1", 0.5, 0.0, ("b3",)), StepPrediction("b0", 0.0)),
                 False, {"planning_s": 0.01}, 0)

@@ -232,6 +232,7 @@ def test_a_safe_plan_is_checked_in_more_worlds_unless_told_not_to(tmp_path, caps
     unchecked = Plan.from_json(json.loads(capsys.readouterr().out))
     assert checked.sequence == unchecked.sequence == ("top",) and checked.safe and unchecked.safe
     assert checked.extra["search"]["verified_worlds"] == 20 and "verified_worlds" not in unchecked.extra["search"]
+    assert checked.extra["search"]["worlds"] == unchecked.extra["search"]["worlds"] == 10
 
 
 def test_the_plan_says_which_box_types_it_assumed_and_no_catalogue_turns_them_off(tmp_path, capsys):

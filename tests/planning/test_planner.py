@@ -49,6 +49,8 @@ def test_physics_extract_removes_the_box_above_first():
 class DoubtingPredictor(FakePredictor):
     """A predictor whose extra worlds see the last step of any plan tip a box in one of 20."""
 
+    verified_worlds = 0
+
     def verify(self, sequence, extra):
         from planning.plan import StepPrediction
         self.verified_worlds = 10 + extra
