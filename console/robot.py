@@ -81,7 +81,7 @@ def surprising_world(truth: Scene | None, config: Any, seed: int, model: Any) ->
     from planning.physics import PhysicsConfig
     from planning.uncertainty import draw_config, draw_scene
 
-    model = replace(model, face_error=0.0)
+    model = model.without_face_error()
     cfg = draw_config(config or PhysicsConfig(), seed, SURPRISE_DRAW, model)
     if truth is not None:
         known = truth.with_boxes(b if b.depth_known else replace(b, depth_known=True) for b in truth.boxes)

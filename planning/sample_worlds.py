@@ -7,7 +7,7 @@ boxes that did not are reported (`scene_check`), never silently planned on.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 from perception.errors import SceneError
@@ -87,7 +87,7 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     if scene.depth_known:
         # a known shelf is given as it stands: its geometry is not drawn, but what no scene file
         # says still is (a box's mass when it has none, the friction, the pull)
-        sc = draw_scene(scene, seed, sample, replace(model, face_error=0.0), {}, 1.0)
+        sc = draw_scene(scene, seed, sample, model.without_face_error(), {}, 1.0)
         cfg = draw_config(config, seed, sample, model)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

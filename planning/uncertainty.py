@@ -126,6 +126,8 @@ class Uncertainty:
     mass: tuple[float, float] = (0.3, 5.0)          # kg per box, log-uniform (an empty carton to books)
     friction: tuple[float, float] = (0.6, 0.9)      # cardboard on cardboard/board, one per world
     face_error: float = 0.005                        # m, half-range of each face's centre error (x, z)
+    face_size_error: float = 0.0                     # m, half-range of each face's width and height error
+    face_depth_error: float = 0.0                    # m, half-range of each face's error along its normal
     pull_speed: tuple[float, float] = (0.2, 0.5)    # m/s
     pull_force: tuple[float, float] = (100.0, 200.0)  # N, the suction drive's force limit
     # how the arm pulls: "lift" (a few mm up, then straight out), "drag" (straight out on its
@@ -144,8 +146,13 @@ class Uncertainty:
     @classmethod
     def none(cls) -> "Uncertainty":
         """Only the depth is drawn (the method's original model): for comparisons and tests."""
-        return cls(mass=(0.0, 0.0), friction=(0.0, 0.0), face_error=0.0, pull_speed=(0.0, 0.0),
+        return cls(mass=(0.0, 0.0), friction=(0.0, 0.0), face_error=0.0, face_size_error=0.0,
+                   face_depth_error=0.0, pull_speed=(0.0, 0.0),
                    pull_force=(0.0, 0.0), pull_modes=(), catalogue=())
+
+    def without_face_error(self) -> "Uncertainty":
+        """The same model for a shelf whose geometry is known (a scene file, the truth)."""
+        return replace(self, face_error=0.0, face_size_error=0.0, face_depth_error=0.0)
 
     @property
     def draws_mass(self) -> bool:
@@ -159,6 +166,7 @@ class Uncertainty:
 
     def to_json(self) -> dict:
         return {"mass_kg": list(self.mass), "friction": list(self.friction), "face_error_m": self.face_error,
+                "face_size_error_m": self.face_size_error, "face_depth_error_m": self.face_depth_error,
                 "pull_speed_m_s": list(self.pull_speed), "pull_force_n": list(self.pull_force),
                 "pull_modes": list(self.pull_modes), "catalogue": [list(t) for t in self.catalogue],
                 "catalogue_tol_m": self.catalogue_tol, "catalogue_trust": self.catalogue_trust,
@@ -232,10 +240,31 @@ def depth_of(box: Box, depth: float) -> Box:
     return box.with_depth(depth)
 
 
+def _shifted(b: Box, dx: float, dy: float, dz: float) -> Box:
+    """`b` moved by (dx, dy, dz) in its own frame (x along the face, y into the shelf, z up the face)."""
+    r = quat_to_matrix(b.orientation)
+    shift = tuple(r[i][0] * dx + r[i][1] * dy + r[i][2] * dz for i in range(3))
+    return replace(b, position=tuple(b.position[i] + shift[i] for i in range(3)))
+
+
+def _face_size_and_depth(b: Box, model: Uncertainty, rng: random.Random) -> Box:
+    """`b` with its face's width and height off by up to `face_size_error` (the face's centre
+    kept) and the face moved along its normal by up to `face_depth_error`."""
+    if model.face_size_error > 0:
+        dw = rng.uniform(-model.face_size_error, model.face_size_error)
+        dh = rng.uniform(-model.face_size_error, model.face_size_error)
+        w, d, h = b.size
+        b = replace(b, size=(max(w + dw, 0.02), d, max(h + dh, 0.02)))
+    if model.face_depth_error > 0:
+        b = _shifted(b, 0.0, rng.uniform(-model.face_depth_error, model.face_depth_error), 0.0)
+    return b
+
+
 def draw_scene(scene: Scene, seed: int, k: int, model: Uncertainty,
                ranges: dict[str, tuple[float, float]], reach: float = 1.0) -> Scene:
     """The shelf of draw `k`: each unknown depth uniform in its range (shrunk by `reach`),
-    each unknown mass log-uniform, each face moved by up to `face_error` in x and z.
+    each unknown mass log-uniform, each face moved by up to `face_error` in x and z, its width
+    and height off by up to `face_size_error` and its place along its normal by `face_depth_error`.
 
     `ranges` are the depth ranges of the boxes with unknown depth (`depth_ranges`).
     A face that one of the stock's types explains takes that type's depth (`type_depths`;
@@ -246,6 +275,7 @@ def draw_scene(scene: Scene, seed: int, k: int, model: Uncertainty,
     depth_rng = random.Random(f"shelfpick-depth:{int(seed)}:{int(k)}")
     type_rng = _rng(seed, k, "types")
     other = _rng(seed, k, "boxes")
+    faces = _rng(seed, k, "faces")   # its own stream: turning it on leaves every other draw as it was
     out = []
     for b in scene.boxes:
         if not b.depth_known:
@@ -256,9 +286,8 @@ def draw_scene(scene: Scene, seed: int, k: int, model: Uncertainty,
         if model.face_error > 0:
             dx = other.uniform(-model.face_error, model.face_error)
             dz = other.uniform(-model.face_error, model.face_error)
-            r = quat_to_matrix(b.orientation)   # move the face in its own plane
-            shift = tuple(r[i][0] * dx + r[i][2] * dz for i in range(3))
-            b = replace(b, position=tuple(b.position[i] + shift[i] for i in range(3)))
+            b = _shifted(b, dx, 0.0, dz)   # the face moves in its own plane
+        b = _face_size_and_depth(b, model, faces)
         if model.draws_mass and b.mass is None:
             lo, hi = model.mass
             b = replace(b, mass=math.exp(other.uniform(math.log(lo), math.log(hi))))

@@ -118,3 +118,29 @@ def test_half_trust_draws_the_type_in_about_half_the_worlds():
     typed = sum(draw_scene(scene, 3, k, model, ranges).box("f").size[1] == pytest.approx(0.31)
                 for k in range(200))
     assert 70 <= typed <= 130
+
+
+def test_face_size_and_depth_errors_stay_in_range_and_leave_the_other_draws_alone():
+    scene = _hidden()
+    ranges = depth_ranges(scene)
+    base = Uncertainty()
+    model = replace(base, face_size_error=0.005, face_depth_error=0.004)
+    moved_depth = moved_size = 0
+    for k in range(10):
+        plain, drawn = draw_scene(scene, 3, k, base, ranges), draw_scene(scene, 3, k, model, ranges)
+        for p, b in zip(plain.boxes, drawn.boxes):
+            # the same depth and mass draws; only the face's size and its place along its normal
+            assert b.size[1] == p.size[1] and b.mass == p.mass
+            dw, dh = b.size[0] - p.size[0], b.size[2] - p.size[2]
+            assert max(abs(dw), abs(dh)) <= 0.005 + 1e-9
+            d = [b.front_center[i] - p.front_center[i] for i in range(3)]
+            assert abs(d[0]) < 1e-9 and abs(d[2]) < 1e-9 and abs(d[1]) <= 0.004 + 1e-9
+            moved_size += max(abs(dw), abs(dh)) > 1e-4
+            moved_depth += abs(d[1]) > 1e-4
+    assert moved_size > 50 and moved_depth > 50
+
+
+def test_a_known_shelf_draws_no_face_error():
+    model = Uncertainty(face_size_error=0.01, face_depth_error=0.01).without_face_error()
+    assert (model.face_error, model.face_size_error, model.face_depth_error) == (0.0, 0.0, 0.0)
+    assert model.mass == Uncertainty().mass
