@@ -176,9 +176,14 @@ def to_tensor(rgb: np.ndarray):
 @dataclass(frozen=True)
 class LearnedConfig:
     """Inference settings: the network's input width (the frame is resized to it, height in
-    proportion, both rounded to 32), and the thresholds that turn maps into instances."""
+    proportion, both rounded to 32), and the thresholds that turn maps into instances.
+    `photo_*` settings apply to photos only (`LearnedSegmenter.rgb_only`, via `for_photo`): an
+    RGB-D frame is read exactly as before they existed."""
 
     input_width: int = 480
+    input_widths: tuple = ()       # several input widths: their maps, resized to the largest, averaged
+    #                                (a carton too small at one width may be whole at the next; (): input_width)
+    flip: bool = False             # average the softmax of the frame and of its mirror, mirrored back
     interior_threshold: float = 0.5
     min_seed_px: int = 12          # interior components smaller than this (at 1/4 scale) are noise
     foreground_threshold: float = 0.5
@@ -196,6 +201,20 @@ class LearnedConfig:
     grow_inside: float = 0.8       # RGB-D: an unmatched instance lying at least this much inside one
     #                                unused depth-and-edge mask that holds no other instance takes
     #                                that mask (a partial face grown to its depth edges; 0: off)
+
+    # photos only (issue 14, docs/perception.md "Photo inference settings"; chosen on the RCAN tune
+    # half): a wall of 29 cartons leaves each one a few dozen px wide at 480, flush cartons merge
+    photo_input_widths: tuple = (480, 640)   # `input_widths` for photos (() : as RGB-D)
+    photo_flip: bool = True                  # `flip` for photos
+    photo_interior_threshold: float = 0.7    # seeds of flush cartons part at a higher threshold (0: as RGB-D)
+    photo_min_seed_px: int = 24              # at 640 px the maps have 1.8x the pixels of 480's (0: as RGB-D)
+
+    def for_photo(self) -> LearnedConfig:
+        """The settings a photo is read with: the `photo_*` fields in place of the general ones."""
+        return dataclasses.replace(self, input_widths=tuple(self.photo_input_widths) or self.input_widths,
+                                   flip=self.photo_flip,
+                                   interior_threshold=self.photo_interior_threshold or self.interior_threshold,
+                                   min_seed_px=self.photo_min_seed_px or self.min_seed_px)
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -336,9 +355,11 @@ class LearnedSegmenter:
         return out
 
     def rgb_only(self) -> LearnedSegmenter:
-        """A photo's stand-in depth has no edges to snap to."""
+        """A photo's stand-in depth has no edges to snap to; a photo is read with the config's
+        photo settings (`LearnedConfig.for_photo`: its own input width, mirror averaging)."""
         out = copy.copy(self)
         out.depth_ok = False
+        out.config = self.config.for_photo()
         return out
 
     def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray,
@@ -382,10 +403,22 @@ class LearnedSegmenter:
         return out
 
     def probabilities(self, rgb: np.ndarray) -> np.ndarray:
-        """3xhxw class probabilities at 1/4 of the network input size."""
+        """3xhxw class probabilities at 1/4 of the network input size; with `input_widths`, the
+        mean of each width's map resized to the largest one's size."""
+        widths = tuple(self.config.input_widths) or (self.config.input_width,)
+        maps = [self._probabilities_at(rgb, w) for w in widths]
+        if len(maps) == 1:
+            return maps[0]
+        ph, pw = max(m.shape[1:] for m in maps)
+        return np.mean([m if m.shape[1:] == (ph, pw) else
+                        np.stack([cv2.resize(c, (pw, ph), interpolation=cv2.INTER_LINEAR) for c in m])
+                        for m in maps], axis=0)
+
+    def _probabilities_at(self, rgb: np.ndarray, width: int) -> np.ndarray:
+        """The softmax of one pass at input width `width` (and of the mirrored frame, with `flip`)."""
         torch = _torch()
         h, w = rgb.shape[:2]
-        iw = max(32, round(self.config.input_width / 32) * 32)
+        iw = max(32, round(width / 32) * 32)
         ih = max(32, round(iw * h / w / 32) * 32)
         small = cv2.resize(np.ascontiguousarray(rgb[..., :3]), (iw, ih), interpolation=cv2.INTER_AREA)
         before = torch.get_num_threads()
@@ -393,8 +426,12 @@ class LearnedSegmenter:
             torch.set_num_threads(self.threads)
         try:
             with torch.inference_mode():
-                logits = self.model(to_tensor(small))
-                return torch.softmax(logits, 1)[0].numpy()
+                x = to_tensor(small)
+                prob = torch.softmax(self.model(x), 1)[0]
+                if self.config.flip:
+                    mirrored = torch.softmax(self.model(torch.flip(x, (3,))), 1)[0]
+                    prob = (prob + torch.flip(mirrored, (2,))) / 2
+                return prob.numpy()
         finally:
             torch.set_num_threads(before)
 

@@ -153,7 +153,8 @@ def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segm
     off = seg.with_config(dataclasses.replace(seg.config, snap_iou=0.0)).segment(cap.rgb, cap.depth)
     assert seg.config.snap_iou > 0 and outlines_from_rules(seg.segment(cap.rgb, cap.depth)) >= 2
     assert outlines_from_rules(off) == 0
-    photo = seg.rgb_only().segment(cap.rgb, cap.depth)
+    unset = dict(photo_input_widths=(), photo_flip=False, photo_interior_threshold=0.0, photo_min_seed_px=0)
+    photo = seg.with_config(dataclasses.replace(seg.config, **unset)).rgb_only().segment(cap.rgb, cap.depth)
     assert len(photo) == len(off) and all(np.array_equal(a, b) for a, b in zip(photo, off))
 
 
@@ -232,3 +233,65 @@ def test_an_instance_holding_two_rule_faces_is_split_into_them():
     assert split_merged([merged], [left, sticking_out], set(), set(), 0.8)[0] is merged
     small = [rect(1, 4, 1, 4), rect(1, 4, 30, 33)]                                 # cover < half
     assert split_merged([merged], small, set(), set(), 0.8)[0] is merged
+
+
+def test_photo_settings_are_used_only_by_rgb_only(rendered, segmenter):
+    """Issue 14 (photo inference settings): the photo widths, mirror averaging and thresholds
+    change what `rgb_only()` reads; the RGB-D path keeps `input_width`, no mirror, the general
+    thresholds, and the same masks as with no photo settings at all."""
+    scene, cap = rendered
+    plain = segmenter.bind(cap.camera, scene.shelf)
+    none = dataclasses.replace(plain.config, photo_input_widths=(), photo_flip=False, photo_interior_threshold=0.0,
+                               photo_min_seed_px=0)
+    cfg = dataclasses.replace(none, photo_input_widths=(320, 480), photo_flip=True, photo_interior_threshold=0.7,
+                              photo_min_seed_px=24)
+    seg = plain.with_config(cfg)
+    assert (seg.config.input_width, seg.config.input_widths, seg.config.flip) == (480, (), False)
+    photo = seg.rgb_only()
+    c = photo.config
+    assert (c.input_widths, c.flip, c.interior_threshold, c.min_seed_px) == ((320, 480), True, 0.7, 24)
+    assert photo.rgb_only().config == photo.config                       # taken once, not stacked
+    assert photo.probabilities(cap.rgb).shape[2] * 4 == 480               # the largest width's size
+    a, b = seg.segment(cap.rgb, cap.depth), plain.with_config(none).segment(cap.rgb, cap.depth)
+    assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert plain.with_config(none).rgb_only().config == none               # unset: photos as before
+    shipped = LearnedConfig()
+    assert (shipped.input_width, shipped.input_widths, shipped.flip) == (480, (), False)   # RGB-D as before
+
+
+def test_mirror_averaging_is_mirror_symmetric_and_repeats(segmenter):
+    """The flip pass averages the image's map and its mirror's map mirrored back, so a mirrored
+    image gets exactly the mirrored map, and a symmetric image a symmetric map (the network's
+    own 'SAME' padding is not symmetric, so a plain pass need not be)."""
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (96, 128, 3), dtype=np.uint8)     # the input size: no resize
+    seg = segmenter.with_config(dataclasses.replace(segmenter.config, input_width=128, flip=True))
+    p = seg.probabilities(rgb)
+    assert np.array_equal(p, seg.probabilities(rgb))
+    assert np.allclose(seg.probabilities(rgb[:, ::-1]), p[:, :, ::-1], atol=1e-6)
+    sym = np.concatenate([rgb[:, :64], rgb[:, :64][:, ::-1]], axis=1)
+    q = seg.probabilities(sym)
+    assert np.allclose(q, q[:, :, ::-1], atol=1e-6)
+    assert np.allclose(q.sum(0), 1.0, atol=1e-5)
+
+
+def test_several_widths_average_their_maps_at_the_largest_size(segmenter):
+    rgb = np.random.default_rng(1).integers(0, 256, (96, 128, 3), dtype=np.uint8)
+    one = {w: segmenter.with_config(dataclasses.replace(segmenter.config, input_width=w)).probabilities(rgb)
+           for w in (64, 128)}
+    both = segmenter.with_config(dataclasses.replace(segmenter.config, input_widths=(64, 128))).probabilities(rgb)
+    assert both.shape == one[128].shape
+    import cv2
+
+    up = np.stack([cv2.resize(c, (32, 24), interpolation=cv2.INTER_LINEAR) for c in one[64]])
+    assert np.allclose(both, (up + one[128]) / 2, atol=1e-6)
+
+
+def test_config_round_trips_json_and_old_configs_load():
+    import json
+
+    cfg = LearnedConfig(photo_input_widths=(640,), photo_flip=False, interior_threshold=0.6, input_widths=(480, 800))
+    assert LearnedConfig.from_json(json.loads(json.dumps(cfg.to_json()))) == cfg
+    new = ("flip", "input_widths", "photo_input_widths", "photo_flip", "photo_interior_threshold", "photo_min_seed_px")
+    old = {k: v for k, v in LearnedConfig().to_json().items() if k not in new}
+    assert LearnedConfig.from_json(old) == LearnedConfig()
