@@ -40,13 +40,15 @@ def test_rcan_polygons_parse_into_carton_masks():
 
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
 def test_rcan_photo_cartons_found_without_depth():
-    """One photo (484: five cartons): 4 found at IoU 0.5 when this was written."""
+    """One photo (484: five cartons): 4 found at IoU 0.5 when this was written; 3 with the
+    second-round weights, 2 with the photo inference settings (issue 14, docs/perception.md
+    "Photo inference settings": fewer masks, 7 from 11; the held-out half gained overall)."""
     from perception.bench import bench_rcan
     from perception.segment import load_segmenter
 
     r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False, names=["484.jpg"])
     assert r["images"] == 1 and r["cartons"] == 5
-    assert r["matched"] >= 3, r
+    assert r["matched"] >= 2, r
     assert r["mean_iou_matched"] >= 0.6, r
 
 
@@ -60,7 +62,7 @@ def test_photo_segmenter_finds_the_cartons_of_a_held_out_photo():
     assert "484.jpg" in RCAN_HELD_OUT
     r = bench_rcan(RCAN, load_segmenter(None, "photo"), progress=False, names=["484.jpg"])
     assert r["images"] == 1 and r["cartons"] == 5
-    assert r["matched"] >= 3, r
+    assert r["matched"] >= 2, r
     assert r["mean_iou_matched"] >= 0.7, r
 
 
@@ -101,15 +103,17 @@ def test_rcan_recall_over_all_photos():
     """`auto` (for photos the learned segmenter since its second training round,
     `segment.RGB_ONLY`; docs/perception.md "Second training round"): all 11 photos, 151 cartons:
     recall 77/151 = 0.51 (held-out half 40/77), mean IoU 0.78 when this was written (the
-    depth-and-edge segmenter before it: 56/151 = 0.37, 31/77, 0.72; the asserts were 0.33 / 0.65)."""
+    depth-and-edge segmenter before it: 56/151 = 0.37, 31/77, 0.72; the asserts were 0.33 / 0.65);
+    with the photo inference settings (docs/perception.md "Photo inference settings") 91/151 =
+    0.603, held-out half 43/77 = 0.558, mean IoU 0.761."""
     from perception.bench import bench_rcan
     from perception.segment import load_segmenter
 
     r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False)
     assert r["cartons"] == 151
-    assert r["recall"] >= 0.47, r
-    assert r["subsets"]["held_out"]["recall"] >= 0.45, r["subsets"]
-    assert r["mean_iou_matched"] >= 0.72, r
+    assert r["recall"] >= 0.58, r
+    assert r["subsets"]["held_out"]["recall"] >= 0.53, r["subsets"]
+    assert r["mean_iou_matched"] >= 0.74, r
 
 
 def test_fit_floor_finds_a_tilted_floor_under_boxes():
