@@ -45,7 +45,8 @@ class Segmenter(Protocol):
 # (issue 14, docs/perception.md "Second training round: photo-like walls"): on the RCAN tune
 # half, where the choice is made, recall 0.500 vs the rules' 0.338 (precision 0.366 vs 0.258);
 # held out it also leads (RCAN 0.519 / 0.471 vs 0.403 / 0.397, telexistence 0.400 / 0.348 vs
-# 0.125 / 0.357). Before: "depth" (the photo segmenter and the first learned weights were worse
+# 0.125 / 0.357); with the photo inference settings (`LearnedConfig.for_photo`, docs/perception.md
+# "Photo inference settings") RCAN held out 0.558 / 0.597, telexistence 0.525 / 0.429. Before: "depth" (the photo segmenter and the first learned weights were worse
 # held out, docs/perception-photos.md); tests/perception/test_segment_learned.py asserts "learned".
 RGB_ONLY = "learned"
 
@@ -106,7 +107,8 @@ class AutoSegmenter:
         return load_segmenter(DEFAULT_WEIGHTS, "yolo")
 
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None) -> list[np.ndarray]:
-        return self.choose(depth is not None).segment(rgb, depth)
+        # a photo asked of `auto` directly is read as the pipeline reads it (`for_capture`)
+        return for_capture(self, depth is not None).segment(rgb, depth)
 
 
 def for_capture(seg: Segmenter, has_depth: bool) -> Segmenter:

@@ -40,16 +40,19 @@ def test_rcan_polygons_parse_into_carton_masks():
 
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
 def test_rcan_photo_cartons_found_without_depth():
-    """One photo (484: five cartons): 4 found at IoU 0.5 when this was written; 3 with the
-    second-round weights, 2 with the photo inference settings (issue 14, docs/perception.md
-    "Photo inference settings": fewer masks, 7 from 11; the held-out half gained overall)."""
-    from perception.bench import bench_rcan
+    """One photo of the RCAN tune half (455: 16 cartons), through `auto`: 13 found at IoU 0.5
+    with the photo inference settings (docs/perception.md "Photo inference settings"); the
+    asserts leave two cartons of margin. A tune photo, not a held-out one: this test runs on
+    every fast suite, and a held-out figure seen that often stops being held out (it used to
+    run held-out photo 484)."""
+    from perception.bench import RCAN_TUNE, bench_rcan
     from perception.segment import load_segmenter
 
-    r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False, names=["484.jpg"])
-    assert r["images"] == 1 and r["cartons"] == 5
-    assert r["matched"] >= 2, r
-    assert r["mean_iou_matched"] >= 0.6, r
+    assert "455.jpg" in RCAN_TUNE
+    r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False, names=["455.jpg"])
+    assert r["images"] == 1 and r["cartons"] == 16
+    assert r["matched"] >= 11, r
+    assert r["mean_iou_matched"] >= 0.65, r
 
 
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")

@@ -295,3 +295,17 @@ def test_config_round_trips_json_and_old_configs_load():
     new = ("flip", "input_widths", "photo_input_widths", "photo_flip", "photo_interior_threshold", "photo_min_seed_px")
     old = {k: v for k, v in LearnedConfig().to_json().items() if k not in new}
     assert LearnedConfig.from_json(old) == LearnedConfig()
+
+
+def test_auto_reads_a_photo_as_the_pipeline_does(rendered):
+    """`AutoSegmenter.segment(rgb, None)` (a photo asked of `auto` directly) gives the masks of
+    its `for_capture` copy: the photo settings, not the RGB-D ones."""
+    from perception.segment import AutoSegmenter, for_capture
+
+    _, cap = rendered
+    auto = AutoSegmenter()
+    direct = auto.segment(cap.rgb, None)
+    piped = for_capture(auto, has_depth=False).segment(cap.rgb, None)
+    assert len(direct) == len(piped) and all(np.array_equal(a, b) for a, b in zip(direct, piped))
+    rgbd_settings = auto.choose(False).segment(cap.rgb, None)     # the RGB-D settings on a photo
+    assert len(rgbd_settings) != len(direct) or any(not np.array_equal(a, b) for a, b in zip(rgbd_settings, direct))
