@@ -132,6 +132,9 @@ def make_timed_plan(obs: dict, target: str | None, planner: str, settings: dict)
               "warnings": [str(w.message)[:200] for w in caught][:5]}
     if isinstance(check, dict) and "stands_as_seen" in check:
         fields["stands_as_seen"] = bool(check["stands_as_seen"])
+    search = plan.extra.get("search") if isinstance(plan.extra, dict) else None
+    if isinstance(search, dict) and "success_prob" in search:   # the plan's chance that nothing goes wrong
+        fields["success_prob"] = round(float(search["success_prob"]), 4)
     return fields, plan.to_json()
 
 
