@@ -110,3 +110,16 @@ def test_physics_overrides_reach_the_planner() -> None:
     _, lever = make_timed_plan(obs, "b0", "heuristic", {**settings, "physics": {"collapse_displacement": 0.03}})
     assert plain["provenance"]["physics"]["collapse_displacement"] == 0.02
     assert lever["provenance"]["physics"]["collapse_displacement"] == 0.03
+
+
+def test_a_physics_row_records_the_plans_predicted_success(tmp_path: Path) -> None:
+    """The plan's chance that nothing goes wrong rides along (a plan-level reliability check
+    reads it), and it agrees with the steps' risks: prod(1 - risk)."""
+    out = tmp_path / "rows.jsonl"
+    assert jr.main(["--judge-dir", str(JUDGE), "--tasks", "s00:b5", "--planners", "physics", "--samples", "2",
+                    "--out", str(out)]) == 0
+    row = json.loads(out.read_text().splitlines()[0])
+    expected = 1.0
+    for r in row["step_risk"]:
+        expected *= 1.0 - r
+    assert 0.0 <= row["success_prob"] <= 1.0 and row["success_prob"] == pytest.approx(expected, abs=1e-3)
