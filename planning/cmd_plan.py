@@ -7,12 +7,14 @@ import logging
 import os
 import sys
 import warnings
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from perception.errors import FormatError, SceneError
 
 if TYPE_CHECKING:  # pragma: no cover
     from planning.plan import Plan
+    from planning.uncertainty import Uncertainty
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-catalogue", action="store_true",
                         help="the stock is not the reference box types: a box's depth is drawn from the "
                              "shelf alone, never from the type its front face matches")
+    parser.add_argument("--face-error", type=float, default=None, metavar="M",
+                        help="the perceived faces' error in this cell, as a half-range in m: each world "
+                             "moves every face by up to M in its plane and along its normal and changes its "
+                             "width and height by up to M (default: 0.005 in its plane only; docs/bench.md)")
     parser.add_argument("--out", default=None, help="write the plan here (default: stdout)")
 
 
@@ -72,10 +78,22 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
               f"step {worst + 1} (pull {step.box}) may move {moved}")
 
 
+def _model(args: argparse.Namespace) -> "Uncertainty | None":
+    """What the worlds draw, where the options change the default model (None: the default)."""
+    from planning.uncertainty import Uncertainty
+
+    if not args.no_catalogue and args.face_error is None:
+        return None
+    model = Uncertainty(catalogue=()) if args.no_catalogue else Uncertainty()
+    if args.face_error is not None:
+        e = args.face_error
+        model = replace(model, face_error=e, face_size_error=e, face_depth_error=e)
+    return model
+
+
 def run(args: argparse.Namespace) -> int:
     from perception.scene import Scene
     from planning.planner import check_request, make_plan
-    from planning.uncertainty import Uncertainty
 
     if args.samples < 1:
         raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
@@ -89,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         raise FormatError("", "--workers", f"expected a positive integer, got {args.workers}")
     if args.budget is not None and not args.budget > 0:
         raise FormatError("", "--budget", f"expected a positive number of seconds, got {args.budget}")
+    if args.face_error is not None and not 0.0 <= args.face_error <= 0.05:
+        raise FormatError("", "--face-error", f"expected metres in [0, 0.05], got {args.face_error}")
     scene = Scene.load(args.scene)
     # refuse a bad request (unknown target, target for clear...) before any physics is built
     check_request(scene, args.task, args.target, args.planner, args.samples, args.risk, args.scene)
@@ -97,8 +117,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
                              seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene,
-                             workers=args.workers, verify=args.verify,
-                             model=Uncertainty(catalogue=()) if args.no_catalogue else None)
+                             workers=args.workers, verify=args.verify, model=_model(args))
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
     plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk)

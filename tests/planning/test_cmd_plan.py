@@ -248,3 +248,25 @@ def test_the_plan_says_which_box_types_it_assumed_and_no_catalogue_turns_them_of
     capsys.readouterr()
     assert [0.2, 0.2, 0.2] in docs[False]["catalogue"] and docs[False]["catalogue_trust"] == 1.0
     assert docs[True]["catalogue"] == []
+
+
+def test_face_error_sets_what_the_worlds_draw_of_the_faces_and_bad_values_exit_2(tmp_path, capsys):
+    scene = Scene(Shelf(), (_box("bot", -0.3, 0.1), _box("top", -0.3, 0.3))).hide_depths()
+    path = tmp_path / "seen.json"
+    scene.save(path)
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(path), "--target", "top", "--samples", "2", "--workers", "1", "--verify", "0",
+                 "--face-error", "0.01", "--no-catalogue", "--out", str(out)]) == 0
+    model = json.loads(out.read_text())["search"]["uncertainty"]
+    assert (model["face_error_m"], model["face_size_error_m"], model["face_depth_error_m"]) == (0.01, 0.01, 0.01)
+    assert model["catalogue"] == []                                   # both options together
+    assert main(["plan", str(path), "--target", "top", "--samples", "2", "--workers", "1", "--verify", "0",
+                 "--out", str(out)]) == 0
+    model = json.loads(out.read_text())["search"]["uncertainty"]
+    assert (model["face_error_m"], model["face_size_error_m"], model["face_depth_error_m"]) == (0.005, 0.0, 0.0)
+    capsys.readouterr()
+    for bad in ("-0.01", "0.2", "nan"):
+        assert main(["plan", str(path), "--target", "top", "--face-error", bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--face-error" in err[0] and bad in err[0]
+    assert not (tmp_path / "nan").exists()
