@@ -30,7 +30,7 @@ def results_markdown(state: State) -> str:
         f"{md(p.box)} {pct(p.collapse_prob)}" for p in e.plan.predicted) or "—")
     row("max risk", lambda e: pct(e.plan.risk))
     row("predicted safe", lambda e: "yes" if e.plan.safe else "**NO**")
-    row("sample worlds behind the risks", lambda e: str(_worlds(e.plan)))
+    row("sample worlds behind the risks", lambda e: _worlds(e.plan))
     row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
         if e.scene_problems else "stands as seen")
     row(f"est. execution ({SECONDS_PER_BOX:g} s/box)", lambda e: f"{e.est_seconds:.1f} s")

@@ -46,8 +46,9 @@ class Segmenter(Protocol):
 # half, where the choice is made, recall 0.500 vs the rules' 0.338 (precision 0.366 vs 0.258);
 # held out it also leads (RCAN 0.519 / 0.471 vs 0.403 / 0.397, telexistence 0.400 / 0.348 vs
 # 0.125 / 0.357); with the photo inference settings (`LearnedConfig.for_photo`, docs/perception.md
-# "Photo inference settings") RCAN held out 0.558 / 0.597, telexistence 0.525 / 0.429. Before: "depth" (the photo segmenter and the first learned weights were worse
-# held out, docs/perception-photos.md); tests/perception/test_segment_learned.py asserts "learned".
+# "Photo inference settings") RCAN held out 0.558 / 0.597, telexistence 0.525 / 0.429.
+# Before: "depth" (the photo segmenter and the first learned weights were worse held out,
+# docs/perception-photos.md); tests/perception/test_segment_learned.py asserts "learned".
 RGB_ONLY = "learned"
 
 # which segmenter `auto` uses for RGB-D captures: "learned" (segment_learned.LearnedSegmenter,

@@ -227,6 +227,12 @@ class LearnedConfig:
 def load_model(path: str | Path = LEARNED_WEIGHTS):
     """The trained network from a shelfpick-learned checkpoint (eval mode, float32) and its
     config; a missing or foreign file is a PerceptionError."""
+    model, config, _ = load_checkpoint(path)
+    return model, config
+
+
+def load_checkpoint(path: str | Path = LEARNED_WEIGHTS):
+    """`load_model` and the checkpoint's `meta` (how it was trained), from one read of the file."""
     torch = _torch()
     path = Path(path)
     if not path.is_file():
@@ -239,7 +245,7 @@ def load_model(path: str | Path = LEARNED_WEIGHTS):
         why = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
         raise PerceptionError(f"{path}: not a shelfpick-learned checkpoint ({why})") from None
     model.eval()
-    return model, LearnedConfig.from_json(ck.get("config", {}))
+    return model, LearnedConfig.from_json(ck.get("config", {})), ck.get("meta", {})
 
 
 def save_model(model, path: str | Path, config: LearnedConfig, meta: dict, decoder_channels: int = 64) -> None:

