@@ -152,7 +152,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def serve(parts: tuple, args: argparse.Namespace) -> int:
-    """Print where the console is, capture once, wait for Ctrl-C or SIGTERM; close everything."""
+    """Print where the console is, capture once, wait for Ctrl-C or SIGTERM; close everything.
+
+    C code's printf() is kept off stdout once for the whole run (perception.stdio): a per-connect
+    redirection of fd 1 and 2 would swallow what other threads print or log meanwhile."""
+    from perception.stdio import c_output_detached
+
+    with c_output_detached():
+        return _serve(parts, args)
+
+
+def _serve(parts: tuple, args: argparse.Namespace) -> int:
     app, wf, store, passphrase, given, db = parts
     done = threading.Event()
     terminated = threading.Event()

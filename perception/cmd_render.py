@@ -9,6 +9,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
+from perception.stdio import redirected_fds
+
 log = logging.getLogger(__name__)
 
 HELP = "render a scene file into rgb.png, depth.png, camera.json, masks.png and masks.json"
@@ -29,23 +31,9 @@ def c_stdout_to_stderr(keep_stderr: bool = False) -> Iterator[None]:
     stderr when imported): that would land among what a command was asked to print. With -v
     (debug) or `keep_stderr` (a progress bar runs meanwhile) both go to stderr; otherwise nowhere
     (Python's own errors are raised, and printed after the file descriptors are back)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = (os.dup(1), os.dup(2))
     verbose = keep_stderr or log.isEnabledFor(logging.DEBUG)
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(2 if verbose else null, 1)
-    if not verbose:
-        os.dup2(null, 2)
-    try:
+    with redirected_fds(2 if verbose else os.devnull, None if verbose else os.devnull):
         yield
-    finally:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, null):
-            os.close(fd)
 
 
 def run(args: argparse.Namespace) -> int:

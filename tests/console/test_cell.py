@@ -5,11 +5,13 @@ looked up before the server starts, and SIGTERM stops a robot run and closes the
 from __future__ import annotations
 
 import importlib.util
+import queue
 import signal
 import sqlite3
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -137,13 +139,17 @@ CHILD = textwrap.dedent("""
     wf = parts[1]
     wf.source = CodeShelfSource(small_scene())
     def drive():
-        wf.capture()
-        wf.plan("clear", wait=True)
-        wf.approve(wf.state.plans["physics"].hash, PASS, "sue")
-        wf.execute()
-        while not any(e.kind == "ack" for e in wf.state.robot_events):
-            time.sleep(0.01)
-        print("READY", wf.state.session_id, flush=True)   # step 1 acknowledged; its pull takes 30 s
+        try:
+            wf.capture()
+            wf.plan("clear", wait=True)
+            wf.approve(wf.state.plans["physics"].hash, PASS, "sue")
+            wf.execute()
+            while not any(e.kind == "ack" for e in wf.state.robot_events):
+                time.sleep(0.01)
+            print("READY", wf.state.session_id, flush=True)   # step 1 acknowledged; its pull takes 30 s
+        except BaseException as exc:
+            print("FAILED", repr(exc), flush=True)
+            raise
     threading.Thread(target=drive, daemon=True).start()
     sys.exit(cmd_console.serve(parts, args))
 """)
@@ -154,20 +160,29 @@ def test_sigterm_stops_the_robot_run_and_closes_the_database(tmp_path):
 
     db = tmp_path / "t.sqlite"
     code = CHILD.format(root=str(ROOT), here=str(HERE), db=str(db))
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, cwd=ROOT)
+    err_file = tmp_path / "stderr.txt"             # a file, not a pipe nobody reads while waiting
+    with err_file.open("w") as err_out:
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=err_out,
+                                text=True, cwd=ROOT)
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(raw) for raw in proc.stdout], daemon=True).start()
     try:
-        sid = None
-        for raw in proc.stdout:
-            if raw.startswith("READY"):
-                sid = int(raw.split()[1])
-                break
-        assert sid is not None, proc.stderr.read() if proc.poll() is not None else "no READY"
+        sid, seen, deadline = None, [], time.monotonic() + 120
+        while sid is None and time.monotonic() < deadline and not any(x.startswith("FAILED") for x in seen):
+            try:
+                seen.append(lines.get(timeout=1))
+            except queue.Empty:
+                continue
+            if seen[-1].startswith("READY"):
+                sid = int(seen[-1].split()[1])
+        assert sid is not None, f"stdout {seen!r}; stderr {err_file.read_text()}"
+        # the URL line whole, though threads connected pybullet clients while it was printed
+        assert any(x.startswith("shelfpick console: http") and x.endswith(".sqlite)\n") for x in seen), seen
         t0 = time.perf_counter()
         proc.send_signal(signal.SIGTERM)
         rc = proc.wait(60)
         stopped_in = time.perf_counter() - t0
-        err = proc.stderr.read()
+        err = err_file.read_text()
     finally:
         if proc.poll() is None:
             proc.kill()
