@@ -67,7 +67,7 @@ class WorkflowCore:
         # lock and reads `state` can then never deadlock against a change being announced
         self._notify_cv = threading.Condition()
         self._pending: State | None = None
-        threading.Thread(target=self._notify_loop, name="shelfpick-notify", daemon=True).start()
+        self._notifier: threading.Thread | None = None     # started by the first change, ended by close()
         self._recover()
 
     def _client_pool(self) -> ClientPool:
@@ -80,12 +80,17 @@ class WorkflowCore:
             return self._clients
 
     def close(self) -> None:
-        """Disconnect the Bullet clients the plans used (the console's shutdown; a later plan makes
-        new ones)."""
+        """Disconnect the Bullet clients the plans used and end the notifier thread once it has
+        announced the last change (the console's shutdown; a later plan or change starts them again)."""
         with self._lock:
             pool, self._clients = self._clients, None
         if pool is not None:
             pool.close()
+        with self._notify_cv:
+            notifier, self._notifier = self._notifier, None
+            self._notify_cv.notify_all()
+        if notifier is not None and notifier is not threading.current_thread():
+            notifier.join(5)
 
     def _recover(self) -> None:
         """Runs left open by a console that died (kill -9): interrupted, in-flight steps unknown."""
@@ -127,16 +132,21 @@ class WorkflowCore:
         with self._notify_cv:
             if self._pending is None or self._pending.version < snap.version:
                 self._pending = snap
-            self._notify_cv.notify()
+            if self._notifier is None:
+                self._notifier = threading.Thread(target=self._notify_loop, name="shelfpick-notify", daemon=True)
+                self._notifier.start()
+            self._notify_cv.notify_all()
         return snap
 
     def _notify_loop(self) -> None:
         """Hand the newest state to every listener, in version order (intermediate ones may be skipped)."""
-        last = -1
+        me, last = threading.current_thread(), -1
         while True:
             with self._notify_cv:
-                while self._pending is None:
+                while self._pending is None and self._notifier is me:
                     self._notify_cv.wait()
+                if self._notifier is not me and (self._pending is None or self._notifier is not None):
+                    return      # closed with nothing left to announce, or a newer notifier took over
                 snap, self._pending = self._pending, None
             if snap.version <= last:
                 continue

@@ -63,11 +63,12 @@ def make_wf(tmp_path):
         store = SessionStore(db or tmp_path / f"s{len(made)}.sqlite", timeout=timeout)
         wf = Workflow(CodeShelfSource(scene or small_scene(), fail), store, robot or sim_factory(),
                       PASS, samples=2, seed=0, workers=workers)
-        made.append(store)
+        made.append((wf, store))
         return wf
 
     yield build
-    for s in made:
+    for wf, s in made:
+        wf.close()
         s.close()
 
 
@@ -289,3 +290,25 @@ def test_planning_on_two_processes_gives_the_same_plans(make_wf):
     for planner in ("physics", "heuristic"):
         assert a.plans[planner].hash == b.plans[planner].hash
         assert a.plans[planner].plan.predicted == b.plans[planner].plan.predicted
+
+
+def test_close_announces_the_last_change_and_ends_the_notifier(make_wf):
+    import threading
+
+    def notifiers() -> int:
+        return sum(1 for t in threading.enumerate() if t.name == "shelfpick-notify" and t.is_alive())
+
+    before = notifiers()
+    wf = make_wf()
+    seen: list[int] = []
+    wf.add_listener(lambda s: seen.append(s.version))
+    last = wf._set(message="one").version
+    wf.close()
+    assert seen and seen[-1] == last            # nothing announced is dropped by close
+    assert notifiers() == before                # this workflow's thread has ended
+    again = threading.Event()
+    wf.add_listener(lambda s: again.set() if s.message == "two" else None)
+    wf._set(message="two")                      # a change after close is still announced
+    assert again.wait(5)
+    wf.close()
+    assert notifiers() == before
