@@ -129,24 +129,47 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 
 def dedupe(masks: list[np.ndarray], max_iou: float = 0.5, min_pixels: int = 200) -> list[np.ndarray]:
     """Drop masks that repeat a larger one (IoU or containment above `max_iou`); then
-    give each overlapping pixel to the larger mask so masks are disjoint."""
+    give each overlapping pixel to the larger mask so masks are disjoint. Overlaps are
+    counted inside the two masks' common bounding box (none outside it: the same counts)."""
     order = sorted(range(len(masks)), key=lambda i: -int(masks[i].sum()))
     kept: list[np.ndarray] = []
+    spans: list[tuple[int, int, int, int, int]] = []     # each kept mask's rows, columns and area
     taken = None
     for i in order:
         m = masks[i].astype(bool)
-        area = m.sum()
+        area = int(m.sum())
         if area < min_pixels:
             continue
-        if any(iou(m, k) > max_iou or np.logical_and(m, k).sum() > max_iou * area for k in kept):
+        span = _span(m)
+        if any(_repeats(m, area, span, k, ks, max_iou) for k, ks in zip(kept, spans)):
             continue
         if taken is not None:
             m = m & ~taken
-            if m.sum() < min_pixels:
+            area = int(m.sum())
+            if area < min_pixels:
                 continue
+            span = _span(m)
         kept.append(m)
+        spans.append((*span[:4], area))
         taken = m.copy() if taken is None else (taken | m)
     return kept
+
+
+def _span(m: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    if len(rows) == 0:
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def _repeats(m: np.ndarray, area: int, span: tuple, k: np.ndarray, ks: tuple, max_iou: float) -> bool:
+    """Whether `m` repeats kept mask `k`: IoU, or the share of `m` inside `k`, above `max_iou`."""
+    y0, y1, x0, x1 = max(span[0], ks[0]), min(span[1], ks[1]), max(span[2], ks[2]), min(span[3], ks[3])
+    if y0 >= y1 or x0 >= x1:
+        return False
+    inter = int(np.logical_and(m[y0:y1, x0:x1], k[y0:y1, x0:x1]).sum())
+    union = area + ks[4] - inter
+    return (float(inter) / float(union) if union else 0.0) > max_iou or inter > max_iou * area
 
 
 def to_label_image(masks: list[np.ndarray], shape: tuple[int, int] | None = None) -> np.ndarray:

@@ -248,6 +248,37 @@ def load_checkpoint(path: str | Path = LEARNED_WEIGHTS):
     return model, LearnedConfig.from_json(ck.get("config", {})), ck.get("meta", {})
 
 
+def for_inference(model):
+    """A copy of `model` for inference only: each batch norm folded into the conv before it and
+    the weights in channels-last order. 1.3-1.8x faster on one CPU thread; probabilities move by
+    ~1e-5 (float rounding), the network is the same. Training keeps the model as it was."""
+    torch = _torch()
+    nn = torch.nn
+    from torch.nn.utils.fusion import fuse_conv_bn_weights
+
+    fast = copy.deepcopy(model).eval()
+
+    def fold(conv, bn) -> None:
+        w, b = fuse_conv_bn_weights(conv.weight, conv.bias, bn.running_mean, bn.running_var, bn.eps,
+                                    bn.weight, bn.bias)
+        conv.weight, conv.bias = nn.Parameter(w.detach(), False), nn.Parameter(b.detach(), False)
+
+    fold(fast._conv_stem, fast._bn0)
+    fast._bn0 = nn.Identity()
+    for b in fast._blocks:
+        if b.expand:
+            fold(b._expand_conv, b._bn0)
+            b._bn0 = nn.Identity()
+        fold(b._depthwise_conv, b._bn1)
+        fold(b._project_conv, b._bn2)
+        b._bn1, b._bn2 = nn.Identity(), nn.Identity()
+    for seq in [*fast.smooth, fast.head]:
+        fold(seq[0], seq[1])
+        seq[1] = nn.Identity()
+    assert not any(isinstance(m, nn.modules.batchnorm._BatchNorm) for m in fast.modules())
+    return fast.to(memory_format=torch.channels_last)
+
+
 def save_model(model, path: str | Path, config: LearnedConfig, meta: dict, decoder_channels: int = 64) -> None:
     """A float16 checkpoint (half the size; inference casts back to float32)."""
     torch = _torch()
@@ -346,7 +377,8 @@ class LearnedSegmenter:
         None: torch's own setting). 1 by default: torch's one thread per core oversubscribes
         2 shared cores when anything else runs (the neura frame took 2.8-5.5 s with 2 threads
         beside other jobs, 0.39-0.46 s with 1)."""
-        self.model, self.config = load_model(weights)
+        model, self.config = load_model(weights)
+        self.model = for_inference(model)
         self.weights = str(weights)
         self.threads = threads
 
@@ -433,11 +465,12 @@ class LearnedSegmenter:
         try:
             with torch.inference_mode():
                 x = to_tensor(small)
-                prob = torch.softmax(self.model(x), 1)[0]
+                cl = torch.channels_last
+                prob = torch.softmax(self.model(x.contiguous(memory_format=cl)), 1)[0]
                 if self.config.flip:
-                    mirrored = torch.softmax(self.model(torch.flip(x, (3,))), 1)[0]
+                    mirrored = torch.softmax(self.model(torch.flip(x, (3,)).contiguous(memory_format=cl)), 1)[0]
                     prob = (prob + torch.flip(mirrored, (2,))) / 2
-                return prob.numpy()
+                return prob.contiguous().numpy()
         finally:
             torch.set_num_threads(before)
 

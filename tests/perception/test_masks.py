@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from perception.masks import clean_mask, dedupe, fill_holes, refine, split_by_depth, to_label_image
 
@@ -66,3 +67,42 @@ def test_label_image_round_trip_and_refine():
     lbl = to_label_image([a, b])
     assert lbl.dtype == np.uint16 and lbl[5, 5] == 1 and lbl[50, 50] == 2 and lbl[5, 50] == 0
     assert len(refine([a, b, rect((60, 60), 0, 2, 58, 60)], None, min_pixels=20)) == 2
+
+
+def _dedupe_full_frame(masks, max_iou=0.5, min_pixels=200):
+    """dedupe as it was written first (every overlap counted over the whole frame)."""
+    from perception.masks import iou
+
+    order = sorted(range(len(masks)), key=lambda i: -int(masks[i].sum()))
+    kept, taken = [], None
+    for i in order:
+        m = masks[i].astype(bool)
+        area = m.sum()
+        if area < min_pixels:
+            continue
+        if any(iou(m, k) > max_iou or np.logical_and(m, k).sum() > max_iou * area for k in kept):
+            continue
+        if taken is not None:
+            m = m & ~taken
+            if m.sum() < min_pixels:
+                continue
+        kept.append(m)
+        taken = m.copy() if taken is None else (taken | m)
+    return kept
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_dedupe_counting_in_bounding_boxes_gives_the_full_frame_answer(seed):
+    rng = np.random.default_rng(seed)
+    masks = []
+    for _ in range(int(rng.integers(2, 25))):
+        m = np.zeros((60, 80), bool)
+        y, x = rng.integers(0, 50), rng.integers(0, 70)
+        m[y:y + rng.integers(1, 30), x:x + rng.integers(1, 40)] = True
+        if rng.random() < 0.3:
+            m &= rng.random(m.shape) < 0.8          # ragged masks too
+        masks.append(m)
+    for min_pixels in (0, 1, 30):
+        want = _dedupe_full_frame(masks, 0.5, min_pixels)
+        got = dedupe(masks, 0.5, min_pixels)
+        assert len(got) == len(want) and all((g == w).all() for g, w in zip(got, want))

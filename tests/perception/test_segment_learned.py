@@ -316,3 +316,21 @@ def test_auto_reads_a_photo_as_the_pipeline_does(rendered):
     assert len(direct) == len(piped) and all(np.array_equal(a, b) for a, b in zip(direct, piped))
     rgbd_settings = auto.choose(False).segment(cap.rgb, None)     # the RGB-D settings on a photo
     assert len(rgbd_settings) != len(direct) or any(not np.array_equal(a, b) for a, b in zip(rgbd_settings, direct))
+
+
+def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(rendered, segmenter):
+    import torch
+
+    from perception.segment_learned import for_inference, to_tensor
+
+    model, _ = load_model(LEARNED_WEIGHTS)
+    fast = for_inference(model)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fast.modules())
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in model.modules())   # the original untouched
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in segmenter.model.modules())
+    _, cap = rendered
+    x = to_tensor(np.ascontiguousarray(cap.rgb[:128, :160, :3]))
+    with torch.inference_mode():
+        want = torch.softmax(model(x), 1)
+        got = torch.softmax(fast(x.contiguous(memory_format=torch.channels_last)), 1)
+    assert float((want - got).abs().max()) < 1e-4
