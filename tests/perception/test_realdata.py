@@ -56,16 +56,17 @@ def test_rcan_photo_cartons_found_without_depth():
 
 
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
-def test_photo_segmenter_finds_the_cartons_of_a_held_out_photo():
-    """484 (five cartons; held out: not tuned on): 4 found by the photo segmenter when this was
-    written (mean IoU 0.8); the asserts leave one carton of margin."""
-    from perception.bench import RCAN_HELD_OUT, bench_rcan
+def test_photo_segmenter_finds_the_cartons_of_a_tune_photo():
+    """455 (16 cartons, RCAN tune half): 9 found by the rules-only photo segmenter (mean IoU
+    0.78) when this was written; the asserts leave two cartons of margin. It used to read
+    held-out photo 484 on every fast suite (docs/perception.md, the leak note)."""
+    from perception.bench import RCAN_TUNE, bench_rcan
     from perception.segment import load_segmenter
 
-    assert "484.jpg" in RCAN_HELD_OUT
-    r = bench_rcan(RCAN, load_segmenter(None, "photo"), progress=False, names=["484.jpg"])
-    assert r["images"] == 1 and r["cartons"] == 5
-    assert r["matched"] >= 2, r
+    assert "455.jpg" in RCAN_TUNE
+    r = bench_rcan(RCAN, load_segmenter(None, "photo"), progress=False, names=["455.jpg"])
+    assert r["images"] == 1 and r["cartons"] == 16
+    assert r["matched"] >= 7, r
     assert r["mean_iou_matched"] >= 0.7, r
 
 
