@@ -11,7 +11,7 @@ from perception.scene import Scene
 from planning.plan import PLANNERS
 
 from console.run_json import step_json
-from console.workflow_core import WorkflowCore
+from console.workflow_core import WorkflowCore, close_quietly
 from console.workflow_state import PlanEntry, State, problem_text, scene_problems
 
 if TYPE_CHECKING:
@@ -64,15 +64,35 @@ class PlanningStage(WorkflowCore):
             if gen == self._generation:
                 self._set(progress=frac, progress_text=text)
 
-    def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
-        predictor = None
-        try:
-            from planning.predict import Predictor
+    def _predictor_for(self, gen: int, scene: Scene) -> tuple[Predictor, int]:
+        """The Predictor of this capture: the one the last plan of it used (its sample worlds built,
+        its answers known: the same plans, sooner), else a new one; with the epoch it was taken in."""
+        from planning.predict import Predictor
 
-            self._progress(gen, 0.05, f"building {self.samples} depth samples")
+        with self._lock:
+            kept, self._kept = self._kept, None
+            epoch = self._epoch
+        if kept is not None and kept[0] == gen and kept[1] is scene:
+            return kept[3], epoch
+        if kept is not None:
+            close_quietly(kept[3])
+        self._progress(gen, 0.05, f"building {self.samples} depth samples")
+        return Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
+                         clients=self._client_pool()), epoch
+
+    def _keep(self, gen: int, scene: Scene, epoch: int, predictor: Predictor) -> None:
+        """Keep `predictor` for the next plan of this capture; closed when that is over."""
+        with self._lock:
+            if gen == self._generation and epoch == self._epoch and self._kept is None:
+                self._kept = (gen, scene, epoch, predictor)
+                return
+        close_quietly(predictor)
+
+    def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
+        predictor, epoch, ok = None, 0, False
+        try:
             t_setup = time.perf_counter()
-            predictor = Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
-                                  clients=self._client_pool())
+            predictor, epoch = self._predictor_for(gen, scene)
             t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
             repairs = tuple(str(r) for r in getattr((predictor.sims or [None])[0], "repairs", ()) or ())
             entries = {p: self._one_plan(gen, i, p, scene, task, target, predictor, t_setup, repairs)
@@ -83,6 +103,7 @@ class PlanningStage(WorkflowCore):
                     with self._lock:
                         self._recorded.add((sid, e.hash))
             self._plans_ready(gen, entries, repairs)
+            ok = True
         except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
             traceback.print_exc()
             with self._lock:
@@ -90,11 +111,10 @@ class PlanningStage(WorkflowCore):
                     self._set(planning=False, progress=0.0, progress_text="failed",
                               error=f"planning failed: {exc}")
         finally:
-            if predictor is not None:
-                try:
-                    predictor.close()
-                except Exception:  # noqa: BLE001
-                    pass
+            if predictor is not None and ok:
+                self._keep(gen, scene, epoch, predictor)
+            elif predictor is not None:      # a predictor a failure went through is not trusted again
+                close_quietly(predictor)
             with self._lock:
                 if self._state.planning and gen != self._generation:
                     self._state = replace(self._state, planning=False)

@@ -63,6 +63,10 @@ class WorkflowCore:
         self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
         self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
         self._clients: ClientPool | None = None    # Bullet clients reused by every plan
+        # the last plan's Predictor, kept for the next plan of the same capture: (generation,
+        # scene, epoch, predictor); its sample worlds are the same, so the plans are too
+        self._kept: tuple[int, Any, int, Any] | None = None
+        self._epoch = 0                     # bumped by close(): a predictor taken before is not kept
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced
         self._notify_cv = threading.Condition()
@@ -80,10 +84,15 @@ class WorkflowCore:
             return self._clients
 
     def close(self) -> None:
-        """Disconnect the Bullet clients the plans used and end the notifier thread once it has
-        announced the last change (the console's shutdown; a later plan or change starts them again)."""
+        """Close the kept Predictor, disconnect the Bullet clients the plans used and end the
+        notifier thread once it has announced the last change (the console's shutdown; a later
+        plan or change starts them again)."""
         with self._lock:
             pool, self._clients = self._clients, None
+            kept, self._kept = self._kept, None
+            self._epoch += 1
+        if kept is not None:
+            close_quietly(kept[3])
         if pool is not None:
             pool.close()
         with self._notify_cv:
@@ -192,4 +201,12 @@ class WorkflowCore:
         self._live_stops.discard(run.stop)
 
 
-__all__ = ["WorkflowCore"]
+def close_quietly(predictor: Any) -> None:
+    """Close a Predictor whatever state its workers are in (they may already be gone)."""
+    try:
+        predictor.close()
+    except Exception:  # noqa: BLE001
+        pass
+
+
+__all__ = ["WorkflowCore", "close_quietly"]

@@ -312,3 +312,42 @@ def test_close_announces_the_last_change_and_ends_the_notifier(make_wf):
     assert again.wait(5)
     wf.close()
     assert notifiers() == before
+
+
+def stack_scene() -> Scene:
+    """A box on another and one beside them: the bottom one has a blocker."""
+    from perception.render import default_camera
+
+    return Scene(Shelf(), (Box("b0", (0.25, 0.25, 0.23), (-0.20, 0.13, 0.115)),
+                           Box("b1", (0.20, 0.20, 0.20), (-0.20, 0.11, 0.33)),
+                           Box("b2", (0.20, 0.20, 0.25), (0.25, 0.10, 0.125))), default_camera())
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_second_plan_of_the_same_capture_reuses_the_worlds_and_gives_the_same_plans(make_wf, workers):
+    def plans_of(st):
+        return {k: (e.plan.sequence, e.plan.safe, e.plan.predicted) for k, e in st.plans.items()}
+
+    wf = make_wf(stack_scene(), workers=workers)
+    st = wf.capture()
+    assert st.error is None, st.error
+    low, high = sorted(st.scene.ids, key=lambda b: st.scene.box(b).position[2])[0], \
+        max(st.scene.ids, key=lambda b: st.scene.box(b).position[2])
+    wf.select_target(high)
+    wf.plan("extract", wait=True)
+    kept = wf._kept[3]
+    wf.select_target(low)
+    second = wf.plan("extract", wait=True)
+    assert wf._kept[3] is kept                   # the same sample worlds answered the second plan
+    assert len(second.plans["physics"].plan.sequence) >= 2, second.plans["physics"].plan
+
+    fresh = make_wf(stack_scene())            # one process: the plans do not depend on workers
+    fresh.capture()
+    fresh.select_target(low)
+    alone = fresh.plan("extract", wait=True)
+    assert plans_of(second) == plans_of(alone)   # same seed, same plans, whatever was planned before
+
+    wf.capture()                                 # a new capture: its plans get new worlds
+    wf.select_target(low)
+    wf.plan("extract", wait=True)
+    assert wf._kept[3] is not kept and kept.sims == []      # the old one was closed
