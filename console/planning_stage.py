@@ -78,7 +78,7 @@ class PlanningStage(WorkflowCore):
             close_quietly(kept[3])
         self._progress(gen, 0.05, f"building {self.samples} depth samples")
         return Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
-                         clients=self._client_pool()), epoch
+                         pool=self._worker_pool(), clients=self._client_pool()), epoch
 
     def _keep(self, gen: int, scene: Scene, epoch: int, predictor: Predictor) -> None:
         """Keep `predictor` for the next plan of this capture; closed when that is over."""

@@ -351,3 +351,25 @@ def test_a_second_plan_of_the_same_capture_reuses_the_worlds_and_gives_the_same_
     wf.select_target(low)
     wf.plan("extract", wait=True)
     assert wf._kept[3] is not kept and kept.sims == []      # the old one was closed
+
+
+def test_the_worker_processes_serve_every_capture_and_stop_at_close(make_wf):
+    import os
+
+    def alive(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+
+    wf = make_wf(stack_scene(), workers=2)
+    pids = []
+    for _ in range(2):
+        st = wf.capture()
+        wf.select_target(st.scene.ids[0])
+        assert set(wf.plan("extract", wait=True).plans) == {"physics", "heuristic"}
+        pids.append(wf._workers.pids())
+    assert len(pids[0]) == 2 and pids[0] == pids[1]         # the second capture's plan started none
+    wf.close()
+    assert not [pid for pid in pids[0] if alive(pid)]
