@@ -72,7 +72,7 @@ class PlanningStage(WorkflowCore):
         with self._lock:
             kept, self._kept = self._kept, None
             epoch = self._epoch
-        if kept is not None and kept[0] == gen and kept[1] is scene:
+        if kept is not None and kept[0] == gen and kept[1] is scene and kept[3].usable():
             return kept[3], epoch
         if kept is not None:
             close_quietly(kept[3])

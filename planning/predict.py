@@ -115,6 +115,15 @@ class Predictor:
             raise error
         return merged
 
+    def usable(self) -> bool:
+        """Whether it can answer again: not closed, no reply left in a pipe, every worker process
+        it holds still running (a kept predictor's idle worker may have been killed meanwhile)."""
+        if self._broken:
+            return False
+        if self._workers:
+            return all(w.alive() for w, _ in self._workers)
+        return self._local is not None
+
     @property
     def worlds(self) -> int:
         return self._n

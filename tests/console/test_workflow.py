@@ -373,3 +373,17 @@ def test_the_worker_processes_serve_every_capture_and_stop_at_close(make_wf):
     assert len(pids[0]) == 2 and pids[0] == pids[1]         # the second capture's plan started none
     wf.close()
     assert not [pid for pid in pids[0] if alive(pid)]
+
+
+def test_a_kept_predictor_whose_worker_died_is_replaced_not_used(make_wf):
+    wf = make_wf(stack_scene(), workers=2)
+    st = wf.capture()
+    wf.select_target(st.scene.ids[0])
+    first = wf.plan("extract", wait=True)
+    kept = wf._kept[3]
+    worker = kept._workers[0][0]
+    worker.kill()                                 # an idle worker killed between two plans
+    assert not kept.usable()
+    again = wf.plan("extract", wait=True)
+    assert again.error == first.error and wf._kept[3] is not kept
+    assert {k: e.plan.sequence for k, e in again.plans.items()} == {k: e.plan.sequence for k, e in first.plans.items()}
