@@ -72,19 +72,19 @@ class PlanningStage(WorkflowCore):
         with self._lock:
             kept, self._kept = self._kept, None
             epoch = self._epoch
-        if kept is not None and kept[0] == gen and kept[1] is scene and kept[3].usable():
-            return kept[3], epoch
+        if kept is not None and kept[0] == gen and kept[1].scene is scene and kept[1].usable():
+            return kept[1], epoch
         if kept is not None:
-            close_quietly(kept[3])
+            close_quietly(kept[1])
         self._progress(gen, 0.05, f"building {self.samples} depth samples")
         return Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
-                         pool=self._worker_pool(), clients=self._client_pool()), epoch
+                         clients=self._client_pool()), epoch
 
-    def _keep(self, gen: int, scene: Scene, epoch: int, predictor: Predictor) -> None:
+    def _keep(self, gen: int, epoch: int, predictor: Predictor) -> None:
         """Keep `predictor` for the next plan of this capture; closed when that is over."""
         with self._lock:
             if gen == self._generation and epoch == self._epoch and self._kept is None:
-                self._kept = (gen, scene, epoch, predictor)
+                self._kept = (gen, predictor)
                 return
         close_quietly(predictor)
 
@@ -112,7 +112,7 @@ class PlanningStage(WorkflowCore):
                               error=f"planning failed: {exc}")
         finally:
             if predictor is not None and ok:
-                self._keep(gen, scene, epoch, predictor)
+                self._keep(gen, epoch, predictor)
             elif predictor is not None:      # a predictor a failure went through is not trusted again
                 close_quietly(predictor)
             with self._lock:

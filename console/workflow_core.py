@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from console.verify import Tolerance
     from perception.segment import Segmenter
     from planning.bullet_clients import ClientPool
-    from planning.worker_pool import WorkerPool
+    from planning.predict import Predictor
 
 
 class WorkflowCore:
@@ -64,10 +64,9 @@ class WorkflowCore:
         self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
         self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
         self._clients: ClientPool | None = None    # Bullet clients reused by every plan
-        self._workers: WorkerPool | None = None    # sample-world processes reused by every plan
-        # the last plan's Predictor, kept for the next plan of the same capture: (generation,
-        # scene, epoch, predictor); its sample worlds are the same, so the plans are too
-        self._kept: tuple[int, Any, int, Any] | None = None
+        # the last plan's Predictor and its capture's generation, kept for the next plan of that
+        # capture: its sample worlds are the same, so the plans are too
+        self._kept: tuple[int, Predictor] | None = None
         self._epoch = 0                     # bumped by close(): a predictor taken before is not kept
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced
@@ -85,31 +84,16 @@ class WorkflowCore:
                 self._clients = ClientPool()
             return self._clients
 
-    def _worker_pool(self) -> WorkerPool | None:
-        """The worker processes the plans of this console reuse (started at the first plan; none
-        with one worker)."""
-        from planning.worker_pool import WorkerPool
-
-        if self.workers <= 1:
-            return None
-        with self._lock:
-            if self._workers is None:
-                self._workers = WorkerPool(self.workers)
-            return self._workers
-
     def close(self) -> None:
-        """Close the kept Predictor, stop the worker processes, disconnect the Bullet clients the
+        """Close the kept Predictor (and its worker processes), disconnect the Bullet clients the
         plans used and end the notifier thread once it has announced the last change (the
         console's shutdown; a later plan or change starts them again)."""
         with self._lock:
             pool, self._clients = self._clients, None
             kept, self._kept = self._kept, None
-            workers, self._workers = self._workers, None
             self._epoch += 1
         if kept is not None:
-            close_quietly(kept[3])
-        if workers is not None:
-            workers.close()
+            close_quietly(kept[1])
         if pool is not None:
             pool.close()
         with self._notify_cv:
@@ -218,7 +202,7 @@ class WorkflowCore:
         self._live_stops.discard(run.stop)
 
 
-def close_quietly(predictor: Any) -> None:
+def close_quietly(predictor: Predictor) -> None:
     """Close a Predictor whatever state its workers are in (they may already be gone)."""
     try:
         predictor.close()

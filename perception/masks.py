@@ -150,7 +150,7 @@ def dedupe(masks: list[np.ndarray], max_iou: float = 0.5, min_pixels: int = 200)
                 continue
             span = _span(m)
         kept.append(m)
-        spans.append((*span[:4], area))
+        spans.append((*span, area))
         taken = m.copy() if taken is None else (taken | m)
     return kept
 
