@@ -94,7 +94,8 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
                              screen=fast)
         passed = (lambda: deadline is not None and time.monotonic() >= deadline)
         res = shorten_extraction(res, oracle, risk, screen=bounded, passed=passed)
-        res = reorder_extraction(res, scene, oracle, risk, screen=bounded, passed=passed)
+        res = reorder_extraction(res, scene, oracle, risk, screen=bounded, passed=passed,
+                                 worlds=sampling.worlds if sampling is not None else None)
     else:
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
                            screen=fast, least_risky=least, samples=sampling.worlds if sampling is not None else None)
