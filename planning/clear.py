@@ -111,7 +111,9 @@ def prefer_baseline(result: SearchResult, baseline: Iterable[str], oracle: Oracl
                     *, screen: Screen | None = None, worlds: int | None = None) -> SearchResult:
     """The baseline's order (highest first) instead of an unsafe clearance plan when the physics
     gives it a higher chance that no step collapses: the search must never hand the operator a
-    plan it predicts worse than the order a person would use. A safe plan is kept as it is."""
+    plan it predicts worse than the order a person would use. A safe plan is kept as it is.
+    With `worlds` (the planner passes none for clearance: not measured), the baseline is also
+    taken when predicted worse by less than their `resolution`, as `reorder_extraction` does."""
     if result.safe:
         return result
     slack = resolution(result.success_prob, worlds)
