@@ -15,7 +15,7 @@ from typing import Callable, Iterable
 from perception.scene import Scene
 from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
 from planning.plan import StepPrediction
-from planning.shorten import Screen, alternative, prefer, resolution
+from planning.shorten import Screen, alternative
 
 
 def visit_order(scene: Scene) -> tuple[str, ...]:
@@ -108,13 +108,13 @@ def _first_alike(best: str, boxes: list[str], removed: frozenset[str], oracle: C
 
 
 def prefer_baseline(result: SearchResult, baseline: Iterable[str], oracle: Oracle, risk: float = 0.0,
-                    *, screen: Screen | None = None, worlds: int | None = None) -> SearchResult:
+                    *, screen: Screen | None = None) -> SearchResult:
     """The baseline's order (highest first) instead of an unsafe clearance plan when the physics
     gives it a higher chance that no step collapses: the search must never hand the operator a
-    plan it predicts worse than the order a person would use. A safe plan is kept as it is.
-    With `worlds` (the planner passes none for clearance: not measured), the baseline is also
-    taken when predicted worse by less than their `resolution`, as `reorder_extraction` does."""
+    plan it predicts worse than the order a person would use. A safe plan is kept as it is."""
     if result.safe:
         return result
-    slack = resolution(result.success_prob, worlds)
-    return prefer(alternative(result, tuple(baseline), 0, oracle, risk, screen, slack), result, slack)
+    new = alternative(result, tuple(baseline), 0, oracle, risk, screen)
+    if new is None or new.success_prob <= result.success_prob:
+        return result
+    return new

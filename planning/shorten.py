@@ -8,12 +8,10 @@ tries the plan without each blocker in turn, last first, and keeps the shorter
 plan when the physics predicts it at least as well: every step still within the
 risk threshold for a safe plan, a chance that no step collapses at least as high
 for an unsafe one. It only asks the oracle; it never adds a box. `alternative`
-(replay another order, bounded), `resolution` and `prefer` serve the reorder and
-clearance passes too.
+(replay another order, bounded) serves the reorder and clearance passes too.
 """
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 from planning.extract import Oracle, SearchResult, success_prob
@@ -62,24 +60,6 @@ def alternative(result: SearchResult, cand: tuple[str, ...], start: int, oracle:
     floor = 0.0 if safe else max(0.0, success_prob(preds) - slack) / max(success_prob(preds[:start]), 1e-12)
     tail = bounded_replay(cand, start, frozenset(cand[:start]), oracle, screen, risk if safe else None, floor)
     return None if tail is None else result.replaced(cand, preds[:start] + tuple(tail), risk)
-
-
-def resolution(success: float, worlds: int | None) -> float:
-    """One standard error of a chance of success counted over `worlds` sample worlds (0 without
-    any): two plans whose chances differ by less are not told apart by those worlds."""
-    if not worlds or worlds < 2:
-        return 0.0
-    return math.sqrt(success * (1.0 - success) / worlds)
-
-
-def prefer(new: SearchResult | None, result: SearchResult, slack: float) -> SearchResult:
-    """`new` (an order a person would use) unless the worlds predict it worse than `result` by more
-    than `slack`; with no slack, only when they predict it better (a tie keeps `result`)."""
-    if new is None or new.success_prob < result.success_prob - slack - 1e-9:
-        return result
-    if slack == 0.0 and new.success_prob <= result.success_prob + 1e-9:
-        return result
-    return new
 
 
 def shorten_extraction(result: SearchResult, oracle: Oracle, risk: float = 0.0, *,
