@@ -15,6 +15,7 @@ from typing import Callable, Iterable
 from perception.scene import Scene
 from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
 from planning.plan import StepPrediction
+from planning.resolution import prefer, resolution
 from planning.shorten import Screen, alternative
 
 
@@ -108,13 +109,14 @@ def _first_alike(best: str, boxes: list[str], removed: frozenset[str], oracle: C
 
 
 def prefer_baseline(result: SearchResult, baseline: Iterable[str], oracle: Oracle, risk: float = 0.0,
-                    *, screen: Screen | None = None) -> SearchResult:
-    """The baseline's order (highest first) instead of an unsafe clearance plan when the physics
-    gives it a higher chance that no step collapses: the search must never hand the operator a
-    plan it predicts worse than the order a person would use. A safe plan is kept as it is."""
+                    *, screen: Screen | None = None, worlds: int | None = None) -> SearchResult:
+    """The baseline's order (highest first) instead of an unsafe clearance plan unless the physics
+    predicts it a lower chance that no step collapses by more than the `worlds` sample worlds can
+    resolve (`resolution.resolution`; without `worlds`, only when it is predicted better): the
+    search must never hand the operator a plan it cannot tell from the order a person would use,
+    and where it cannot, the person's order does not pull a box from under a load. A safe plan is
+    kept as it is."""
     if result.safe:
         return result
-    new = alternative(result, tuple(baseline), 0, oracle, risk, screen)
-    if new is None or new.success_prob <= result.success_prob:
-        return result
-    return new
+    slack = resolution(result.success_prob, worlds)
+    return prefer(alternative(result, tuple(baseline), 0, oracle, risk, screen, slack), result, slack)

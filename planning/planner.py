@@ -100,7 +100,8 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
                            screen=fast, least_risky=least, samples=sampling.worlds if sampling is not None else None)
         if not res.timed_out:
-            res = prefer_baseline(res, heuristic_order(scene, None), oracle, risk, screen=bounded)
+            res = prefer_baseline(res, heuristic_order(scene, None), oracle, risk, screen=bounded,
+                                  worlds=sampling.worlds if sampling is not None else None)
     timing = {"planning_s": time.perf_counter() - t0}
     return (tuple(res.sequence), tuple(res.predicted), res.timed_out, timing,
             len(screened | oracle.keys))

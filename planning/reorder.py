@@ -15,12 +15,12 @@ it is; the pass never adds or drops a box.
 """
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 from perception.scene import Scene
 from planning.extract import Oracle, SearchResult
 from planning.heuristic import height_key
+from planning.resolution import prefer, resolution
 from planning.shorten import Screen, alternative
 
 
@@ -46,21 +46,3 @@ def reorder_extraction(result: SearchResult, scene: Scene, oracle: Oracle, risk:
     start = next(k for k, (a, b) in enumerate(zip(seq, cand)) if a != b)
     slack = resolution(result.success_prob, worlds)
     return prefer(alternative(result, cand, start, oracle, risk, screen, slack), result, slack)
-
-
-def resolution(success: float, worlds: int | None) -> float:
-    """One standard error of a chance of success counted over `worlds` sample worlds (0 without
-    any): two plans whose chances differ by less are not told apart by those worlds."""
-    if not worlds or worlds < 2:
-        return 0.0
-    return math.sqrt(success * (1.0 - success) / worlds)
-
-
-def prefer(new: SearchResult | None, result: SearchResult, slack: float) -> SearchResult:
-    """`new` (an order a person would use) unless the worlds predict it worse than `result` by more
-    than `slack`; with no slack, only when they predict it better (a tie keeps `result`)."""
-    if new is None or new.success_prob < result.success_prob - slack - 1e-9:
-        return result
-    if slack == 0.0 and new.success_prob <= result.success_prob + 1e-9:
-        return result
-    return new

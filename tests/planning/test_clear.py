@@ -123,3 +123,32 @@ def test_an_unsafe_plan_gives_way_to_the_baseline_order_when_that_is_predicted_l
     assert prefer_baseline(worse, ["b", "a"], oracle) is worse
     safe = SearchResult(("b", "a"), (StepPrediction("b", 0.0), StepPrediction("a", 0.0)), True)
     assert prefer_baseline(safe, ["a", "b"], oracle) is safe
+
+
+def _two_orders(search_first: float, baseline_first: float):
+    """An oracle where pulling `b` first risks `search_first` and `a` first `baseline_first`,
+    the second pull of either order holding; and the search's plan (b, a)."""
+    def rules(removed, box):
+        if removed:
+            return (0.0, ())
+        return (search_first, ("a",)) if box == "b" else (baseline_first, ("b",))
+    oracle = table_oracle(rules)
+    plan = SearchResult(("b", "a"), (oracle(frozenset(), "b"), oracle(frozenset({"b"}), "a")), False)
+    return oracle, plan
+
+
+def test_within_the_worlds_resolution_the_baseline_order_wins():
+    # search order 0.8 to hold, baseline 0.7: ten worlds' standard error at 0.8 is 0.126
+    oracle, plan = _two_orders(0.2, 0.3)
+    assert prefer_baseline(plan, ["a", "b"], oracle, worlds=10).sequence == ("a", "b")
+    # without a world count the old rule holds: only a baseline predicted better replaces the plan
+    assert prefer_baseline(plan, ["a", "b"], oracle) is plan
+
+
+def test_a_baseline_order_clearly_worse_than_the_worlds_can_resolve_is_not_taken():
+    # search order 0.8, baseline 0.5: worse by 0.3, more than two standard errors
+    oracle, plan = _two_orders(0.2, 0.5)
+    assert prefer_baseline(plan, ["a", "b"], oracle, worlds=10) is plan
+    # and with a hundred worlds (resolution 0.04) even 0.7 against 0.8 is told apart
+    oracle, plan = _two_orders(0.2, 0.3)
+    assert prefer_baseline(plan, ["a", "b"], oracle, worlds=100) is plan

@@ -7,7 +7,8 @@ import pytest
 from fake_oracles import STILL, risky, table_oracle
 from perception.scene import Box, Scene, Shelf
 from planning.extract import SearchResult
-from planning.reorder import prefer, reorder_extraction, resolution, top_first
+from planning.reorder import reorder_extraction, top_first
+from planning.resolution import prefer, resolution
 
 # a column: t at the bottom, m on t, h on m (tops 0.2, 0.4, 0.6 m)
 COLUMN = Scene(Shelf(), tuple(Box(i, (0.2, 0.2, 0.2), (0.0, 0.15, z)) for i, z in
