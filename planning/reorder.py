@@ -10,14 +10,18 @@ target. It is kept unless the physics predicts it a lower chance that no step
 collapses by more than one standard error of that chance over the sample worlds:
 ten worlds cannot tell 0.7 from 0.6, and where they cannot, the order that does
 not pull a box from under a load is the better bet (on the independent judge it
-held where the search's order collapsed; docs/bench.md). A safe plan is left as
+held where the search's order collapsed; docs/bench.md). That benefit of the
+doubt is not given where a box of the plan leans more than `LEAN_DEG`: on a leaning
+pile the highest top is a box resting against the others, not the top of a stack
+(there top first is kept only when predicted better). A safe plan is left as
 it is; the pass never adds or drops a box.
 """
 from __future__ import annotations
 
+import math
 from typing import Callable
 
-from perception.scene import Scene
+from perception.scene import Scene, quat_to_matrix
 from planning.extract import Oracle, SearchResult
 from planning.heuristic import height_key
 from planning.resolution import prefer, resolution
@@ -44,5 +48,16 @@ def reorder_extraction(result: SearchResult, scene: Scene, oracle: Oracle, risk:
     if cand == seq:
         return result
     start = next(k for k, (a, b) in enumerate(zip(seq, cand)) if a != b)
-    slack = resolution(result.success_prob, worlds)
+    boxes = {b.id: b for b in scene.boxes}
+    slack = resolution(result.success_prob, worlds) if all(lean_deg(boxes[i]) <= LEAN_DEG for i in seq) else 0.0
     return prefer(alternative(result, cand, start, oracle, risk, screen, slack), result, slack)
+
+
+LEAN_DEG = 5.0   # a box turned only about the vertical is upright; past this it leans on something
+
+
+def lean_deg(box) -> float:
+    """How far the box's most vertical axis is from the vertical, in degrees (0: upright, whatever its
+    yaw or which face it stands on): on a leaning box the highest top is not the top of a stack."""
+    r = quat_to_matrix(box.orientation)
+    return math.degrees(math.acos(min(1.0, max(abs(r[2][0]), abs(r[2][1]), abs(r[2][2])))))

@@ -7,7 +7,7 @@ import pytest
 from fake_oracles import STILL, risky, table_oracle
 from perception.scene import Box, Scene, Shelf
 from planning.extract import SearchResult
-from planning.reorder import reorder_extraction, top_first
+from planning.reorder import lean_deg, reorder_extraction, top_first
 from planning.resolution import prefer, resolution
 
 # a column: t at the bottom, m on t, h on m (tops 0.2, 0.4, 0.6 m)
@@ -102,3 +102,17 @@ def test_prefer_takes_the_persons_order_within_the_slack_only():
     assert prefer(None, search, 0.5) is search
     assert prefer(person, search, 0.0) is search           # no slack: only a better order
     assert prefer(search, person, 0.0) is search
+
+
+def test_on_a_leaning_box_the_highest_top_gets_no_benefit_of_the_doubt():
+    # the same column with h leaning 12 deg: its top is the highest, but it leans on the others;
+    # top first, within the worlds' resolution, is not taken (only an order predicted better would be)
+    lean = (math.cos(math.radians(6)), math.sin(math.radians(6)), 0.0, 0.0)
+    leaning = Scene(Shelf(), tuple(b if b.id != "h" else Box("h", b.size, b.position, lean)
+                                   for b in COLUMN.boxes))
+    assert lean_deg(leaning.boxes[2]) == pytest.approx(12.0)
+    assert lean_deg(Box("y", (0.2, 0.2, 0.2), (0, 0.15, 0.1), (math.cos(0.3), 0.0, 0.0, math.sin(0.3)))) < 1e-6
+    oracle = _column_oracle(0.05, 0.1)
+    plan = _plan(oracle, ("m", "h", "t"))
+    assert reorder_extraction(plan, leaning, oracle, worlds=10) is plan
+    assert reorder_extraction(plan, COLUMN, oracle, worlds=10).sequence == ("h", "m", "t")
