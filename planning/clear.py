@@ -9,7 +9,6 @@ ends after n steps and at most n*(n+1)/2 distinct oracle calls.
 """
 from __future__ import annotations
 
-import math
 from typing import Callable, Iterable
 
 from perception.scene import Scene
@@ -33,8 +32,7 @@ def visit_order(scene: Scene) -> tuple[str, ...]:
 def sampling_error(risk: float, samples: int) -> float:
     """Two standard errors of a risk estimated from `samples` worlds (a risk of 0 counts as 1/samples):
     risks closer than this are the same risk as far as `samples` worlds can tell."""
-    p = min(max(risk, 1.0 / samples), 1.0)
-    return 2.0 * math.sqrt(p * (1.0 - p) / samples)
+    return 2.0 * resolution(min(max(risk, 1.0 / samples), 1.0), samples)
 
 
 def search_clear(ids: Iterable[str], trial: Oracle, risk: float = 0.0,

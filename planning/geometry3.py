@@ -10,6 +10,12 @@ def rot_angle_deg(q0: tuple, q1: tuple) -> float:
     return math.degrees(2.0 * math.acos(min(1.0, d)))
 
 
+def lean_deg(r: list[list[float]]) -> float:
+    """How far the most vertical axis of rotation matrix `r` is from the vertical, in degrees: 0 for
+    any turn about the vertical and for a box standing on any of its faces."""
+    return math.degrees(math.acos(min(1.0, max(abs(r[2][0]), abs(r[2][1]), abs(r[2][2])))))
+
+
 def dist(a: tuple, b: tuple) -> float:
     return math.sqrt((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 + (a[2] - b[2]) ** 2)
 

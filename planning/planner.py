@@ -79,6 +79,7 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
     # can no longer be safe, and finds the least risky box without sampling all
     # (`bounded`: the same, with the most risk a step may carry given by the caller)
     fast = least = bounded = None
+    worlds = sampling.worlds if sampling is not None else None   # what the plans' chances are counted over
     if sampling is not None:
         screen = sampling.screen
 
@@ -94,14 +95,12 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
                              screen=fast)
         passed = (lambda: deadline is not None and time.monotonic() >= deadline)
         res = shorten_extraction(res, oracle, risk, screen=bounded, passed=passed)
-        res = reorder_extraction(res, scene, oracle, risk, screen=bounded, passed=passed,
-                                 worlds=sampling.worlds if sampling is not None else None)
+        res = reorder_extraction(res, scene, oracle, risk, screen=bounded, passed=passed, worlds=worlds)
     else:
         res = search_clear(visit_order(scene), oracle, risk=risk, deadline=deadline,
-                           screen=fast, least_risky=least, samples=sampling.worlds if sampling is not None else None)
+                           screen=fast, least_risky=least, samples=worlds)
         if not res.timed_out:
-            res = prefer_baseline(res, heuristic_order(scene, None), oracle, risk, screen=bounded,
-                                  worlds=sampling.worlds if sampling is not None else None)
+            res = prefer_baseline(res, heuristic_order(scene, None), oracle, risk, screen=bounded, worlds=worlds)
     timing = {"planning_s": time.perf_counter() - t0}
     return (tuple(res.sequence), tuple(res.predicted), res.timed_out, timing,
             len(screened | oracle.keys))

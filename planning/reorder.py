@@ -18,14 +18,16 @@ it is; the pass never adds or drops a box.
 """
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 from perception.scene import Scene, quat_to_matrix
 from planning.extract import Oracle, SearchResult
+from planning.geometry3 import lean_deg
 from planning.heuristic import height_key
 from planning.resolution import prefer, resolution
 from planning.shorten import Screen, alternative
+
+LEAN_DEG = 5.0   # a box leaning more than this rests against something: its top is no stack's top
 
 
 def top_first(scene: Scene, sequence: tuple[str, ...]) -> tuple[str, ...]:
@@ -39,8 +41,8 @@ def reorder_extraction(result: SearchResult, scene: Scene, oracle: Oracle, risk:
                        passed: Callable[[], bool] = lambda: False) -> SearchResult:
     """`result` with its blockers taken top first, unless the `worlds` sample worlds predict that
     order likelier to collapse by more than they can resolve (`resolution`; without `worlds`:
-    only when it is predicted better). `screen` bounds each step as in `shorten`; `passed()`
-    True skips."""
+    only when it is predicted better, as also where a box of the plan is `leaning`). `screen`
+    bounds each step as in `shorten`; `passed()` True skips."""
     seq = tuple(result.sequence)
     if len(seq) < 3 or result.safe or passed():
         return result
@@ -48,16 +50,10 @@ def reorder_extraction(result: SearchResult, scene: Scene, oracle: Oracle, risk:
     if cand == seq:
         return result
     start = next(k for k, (a, b) in enumerate(zip(seq, cand)) if a != b)
-    boxes = {b.id: b for b in scene.boxes}
-    slack = resolution(result.success_prob, worlds) if all(lean_deg(boxes[i]) <= LEAN_DEG for i in seq) else 0.0
+    slack = 0.0 if leaning(scene, seq) else resolution(result.success_prob, worlds)
     return prefer(alternative(result, cand, start, oracle, risk, screen, slack), result, slack)
 
 
-LEAN_DEG = 5.0   # a box turned only about the vertical is upright; past this it leans on something
-
-
-def lean_deg(box) -> float:
-    """How far the box's most vertical axis is from the vertical, in degrees (0: upright, whatever its
-    yaw or which face it stands on): on a leaning box the highest top is not the top of a stack."""
-    r = quat_to_matrix(box.orientation)
-    return math.degrees(math.acos(min(1.0, max(abs(r[2][0]), abs(r[2][1]), abs(r[2][2])))))
+def leaning(scene: Scene, ids: tuple[str, ...]) -> bool:
+    """Whether any of `ids` leans more than `LEAN_DEG` (a turn about the vertical is not a lean)."""
+    return any(lean_deg(quat_to_matrix(scene.box(i).orientation)) > LEAN_DEG for i in ids)
