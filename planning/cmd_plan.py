@@ -87,7 +87,7 @@ def _model(args: argparse.Namespace) -> "Uncertainty | None":
     model = Uncertainty(catalogue=()) if args.no_catalogue else Uncertainty()
     if args.face_error is not None:
         e = args.face_error
-        model = replace(model, face_error=e, face_size_error=e, face_depth_error=e, fit_faces=False)
+        model = replace(model, face_error=e, face_size_error=e, face_depth_error=e)
     return model
 
 

@@ -147,9 +147,9 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
 
     own = predictor is None
     if own:
+        search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
         predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers, model=model,
                               pool=pool, clients=clients)
-        search["uncertainty"] = predictor.model.to_json()   # with the face errors read from the scene
     sampling = predictor if isinstance(predictor, Screening) else None
     try:
         if own and scene.depth_known and sampling is not None:

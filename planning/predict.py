@@ -16,7 +16,6 @@ from typing import Sequence
 from perception.errors import SceneError
 from perception.scene import Scene
 from planning.bullet_clients import ClientPool
-from planning.face_precision import fit_to_scene
 from planning.physics import PhysicsConfig
 from planning.plan import StepPrediction
 from planning.sample_worlds import SampleWorlds, build_sample, not_standing, scene_check
@@ -53,8 +52,7 @@ class Predictor:
         self.seed = int(seed)
         self.samples = samples
         self.early_stop_risk = early_stop_risk
-        # the face size and depth errors, unless given, are read from the scene's own faces
-        self.model = fit_to_scene(model if model is not None else Uncertainty(), scene)
+        self.model = model if model is not None else Uncertainty()
         # a known shelf needs more than one world only while something else is still drawn
         self._drawn = not scene.depth_known or self.model.draws_physics
         self._n = samples if self._drawn else 1

@@ -37,7 +37,7 @@ def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> 
     """
     cfg = config or PhysicsConfig()
     r = quat_to_matrix(box.orientation)
-    face = face_corners(box)
+    face = _face(box)
     face_max_y = max(c[1] for c in face)
     dy = r[1][1]  # how much of the box's depth axis points into the shelf
     if dy < 0.2:
@@ -48,7 +48,7 @@ def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> 
     for other in scene.boxes:
         if other.id == box.id:
             continue
-        cs = other.corners() if other.depth_known else face_corners(other)
+        cs = other.corners() if other.depth_known else _face(other)
         ox0, ox1 = min(c[0] for c in cs), max(c[0] for c in cs)
         oz0, oz1 = min(c[2] for c in cs), max(c[2] for c in cs)
         oy0 = min(c[1] for c in cs)
@@ -67,8 +67,7 @@ def depth_range(scene: Scene, box: Box, config: PhysicsConfig | None = None) -> 
 _OCCLUSION_OVERLAP = 0.05  # m of face overlap in x and in z before a face counts as behind another
 
 
-def face_corners(b: Box) -> list:
-    """The four corners of `b`'s front face in the shelf frame: (-x,-z), (-x,+z), (+x,-z), (+x,+z)."""
+def _face(b: Box) -> list:
     r = quat_to_matrix(b.orientation)
     f = b.front_center
     hx, hz = b.size[0] / 2, b.size[2] / 2
@@ -143,20 +142,17 @@ class Uncertainty:
     catalogue_tol: float = 0.025
     catalogue_trust: float = 1.0
     catalogue_depth_error: float = 0.01
-    # read `face_size_error` and `face_depth_error` from the scene's own faces when a Predictor
-    # is built (`planning.face_precision.fit_to_scene`); False keeps the two values given
-    fit_faces: bool = True
 
     @classmethod
     def none(cls) -> "Uncertainty":
         """Only the depth is drawn (the method's original model): for comparisons and tests."""
         return cls(mass=(0.0, 0.0), friction=(0.0, 0.0), face_error=0.0, face_size_error=0.0,
                    face_depth_error=0.0, pull_speed=(0.0, 0.0),
-                   pull_force=(0.0, 0.0), pull_modes=(), catalogue=(), fit_faces=False)
+                   pull_force=(0.0, 0.0), pull_modes=(), catalogue=())
 
     def without_face_error(self) -> "Uncertainty":
         """The same model for a shelf whose geometry is known (a scene file, the truth)."""
-        return replace(self, face_error=0.0, face_size_error=0.0, face_depth_error=0.0, fit_faces=False)
+        return replace(self, face_error=0.0, face_size_error=0.0, face_depth_error=0.0)
 
     @property
     def draws_mass(self) -> bool:
@@ -174,7 +170,7 @@ class Uncertainty:
                 "pull_speed_m_s": list(self.pull_speed), "pull_force_n": list(self.pull_force),
                 "pull_modes": list(self.pull_modes), "catalogue": [list(t) for t in self.catalogue],
                 "catalogue_tol_m": self.catalogue_tol, "catalogue_trust": self.catalogue_trust,
-                "catalogue_depth_error_m": self.catalogue_depth_error, "fit_faces": self.fit_faces}
+                "catalogue_depth_error_m": self.catalogue_depth_error}
 
 
 def _rng(seed: int, k: int, what: str) -> random.Random:
