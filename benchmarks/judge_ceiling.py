@@ -14,8 +14,8 @@ the ceiling, reported beside the tasks that no plan of ours ever held.
 `--mode sets` searches wider: every box not wholly below the target, in any order that holds.
 Breadth first over removal sets, smallest first: a set is reached by the first collapse-free
 order found (each known order extended by one more box), and every set reached is tried with the
-target pulled next. It stops at the first plan that holds, or when `--budget-s` runs out; the row
-says how many sets of each size were reached and which sizes were searched completely.
+target pulled next. It stops at the first plan that holds, or when `--budget-s` runs out; the row's
+`reached` says how many sets of each size were reached, one entry per size searched to the end.
 `--engines pybullet,mujoco` asks every step to hold in both of the judge's engines: a plan
 that holds in one engine only is marginal (issue 9), so this is the ceiling of robust plans.
 """
@@ -58,23 +58,27 @@ def plans(scene: dict, target: str, n: int, k_max: int) -> list[list[str]]:
     return out
 
 
+def _plan(target: str, sequence: list[str]) -> dict:
+    return {"format": "shelfpick.plan/1", "task": "extract", "target": target, "sequence": sequence}
+
+
+def _truth(unit: dict) -> dict:
+    """The task's true shelf, the judge made importable in this process first."""
+    init_worker(unit["judge_dir"])
+    return json.loads((Path(unit["judge_dir"]) / "scenes" / f"{unit['task']['scene']}.json").read_text(encoding="utf-8"))
+
+
 def search_task(unit: dict) -> dict:
     """Judge the task's plans in order until one holds."""
-    init_worker(unit["judge_dir"])
-    from judge import judge
-
-    task = unit["task"]
-    scene = json.loads((Path(unit["judge_dir"]) / "scenes" / f"{task['scene']}.json").read_text(encoding="utf-8"))
+    scene, task = _truth(unit), unit["task"]
     t0 = time.perf_counter()
-    tried = 0
+    tried, found = 0, None
     for seq in plans(scene, task["target"], unit["candidates"], unit["max_remove"]):
         tried += 1
-        v = judge(scene, {"format": "shelfpick.plan/1", "task": "extract", "target": task["target"],
-                          "sequence": seq}, stop_on_collapse=True)
-        if v["ok"]:
-            return {"task": f"{task['scene']}:{task['target']}", "found": seq, "tried": tried,
-                    "s": round(time.perf_counter() - t0, 1)}
-    return {"task": f"{task['scene']}:{task['target']}", "found": None, "tried": tried,
+        if judge_fn("pybullet")(scene, _plan(task["target"], seq), stop_on_collapse=True)["ok"]:
+            found = seq
+            break
+    return {"task": f"{task['scene']}:{task['target']}", "found": found, "tried": tried,
             "s": round(time.perf_counter() - t0, 1)}
 
 
@@ -82,11 +86,9 @@ def _pull_then_target(scene: dict, path: list[str], box: str, target: str, engin
     """Judge `path`, `box`, `target` (the path known to hold) with every engine: "ok" (held in all),
     "box" (pulling `box` collapses or sticks in one of them: this order is dead) or "target" (the
     path and box hold everywhere, the target does not yet)."""
-    seq = [*path, box, target]
-    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": target, "sequence": seq}
     held = True
     for engine in engines:
-        v = judge_fn(engine)(scene, plan, stop_on_collapse=True)
+        v = judge_fn(engine)(scene, _plan(target, [*path, box, target]), stop_on_collapse=True)
         step = v["steps"][len(path)] if len(v["steps"]) > len(path) else None
         if step is None or step.get("collapse") or not step.get("removed"):
             return "box"
@@ -94,39 +96,37 @@ def _pull_then_target(scene: dict, path: list[str], box: str, target: str, engin
     return "ok" if held else "target"
 
 
+def _extensions(frontier: list[list[str]], cands: list[str], seen: set[frozenset[str]]):
+    """(order, box) for every known order and every box that makes a removal set not yet reached."""
+    for path in frontier:
+        for box in cands:
+            if box not in path and frozenset(path) | {box} not in seen:
+                yield path, box
+
+
 def search_sets(unit: dict) -> dict:
-    """Breadth first over collapse-free removal sets (module docstring, `--mode sets`)."""
-    init_worker(unit["judge_dir"])
-    task, engines = unit["task"], unit["engines"]
-    scene = json.loads((Path(unit["judge_dir"]) / "scenes" / f"{task['scene']}.json").read_text(encoding="utf-8"))
+    """Breadth first over collapse-free removal sets (module docstring, `--mode sets`). The row's
+    `reached` counts the sets reached of each size searched to the end (size 0: the empty set)."""
+    scene, task, engines = _truth(unit), unit["task"], unit["engines"]
     target, t0 = task["target"], time.perf_counter()
-    name = f"{task['scene']}:{target}"
     cands = candidates(scene, target, len(scene["boxes"]))
-    row = {"task": name, "found": None, "tried": 1, "reached": [1], "complete_sizes": 0, "candidates": len(cands)}
-    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": target, "sequence": [target]}
-    if all(judge_fn(e)(scene, plan, stop_on_collapse=True)["ok"] for e in engines):
+    row = {"task": f"{task['scene']}:{target}", "found": None, "tried": 1, "reached": [1], "candidates": len(cands)}
+    if all(judge_fn(e)(scene, _plan(target, [target]), stop_on_collapse=True)["ok"] for e in engines):
         return {**row, "found": [target], "s": round(time.perf_counter() - t0, 1)}
     frontier, seen = [[]], {frozenset()}
-    for size in range(1, len(cands) + 1):
+    while frontier:
         nxt = []
-        for path in frontier:
-            for box in cands:
-                key = frozenset(path) | {box}
-                if box in path or key in seen:
-                    continue
-                if time.perf_counter() - t0 > unit["budget_s"]:
-                    return {**row, "s": round(time.perf_counter() - t0, 1)}
-                row["tried"] += 1
-                what = _pull_then_target(scene, path, box, target, engines)
-                if what == "ok":
-                    return {**row, "found": [*path, box, target], "s": round(time.perf_counter() - t0, 1)}
-                if what == "target":
-                    seen.add(key)
-                    nxt.append([*path, box])
+        for path, box in _extensions(frontier, cands, seen):
+            if time.perf_counter() - t0 > unit["budget_s"]:
+                return {**row, "s": round(time.perf_counter() - t0, 1)}
+            row["tried"] += 1
+            what = _pull_then_target(scene, path, box, target, engines)
+            if what == "ok":
+                return {**row, "found": [*path, box, target], "s": round(time.perf_counter() - t0, 1)}
+            if what == "target":
+                seen.add(frozenset(path) | {box})
+                nxt.append([*path, box])
         row["reached"].append(len(nxt))
-        row["complete_sizes"] = size
-        if not nxt:
-            break
         frontier = nxt
     return {**row, "s": round(time.perf_counter() - t0, 1)}
 
