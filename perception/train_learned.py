@@ -20,6 +20,9 @@ and low/high cameras) at seeds from 30800, drawn for `--wall-share` of the crops
 
     python -m perception.train_learned --frames 800 --walls 500 --init static/weights/shelfpick-learned.pt \
         --lr 4e-4 --minutes 45 --cache /tmp/rcan2/cache --out /tmp/rcan2/shelfpick-learned.pt
+
+Fourth round: `--taped N` adds N walls whose faces are cut by tape, stickers and shadow edges
+(`train_scenes.taped_wall_example`, seeds from 32000), drawn for `--taped-share` of the crops.
 """
 from __future__ import annotations
 
@@ -40,7 +43,7 @@ from perception.geometry import matrix_to_quat
 from perception.render import default_camera, render
 from perception.scene import Box, Camera, Scene, Shelf
 from perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
-from perception.train_scenes import WALL_SEED0, wall_example
+from perception.train_scenes import TAPED_SEED0, WALL_SEED0, taped_wall_example, wall_example
 
 TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
 FROZEN_BLOCKS = 5          # stem and blocks 0-4 (strides 2-8) keep their ImageNet weights
@@ -63,6 +66,9 @@ class TrainConfig:
     wall_seed: int = WALL_SEED0            # their first seed (after the first round's 30000-30799)
     wall_share: float = 0.5                # share of crops drawn from the wall frames
     init: str | None = None                # fine-tune from this shelfpick-learned checkpoint
+    taped: int = 0                         # walls with faces cut by tape and stickers (`taped_wall_example`)
+    taped_seed: int = TAPED_SEED0
+    taped_share: float = 0.0               # share of crops drawn from the taped walls
 
     def to_json(self) -> dict:
         d = dict(vars(self))
@@ -276,13 +282,25 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
 
 
 # ---------------------------------------------------------------- training
+def _pick(files: list[Path], walls: list[Path], taped: list[Path], cfg: TrainConfig,
+          rng: np.random.Generator) -> list[Path]:
+    """The frame list one crop comes from: walls for `wall_share` of the crops, taped walls
+    for `taped_share`, the shelf renders for the rest (a share whose list is empty falls to them)."""
+    r = rng.random()
+    if walls and r < cfg.wall_share:
+        return walls
+    if taped and cfg.wall_share <= r < cfg.wall_share + cfg.taped_share:
+        return taped
+    return files
+
+
 def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache: dict,
-           walls: list[Path] | None = None):
+           walls: list[Path] | None = None, taped: list[Path] | None = None):
     import torch   # heavy and optional: only when training
 
     xs, ys = [], []
     for _ in range(cfg.batch):
-        pick = walls if walls and rng.random() < cfg.wall_share else files
+        pick = _pick(files, walls or [], taped or [], cfg, rng)
         p = pick[int(rng.integers(len(pick)))]
         if p not in cache:
             with np.load(p) as z:
@@ -322,6 +340,11 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         if cfg.wall_seed < WALL_SEED0:
             raise ValueError(f"wall frames use seeds >= {WALL_SEED0}, got {cfg.wall_seed}")
         walls = build_cache(cache_dir, cfg.walls, cfg.wall_seed, log, wall_example, "w")
+    taped: list[Path] = []
+    if cfg.taped:
+        if cfg.taped_seed < TAPED_SEED0:
+            raise ValueError(f"taped wall frames use seeds >= {TAPED_SEED0}, got {cfg.taped_seed}")
+        taped = build_cache(cache_dir, cfg.taped, cfg.taped_seed, log, taped_wall_example, "t")
     learned_cfg = LearnedConfig()
     if cfg.init:
         from perception.segment_learned import load_checkpoint
@@ -349,7 +372,7 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         for m in model._blocks:          # BatchNorm statistics of the backbone stay ImageNet's
             m.eval()
         model._bn0.eval()
-        x, y = _batch(files, cfg, rng, cache, walls)
+        x, y = _batch(files, cfg, rng, cache, walls, taped)
         loss = F.cross_entropy(model(x), y, weight=weights)
         opt.zero_grad()
         loss.backward()
@@ -384,14 +407,22 @@ def main(argv: list[str] | None = None) -> int:
                    help="extra photo-like wall frames (`train_scenes.wall_example`, seeds from --wall-seed)")
     p.add_argument("--wall-seed", type=int, default=WALL_SEED0, help=f"first wall seed (>= {WALL_SEED0})")
     p.add_argument("--wall-share", type=float, default=0.5, help="share of crops from the wall frames")
+    p.add_argument("--taped", type=int, default=0,
+                   help="walls with faces cut by tape and stickers (`train_scenes.taped_wall_example`)")
+    p.add_argument("--taped-seed", type=int, default=TAPED_SEED0, help=f"first taped wall seed (>= {TAPED_SEED0})")
+    p.add_argument("--taped-share", type=float, default=0.0, help="share of crops from the taped walls")
     a = p.parse_args(argv)
     if a.seed < TRAIN_SEED0:
         p.error(f"--seed: training renders use seeds >= {TRAIN_SEED0} (the fixed set roles live below), got {a.seed}")
     if a.walls and a.wall_seed < WALL_SEED0:
         p.error(f"--wall-seed: wall renders use seeds >= {WALL_SEED0}, got {a.wall_seed}")
+    if a.taped and a.taped_seed < TAPED_SEED0:
+        p.error(f"--taped-seed: taped wall renders use seeds >= {TAPED_SEED0}, got {a.taped_seed}")
+    if a.wall_share + a.taped_share > 1.0:
+        p.error(f"--wall-share + --taped-share: at most 1, got {a.wall_share + a.taped_share}")
     cfg = TrainConfig(frames=a.frames, seed=a.seed, minutes=a.minutes, max_iters=a.max_iters, batch=a.batch,
                       threads=a.threads, lr=a.lr, walls=a.walls, wall_seed=a.wall_seed, wall_share=a.wall_share,
-                      init=a.init)
+                      init=a.init, taped=a.taped, taped_seed=a.taped_seed, taped_share=a.taped_share)
     meta = train(cfg, Path(a.cache), Path(a.out), log=lambda m: print(m, flush=True))
     print(json.dumps(meta))
     return 0

@@ -8,6 +8,11 @@ only: sizes, prints, gaps, camera poses are all drawn at random; no real image i
 
 `wall_example(seed)` -> (RGB uint8, front-face instance labels uint16); seeds >= 30800 (the
 first round used 30000-30799; every fixed role lives below 30000).
+
+Fourth round: `taped_wall_example(seed)`, seeds >= 32000, the same walls with each carton's face
+cut by what cuts real ones: wide tape bands and crosses anywhere on the face (opaque or clear),
+stickers of any size that may run to the face's border, and a hard shadow edge across the face.
+The label is still the whole front face: none of these ends a carton.
 """
 from __future__ import annotations
 
@@ -17,12 +22,13 @@ import cv2
 import numpy as np
 
 from perception.bench_truth import front_face_masks
-from perception.cardboard import INK_RGB, box_texture, plain_box_texture
+from perception.cardboard import INK_RGB, TAPE_RGB, box_texture, plain_box_texture
 from perception.geometry import matrix_to_quat
 from perception.render import default_camera, render
 from perception.scene import Box, Camera, Scene, Shelf
 
 WALL_SEED0 = 30800
+TAPED_SEED0 = 32000     # fourth round: walls whose faces are cut by tape, stickers, shadows
 
 _WORDS = ("CARTON", "FRAGILE", "THIS SIDE UP", "MADE IN", "NET WT", "12 x 500ml", "AB-2041", "LOT 2021",
           "EXPORT", "PHARMA", "FOOD", "SAFETY", "KEEP DRY", "0.9%", "250ml", "18AA", "Co. Ltd", "ORGANIC")
@@ -162,15 +168,90 @@ def wall_camera(rng: np.random.Generator, scene: Scene) -> Camera:
                   tuple(float(v) for v in pos), tuple(float(v) for v in matrix_to_quat(r)))  # type: ignore[arg-type]
 
 
-def wall_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(RGB uint8 HxWx3, front-face instance labels uint16) of wall training frame `seed`."""
+def _tape(img: np.ndarray, rng: np.random.Generator) -> None:
+    """1-3 bands of tape across the whole face, 4-25 % of its side wide, anywhere along it,
+    vertical or horizontal (a cross when both): opaque coloured tape or clear tape (a glossy,
+    slightly lighter band with darker edges)."""
+    s = img.shape[0]
+    for _ in range(int(rng.integers(1, 4))):
+        wd = max(2, int(rng.uniform(0.04, 0.25) * s))
+        a = int(rng.uniform(0.0, 1.0) * (s - wd))
+        band = np.s_[:, a:a + wd] if rng.random() < 0.5 else np.s_[a:a + wd, :]
+        if rng.random() < 0.6:
+            tape = np.asarray(TAPE_RGB[rng.integers(len(TAPE_RGB))], np.float32) * rng.uniform(0.85, 1.15)
+            img[band] = img[band] * rng.uniform(0.05, 0.35) + tape * 0.8
+        else:
+            img[band] = img[band] * rng.uniform(1.05, 1.35) + rng.uniform(5, 30)
+        edge = max(1, wd // 8)
+        if band[1] == slice(None):
+            img[a:a + edge] *= 0.8
+            img[a + wd - edge:a + wd] *= 0.8
+        else:
+            img[:, a:a + edge] *= 0.8
+            img[:, a + wd - edge:a + wd] *= 0.8
+
+
+def _stickers(img: np.ndarray, rng: np.random.Generator) -> None:
+    """0-4 stickers, 10-45 % of the face's side each way, anywhere, a third of them running
+    to a border of the face: white or yellow paper with a barcode and lines of text."""
+    s = img.shape[0]
+    for _ in range(int(rng.integers(0, 5))):
+        lw, lh = int(rng.uniform(0.1, 0.45) * s), int(rng.uniform(0.1, 0.45) * s)
+        x0, y0 = int(rng.integers(0, s - lw)), int(rng.integers(0, s - lh))
+        if rng.random() < 0.33:
+            x0 = 0 if rng.random() < 0.5 else s - lw
+        if rng.random() < 0.33:
+            y0 = 0 if rng.random() < 0.5 else s - lh
+        paper = np.array([245, 245, 240] if rng.random() < 0.75 else [240, 220, 120], np.float32)
+        img[y0:y0 + lh, x0:x0 + lw] = paper * rng.uniform(0.85, 1.0)
+        ink = np.asarray(INK_RGB[rng.integers(len(INK_RGB))], np.float32)
+        if rng.random() < 0.6:
+            bars = np.nonzero(rng.random(max(1, lw - 6)) < 0.45)[0] + x0 + 3
+            img[y0 + 3:y0 + max(4, lh // 2), bars] = ink
+        for k in range(int(rng.integers(1, 5))):
+            ty = y0 + lh - 4 - max(3, lh // 8) * k
+            if ty <= y0 + 2:
+                break
+            img[ty:ty + max(1, lh // 20), x0 + 3:x0 + 3 + int(rng.uniform(0.3, 0.9) * (lw - 6))] = ink
+
+
+def _shadow(img: np.ndarray, rng: np.random.Generator) -> None:
+    """A hard shadow edge: the face on one side of a random straight line darkened."""
+    s = img.shape[0]
+    yy, xx = np.mgrid[0:s, 0:s].astype(np.float32) / s
+    a = float(rng.uniform(0, 2 * math.pi))
+    side = (xx - 0.5) * math.cos(a) + (yy - 0.5) * math.sin(a) > float(rng.uniform(-0.35, 0.35))
+    img[side] *= float(rng.uniform(0.4, 0.8))
+
+
+def taped_variant(tex: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """`_variant` of a group print with this carton's own tape (80 %), stickers and maybe a
+    shadow edge (30 %) on top: what cuts a real face into pieces that are still one carton."""
+    img = _variant(tex, rng).astype(np.float32)
+    if rng.random() < 0.8:
+        _tape(img, rng)
+    _stickers(img, rng)
+    if rng.random() < 0.3:
+        _shadow(img, rng)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def wall_example(seed: int, taped: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB uint8 HxWx3, front-face instance labels uint16) of wall training frame `seed`;
+    `taped`: each carton's face cut by tape, stickers and shadows (`taped_variant`)."""
     rng = np.random.default_rng(seed + 2_000_003)
     scene, groups = wall_scene(rng)
     cam = wall_camera(rng, scene)
     prints = [_group_texture(rng) for _ in range(max(groups, default=0) + 1)]
-    per_box = [_variant(prints[g], rng) for g in groups]
+    vary = taped_variant if taped else _variant
+    per_box = [vary(prints[g], rng) for g in groups]
     cap = render(scene, cam, seed=seed, looks="printed", varied_light=bool(rng.random() < 0.6), textures=per_box)
     labels = np.zeros(cap.shape, np.uint16)
     for k, m in enumerate(front_face_masks(scene, cap).values(), start=1):
         labels[m] = k
     return cap.rgb, labels
+
+
+def taped_wall_example(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A fourth-round frame (seeds >= `TAPED_SEED0`): `wall_example` with taped faces."""
+    return wall_example(seed, taped=True)

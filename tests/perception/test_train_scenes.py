@@ -49,3 +49,48 @@ def test_training_refuses_wall_seeds_of_the_first_round():
     with pytest.raises(SystemExit) as e:
         main(["--walls", "1", "--wall-seed", "30500", "--frames", "1"])
     assert e.value.code == 2
+
+
+def test_a_taped_face_is_cut_into_pieces_yet_labelled_whole():
+    """Fourth round: tape, stickers and shadow edges change a carton's print (more edges
+    inside the face than the plain variant has) and leave the labels one face per carton."""
+    import cv2
+
+    from perception.train_scenes import _group_texture, _variant, taped_variant, taped_wall_example, wall_example
+
+    rng = np.random.default_rng(5)
+    tex = _group_texture(rng)
+    inner = np.s_[8:-8, 8:-8]                                # inside the darkened face border
+    plain = [cv2.Canny(_variant(tex, np.random.default_rng(s)), 60, 150)[inner].mean() for s in range(12)]
+    taped = [cv2.Canny(taped_variant(tex, np.random.default_rng(s)), 60, 150)[inner].mean() for s in range(12)]
+    assert np.mean(taped) > 1.2 * np.mean(plain)
+    rgb, labels = taped_wall_example(32004)
+    rgb0, labels0 = wall_example(32004)
+    assert np.array_equal(labels, labels0)                   # the same wall, the same faces
+    assert not np.array_equal(rgb, rgb0)
+    rgb2, _ = taped_wall_example(32004)
+    assert np.array_equal(rgb, rgb2)
+
+
+def test_crops_are_drawn_from_each_frame_kind_by_its_share():
+    from pathlib import Path
+
+    from perception.train_learned import TrainConfig, _pick
+
+    f, w, t = [Path("f")], [Path("w")], [Path("t")]
+    cfg = TrainConfig(wall_share=0.25, taped_share=0.5)
+    rng = np.random.default_rng(0)
+    picks = [_pick(f, w, t, cfg, rng)[0].name for _ in range(4000)]
+    share = {k: picks.count(k) / len(picks) for k in "fwt"}
+    assert abs(share["w"] - 0.25) < 0.03 and abs(share["t"] - 0.5) < 0.03 and abs(share["f"] - 0.25) < 0.03
+    assert {_pick(f, w, [], cfg, rng)[0].name for _ in range(200)} == {"f", "w"}   # no taped frames: shelves
+
+
+def test_training_refuses_taped_seeds_below_their_range_and_shares_over_one():
+    from perception.train_learned import main
+
+    for argv in (["--taped", "1", "--taped-seed", "31000", "--frames", "1"],
+                 ["--wall-share", "0.6", "--taped-share", "0.6", "--frames", "1"]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
