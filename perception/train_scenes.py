@@ -1,4 +1,4 @@
-"""Photo-like training scenes for the learned segmenter (issue 14, second training round).
+"""Photo-like training scenes for the learned segmenter (issue 14, second and fourth training rounds).
 
 What the real carton photos have and the first round's renders lacked: walls and rows of
 flush cartons of the SAME print side by side (the seam between two only a thin darker line
