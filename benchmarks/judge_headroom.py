@@ -25,13 +25,15 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.judge_rows import UsageError  # noqa: E402
+
 CLASSES = ("ours, both engines", "ours, pybullet only, robust plan exists", "ours, pybullet only",
            "missed, robust plan exists", "missed, pybullet-only plan exists", "no plan holds", "not searched")
 COLOURS = ("#2e7d32", "#9ccc65", "#c5e1a5", "#ef6c00", "#ffcc80", "#9e9e9e", "#e0e0e0")
-
-
-class UsageError(Exception):
-    """A file that cannot be read as rows: one line naming it, exit 2."""
 
 
 def _rows(path: str) -> list[dict]:
@@ -144,6 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     table = counts(classes, {t: k for t, (_, k) in py.items()})
     for kind, row in sorted(table.items(), key=lambda kv: kv[0] == "all"):
         print(f"{kind}: " + ", ".join(f"{c} {n}" for c, n in row.items() if n))
+
     def tasks_in(names: Sequence[str]) -> int:
         return sum(table["all"][c] for c in names)
     ours, missed = CLASSES[:3], CLASSES[3:5]
