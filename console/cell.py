@@ -31,6 +31,15 @@ SECTIONS: dict[str, tuple[str, ...]] = {
 }
 
 
+MAX_CELL_BYTES = 1 << 20     # a cell file is a few hundred bytes; checked before it is read
+# every number a robot spec may carry, in the cell file's [robot] section or a --robot URL's query: the
+# one table both are checked against (robot_number), so neither accepts what the other refuses
+ROBOT_NUMBERS: dict[str, tuple[float, float]] = {**{k: (1e-3, 3600.0) for k in TIMEOUTS},
+                                                 "delay": (0.0, 600.0), "seed": (0.0, 2.0**63 - 1)}
+SIM_OPTIONS = ("delay", "seed", "surprise")
+TCP_OPTIONS = ("transform", "position", "orientation") + TIMEOUTS
+
+
 class CellError(FormatError):
     """A cell file that is wrong: `cell.toml: robot.url: expected tcp://HOST:PORT or sim, got 'x'`."""
 
@@ -81,7 +90,7 @@ def read_cell(path: str | Path) -> Cell:
     p = Path(path)
     origin = str(path)
     try:
-        text = p.read_bytes().decode("utf-8")
+        text = _regular_bytes(p, origin).decode("utf-8")
     except FileNotFoundError:
         raise CellError(origin, "", "cell file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -91,6 +100,75 @@ def read_cell(path: str | Path) -> Cell:
     except ValueError as exc:   # tomllib.TOMLDecodeError is a ValueError
         raise CellError(origin, "", f"not valid TOML ({exc})") from None
     return _cell(doc, origin, p.resolve().parent)
+
+
+def _regular_bytes(p: Path, origin: str) -> bytes:
+    """A regular file's bytes, its kind and size checked before reading (a symlink to /dev/zero
+    never ends; a FIFO blocks)."""
+    import os
+    import stat
+
+    st = os.stat(p)
+    if not stat.S_ISREG(st.st_mode):
+        raise CellError(origin, "", "not a regular file (a device, FIFO or folder); a cell file is a TOML file")
+    if st.st_size > MAX_CELL_BYTES:
+        raise CellError(origin, "", f"{st.st_size} bytes; a cell file is at most {MAX_CELL_BYTES} bytes")
+    with open(p, "rb") as f:
+        data = f.read(MAX_CELL_BYTES + 1)
+    if len(data) > MAX_CELL_BYTES:
+        raise CellError(origin, "", f"more than {MAX_CELL_BYTES} bytes; a cell file is smaller")
+    return data
+
+
+def robot_number(key: str, text: Any, origin: str, fld: str) -> float:
+    """One number of a robot spec (a timeout, sim's delay or seed) checked against ROBOT_NUMBERS;
+    CellError naming `origin` and `fld` otherwise. `text`: a URL's string or a TOML number."""
+    lo, hi = ROBOT_NUMBERS[key]
+    try:
+        v = float(text) if isinstance(text, str) else (float(text) if isinstance(text, (int, float))
+                                                       and not isinstance(text, bool) else math.nan)
+    except (ValueError, OverflowError):
+        v = math.nan
+    if not (math.isfinite(v) and lo <= v <= hi):
+        shown = text if not isinstance(text, str) or len(text) <= 40 else text[:40] + "..."
+        raise CellError(origin, fld, f"expected a number in [{lo:g}, {hi:g}], got {shown!r}")
+    return v
+
+
+def check_robot_spec(spec: str, origin: str = "--robot") -> str:
+    """A robot spec as `console.robot.open_robot` takes it (`sim[?delay=S&seed=N&surprise=0|1]` or
+    `tcp://HOST:PORT[?options]`), checked completely before anything is opened: its shape (an IPv6
+    host in brackets), known options only, every number within ROBOT_NUMBERS (the cell file's
+    bounds). CellError, one line naming `origin` and the option; returns the spec stripped."""
+    from urllib.parse import parse_qs, urlsplit
+
+    spec = spec.strip()
+    if len(spec) > 4096 or not spec.isprintable():
+        raise CellError(origin, "", f"expected sim or tcp://HOST:PORT (printable, at most 4096 characters), "
+                                    f"got {ascii(spec[:60])}")
+    base, _, query = spec.partition("?")
+    try:
+        q = parse_qs(query, keep_blank_values=True, strict_parsing=bool(query), max_num_fields=32)
+        parts = urlsplit(spec)
+        port = parts.port
+    except ValueError as exc:
+        raise CellError(origin, "", f"expected sim or tcp://HOST:PORT, got {spec!r} ({exc})") from None
+    if base == "sim":
+        allowed = SIM_OPTIONS
+    elif parts.scheme == "tcp" and parts.hostname and port and parts.path in ("", "/"):
+        allowed = TCP_OPTIONS
+    else:
+        raise CellError(origin, "", f"expected sim or tcp://HOST:PORT (a port 1-65535), got {spec!r}")
+    for key, values in q.items():
+        if key not in allowed:
+            raise CellError(origin, key, f"unknown option (known: {', '.join(allowed)})")
+        if len(values) != 1:
+            raise CellError(origin, key, "given more than once")
+        if key in ROBOT_NUMBERS:
+            robot_number(key, values[0], origin, key)
+    if q.get("surprise", ["0"])[0] not in ("0", "1"):
+        raise CellError(origin, "surprise", f"expected 0 or 1, got {q['surprise'][0]!r}")
+    return spec
 
 
 def _cell(doc: Mapping[str, Any], origin: str, base: Path) -> Cell:
@@ -197,11 +275,11 @@ def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
         return "sim"
     from urllib.parse import urlsplit
 
-    parts = urlsplit(url)
     try:
+        parts = urlsplit(url)
         port = parts.port
-    except ValueError:
-        port = None
+    except ValueError:          # a bracket left open, a port out of range
+        parts, port = urlsplit(""), None
     if parts.scheme != "tcp" or not parts.hostname or not port or parts.query or parts.path not in ("", "/"):
         raise CellError(origin, "robot.url", f"expected sim or tcp://HOST:PORT (options go in their own keys), "
                                              f"got {url!r}")
@@ -224,14 +302,17 @@ def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
         opts += [("position", ",".join(repr(x) for x in pos)), ("orientation", ",".join(repr(x) for x in quat))]
     for key in TIMEOUTS:
         if key in sec:
-            opts.append((key, repr(_number(sec, "robot", key, origin, lo=1e-3, hi=3600.0))))
+            opts.append((key, repr(robot_number(key, sec[key], origin, f"robot.{key}"))))
     query = "&".join(f"{k}={quote(v, safe='/,.-_:')}" for k, v in opts)
-    return f"tcp://{parts.hostname}:{port}" + (f"?{query}" if query else "")
+    host = f"[{parts.hostname}]" if ":" in parts.hostname else parts.hostname   # an IPv6 address
+    return f"tcp://{host}:{port}" + (f"?{query}" if query else "")
 
 
 def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
+    from planning.cmd_plan import SAMPLES, SEEDS, WORKERS
+
     out: dict[str, Any] = {}
-    for key, lo, hi in (("samples", 1, 1000), ("workers", 1, 256), ("port", 0, 65535), ("seed", 0, 2**63 - 1)):
+    for key, (lo, hi) in (("samples", SAMPLES), ("workers", WORKERS), ("port", (0, 65535)), ("seed", SEEDS)):
         if key in sec:
             out[key] = _number(sec, "safety", key, origin, lo=lo, hi=hi, integer=True)
     for key, lo, hi in (("tolerance_displacement", 1e-4, 1.0), ("tolerance_rotation", 0.1, 180.0),
@@ -246,4 +327,4 @@ def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
     return out
 
 
-__all__ = ["Cell", "CellError", "CELL_FORMAT", "read_cell"]
+__all__ = ["Cell", "CellError", "CELL_FORMAT", "ROBOT_NUMBERS", "check_robot_spec", "read_cell", "robot_number"]

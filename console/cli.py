@@ -8,7 +8,8 @@ it is printed as one line and the exit code is 2, with no traceback.
 
 Exit codes (docs/cli.md): 0 done; 1 an unexpected failure (a traceback);
 2 bad input or usage; 3 `simulate`: the plan did not hold; 130 interrupted;
-143 `console` stopped by SIGTERM. Status and warnings are log records on
+141 stdout closed by its reader (`| head`); 143 `console` stopped by SIGTERM.
+Status and warnings are log records on
 stderr (`-v` adds debug, `-q` keeps only warnings and errors); stdout carries
 only what a command was asked for (a plan, a verdict, a report).
 """
@@ -36,6 +37,7 @@ COMMANDS: dict[str, str] = {
 }
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_PLAN_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
+EXIT_PIPE_CLOSED = 141        # stdout's reader went away (`| head`): 128 + SIGPIPE, as a shell reports it
 LOGGERS = ("perception", "planning", "console")   # the packages whose records the CLI shows
 # optional libraries -> the extra that installs them (pyproject.toml); a command that needs one that is
 # missing says so in one line (exit 2) instead of a traceback
@@ -135,8 +137,17 @@ def configure_logging(command: str, verbosity: int) -> Callable[[], None]:
     return restore
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors in one line (`shelfpick plan: error: ...`), exit 2, like
+    every other bad input; the usage is one `--help` away."""
+
+    def error(self, message: str):  # type: ignore[override]
+        text = " ".join(str(message).split())
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="shelfpick",
         description="Collapse- and collision-aware box picking from shelves.",
         epilog="exit codes: 0 done, 1 unexpected failure, 2 bad input, 3 simulate: the plan did not hold, "
@@ -185,7 +196,12 @@ def main(argv: list[str] | None = None) -> int:
     restore = configure_logging(args.command, getattr(args, "verbosity", 0) or 0)
     log = logging.getLogger("console.cli")
     try:
-        return int(args._run(args) or 0)
+        code = int(args._run(args) or 0)
+        sys.stdout.flush()              # a closed pipe shows here, not in the interpreter's exit
+        return code
+    except BrokenPipeError:
+        _stdout_gone()
+        return EXIT_PIPE_CLOSED
     except ShelfpickError as exc:
         log.error("%s", exc)
         return EXIT_USAGE
@@ -200,6 +216,19 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     finally:
         restore()
+
+
+def _stdout_gone() -> None:
+    """The reader of stdout closed it (`shelfpick plan ... | head -c 100`): nothing more can be
+    said there, so what is left in the buffer goes to /dev/null and the exit is quiet."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):   # stdout is no file descriptor (a test's capture): nothing to point
+        pass
 
 
 if __name__ == "__main__":

@@ -96,11 +96,15 @@ def build(args: argparse.Namespace):
 
     cell = settle(args)
     # refuse bad settings before opening anything
+    from console.cell import check_robot_spec
+    from planning.cmd_plan import SAMPLES, SEEDS, WORKERS
+
     workers = getattr(args, "workers", 1)
-    if workers < 1:
-        raise ShelfpickError(f"--workers: must be >= 1, got {workers}")
-    if args.samples < 1:
-        raise ShelfpickError(f"--samples: must be >= 1, got {args.samples}")
+    for flag, value, (lo, hi) in (("--workers", workers, WORKERS), ("--samples", args.samples, SAMPLES),
+                                  ("--seed", args.seed, SEEDS)):   # the cell file's bounds: memory is per sample
+        if not lo <= value <= hi:
+            raise ShelfpickError(f"{flag}: must be from {lo} to {hi}, got {value}")
+    args.robot = check_robot_spec(args.robot, "--robot")     # the cell file's robot bounds, one validator
     check_libraries(args, cell)
     from console.app import ConsoleApp, check_host
 

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+from typing import Callable, TypeVar
+
+T = TypeVar("T")
 
 HELP = "list stored console sessions (id, start, source, boxes, task, status)"
 
@@ -16,6 +20,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "collapses, deviations seen by the look after each step")
 
 
+def stored(read: Callable[[], T], db: Path, what: str) -> T:
+    """`read()`, with a record in the database that is not JSON, is nested too deep or does not
+    have the shape a record has (a damaged or hand-edited archive) made one line naming the
+    database: StoreError, exit 2, instead of a traceback."""
+    from console.store import StoreError
+    from perception.errors import ShelfpickError
+
+    try:
+        return read()
+    except ShelfpickError:
+        raise
+    except RecursionError:
+        raise StoreError(f"{db}: {what}: a stored record is nested too deep to read") from None
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        why = str(exc).splitlines()[0][:120] if str(exc) else ""
+        raise StoreError(f"{db}: {what}: a stored record cannot be read ({type(exc).__name__}: {why!r})") from None
+
+
 def format_table(rows: list[dict]) -> str:
     cols = [("id", "ID"), ("started", "STARTED (UTC)"), ("source", "SOURCE"), ("n_boxes", "BOXES"),
             ("task", "TASK"), ("n_plans", "PLANS"), ("status", "STATUS")]
@@ -25,8 +47,6 @@ def format_table(rows: list[dict]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from console.store import DEFAULT_DB, SessionStore, StoreError
 
     db = Path(args.db) if args.db else DEFAULT_DB
@@ -34,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise StoreError(f"{db}: no session database here (start `shelfpick console`, or pass --db PATH)")
     # read-only: an archive on a read-only disk lists; a SQLite file that is not ours is refused untouched
     with SessionStore(db, readonly=True) as store:
-        rows = store.list_sessions()
-        steps = store.step_stats() if args.stats else []
+        rows = stored(store.list_sessions, db, "sessions")
+        steps = stored(store.step_stats, db, "robot events") if args.stats else []
     if args.stats:
         from console.session_stats import format_stats, risk_table, session_counts
 

@@ -484,12 +484,10 @@ def _brief(detail: Any, limit: int = 160) -> str:
 
 def export_html(rec: SessionRecord, out: str | Path) -> Path:
     """Write the replay of one session to `out` (folders created)."""
-    p = Path(out)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(render_html(rec), encoding="utf-8")
-    tmp.replace(p)
-    return p
+    from perception.scene import output_path, write_text
+
+    output_path(out, "--html")          # a device, FIFO or folder is refused before the page is built
+    return write_text(out, render_html(rec), "--html")
 
 
 __all__ = ["render_html", "export_html", "keyframes", "FrontKey", "front_polygon", "png_data_uri"]

@@ -155,15 +155,19 @@ def new_run_id(prefix: str = "") -> str:
 
 # --------------------------------------------------------------------------
 def query_float(q: dict[str, list[str]], key: str, spec: str, default: float) -> float:
-    """A non-negative number option of a robot spec's query string, or `default`."""
+    """A number option of a robot spec's query string within the cell file's bounds for it
+    (console.cell.ROBOT_NUMBERS: one table for both), or `default`."""
+    from console.cell import ROBOT_NUMBERS
+
     if key not in q:
         return default
     try:
         v = float(q[key][-1])
     except ValueError:
         raise RobotError(f"robot spec {spec!r}: {key}: expected a number, got {q[key][-1]!r}") from None
-    if not math.isfinite(v) or v < 0:
-        raise RobotError(f"robot spec {spec!r}: {key}: expected a number >= 0, got {q[key][-1]!r}")
+    lo, hi = ROBOT_NUMBERS.get(key, (0.0, math.inf))
+    if not math.isfinite(v) or not lo <= v <= hi:
+        raise RobotError(f"robot spec {spec!r}: {key}: expected a number in [{lo:g}, {hi:g}], got {q[key][-1]!r}")
     return v
 
 

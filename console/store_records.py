@@ -119,7 +119,8 @@ def session_record(rows: SessionRows, db_path: Path, origin: str) -> SessionReco
     perception = json.loads(scenes["perceived"]["perception"]) if scenes["perceived"]["perception"] else None
     capture, overlay, missing = None, None, []
     if rows.capture is not None:
-        capture, overlay, missing = load_images(rows.capture, db_path.parent)
+        capture, overlay, missing = load_images(rows.capture, db_path.parent,
+                                                db_path.with_name(db_path.name + ".files"))
     return SessionRecord(
         id=int(s["id"]), started=s["started"], source=s["source"], status=s["status"], task=s["task"],
         capture=capture, overlay=overlay, scene=scene, truth=truth, perception=perception,
@@ -139,20 +140,28 @@ def session_record(rows: SessionRows, db_path: Path, origin: str) -> SessionReco
                              "observed": stored_scene(r["observed"], origin)} for r in rows.verifications))
 
 
-def load_images(row: sqlite3.Row, base: Path) -> tuple[Capture | None, np.ndarray | None, list[str]]:
-    """Images back as arrays; a deleted file is reported, not fatal (the record stays readable)."""
-    import cv2
+def _outside(rel: str, base: Path, root: Path | None) -> bool:
+    """Whether a stored path leaves the session store's folder (`../`, absolute, a symlink out)."""
+    return root is not None and not (base / rel).resolve().is_relative_to(root.resolve())
 
-    from perception.capture import load_capture
 
-    missing = [row[k] for k in ("rgb", "camera", "depth", "masks", "overlay")
-               if row[k] and not (base / row[k]).is_file()]
+def load_images(row: sqlite3.Row, base: Path, root: Path | None = None
+                ) -> tuple[Capture | None, np.ndarray | None, list[str]]:
+    """Images back as arrays; a deleted file is reported, not fatal (the record stays readable).
+    Only files inside `root` (the database's `<db>.files/`) are read: a stored path that leads out
+    of it is reported as not read (a damaged or hostile archive must not embed other files)."""
+    from perception.capture import load_capture, read_rgb
+
+    keys = ("rgb", "camera", "depth", "masks", "overlay")
+    refused = [row[k] for k in keys if row[k] and _outside(row[k], base, root)]
+    missing = [row[k] for k in keys if row[k] and row[k] not in refused and not (base / row[k]).is_file()]
+    skip = set(missing) | set(refused)
     capture = None
-    if not {row["rgb"], row["camera"]} & set(missing) and not (row["depth"] and row["depth"] in missing):
+    if not {row["rgb"], row["camera"]} & skip and not (row["depth"] and row["depth"] in skip):
         capture = load_capture(base / row["rgb"], base / row["depth"] if row["depth"] else None,
                                base / row["camera"])
     overlay = None
-    if row["overlay"] and row["overlay"] not in missing:
-        img = cv2.imread(str(base / row["overlay"]), cv2.IMREAD_COLOR)
-        overlay = cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img is not None else None
-    return capture, overlay, missing
+    if row["overlay"] and row["overlay"] not in skip:
+        overlay = read_rgb(base / row["overlay"])      # bounded: the header is checked before decoding
+    shown = missing + [f"{r} (outside {root.name if root else 'the session store'}/: not read)" for r in refused]
+    return capture, overlay, shown

@@ -133,8 +133,12 @@ def open_readonly(path: Path) -> sqlite3.Connection:
         raise StoreError(f"{path}: no session database here (pass --db PATH)")
     db = None
     last: sqlite3.Error | None = None
-    # mode=ro reads the WAL too; immutable=1 for a folder where not even the -shm can be made
-    for query in ("mode=ro", "mode=ro&immutable=1"):
+    # mode=ro reads the WAL too; immutable=1 for a folder where not even the -shm can be made.
+    # No -wal/-shm beside the file: no console has it open and every commit is in the file, so it is
+    # read as immutable: a mode=ro reader would create -wal/-shm it cannot remove, left beside an archive
+    side = [path.with_name(path.name + s) for s in ("-wal", "-shm")]
+    queries = ("mode=ro&immutable=1",) if not any(p.exists() for p in side) else ("mode=ro", "mode=ro&immutable=1")
+    for query in queries:
         try:
             db = sqlite3.connect(f"{path.resolve().as_uri()}?{query}", uri=True,
                                  isolation_level=None, check_same_thread=False)

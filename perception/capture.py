@@ -10,7 +10,9 @@ whose size does not match, a depth map with no valid pixel.
 from __future__ import annotations
 
 import io
+import os
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -18,7 +20,7 @@ from typing import Mapping
 import numpy as np
 
 from perception.errors import FormatError, PerceptionError
-from perception.scene import Camera, read_json, write_json
+from perception.scene import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Camera, check_id, read_json, write_json
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,13 +100,52 @@ def _jpeg_complete(data: bytes) -> bool:
         return False
 
 
-def _image_bytes(p: Path) -> np.ndarray:
-    """The file's bytes, refusing a PNG or JPEG cut short (a copy or a download that stopped):
-    OpenCV decodes a truncated JPEG with a grey lower part and only a libjpeg warning."""
+MAX_IMAGE_BYTES = 256 << 20    # an image or .npy file; a 12-bit 40 MP photo is far less
+
+
+def _file_bytes(p: Path) -> bytes:
+    """The bytes of a regular file of at most MAX_IMAGE_BYTES, its size checked before reading
+    (a device such as /dev/zero never ends; a FIFO would block)."""
     try:
-        data = p.read_bytes()
+        st = os.stat(p)
+        if not stat.S_ISREG(st.st_mode):
+            raise PerceptionError(f"{p}: not a regular file (a device, FIFO or folder)")
+        if st.st_size > MAX_IMAGE_BYTES:
+            raise PerceptionError(f"{p}: {st.st_size} bytes; an image file is at most {MAX_IMAGE_BYTES} bytes")
+        with open(p, "rb") as f:
+            return f.read(MAX_IMAGE_BYTES + 1)
     except OSError as exc:
         raise PerceptionError(f"{p}: cannot read the file ({exc.strerror or exc})") from None
+
+
+def image_size(data: bytes, p: Path) -> tuple[int, int]:
+    """(width, height) from the image's header, before anything is decoded; a format Pillow cannot
+    identify, or more than MAX_IMAGE_SIDE a side or MAX_IMAGE_PIXELS in all, is refused (a 30000 x
+    30000 PNG of a few KB would take 2.7 GB to decode)."""
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")            # Pillow's decompression-bomb warning: judged here
+            with Image.open(io.BytesIO(data)) as im:
+                w, h = im.size
+    except Image.DecompressionBombError:
+        raise PerceptionError(f"{p}: image of more than {MAX_IMAGE_PIXELS} pixels (header)") from None
+    except Exception:  # noqa: BLE001 - Pillow raises many kinds for a header it cannot read
+        raise PerceptionError(f"{p}: not a readable image (PNG or JPEG expected)") from None
+    if max(w, h) > MAX_IMAGE_SIDE or w * h > MAX_IMAGE_PIXELS:
+        raise PerceptionError(f"{p}: image is {w}x{h} px; at most {MAX_IMAGE_SIDE} px a side and "
+                              f"{MAX_IMAGE_PIXELS} pixels are read")
+    return w, h
+
+
+def _image_bytes(p: Path) -> np.ndarray:
+    """The file's bytes, refusing a PNG or JPEG cut short (a copy or a download that stopped):
+    OpenCV decodes a truncated JPEG with a grey lower part and only a libjpeg warning. The file's
+    size and the image's header are checked before anything is decoded (`image_size`)."""
+    data = _file_bytes(p)
     if not data:
         raise PerceptionError(f"{p}: empty file (0 bytes)")
     if data.startswith(b"\x89PNG") and b"IEND" not in data[-64:]:
@@ -112,6 +153,7 @@ def _image_bytes(p: Path) -> np.ndarray:
     if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(b"\xff\xd9") \
             and not _jpeg_complete(data):
         raise PerceptionError(f"{p}: truncated JPEG (no end-of-image marker in its {len(data)} bytes)")
+    image_size(data, p)
     return np.frombuffer(data, np.uint8)
 
 
@@ -137,10 +179,7 @@ def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
     if not p.is_file():
         raise PerceptionError(f"{p}: depth image not found")
     if p.suffix.lower() == ".npy":
-        try:
-            raw = np.load(p, allow_pickle=False)
-        except Exception as exc:  # noqa: BLE001 - any numpy load failure is the file's fault
-            raise PerceptionError(f"{p}: not a readable .npy depth array ({exc})") from None
+        raw = _load_npy(p)
         if raw.ndim != 2:
             raise PerceptionError(f"{p}: depth array must be 2-D, got shape {raw.shape}")
         if raw.dtype.kind not in "fiu":
@@ -166,6 +205,29 @@ def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
                               "depth is a distance >= 0, 0 = no data")
     depth[~np.isfinite(depth)] = 0.0          # NaN / inf: no measurement
     return depth
+
+
+def _load_npy(p: Path) -> np.ndarray:
+    """A .npy array, its header (shape, dtype) checked against the image bounds before the data
+    is read: a header may claim any shape."""
+    data = _file_bytes(p)
+    f = io.BytesIO(data)
+    try:
+        version = np.lib.format.read_magic(f)
+        shape, _, dtype = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0(f))
+    except Exception as exc:  # noqa: BLE001 - any header failure is the file's fault
+        raise PerceptionError(f"{p}: not a readable .npy depth array ({str(exc)[:200]})") from None
+    if len(shape) == 2 and (max(shape) > MAX_IMAGE_SIDE or shape[0] * shape[1] > MAX_IMAGE_PIXELS):
+        raise PerceptionError(f"{p}: depth array is {shape[1]}x{shape[0]}; at most {MAX_IMAGE_SIDE} a side and "
+                              f"{MAX_IMAGE_PIXELS} values are read")
+    if dtype.itemsize > 16:
+        raise PerceptionError(f"{p}: depth array must be numbers (float metres or integer sensor units), "
+                              f"got dtype {dtype}")
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001 - any numpy load failure is the file's fault
+        raise PerceptionError(f"{p}: not a readable .npy depth array ({str(exc)[:200]})") from None
 
 
 # the median depth of a capture this far from the camera is no shelf a depth sensor sees
@@ -249,7 +311,7 @@ def read_labels(path: Path) -> dict[int, str]:
             raise FormatError(str(path), repr(key), f"expected a mask label (an integer 1-65535), got {key!r}")
         if not isinstance(v, str) or not v:
             raise FormatError(str(path), k, f"expected a box id (a non-empty string), got {v!r:.60}")
-        labels[int(k)] = v
+        labels[int(k)] = check_id(v, str(path), k)
     return labels
 
 

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
 
     from perception.calibrate import BoardPlacement, BoardSpec, board_image, calibrate
     from perception.capture import read_rgb
-    from perception.scene import Camera
+    from perception.scene import Camera, output_path
 
     for name in ("square", "marker"):
         v = getattr(args, name)
@@ -43,6 +43,9 @@ def run(args: argparse.Namespace) -> int:
     if not all(math.isfinite(v) for v in args.origin):
         raise PerceptionError(f"--origin must be three finite numbers (m), got {list(args.origin)}")
     spec = BoardSpec(args.board[0], args.board[1], args.square, args.marker, args.dictionary)
+    for flag in ("write_board", "out"):          # never onto a device, FIFO or folder
+        if getattr(args, flag):
+            output_path(getattr(args, flag), "--" + flag.replace("_", "-"))
     if args.write_board:
         img = board_image(spec)
         if not args.write_board.lower().endswith(".png") or not cv2.imwrite(args.write_board, img):

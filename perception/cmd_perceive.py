@@ -100,10 +100,13 @@ def run(args: argparse.Namespace) -> int:
 
     from perception.capture import check_depth_structure, load_capture
     from perception.pipeline import perceive
-    from perception.scene import Shelf, write_json
+    from perception.scene import Shelf, output_path, write_json
     from perception.segment import load_segmenter
 
     _check_numbers(args)
+    for flag in ("out", "overlay", "masks", "report"):       # before any work: never onto a device or FIFO
+        if getattr(args, flag):
+            output_path(getattr(args, flag), f"--{flag}")
     if args.weights and not str(args.weights).lower().endswith(".pt"):
         raise PerceptionError(f"{args.weights}: --weights must be a YOLO11n-seg .pt checkpoint "
                               "(as `shelfpick train-seg` writes)")
@@ -137,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
         log.warning("%s", w)
     for a in result.adjustments:
         log.info("adjusted: %s", a)
-    log.info("%d boxes -> %s (%s, %.2f s)", len(result.scene.boxes), args.out, result.segmenter,
+    regions = result.scene.unexplained
+    told = "" if regions is None else f", {len(regions)} unexplained region{'s' if len(regions) != 1 else ''}"
+    log.info("%d boxes%s -> %s (%s, %.2f s)", len(result.scene.boxes), told, args.out, result.segmenter,
              result.timing["total"])
     return 0

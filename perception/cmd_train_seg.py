@@ -23,8 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from perception.scene import output_path
     from perception.train_seg import train
 
+    output_path(args.out, "--out")          # never onto a device, FIFO or folder
     t0 = time.perf_counter()
     res = train(args.out, images=args.images, epochs=args.epochs, imgsz=args.imgsz, seed=args.seed,
                 batch=args.batch, work=args.work, workers=args.workers)

@@ -30,7 +30,8 @@ IDENTITY: Quat = (1.0, 0.0, 0.0, 0.0)
 # --------------------------------------------------------------------------
 # small validated readers
 def _num(value: Any, origin: str, fld: str, *, positive: bool = False,
-         nonneg: bool = False) -> float:
+         nonneg: bool = False, within: tuple[float, float] | None = None, unit: str = "m") -> float:
+    """A finite number; `within` (lo, hi) is the plausible range of a physical quantity."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise FormatError(origin, fld, f"expected a number, got {value!r}")
     v = float(value)
@@ -40,13 +41,43 @@ def _num(value: Any, origin: str, fld: str, *, positive: bool = False,
         raise FormatError(origin, fld, f"must be > 0, got {value!r}")
     if nonneg and v < 0:
         raise FormatError(origin, fld, f"must be >= 0, got {value!r}")
+    if within is not None and not within[0] <= v <= within[1]:
+        raise FormatError(origin, fld, f"must be within [{within[0]:g}, {within[1]:g}] {unit}, got {value!r}")
     return v
 
 
-def _vec(value: Any, n: int, origin: str, fld: str, *, positive: bool = False) -> tuple:
+def _vec(value: Any, n: int, origin: str, fld: str, *, positive: bool = False,
+         within: tuple[float, float] | None = None) -> tuple:
     if not isinstance(value, (list, tuple)) or len(value) != n:
         raise FormatError(origin, fld, f"expected a list of {n} numbers, got {value!r}")
-    return tuple(_num(v, origin, f"{fld}[{i}]", positive=positive) for i, v in enumerate(value))
+    return tuple(_num(v, origin, f"{fld}[{i}]", positive=positive, within=within) for i, v in enumerate(value))
+
+
+# --------------------------------------------------------------------------
+# plausible physical quantities (docs/formats.md "Bounds"): a value outside is a broken file or a
+# unit mistake, never a shelf; refused naming the field before any physics or memory is spent on it
+SHELF_M = (0.05, 20.0)        # shelf interior width, depth, height (the cell file's bound too)
+BOX_SIZE_M = (0.01, 5.0)      # each extent of a box
+BOX_MASS_KG = (1e-3, 1000.0)
+CAMERA_POSITION_M = 50.0      # |each coordinate| of the camera, shelf frame
+CAMERA_FOCAL_PX = (1.0, 1e6)
+CAMERA_DEPTH_SCALE = (1e-6, 1.0)   # metres per depth unit
+MAX_IMAGE_SIDE = 12_000       # px, a camera's width or height (and an image's)
+MAX_IMAGE_PIXELS = 40_000_000  # px, width x height (a 3647x5087 phone photo is 18.6 million)
+MAX_ID_CHARS = 64             # a box id
+
+
+def check_id(value: Any, origin: str, fld: str) -> str:
+    """A box id: 1-64 printable characters (str.isprintable: no control characters, line breaks,
+    escape sequences, NUL, format characters or lone surrogates), no space at either end; ids are
+    echoed to terminals, logs and web pages, so anything else is refused, shown escaped."""
+    if not isinstance(value, str) or not value:
+        raise FormatError(origin, fld, f"expected a non-empty string, got {value!r}")
+    if len(value) > MAX_ID_CHARS or not value.isprintable() or value != value.strip():
+        shown = ascii(value) if len(value) <= MAX_ID_CHARS else ascii(value[:MAX_ID_CHARS]) + "..."
+        raise FormatError(origin, fld, f"a box id is 1-{MAX_ID_CHARS} printable characters (no control character, "
+                          f"line break, escape, NUL or surrogate; no space at either end), got {shown}")
+    return value
 
 
 def _quat(value: Any, origin: str, fld: str) -> Quat:
@@ -169,13 +200,40 @@ def read_json(path: str | Path) -> Any:
     return doc
 
 
-def write_json(path: str | Path, doc: Any) -> None:
-    """Write atomically (temp file + rename) so a crash never leaves half a file."""
+def output_path(path: str | Path, flag: str = "") -> Path:
+    """Where an output file may be written atomically: a new path or an existing regular file (a
+    symlink to one: the file it points at). A device, FIFO, socket or folder, or a symlink to one,
+    is refused with a FormatError naming it: renaming a temp file over `/dev/null` would replace
+    the device node for the whole system (a FIFO or a folder is no file to replace either)."""
     p = Path(path)
+    try:
+        st = os.stat(p)                 # follows symlinks: a link is judged by what it points at
+    except OSError:                     # nothing there (or no folder): the write itself says why it fails
+        if p.is_symlink():              # a dangling link: writing would replace the link itself
+            raise FormatError(str(p), flag, "a symlink to nothing; give a file path") from None
+        return p
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "a socket")
+        raise FormatError(str(p), flag, f"{kind}, not a regular file; an output is written only to a new path "
+                          "or over a regular file")
+    return Path(os.path.realpath(p))
+
+
+def write_text(path: str | Path, text: str, flag: str = "") -> Path:
+    """Write atomically (temp file + rename) so a crash never leaves half a file; only over a
+    regular file or a new path (`output_path`). Returns the file written."""
+    p = output_path(path, flag)
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    tmp.write_text(text, encoding="utf-8")
     tmp.replace(p)
+    return p
+
+
+def write_json(path: str | Path, doc: Any, flag: str = "") -> None:
+    """`doc` as indented JSON, atomically, only over a regular file or a new path (`write_text`)."""
+    write_text(path, json.dumps(doc, indent=2) + "\n", flag)
 
 
 # --------------------------------------------------------------------------
@@ -226,7 +284,7 @@ class Shelf:
     @classmethod
     def from_json(cls, doc: Any, origin: str = "") -> "Shelf":
         doc = _obj(doc, origin, "shelf")
-        return cls(*(_num(_req(doc, k, origin, "shelf."), origin, f"shelf.{k}", positive=True)
+        return cls(*(_num(_req(doc, k, origin, "shelf."), origin, f"shelf.{k}", positive=True, within=SHELF_M)
                      for k in ("width", "depth", "height")))
 
 
@@ -293,16 +351,14 @@ class Box:
     @classmethod
     def from_json(cls, doc: Any, origin: str = "", where: str = "box") -> "Box":
         doc = _obj(doc, origin, where)
-        bid = _req(doc, "id", origin, f"{where}.")
-        if not isinstance(bid, str) or not bid:
-            raise FormatError(origin, f"{where}.id", f"expected a non-empty string, got {bid!r}")
+        bid = check_id(_req(doc, "id", origin, f"{where}."), origin, f"{where}.id")
         w = f"boxes[id={bid}]"
-        size = _vec(_req(doc, "size", origin, f"{w}."), 3, origin, f"{w}.size", positive=True)
+        size = _vec(_req(doc, "size", origin, f"{w}."), 3, origin, f"{w}.size", positive=True, within=BOX_SIZE_M)
         pos = _vec(_req(doc, "position", origin, f"{w}."), 3, origin, f"{w}.position")
         quat = _quat(doc.get("orientation", list(IDENTITY)), origin, f"{w}.orientation")
         mass = doc.get("mass")
         if mass is not None:
-            mass = _num(mass, origin, f"{w}.mass", positive=True)
+            mass = _num(mass, origin, f"{w}.mass", positive=True, within=BOX_MASS_KG, unit="kg")
         dk = doc.get("depth_known", True)
         if not isinstance(dk, bool):
             raise FormatError(origin, f"{w}.depth_known", f"expected true or false, got {dk!r}")
@@ -346,14 +402,19 @@ class Camera:
             v = _req(doc, k, origin, p)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v) or v <= 0:
                 raise FormatError(origin, f"{p}{k}", f"expected a positive integer, got {v!r}")
+            if v > MAX_IMAGE_SIDE:
+                raise FormatError(origin, f"{p}{k}", f"must be at most {MAX_IMAGE_SIDE} px, got {v!r}")
             vals[k] = int(v)
         for k in ("fx", "fy"):
-            vals[k] = _num(_req(doc, k, origin, p), origin, f"{p}{k}", positive=True)
-        for k in ("cx", "cy"):
-            vals[k] = _num(_req(doc, k, origin, p), origin, f"{p}{k}")
-        scale = _num(doc.get("depth_scale", 0.001), origin, f"{p}depth_scale", positive=True)
+            vals[k] = _num(_req(doc, k, origin, p), origin, f"{p}{k}", positive=True, within=CAMERA_FOCAL_PX,
+                           unit="px")
+        for k, side in (("cx", vals["width"]), ("cy", vals["height"])):
+            vals[k] = _num(_req(doc, k, origin, p), origin, f"{p}{k}", within=(-10.0 * side, 11.0 * side), unit="px")
+        scale = _num(doc.get("depth_scale", 0.001), origin, f"{p}depth_scale", positive=True,
+                     within=CAMERA_DEPTH_SCALE, unit="m per unit")
         pose = _obj(_req(doc, "pose", origin, p), origin, f"{p}pose")
-        pos = _vec(_req(pose, "position", origin, f"{p}pose."), 3, origin, f"{p}pose.position")
+        pos = _vec(_req(pose, "position", origin, f"{p}pose."), 3, origin, f"{p}pose.position",
+                   within=(-CAMERA_POSITION_M, CAMERA_POSITION_M))
         quat = _quat(_req(pose, "orientation", origin, f"{p}pose."), origin, f"{p}pose.orientation")
         return cls(vals["width"], vals["height"], vals["fx"], vals["fy"], vals["cx"], vals["cy"],
                    scale, pos, quat)
@@ -366,6 +427,85 @@ class Camera:
         write_json(path, self.to_json())
 
 
+MAX_UNEXPLAINED = 200        # unexplained regions in one scene (perception reports far fewer)
+MAX_COLUMNS = 400            # columns of one region's seen surface
+
+
+def _box_bounds(lo: Vec3, hi: Vec3, origin: str, fld: str) -> None:
+    if any(a > b for a, b in zip(lo, hi)):
+        raise FormatError(origin, fld, f"min {list(lo)!r} exceeds max {list(hi)!r}")
+
+
+@dataclass(frozen=True)
+class Unexplained:
+    """Matter the depth image shows inside the shelf that no perceived box (nor the shelf) explains.
+
+    `min`/`max`: the seen surface's bounds in the shelf frame (y: nearest and farthest seen
+    point); what lies behind it is unknown, so planning takes it as reaching back to the back
+    wall. `columns`: the seen surface as x-z rectangles (x0, x1, z0, z1, nearest y), so an
+    L-shaped region does not claim the box it wraps. `why`: what perception knows of it (a
+    dropped mask), plain text.
+    """
+
+    id: str
+    min: Vec3
+    max: Vec3
+    pixels: int
+    area_m2: float
+    columns: tuple[tuple[float, float, float, float, float], ...] = ()
+    why: str = ""
+
+    def to_json(self) -> dict:
+        doc: dict[str, Any] = {"id": self.id, "min": [round(v, 4) for v in self.min],
+                               "max": [round(v, 4) for v in self.max], "pixels": self.pixels,
+                               "area_m2": round(self.area_m2, 5),
+                               "columns": [[round(v, 4) for v in c] for c in self.columns]}
+        if self.why:
+            doc["why"] = self.why
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, origin: str = "", where: str = "unexplained") -> "Unexplained":
+        doc = _obj(doc, origin, where)
+        uid = _req(doc, "id", origin, f"{where}.")
+        if not isinstance(uid, str) or not uid:
+            raise FormatError(origin, f"{where}.id", f"expected a non-empty string, got {uid!r}")
+        lo = _vec(_req(doc, "min", origin, f"{where}."), 3, origin, f"{where}.min")
+        hi = _vec(_req(doc, "max", origin, f"{where}."), 3, origin, f"{where}.max")
+        _box_bounds(lo, hi, origin, f"{where}.max")
+        px = _req(doc, "pixels", origin, f"{where}.")
+        if isinstance(px, bool) or not isinstance(px, int) or px < 1:
+            raise FormatError(origin, f"{where}.pixels", f"expected a positive integer, got {px!r}")
+        area = _num(_req(doc, "area_m2", origin, f"{where}."), origin, f"{where}.area_m2", nonneg=True)
+        raw = doc.get("columns", [])
+        if not isinstance(raw, list) or len(raw) > MAX_COLUMNS:
+            raise FormatError(origin, f"{where}.columns", f"expected a list of at most {MAX_COLUMNS} "
+                              f"[x0, x1, z0, z1, y], got {type(raw).__name__} of {len(raw) if isinstance(raw, list) else 1}")
+        cols = tuple(_vec(c, 5, origin, f"{where}.columns[{i}]") for i, c in enumerate(raw))
+        for i, c in enumerate(cols):
+            if c[0] > c[1] or c[2] > c[3]:
+                raise FormatError(origin, f"{where}.columns[{i}]", f"expected x0 <= x1 and z0 <= z1, got {list(c)!r}")
+        why = doc.get("why", "")
+        if not isinstance(why, str):
+            raise FormatError(origin, f"{where}.why", f"expected a string, got {why!r}")
+        return cls(uid, lo, hi, px, area, cols, why)  # type: ignore[arg-type]
+
+
+def _unexplained_from_json(raw: Any, origin: str) -> tuple[Unexplained, ...] | None:
+    """The optional `unexplained` list (None: the scene never looked; []: it looked, found none)."""
+    if raw is None:
+        return None
+    if not isinstance(raw, list) or len(raw) > MAX_UNEXPLAINED:
+        raise FormatError(origin, "unexplained", f"expected a list of at most {MAX_UNEXPLAINED} regions, "
+                          f"got {type(raw).__name__}{f' of {len(raw)}' if isinstance(raw, list) else ''}")
+    out = tuple(Unexplained.from_json(u, origin, f"unexplained[{i}]") for i, u in enumerate(raw))
+    ids = [u.id for u in out]
+    for i, u in enumerate(ids):
+        if u in ids[:i]:
+            raise FormatError(origin, f"unexplained[{i}].id", f"duplicated region id {u!r}")
+    return out
+
+
 @dataclass(frozen=True)
 class Scene:
     """A shelf and the boxes in it, in the shelf frame."""
@@ -374,9 +514,13 @@ class Scene:
     boxes: tuple[Box, ...]
     camera: Camera | None = None
     source: Any = None
+    # matter seen inside the shelf that no box explains; None: never looked (no depth, an old file)
+    unexplained: tuple[Unexplained, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "boxes", tuple(self.boxes))
+        if self.unexplained is not None:
+            object.__setattr__(self, "unexplained", tuple(self.unexplained))
 
     @property
     def ids(self) -> tuple[str, ...]:
@@ -422,6 +566,8 @@ class Scene:
             doc["camera"] = self.camera.to_json()
         if self.source is not None:
             doc["source"] = self.source
+        if self.unexplained is not None:
+            doc["unexplained"] = [u.to_json() for u in self.unexplained]
         return doc
 
     @classmethod
@@ -443,7 +589,8 @@ class Scene:
                 raise FormatError(origin, f"boxes[id={b.id}].id", f"duplicated box id {b.id!r}")
             seen.add(b.id)
         camera = Camera.from_json(doc["camera"], origin, "camera") if doc.get("camera") is not None else None
-        scene = cls(shelf, tuple(boxes), camera, doc.get("source"))
+        scene = cls(shelf, tuple(boxes), camera, doc.get("source"),
+                    _unexplained_from_json(doc.get("unexplained"), origin))
         scene.check_bounds(origin)
         return scene
 

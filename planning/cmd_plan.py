@@ -19,6 +19,19 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger(__name__)
 
 HELP = "plan the removals that extract a box (or clear the shelf) without a collapse"
+# every number option's bound (docs/cli.md "Bounds"), checked before anything is allocated; the cell
+# file's [safety] section and `shelfpick console` take theirs from here
+SAMPLES = (1, 1000)            # sample worlds per prediction: each one is a physics world in memory
+VERIFY = (0, 1000)
+WORKERS = (1, 256)
+SEEDS = (0, 2**63 - 1)
+BUDGET_S = 7 * 24 * 3600.0     # a week
+
+
+def check_int(value: int, flag: str, bounds: tuple[int, int], what: str) -> None:
+    """A FormatError naming the option unless lo <= value <= hi."""
+    if not bounds[0] <= value <= bounds[1]:
+        raise FormatError("", flag, f"expected {what} from {bounds[0]} to {bounds[1]}, got {value}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,6 +79,8 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
     for prob in check.get("problems", []):
         who = f"box {prob['box']}" if prob.get("box") else "the scene"
         _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
+    for why in (plan.extra.get("unexplained") or {}).get("touched", []):
+        _warn(f"{why} (matter perception saw but no box explains); the plan is not safe")
     if not plan.safe and plan.predicted and search.get("verified_worlds"):
         _warn(f"the plan held in the search's {search.get('worlds')} sample worlds but not in all "
               f"{search['verified_worlds']} it was then checked in: risk {plan.risk:.2f}; it is not safe")
@@ -92,23 +107,24 @@ def _model(args: argparse.Namespace) -> "Uncertainty | None":
 
 
 def run(args: argparse.Namespace) -> int:
-    from perception.scene import Scene
+    from perception.scene import Scene, output_path
     from planning.planner import check_request, make_plan
 
-    if args.samples < 1:
-        raise FormatError("", "--samples", f"expected a positive integer, got {args.samples}")
+    check_int(args.samples, "--samples", SAMPLES, "a positive integer")
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
-    if args.verify < 0:
-        raise FormatError("", "--verify", f"expected a number of sample worlds >= 0, got {args.verify}")
+    check_int(args.verify, "--verify", VERIFY, "a number of sample worlds")
+    check_int(args.seed, "--seed", SEEDS, "a seed")
     if args.workers is None:
         args.workers = 2 if (os.cpu_count() or 1) >= 2 else 1
-    if args.workers < 1:
-        raise FormatError("", "--workers", f"expected a positive integer, got {args.workers}")
-    if args.budget is not None and not args.budget > 0:
-        raise FormatError("", "--budget", f"expected a positive number of seconds, got {args.budget}")
+    check_int(args.workers, "--workers", WORKERS, "a positive integer")
+    if args.budget is not None and not 0 < args.budget <= BUDGET_S:
+        raise FormatError("", "--budget", f"expected a positive number of seconds up to {BUDGET_S:g}, "
+                          f"got {args.budget}")
     if args.face_error is not None and not 0.0 <= args.face_error <= 0.05:
         raise FormatError("", "--face-error", f"expected metres in [0, 0.05], got {args.face_error}")
+    if args.out:
+        output_path(args.out, "--out")     # before planning: never onto a device, FIFO or folder
     scene = Scene.load(args.scene)
     # refuse a bad request (unknown target, target for clear...) before any physics is built
     check_request(scene, args.task, args.target, args.planner, args.samples, args.risk, args.scene)

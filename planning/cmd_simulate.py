@@ -6,6 +6,8 @@ import json
 import logging
 import warnings
 
+from perception.errors import FormatError
+
 log = logging.getLogger(__name__)
 
 EXIT_PLAN_FAILED = 3  # the plan did not hold: something collapsed or the target did not come out (docs/cli.md)
@@ -23,10 +25,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from perception.scene import Scene, write_json
+    from perception.scene import Scene, output_path, write_json
     from planning.execute import execute_plan
     from planning.plan import Plan, scene_hash
 
+    if args.out:
+        output_path(args.out, "--out")     # before the simulation: never onto a device, FIFO or folder
     scene = Scene.load(args.scene)
     plan = Plan.load(args.plan)
     plan.check_against(scene.ids, origin=str(args.plan))
@@ -47,7 +51,10 @@ def run(args: argparse.Namespace) -> int:
     doc["task"] = plan.task
     doc["target"] = plan.target
     if args.out:
-        write_json(args.out, doc)
+        try:
+            write_json(args.out, doc, "--out")
+        except OSError as exc:
+            raise FormatError(args.out, "--out", f"cannot write the verdict ({exc.strerror or exc})") from None
     print(json.dumps(doc, indent=2))
     if not execution.ok:
         step = execution.failed_step

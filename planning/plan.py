@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from perception.errors import FormatError
-from perception.scene import Scene, read_json, write_json
+from perception.scene import Scene, check_id, read_json, write_json
 from planning.physics import PhysicsConfig
 
 PLAN_FORMAT = "shelfpick.plan/1"
@@ -79,6 +79,7 @@ class StepPrediction:
     def from_json(cls, doc: Any, origin: str = "", where: str = "predicted") -> "StepPrediction":
         if not isinstance(doc, Mapping) or not isinstance(doc.get("box"), str):
             raise FormatError(origin, where, f"expected an object with a string 'box', got {doc!r}")
+        check_id(doc["box"], origin, f"{where}.box")
         probs = []
         for k in ("collapse_prob", "collision_prob"):
             v = doc.get(k, 0.0)
@@ -88,7 +89,23 @@ class StepPrediction:
         moved = doc.get("moved", [])
         if not isinstance(moved, list) or not all(isinstance(m, str) for m in moved):
             raise FormatError(origin, f"{where}.moved", f"expected a list of box ids, got {moved!r}")
+        for i, m in enumerate(moved):
+            check_id(m, origin, f"{where}.moved[{i}]")
         return cls(doc["box"], probs[0], probs[1], tuple(moved))
+
+
+def _check_safe(safe: bool, predicted: tuple[StepPrediction, ...], prov: Mapping, origin: str) -> None:
+    """A plan that says `safe: true` has no step riskier than the threshold it was planned with
+    (`provenance.risk`, 0 when not recorded): the planner never writes otherwise, and the console
+    and `simulate` trust the flag."""
+    threshold = prov.get("risk", 0.0)
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 <= threshold <= 1.0:
+        raise FormatError(origin, "provenance.risk", f"expected a probability in [0, 1], got {threshold!r}")
+    worst = max(range(len(predicted)), key=lambda i: predicted[i].risk, default=None)
+    if safe and worst is not None and predicted[worst].risk > threshold:
+        raise FormatError(origin, "safe", f"true, but step {worst + 1} ({predicted[worst].box!r}) has predicted "
+                          f"risk {predicted[worst].risk:g} above the plan's threshold {threshold:g} "
+                          "(provenance.risk)")
 
 
 @dataclass(frozen=True)
@@ -163,6 +180,10 @@ class Plan:
         seq = doc["sequence"]
         if not isinstance(seq, list) or not all(isinstance(s, str) for s in seq):
             raise FormatError(origin, "sequence", f"expected a list of box ids, got {seq!r}")
+        for i, b in enumerate(seq):
+            check_id(b, origin, f"sequence[{i}]")
+        if isinstance(target, str):
+            check_id(target, origin, "target")
         if len(set(seq)) != len(seq):
             raise FormatError(origin, "sequence", f"a box appears twice: {seq!r}")
         if task == "extract" and (not seq or seq[-1] != target):
@@ -198,7 +219,11 @@ class Plan:
 
     @classmethod
     def load(cls, path: str | Path) -> "Plan":
-        return cls.from_json(read_json(path), str(path))
+        """A plan file, its `safe` flag checked against its predictions (a stored session's plans
+        are read as recorded, so an archive always replays)."""
+        plan = cls.from_json(read_json(path), str(path))
+        _check_safe(plan.safe, plan.predicted, plan.provenance, str(path))
+        return plan
 
     def save(self, path: str | Path) -> None:
         write_json(path, self.to_json())
