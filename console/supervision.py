@@ -38,27 +38,48 @@ class Supervision(WorkflowCore):
                      "reason": f"{action}: wrong passphrase", "at": time.time()},))
         self._refuse(f"{action} refused: {AUTH_REFUSED}")
 
-    def _decidable(self, plan_hash: str, action: str) -> tuple[PlanEntry, int]:
-        """What every decision needs, checked before the passphrase (so no refusal tells it was right)."""
+    def _decidable(self, plan_hash: str, action: str, planner: str | None = None) -> tuple[PlanEntry, int, str]:
+        """What every decision needs, checked before the passphrase (so no refusal tells it was right).
+
+        The decision names the plan twice, by planner and by content hash: the hash is the one
+        on the supervisor's screen, so a plan that changed since (a re-plan, another target)
+        is refused instead of decided unseen; the planner keeps it unambiguous when two
+        planners found the same sequence (one hash). The console page always names both; a
+        caller of the Python API that names no planner gets the first of the current plans
+        with that hash, and the decision records whose it is."""
         st = self._state
         if self._capturing:
             self._refuse(f"{action} refused: a capture is running")
         if st.planning:
             self._refuse(f"{action} refused: planning is still running")
-        entry = st.plan_by_hash(plan_hash)
-        if entry is None:
-            self._refuse(f"{action} refused: plan {plan_hash} is not a plan for the current capture")
+        name, entry = self._named_plan(st, plan_hash, action, planner)
         if st.session_id is None:
             self._refuse(f"{action} refused: this capture has no session record ({st.audit or 'database'}); "
                          f"capture again once the database can be written")
         if (st.session_id, plan_hash) not in self._recorded:
             self._refuse(f"{action} refused: plan {plan_hash} was not recorded ({st.audit or 'database'}); "
                          f"plan again once the database can be written")
-        return entry, st.session_id
+        return entry, st.session_id, name
+
+    def _named_plan(self, st: State, plan_hash: str, action: str, planner: str | None) -> tuple[str, PlanEntry]:
+        """(planner, entry) of the current capture's plan that is exactly (planner, plan_hash)."""
+        if planner is not None:
+            planner = str(planner)[:40]
+            entry = st.plans.get(planner)
+            if entry is not None and entry.hash == plan_hash:
+                return planner, entry
+            now = (f"it is now plan {entry.hash}" if entry is not None
+                   else "there is no such plan for the current capture now")
+            self._refuse(f"{action} refused: the {planner} plan changed since it was shown ({plan_hash} was "
+                         f"reviewed, {now}); review the plan on the screen and decide again")
+        named = [(n, e) for n, e in st.plans.items() if e.hash == plan_hash]
+        if not named:
+            self._refuse(f"{action} refused: plan {plan_hash} is not a plan for the current capture")
+        return named[0]
 
     def approve(self, plan_hash: str, passphrase: str, who: str = "supervisor",
-                accept_risk: bool = False, client: str = "local") -> State:
-        """Approve exactly this plan for exactly the current capture; takes the run lock.
+                accept_risk: bool = False, client: str = "local", planner: str | None = None) -> State:
+        """Approve exactly this plan (planner + content hash) for exactly the current capture; takes the run lock.
 
         A plan predicted unsafe (the least risky one when no safe plan exists,
         or any plan on a shelf that does not stand as seen) needs
@@ -67,16 +88,16 @@ class Supervision(WorkflowCore):
         """
         who = (who or "supervisor")[:80]
         with self._lock:
-            entry, sid = self._decidable(plan_hash, "approval")
+            entry, sid, name = self._decidable(plan_hash, "approval", planner)
             if self._state.needs_recapture:
                 self._refuse("approval refused: the shelf has changed, capture and plan again")
             self._held("approval")
             risk_note = self._risk_note(entry, accept_risk)
         self._authenticate(plan_hash, passphrase, who, "approval", client)
         with self._lock:   # the state may have moved while the passphrase was checked
-            entry, sid = self._decidable(plan_hash, "approval")
+            entry, sid, name = self._decidable(plan_hash, "approval", name)
             self._held("approval")
-            run = self._run = RunLock(plan_hash, entry, sid, self._generation, who)
+            run = self._run = RunLock(plan_hash, entry, sid, self._generation, who, planner=name)
             self._live_stops.add(run.stop)
         try:
             run.decision_id = self.store.add_decision(sid, plan_hash, "approve", who, risk_note)
@@ -88,12 +109,12 @@ class Supervision(WorkflowCore):
         with self._lock:
             if self._run is not run:     # Stop withdrew it while it was being recorded
                 self._refuse("approval withdrawn: `Stop robot` was pressed while it was being recorded")
-            dec = {"decision": "approve", "plan": plan_hash, "planner": entry.plan.planner,
+            dec = {"decision": "approve", "plan": plan_hash, "planner": name,
                    "who": who, "reason": risk_note, "at": time.time()}
-            approval = {"plan": plan_hash, "session": sid, "capture": self._state.frame_name,
+            approval = {"plan": plan_hash, "planner": name, "session": sid, "capture": self._state.frame_name,
                         "who": who, "decision": run.decision_id}
             return self._set(approved=plan_hash, approval=approval, decisions=self._state.decisions + (dec,),
-                             error=None, message=f"{who} approved the {entry.plan.planner} plan {plan_hash}")
+                             error=None, message=f"{who} approved the {name} plan {plan_hash}")
 
     def _risk_note(self, entry: PlanEntry, accept_risk: bool) -> str | None:
         cont = (entry.plan.extra or {}).get("continues")
@@ -117,13 +138,14 @@ class Supervision(WorkflowCore):
             f"; scene problems: {'; '.join(problem_text(p) for p in entry.scene_problems)}"
             if entry.scene_problems else "")
     def reject(self, plan_hash: str, passphrase: str, who: str = "supervisor", reason: str = "",
-               client: str = "local") -> State:
-        """Reject a plan; rejecting the approved plan before it runs withdraws the approval."""
+               client: str = "local", planner: str | None = None) -> State:
+        """Reject a plan (planner + hash, as approve); rejecting the approved plan before it runs withdraws
+        the approval."""
         if not (reason or "").strip():
             self._refuse("reject needs a reason")
         who, reason = (who or "supervisor")[:80], reason.strip()[:500]
         with self._lock:
-            entry, sid = self._decidable(plan_hash, "rejection")
+            entry, sid, name = self._decidable(plan_hash, "rejection", planner)
             if self._run is not None and self._run.started:
                 self._refuse("rejection refused: the robot is running; press `Stop robot`")
         self._authenticate(plan_hash, passphrase, who, "rejection", client)
@@ -133,12 +155,12 @@ class Supervision(WorkflowCore):
                 self._release(run)
             elif run is not None and run.started:
                 self._refuse("rejection refused: the robot is running; press `Stop robot`")
-            dec = {"decision": "reject", "plan": plan_hash, "planner": entry.plan.planner,
+            dec = {"decision": "reject", "plan": plan_hash, "planner": name,
                    "who": who, "reason": reason, "at": time.time()}
             approved = None if self._state.approved == plan_hash else self._state.approved
             self._set(approved=approved, approval=None if approved is None else self._state.approval,
                       decisions=self._state.decisions + (dec,), error=None,
-                      message=f"{who} rejected the {entry.plan.planner} plan: {reason}")
+                      message=f"{who} rejected the {name} plan: {reason}")
         self._record("the rejection", self.store.add_decision, sid, plan_hash, "reject", who, reason)
         return self.state
 

@@ -40,6 +40,8 @@ class PlanEntry:
     hash: str
     preview: tuple[PreviewStep, ...] = ()   # from Predictor.preview (recorded frames)
     shelves: tuple[Scene, ...] = ()         # the perceived Scene after each step, as predicted (verification)
+    # step -> that step recorded in a sample world where it collapses (the preview shows it; h6, issue 33)
+    collapse_steps: Mapping[int, Mapping[str, Any]] = field(default_factory=dict)
 
     @property
     def est_seconds(self) -> float:
@@ -83,11 +85,13 @@ class State:
     audit: str | None = None       # a record that could not be committed (persists until a capture is)
     recovered: tuple[str, ...] = ()  # runs found interrupted at start-up (crash, kill -9)
     verifications: tuple[Verification, ...] = ()  # the look after each step of the current run
+    observed: Scene | None = None  # the shelf the last of those looks perceived (the 3D view draws it)
     deviation: Deviation | None = None  # why the last run was held (shown until the next capture)
     message: str = ""
     error: str | None = None
 
     def plan_by_hash(self, plan_hash: str) -> PlanEntry | None:
+        """The first plan with this content hash (two planners can share one: decisions name the planner)."""
         for e in self.plans.values():
             if e.hash == plan_hash:
                 return e
@@ -144,6 +148,7 @@ class RunLock:
     gen: int
     who: str
     stop: threading.Event = field(default_factory=threading.Event)
+    planner: str = ""                # whose plan was approved (two planners can find one sequence)
     decision_id: int | None = None   # set once the approval is committed
     started: bool = False            # execute() took it
     thread: threading.Thread | None = None
