@@ -38,6 +38,42 @@ def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | No
         scale = 0.5 if out.shape[1] <= 800 else 1.0
         (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 2)
         org = (cx - tw // 2, cy + th // 2)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 4, cv2.LINE_AA)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 2, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 3, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+    return out
+
+
+UNEXPLAINED_RGB = (128, 128, 128)
+
+
+def draw_unexplained(rgb: np.ndarray, labels: np.ndarray, names: list[str], alpha: float = 0.35) -> np.ndarray:
+    """RGB uint8 image: each region of unexplained matter (label k+1 = names[k]) greyed, hatched
+    with diagonal lines, outlined, and its id written with a '?': matter that is there whatever
+    the boxes say, told apart from every box's colour."""
+    out = rgb.copy()
+    sel = labels > 0
+    if not sel.any():
+        return out
+    grey = np.asarray(UNEXPLAINED_RGB, np.float32)
+    out[sel] = (out[sel] * (1 - alpha) + grey * alpha).astype(np.uint8)
+    h, w = labels.shape
+    step = max(6, w // 60)
+    yy, xx = np.mgrid[0:h, 0:w]
+    hatch = sel & (((xx + yy) % step) < max(1, step // 4))
+    out[hatch] = (40, 40, 40)
+    scale = max(0.5, w / 640)
+    thick = max(1, round(2 * scale))
+    for k, name in enumerate(names, start=1):
+        m = (labels == k).astype(np.uint8)
+        contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if not contours:
+            continue
+        cv2.drawContours(out, contours, -1, (255, 255, 255), thick + 1, cv2.LINE_AA)
+        cv2.drawContours(out, contours, -1, (30, 30, 30), thick, cv2.LINE_AA)
+        x, y, bw, bh = cv2.boundingRect(max(contours, key=cv2.contourArea))
+        text = f"{name}?"
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+        org = (x + bw // 2 - tw // 2, y + bh // 2 + th // 2)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 3, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return out

@@ -21,10 +21,11 @@ from perception.capture import Capture
 from perception.faces import FrontFace, measure_front
 from perception.geometry import check_intrinsics, point_map, pose_matrix
 from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
-from perception.overlay import draw_overlay
+from perception.overlay import draw_overlay, draw_unexplained
 from perception.repairs.border_cut import complete_cut_face
 from perception.scene import Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
+from perception.unexplained import describe, find_unexplained
 
 
 DEFAULT_CATALOGUE = Catalogue()
@@ -42,9 +43,12 @@ class Perception:
     segmenter: str = ""
     front_distance: float | None = None  # used when the capture had no depth
     extra: dict = field(default_factory=dict)
+    unexplained_labels: np.ndarray | None = None  # HxW uint16: label k+1 = scene.unexplained[k]
 
     def summary(self) -> dict:
+        regions = self.scene.unexplained
         return {"boxes": len(self.scene.boxes), "segmenter": self.segmenter,
+                "unexplained": None if regions is None else [u.to_json() for u in regions],
                 "warnings": list(self.warnings), "adjustments": list(self.adjustments),
                 "timing": {k: round(v, 4) for k, v in self.timing.items()},
                 "front_distance": self.front_distance,
@@ -170,22 +174,36 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
         warnings.append(f"no depth image: front at {used_distance:.3f} m derived from the box size "
                         f"{box_size[0]:g} x {box_size[1]:g} m")
     t = time.perf_counter()
+    offered = masks
     boxes, masks, faces, said, notes = _boxes(masks, measured, depth, capture, shelf, catalogue, placeholder)
     warnings.extend(said)
     notes = catalogue_notes + notes
     timing["boxes"] = time.perf_counter() - t
-    t = time.perf_counter()
     labels = to_label_image(masks, capture.shape)
+    t = time.perf_counter()
+    found = None
+    if capture.depth is not None:    # without a depth image nobody knows where matter is
+        kept = {id(m) for m in masks}
+        dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in kept]
+        found = find_unexplained(capture.depth, camera, shelf, boxes, labels, dropped)
+        if found.regions:
+            warnings.append(describe(found.regions))
+    timing["unexplained"] = time.perf_counter() - t
+    t = time.perf_counter()
     overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in boxes if b.mask_label})
+    if found is not None and found.regions:
+        overlay = draw_unexplained(overlay, found.labels, [u.id for u in found.regions])
     timing["overlay"] = time.perf_counter() - t
     if not boxes:
         warnings.append("no boxes found in the image; the scene is empty")
     name = segmenter_name(seg)
     scene = Scene(shelf, tuple(boxes), camera,
-                  {"kind": "perception", "segmenter": name, "adjustments": notes})
+                  {"kind": "perception", "segmenter": name, "adjustments": notes},
+                  None if found is None else found.regions)
     timing["total"] = time.perf_counter() - t0
     return Perception(scene, labels, overlay, tuple(warnings), timing, tuple(notes), tuple(faces),
-                      name, used_distance, {"pixel_scale": scale})
+                      name, used_distance, {"pixel_scale": scale},
+                      None if found is None else found.labels)
 
 
 def _perceive_scaled(capture: Capture, max_pixels: int, t0: float, **kw: Any) -> Perception:
@@ -197,11 +215,16 @@ def _perceive_scaled(capture: Capture, max_pixels: int, t0: float, **kw: Any) ->
     labels = cv2.resize(res.masks, (w, h), interpolation=cv2.INTER_NEAREST)
     t = time.perf_counter()
     overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in res.scene.boxes if b.mask_label})
+    regions = res.unexplained_labels
+    if regions is not None:
+        regions = cv2.resize(regions, (w, h), interpolation=cv2.INTER_NEAREST)
+        if res.scene.unexplained:
+            overlay = draw_unexplained(overlay, regions, [u.id for u in res.scene.unexplained])
     timing = dict(res.timing, overlay=res.timing.get("overlay", 0.0) + time.perf_counter() - t)
     timing["total"] = time.perf_counter() - t0
     note = f"image {w}x{h} perceived at {small.shape[1]}x{small.shape[0]} (over {max_pixels} pixels)"
     return replace(res, scene=replace(res.scene, camera=capture.camera), masks=labels, overlay=overlay,
-                   warnings=(note,) + res.warnings, timing=timing)
+                   warnings=(note,) + res.warnings, timing=timing, unexplained_labels=regions)
 
 
 def _stand_in_depth(capture: Capture, front_distance: float | None,
