@@ -456,10 +456,9 @@ class Unexplained:
     why: str = ""
 
     def to_json(self) -> dict:
-        doc: dict[str, Any] = {"id": self.id, "min": [round(v, 4) for v in self.min],
-                               "max": [round(v, 4) for v in self.max], "pixels": self.pixels,
-                               "area_m2": round(self.area_m2, 5),
-                               "columns": [[round(v, 4) for v in c] for c in self.columns]}
+        doc: dict[str, Any] = {"id": self.id, "min": list(self.min), "max": list(self.max),
+                               "pixels": self.pixels, "area_m2": self.area_m2,
+                               "columns": [list(c) for c in self.columns]}
         if self.why:
             doc["why"] = self.why
         return doc

@@ -195,10 +195,15 @@ def find_unexplained(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: Seq
         pts = p[sel].astype(np.float64)
         lo = np.percentile(pts, 0.5, axis=0)
         hi = np.percentile(pts, 99.5, axis=0)
-        regions.append(Unexplained(f"u{i}", tuple(float(v) for v in lo), tuple(float(v) for v in hi),  # type: ignore[arg-type]
-                                   int(sel.sum()), area, _columns(pts), _why(sel, dropped)))
+        regions.append(Unexplained(f"u{i}", _mm(lo), _mm(hi), int(sel.sum()), round(area, 5),  # type: ignore[arg-type]
+                                   tuple(_mm(c) for c in _columns(pts)), _why(sel, dropped)))
         out[sel] = i + 1
     return Found(tuple(regions), out)
+
+
+def _mm(values) -> tuple[float, ...]:
+    """Metres to 0.1 mm (what a depth camera resolves at best): short scene files."""
+    return tuple(round(float(v), 4) for v in values)
 
 
 def describe(regions: Sequence[Unexplained]) -> str:

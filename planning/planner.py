@@ -23,6 +23,7 @@ from planning.predict import Predictor
 from planning.reorder import reorder_extraction
 from planning.shorten import shorten_extraction
 from planning.uncertainty import Uncertainty
+from planning.unexplained import verdict as unexplained_verdict
 
 if TYPE_CHECKING:  # pragma: no cover
     from planning.bullet_clients import ClientPool
@@ -183,6 +184,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             predictor.close()  # type: ignore[union-attr]
     search["success_prob"] = success_prob(predicted)
     safe, extra = _verdict(predicted, risk, search, check)
+    safe, extra = unexplained_verdict(scene, sequence, predicted, safe, extra)   # a plan touching it is not safe
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench
     return plan.with_provenance(scene, config, samples, risk)
