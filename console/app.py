@@ -253,13 +253,18 @@ class ConsoleApp:
     """The viser server, one `ClientView` per browser, all fed by one workflow."""
 
     def __init__(self, workflow: Workflow, host: str = "127.0.0.1", port: int = 8080,
-                 passphrase_set: bool = True, verbose: bool = False) -> None:
-        # passphrase_set: a person chose the workflow's passphrase (a generated one is for localhost)
+                 passphrase_set: bool = True, verbose: bool = False, allow_origins: Sequence[str] = ()) -> None:
+        """passphrase_set: a person chose the workflow's passphrase (a generated one is for localhost);
+        allow_origins: browser origins besides the console's own that may drive it (console.origin_guard)."""
         check_host(host, workflow._passphrase if passphrase_set else None)
-        import viser
+        from console.origin_guard import guarded_viser_server, policy_for
 
+        try:
+            policy = policy_for(host, allow_origins)
+        except ValueError as exc:
+            raise ConsoleError(f"--allow-origin {exc}") from None
         self.workflow = workflow
-        self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        self.server = guarded_viser_server(host, port, policy, verbose=verbose)
         self.host = host
         self.server.gui.configure_theme(control_width="large",
                                         show_share_button=False, dark_mode=False)
