@@ -93,6 +93,7 @@ class ShelfDrawing:
         if cam is not None:
             self.shelf_nodes.append(sv.draw_camera(sc, cam))
         self.nodes = sv.draw_boxes(sc, scene)
+        self.shelf_nodes.extend(sv.draw_unexplained(sc, scene))   # matter no box explains (issue 31)
         for bid, n in self.nodes.items():
             n.box.on_click(lambda ev, bid=bid: on_click(bid))
 

@@ -94,6 +94,31 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
     return out
 
 
+UNEXPLAINED_COLOR = (120, 120, 120)
+
+
+def draw_unexplained(scene_api: Any, scene: Any, prefix: str = "/unexplained") -> list:
+    """Matter perception saw that no box explains (`Scene.unexplained`), where planning puts it
+    (`planning.unexplained.obstacles`: the seen surface back to the back wall): translucent grey
+    blocks with dark edges, told apart from every box, and one label per region ("u0 ?")."""
+    from planning.unexplained import obstacles
+
+    regions = getattr(scene, "unexplained", None) or ()
+    out: list = []
+    for i, (_, half, centre) in enumerate(obstacles(scene) if regions else ()):
+        dims = tuple(2 * h for h in half)
+        # named by position: a region id is outside text
+        out.append(scene_api.add_box(f"{prefix}/{i}", color=UNEXPLAINED_COLOR, dimensions=dims, position=centre,
+                                     opacity=0.35, cast_shadow=False, receive_shadow=False))
+        out.append(scene_api.add_box(f"{prefix}/edge{i}", color=(50, 50, 50), dimensions=dims, position=centre,
+                                     wireframe=True, cast_shadow=False))
+    for k, u in enumerate(regions):
+        top = ((u.min[0] + u.max[0]) / 2, u.min[1], u.max[2] + 0.03)
+        out.append(scene_api.add_label(f"{prefix}/label{k}", f"{u.id} ?", position=top,
+                                       anchor="bottom-center", font_screen_scale=1.1))
+    return out
+
+
 def draw_outlines(scene_api: Any, boxes: Sequence[Any], prefix: str = "/predicted") -> list:
     """Wireframe boxes (blue) at the given poses: a step's predicted shelf over the observed one."""
     out = []

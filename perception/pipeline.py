@@ -186,8 +186,8 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
         kept = {id(m) for m in masks}
         dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in kept]
         found = find_unexplained(capture.depth, camera, shelf, boxes, labels, dropped)
-        if found.regions:
-            warnings.append(describe(found.regions))
+        if found.regions:    # first: the console shows a capture's first three warnings
+            warnings.insert(0, describe(found.regions))
     timing["unexplained"] = time.perf_counter() - t
     t = time.perf_counter()
     overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in boxes if b.mask_label})

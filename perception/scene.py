@@ -466,9 +466,7 @@ class Unexplained:
     @classmethod
     def from_json(cls, doc: Any, origin: str = "", where: str = "unexplained") -> "Unexplained":
         doc = _obj(doc, origin, where)
-        uid = _req(doc, "id", origin, f"{where}.")
-        if not isinstance(uid, str) or not uid:
-            raise FormatError(origin, f"{where}.id", f"expected a non-empty string, got {uid!r}")
+        uid = check_id(_req(doc, "id", origin, f"{where}."), origin, f"{where}.id")   # shown in logs and the 3D view
         lo = _vec(_req(doc, "min", origin, f"{where}."), 3, origin, f"{where}.min")
         hi = _vec(_req(doc, "max", origin, f"{where}."), 3, origin, f"{where}.max")
         _box_bounds(lo, hi, origin, f"{where}.max")

@@ -152,3 +152,10 @@ def test_from_a_perceived_shelf_a_missed_box_blocks_its_neighbour_not_the_far_on
     assert unsafe.extra["unexplained"]["touched"] == [f"step 1: pulling {middle.id} touches unexplained matter u0"]
     safe = make_plan(seen, "extract", left.id, samples=2, verify=0)
     assert safe.safe and safe.extra["unexplained"]["touched"] == []
+
+
+def test_a_region_id_with_a_control_character_is_refused():
+    doc = pair(BESIDE_B).to_json()
+    doc["unexplained"][0]["id"] = "u0\x1b[31m"
+    with pytest.raises(FormatError, match="printable"):
+        Scene.from_json(doc, "s.json")

@@ -1,0 +1,46 @@
+"""The console's 3D view of unexplained matter (issue 31 item 2), on a real viser server."""
+from __future__ import annotations
+
+import pytest
+
+from perception.scene import Box, Scene, Shelf, Unexplained
+
+
+@pytest.fixture()
+def server():
+    import viser
+
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+def _scene(*regions: Unexplained) -> Scene:
+    return Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.12, 0.1)),), unexplained=regions or None)
+
+
+def test_regions_are_drawn_where_planning_puts_them_grey_and_labelled(server):
+    from console.scene_view import UNEXPLAINED_COLOR, draw_unexplained
+    from planning.unexplained import obstacles
+
+    u = Unexplained("u0", (0.12, 0.02, 0.02), (0.30, 0.05, 0.20), 4000, 0.03, ((0.12, 0.30, 0.02, 0.20, 0.02),))
+    scene = _scene(u)
+    handles = draw_unexplained(server.scene, scene)
+    (_, half, centre), = obstacles(scene)
+    solid, edge, label = handles
+    assert solid.dimensions == pytest.approx(tuple(2 * h for h in half))
+    assert tuple(solid.position) == pytest.approx(centre) == tuple(edge.position)
+    assert tuple(solid.color) == UNEXPLAINED_COLOR and solid.opacity == pytest.approx(0.35)
+    assert edge.wireframe
+    assert label.text == "u0 ?"
+    for h in handles:       # the panel removes them on the next draw
+        h.remove()
+
+
+def test_a_scene_without_regions_draws_nothing(server):
+    from console.scene_view import draw_unexplained
+
+    assert draw_unexplained(server.scene, _scene()) == []
+    assert draw_unexplained(server.scene, Scene(Shelf(), ())) == []
