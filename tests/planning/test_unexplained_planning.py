@@ -159,3 +159,24 @@ def test_a_region_id_with_a_control_character_is_refused():
     doc["unexplained"][0]["id"] = "u0\x1b[31m"
     with pytest.raises(FormatError, match="printable"):
         Scene.from_json(doc, "s.json")
+
+
+def test_the_scene_schema_takes_regions_and_refuses_what_the_loader_refuses():
+    jsonschema = pytest.importorskip("jsonschema")
+    from pathlib import Path
+
+    from referencing import Registry, Resource
+
+    schemas = Path(__file__).resolve().parents[2] / "docs" / "schemas"
+    docs = [json.loads((schemas / f"{n}.schema.json").read_text()) for n in ("scene", "camera")]
+    registry = Registry().with_resources((d["$id"], Resource.from_contents(d)) for d in docs)
+    check = jsonschema.Draft202012Validator(docs[0], registry=registry)
+    good = pair(BESIDE_B, Unexplained("u1", FAR.min, FAR.max, FAR.pixels, FAR.area_m2, FAR.columns,
+                                      "mask 3 refused as no box front"))
+    assert not list(check.iter_errors(good.to_json()))
+    assert not list(check.iter_errors({**pair().to_json(), "unexplained": None}))
+    bad = good.to_json()
+    bad["unexplained"][0]["pixels"] = 0
+    assert list(check.iter_errors(bad))
+    with pytest.raises(FormatError):
+        Scene.from_json(bad)
