@@ -87,6 +87,7 @@ class ClientView:
         self.replay: ReplayView | None = None      # a stored session drawn instead of the live state
         self.shown_look: LookView | None = None    # the replayed look after a step that is drawn
         self.client_key = f"browser-{getattr(client, 'client_id', id(client))}"   # for the throttle
+        self.wf.throttle.connected(self.client_key)      # a browser open before a flood keeps its say
         self.drawing = drawing = ShelfDrawing(client)
         g = client.gui
         tabs = g.add_tab_group()
@@ -308,6 +309,7 @@ class ConsoleApp:
             view = self.views.pop(client.client_id, None)
         if view is not None:
             view.stop_preview()
+            self.workflow.throttle.disconnected(view.client_key)
 
     def _on_state(self, state: State) -> None:
         with self._views_lock:

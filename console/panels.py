@@ -275,10 +275,31 @@ class SupervisorPanel:
         self.decisions_md = g.add_markdown("")
         self.btn_approve.on_click(self.approve)
         self.btn_reject.on_click(self.reject)
+        # the plan under review in this browser, (planner, hash) as shown here: Approve and Reject
+        # send exactly it; changing it clears every acknowledgement (passphrase, risk tick)
+        self.reviewed: tuple[str, str] | None = None
+        self.ack_lock = threading.Lock()
+        self.approve_plan.on_update(lambda e: self.review(self.wf.state))
 
     def render(self, state: State) -> None:
-        self.sup_info.content = supervisor_markdown(state)
+        self.review(state)
         self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
+
+    def review(self, state: State) -> None:
+        """Show the plan under review (the `Plan` choice: planner, hash, sequence) and remember it.
+
+        The pair shown is the pair decided on; when it changes (a re-plan, another target,
+        another choice) the passphrase and the risk tick are cleared, so no acknowledgement
+        given for one plan carries over to a plan the supervisor has not looked at."""
+        name = self.approve_plan.value
+        entry = (state.plans or {}).get(name)
+        now = (name, entry.hash) if entry is not None else None
+        with self.ack_lock:
+            if now != self.reviewed:
+                self.reviewed = now
+                self.passphrase.value = ""
+                self.accept_risk.value = False
+            self.sup_info.content = supervisor_markdown(state) + review_markdown(name, entry)
 
     def _entry_for_approval(self) -> PlanEntry:
         entry = self.wf.state.plans.get(self.approve_plan.value)
@@ -292,26 +313,36 @@ class SupervisorPanel:
         self.passphrase.value = ""
         return given
 
-    def approve(self, event: Any) -> None:
-        given = self._take_passphrase()
+    def _acknowledged(self) -> tuple[tuple[str, str], str, bool]:
+        """(plan under review, passphrase, risk tick), taken together under the lock `review` clears
+        them under: a decision never pairs one plan's acknowledgements with another plan."""
+        with self.ack_lock:
+            reviewed = self.reviewed
+            given, accept = self._take_passphrase(), bool(self.accept_risk.value)
+        if reviewed is None:
+            raise WorkflowError("no plan to decide on: plan first")
+        if not given:
+            raise WorkflowError("type the supervisor passphrase first (it is cleared after every use and "
+                                "whenever the plan under review changes)")
+        return reviewed, given, accept
 
+    def approve(self, event: Any) -> None:
         def go() -> None:
-            entry = self._entry_for_approval()
-            self.wf.approve(entry.hash, given, self.who.value.strip() or "supervisor",
-                            accept_risk=bool(self.accept_risk.value), client=self.client_key())
+            (name, plan_hash), given, accept = self._acknowledged()
+            self.wf.approve(plan_hash, given, self.who.value.strip() or "supervisor",
+                            accept_risk=accept, client=self.client_key(), planner=name)
             self.accept_risk.value = False
             self.wf.execute()
         self.do(event, go)
 
     def reject(self, event: Any) -> None:
-        given = self._take_passphrase()
-
         def go() -> None:
             if not self.reason.value.strip():
+                self._take_passphrase()
                 raise WorkflowError("Reject needs a reason: type it in `Reject reason`")
-            entry = self._entry_for_approval()
-            self.wf.reject(entry.hash, given, self.who.value.strip() or "supervisor",
-                           self.reason.value, client=self.client_key())
+            (name, plan_hash), given, _ = self._acknowledged()
+            self.wf.reject(plan_hash, given, self.who.value.strip() or "supervisor",
+                           self.reason.value, client=self.client_key(), planner=name)
             self.reason.value = ""
         self.do(event, go)
 
@@ -331,6 +362,15 @@ def supervisor_markdown(state: State) -> str:
             + ". Approving needs `Accept predicted risk`.")
     lines.append("\n`Approve` sends the chosen plan to the robot at once.")
     return "\n".join(lines)
+
+
+def review_markdown(name: str, entry: PlanEntry | None) -> str:
+    """The plan `Approve` and `Reject` decide on in this browser: planner, hash and sequence."""
+    if entry is None:
+        return ""
+    return (f"\n\n**Deciding on:** the **{md(name)}** plan `{md(entry.hash)}`: "
+            f"{' → '.join(md(b) for b in entry.plan.sequence)} (max risk {pct(entry.plan.risk)}"
+            f"{'' if entry.plan.safe else ', predicted UNSAFE'})")
 
 
 def decisions_markdown(decisions: Iterable[Mapping[str, Any]], key: str = "plan") -> str:

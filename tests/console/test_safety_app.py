@@ -66,10 +66,16 @@ def test_outside_text_is_literal_in_every_view_and_supervisors_race(app, monkeyp
     wf._set(warnings=(MARKUP,))
     wf.plan("clear", wait=True)
     sups = views[:2]
+    for v in sups:
+        v.approve_plan.value = "physics"
+    # the supervisors type once their views show the plan (what is typed before is cleared then)
+    end = time.monotonic() + 30
+    while not all(v.supervisor.reviewed == ("physics", wf.state.plans["physics"].hash) for v in sups):
+        assert time.monotonic() < end, "the supervisor views never showed the plan"
+        time.sleep(0.05)
     for v, name in zip(sups, ("<img src=x onerror=alert(5)>", "[ann](http://evil.example/)")):
         v.who.value = name
         v.passphrase.value = PASS
-        v.approve_plan.value = "physics"
     fault(2)
     go = threading.Barrier(2)
     ts = [threading.Thread(target=lambda v=v: (go.wait(), v._approve(None))) for v in sups]

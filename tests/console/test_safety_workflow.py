@@ -481,3 +481,42 @@ def test_step_states_survive_a_restart_and_an_unknown_step_refuses_only_that_cap
         wf._steps_before(run)
     assert wf._steps_before(RunLock(h, PlanEntry(plan, h), sid2, 0, "sue")) == {}
     s.close()
+
+
+def test_a_flood_of_wrong_passphrases_does_not_lock_out_the_supervisor_at_their_own_browser(make_wf):
+    """Issue 30: an attacker kept the overall brake engaged and the supervisor was refused 6 of 6.
+    Now the supervisor's browser, connected before the flood and without wrong tries of its own,
+    is judged by its own record; the attacker's browsers, old or new, stay braked."""
+    from console.workflow import AUTH_REFUSED, Throttle, WorkflowError
+
+    now = [1000.0]
+    wf = make_wf()
+    wf.throttle = Throttle(clock=lambda: now[0])
+    st = planned(wf, "clear")
+    h = st.plans["physics"].hash
+    wf.throttle.connected("browser-sup")
+    wf.throttle.connected("browser-evil-old")
+    now[0] += 1.0
+
+    def attempt(pw, client):
+        try:
+            wf.approve(h, pw, "x", accept_risk=True, client=client, planner="physics")
+            return None
+        except WorkflowError as exc:
+            return str(exc)
+
+    fault()
+    approved = 0
+    for round_ in range(6):
+        for i in range(20):                                      # the flood, from fresh browsers
+            wf.throttle.connected(f"browser-evil{round_}-{i}")
+            attempt("guess", f"browser-evil{round_}-{i}")
+            now[0] += 0.05
+        assert attempt(PASS, f"browser-late{round_}") == f"approval refused: {AUTH_REFUSED}"   # braked
+        if attempt(PASS, "browser-sup") is None:
+            approved += 1
+            wf.stop("op")                                        # withdraw, and the flood goes on
+    assert approved == 6
+    for _ in range(3):                                           # an old browser of the attacker's: its
+        attempt("guess", "browser-evil-old")                     # own record ends its say
+    assert attempt(PASS, "browser-evil-old") == f"approval refused: {AUTH_REFUSED}"
