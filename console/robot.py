@@ -35,7 +35,7 @@ from perception.scene import Box, Scene
 from planning.plan import Plan
 
 from console.robot_types import (EVENT_KINDS, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
-                                 RobotOutcome, StepHistory, emit, finish, query_float)
+                                 RobotOutcome, StepHistory, emit, finish, query_float, record_before_sending)
 
 
 # --------------------------------------------------------------------------
@@ -116,6 +116,8 @@ class SimRobot:
         # the console's look after each step: verify(step, box, world) -> None (go on) or why to hold;
         # called after `done`, before the next step is taken (docs/robot-protocol.md, "Verification")
         self.verify: Callable[..., str | None] | None = None
+        # the console's record that a step goes out, committed before the robot takes it (robot_tcp.py)
+        self.record_sent: Callable[[int, str], None] | None = None
 
     def set_truth(self, truth: Scene | None) -> None:
         """A new shelf in front of the robot (a new demo capture): rebuild the world."""
@@ -216,6 +218,9 @@ class SimRobot:
               stop: threading.Event, statuses: dict[int, dict], note: dict) -> str | None:
         """Take out step `i`'s box (found where it was seen); None: done, go on; else why the run ends."""
         box = plan.sequence[i]
+        unrecorded = record_before_sending(self.record_sent, statuses, i, box)
+        if unrecorded is not None:
+            return unrecorded
         present = self._present_boxes()
         mapping = match_boxes(scene, self._world_scene, present, self.match_tol) \
             if box in scene.ids else {}

@@ -1,21 +1,27 @@
 """The robot run: the approved plan sent on a background thread, each step looked at, the outcome stored.
 
-Audit first: the robot starts once its run is committed, a robot event that
-cannot be committed stops the run at once, and a look after a step that
-cannot be recorded holds the robot. A held step's look becomes the current
-capture (plan again from it, or continue as planned).
+Audit first: the robot starts once its run is committed, each step goes out
+once its `sent` record is committed, a robot event that cannot be committed
+stops the run at once (and is retried, in order, until it is: the journal,
+console/store_journal.py; no run starts while anything waits there), and a
+look after a step that cannot be recorded holds the robot. A held step's look
+becomes the current capture (plan again from it, or continue as planned).
+One run at a time per database, across consoles: `store.start_run` refuses
+while another live console's run is open.
 """
 from __future__ import annotations
 
 import threading
 import traceback
-from typing import TYPE_CHECKING, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from perception.scene import Scene
 
 from console.continuation import continuation, mapped_target
 from console.look import Look, look_again
 from console.run_json import outcome_json, perception_summary, step_json
+from console.store_journal import JournalStatus, RecordJournal
+from console.store_schema import RunConflict
 from console.workflow_core import WorkflowCore
 from console.workflow_state import Deviation, RunLock, State, WorkflowError
 
@@ -23,8 +29,44 @@ if TYPE_CHECKING:
     from console.robot_types import RobotDriver, RobotEvent, RobotOutcome
 
 
+JOURNAL_CLOSE_WAIT = 2.0   # s close() waits for records still waiting in the journal
+
+
 class RobotRun(WorkflowCore):
     """`execute()`, `stop()` and the run's worker thread."""
+
+    @property
+    def journal(self) -> RecordJournal:
+        """The run records that wait for the database (made at first use)."""
+        with self._lock:
+            j = self.__dict__.get("_journal")
+            if j is None:
+                j = self.__dict__["_journal"] = RecordJournal(self._journal_status)
+            return j
+
+    def _journal_status(self, status: JournalStatus | None) -> None:
+        """The page says what waits for the database until it is committed (then it says so once)."""
+        with self._lock:
+            if status is not None:
+                self._set(audit=status.text())
+            elif self._state.audit and self._state.audit.startswith("database:"):
+                self._set(audit=None, message="database: the robot run's records that waited are committed now")
+
+    def _journal_record(self, what: str, fn: Callable[..., Any], *args: Any) -> bool:
+        """Commit through the journal (in order, retried until committed); False: not committed yet."""
+        try:
+            return self.journal.record(what, fn, *args)
+        except RuntimeError as exc:       # closed: the console is shutting down
+            self._audit_failed(what, exc)
+            return False
+
+    def close(self) -> None:
+        """Give records that wait for the database a moment, then stop retrying (a restart recovers)."""
+        j = self.__dict__.get("_journal")
+        if j is not None:
+            j.wait_empty(JOURNAL_CLOSE_WAIT)
+            j.close()
+        super().close()
 
     def execute(self, wait: bool = False) -> State:
         """Send the approved plan to the robot on a background thread, once its start is committed."""
@@ -34,6 +76,10 @@ class RobotRun(WorkflowCore):
                 self._refuse("nothing approved: a supervisor must approve a plan first")
             if run.started:
                 self._refuse("the robot is already running")
+            waiting = self.journal.pending()
+            if waiting:
+                self._refuse(f"robot not started: {waiting} record(s) of the last run are not yet committed to "
+                             f"the database (retrying); nothing is sent until they are")
             if run.decision_id is None or st.approved != run.plan_hash:
                 self._refuse("the approval is still being recorded; try again in a moment")
             if (run.session_id != st.session_id or run.gen != self._generation
@@ -53,7 +99,8 @@ class RobotRun(WorkflowCore):
                                        {"sequence": list(run.entry.plan.sequence), "who": run.who,
                                         "robot_run": run.robot_run})
         except Exception as exc:  # noqa: BLE001 - audit first: no committed start, no motion
-            msg = exc.args[0] if isinstance(exc, WorkflowError) else self._audit_failed("the robot start", exc)
+            msg = exc.args[0] if isinstance(exc, (WorkflowError, RunConflict)) else \
+                self._audit_failed("the robot start", exc)
             with self._lock:
                 self._release(run)
                 self._set(robot="idle", approval=None)
@@ -102,8 +149,8 @@ class RobotRun(WorkflowCore):
                                message=f"{who} pressed Stop robot: the approval of plan {run.plan_hash} "
                                        f"is withdrawn; nothing was sent")
         if run is not None:
-            self._record("the stop", self.store.add_robot_event, run.session_id, run.plan_hash, "stop",
-                         None, None, {"who": who, "running": run.started})
+            self._journal_record("the stop", self.store.add_robot_event, run.session_id, run.plan_hash, "stop",
+                                 None, None, {"who": who, "running": run.started})
         return st
 
     def _robot_worker(self, run: RunLock, run_id: int, done_before: dict[int, str]) -> None:
@@ -113,6 +160,8 @@ class RobotRun(WorkflowCore):
             seed_history(robot, run.plan_hash, done_before)
             if hasattr(robot, "run_id"):
                 robot.run_id = run.robot_run
+            if hasattr(robot, "record_sent"):
+                robot.record_sent = self._sent_recorder(run)
             if hasattr(robot, "verify") and callable(getattr(self.source, "look_again", None)):
                 robot.verify = self._verifier(run)
             if run.stop.is_set():
@@ -147,7 +196,9 @@ class RobotRun(WorkflowCore):
                 v = unavailable(step, box, f"the verification could not be recorded ({msg})", self.tolerance)
             run.verifications.append(v)
             with self._lock:
-                self._set(verifications=tuple(run.verifications), message=v.summary())
+                # the shelf this look saw: the 3D view draws it, step by step (h6, issue 33)
+                seen = {"observed": perception.scene} if perception is not None else {}
+                self._set(verifications=tuple(run.verifications), message=v.summary(), **seen)
             if v.within:
                 return None
             if look.frame is not None and perception is not None:
@@ -163,14 +214,36 @@ class RobotRun(WorkflowCore):
         return look_again(self.source, world, step, box, predicted, run.scene.shelf, self.segmenter,
                           self.tolerance, self.perceive_options, removed)
 
+    def _sent_recorder(self, run: RunLock) -> Callable[[int, str], None]:
+        """The driver calls it before a step goes out: the `sent` record is committed, or it raises
+        and the step is not sent (nor is any while earlier records wait for the database)."""
+        def record_sent(step: int, box: str) -> None:
+            if run.stop.is_set():
+                raise WorkflowError("the run was stopped")
+            if self.journal.pending():
+                raise WorkflowError("earlier records of this run wait for the database")
+            try:
+                self.store.add_robot_event(run.session_id, run.plan_hash, "sent", step, box,
+                                           {"run": run.robot_run})
+            except Exception as exc:  # noqa: BLE001 - audit first: no record, no motion
+                run.stop.set()
+                run.audit_failed = (self._audit_failed(f"that step {step + 1} is sent", exc)
+                                    + f"; step {step + 1} ({box}) was not sent and the robot was stopped")
+                raise
+        return record_sent
+
     def _on_event(self, run: RunLock) -> Callable[[RobotEvent], None]:
         def on_event(ev: RobotEvent) -> None:
-            try:
-                self.store.add_robot_event(run.session_id, run.plan_hash, ev.kind, ev.step, ev.box,
-                                           dict(ev.detail) if ev.detail else None)
-            except Exception as exc:  # noqa: BLE001 - audit first: no record, no further motion
+            detail = dict(ev.detail) if ev.detail else None
+            if not self._journal_record(f"the {ev.kind}" + (f" of step {ev.step + 1}" if isinstance(ev.step, int)
+                                                             else ""),
+                                        self.store.add_robot_event, run.session_id, run.plan_hash, ev.kind,
+                                        ev.step, ev.box, detail):
+                # audit first: not on record (yet), so no further motion; the journal keeps trying
                 run.stop.set()
-                run.audit_failed = self._audit_failed(f"a robot event ({ev.kind})", exc) + "; the robot was stopped"
+                if not run.audit_failed:
+                    run.audit_failed = (f"database: could not record a robot event ({ev.kind}); the robot was "
+                                        f"stopped; the record is retried until it is committed")
             with self._lock:
                 events = self._state.robot_events + (ev,)
                 step = f" step {ev.step + 1}" if isinstance(ev.step, int) else ""
@@ -197,7 +270,7 @@ class RobotRun(WorkflowCore):
         if run.verifications:
             out_doc["verified"] = [v.to_json() for v in run.verifications]
             out_doc["held"] = status == "held"
-        self._record("the outcome", self.store.set_outcome, run.session_id, out_doc, run_id)
+        self._journal_record("the outcome", self.store.set_outcome, run.session_id, out_doc, run_id)
         done = ", ".join(outcome.completed) if outcome is not None and outcome.completed else "none"
         if run.held is not None:
             try:

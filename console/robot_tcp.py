@@ -36,7 +36,7 @@ from robotsim.transform import Transform
 from robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 
 from console.robot_types import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
-                                 new_run_id, query_float)
+                                 new_run_id, query_float, record_before_sending)
 
 MAX_TEXT = 500          # characters of a peer's code/message kept in events and errors
 STEP_REPLIES = frozenset({"ack", "done", "error", "aborted"})
@@ -108,6 +108,9 @@ class TcpRobot:
         self.transform = transform or Transform.identity()
         # the console's look after each step: verify(step, box, None) -> None (go on) or why to hold
         self.verify: Callable[..., str | None] | None = None
+        # the console's record that a step goes out: record_sent(step, box), committed before the
+        # step is sent; raising means "not on record": the step is not sent and the run ends
+        self.record_sent: Callable[[int, str], None] | None = None
         self.timeouts = timeouts or Timeouts()
         # what this driver's runs did (skipped, never re-sent); the console hands each run its own
         self.history = history if history is not None else StepHistory()
@@ -332,6 +335,9 @@ class TcpRobot:
         if run.stop.is_set():
             return self._abort(conn, run, None, i)
         msg = step_message(run.hash, i, run.scene.box(box_id), run.scene, self.transform, run.run_id)
+        unrecorded = record_before_sending(self.record_sent, run.statuses, i, box_id)
+        if unrecorded is not None:
+            return unrecorded
         run.pending = i  # sent, not acknowledged: the robot must not move before its ack
         self._send(conn, msg)
         expect = (run.hash, i, box_id)

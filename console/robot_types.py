@@ -126,6 +126,20 @@ def emit(on_event: Callable[[RobotEvent], None], ev: RobotEvent) -> None:
         log.exception("robot event listener failed on %s", ev)
 
 
+def record_before_sending(record_sent: Callable[[int, str], None] | None, statuses: dict[int, dict],
+                          step: int, box: str) -> str | None:
+    """Have the console commit that `step` goes out, before it does; why not (it stays unsent), or None."""
+    if record_sent is None:
+        return None
+    try:
+        record_sent(step, box)
+    except Exception as exc:  # noqa: BLE001 - StoreError, WorkflowError alike: not on record, not sent
+        why = f"its `sent` record could not be committed ({exc})"
+        statuses[step] = {"step": step, "box": box, "status": "not_sent", "detail": {"reason": why}}
+        return f"step {step + 1} ({box}) was not sent: {why}"
+    return None
+
+
 def finish(plan: Plan, plan_hash: str, statuses: dict[int, dict], error: str | None,
            history: StepHistory, endpoint: str) -> RobotOutcome:
     """Assemble the outcome: per step status, completed boxes in plan order, replan flag."""
@@ -172,4 +186,4 @@ def query_float(q: dict[str, list[str]], key: str, spec: str, default: float) ->
 
 
 __all__ = ["EVENT_KINDS", "REPLAN", "RobotError", "RobotEvent", "RobotOutcome", "RobotDriver", "StepHistory",
-           "emit", "finish", "new_run_id", "query_float"]
+           "emit", "finish", "new_run_id", "query_float", "record_before_sending"]

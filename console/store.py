@@ -48,6 +48,7 @@ from console.store_records import (
 from console.store_schema import (
     OUR_TABLES,  # noqa: F401  (re-exported)
     SCHEMA_VERSION,
+    RunConflict,
     StoreError,
     explain,
     open_readonly,
@@ -58,7 +59,7 @@ from perception.scene import Scene
 from planning.plan import Plan
 
 DEFAULT_DB = Path("data") / "shelfpick.db"
-ROBOT_KINDS = ("start", "ack", "done", "error", "aborted", "disconnected", "unknown")
+ROBOT_KINDS = ("start", "sent", "ack", "done", "error", "aborted", "disconnected", "unknown")
 
 T = TypeVar("T")
 
@@ -267,14 +268,18 @@ class SessionStore:
         The `start` event and the run row go in one transaction; the run row
         says which console owns the run, so that a restart can tell a run
         that died with its console (kill -9, power) from one still going.
+        One run at a time per database: an open run of a console that is
+        alive (this one or another process) refuses the start (`RunConflict`),
+        checked inside the write transaction, so two consoles cannot both start.
         """
         def fn(cur: sqlite3.Cursor) -> int:
             self._require_session(cur, session_id)
             open_run = cur.execute("SELECT id FROM runs WHERE session_id=? AND ended IS NULL",
                                    (session_id,)).fetchone()
             if open_run is not None:
-                raise StoreError(f"{self.path}: session {session_id} already has a run in progress "
-                                 f"(run {open_run[0]})")
+                raise RunConflict(f"{self.path}: session {session_id} already has a run in progress "
+                                  f"(run {open_run[0]})")
+            self._refuse_a_live_run(cur)
             cur.execute("INSERT INTO runs(session_id, plan_hash, decision_id, owner, started) VALUES (?,?,?,?,?)",
                         (session_id, plan_hash, decision_id, self.owner, utc_now()))
             rid = int(cur.lastrowid)
@@ -282,6 +287,23 @@ class SessionStore:
             return rid
 
         return self._write(fn)
+
+    def _refuse_a_live_run(self, cur: sqlite3.Cursor) -> None:
+        """RunConflict when any console that is alive has a run open on this database."""
+        for row in cur.execute("SELECT id, session_id, plan_hash, owner FROM runs WHERE ended IS NULL "
+                               "ORDER BY id").fetchall():
+            if owner_alive(row["owner"], self.path):
+                who = "this console" if row["owner"] == self.owner else f"another console ({row['owner']})"
+                raise RunConflict(f"{self.path}: {who} is running plan {row['plan_hash']} of session "
+                                  f"{row['session_id']} (run {row['id']}) on this database; one run at a "
+                                  f"time: wait for it to end or press Stop there")
+
+    def active_run(self) -> dict | None:
+        """The open run of a console that is alive (any process), or None: what a second run waits for."""
+        for row in self._read("SELECT id, session_id, plan_hash, owner FROM runs WHERE ended IS NULL ORDER BY id"):
+            if owner_alive(row["owner"], self.path):
+                return dict(row)
+        return None
 
     def add_verification(self, session_id: int, plan_hash: str, run: str | None, verdict: dict,
                          predicted: Scene | None, observed: Scene | None) -> int:
@@ -318,7 +340,8 @@ class SessionStore:
     def step_states(self, session_id: int, plan_hash: str) -> dict[int, tuple[str, str | None]]:
         """step -> (state, box) from the robot events of this session's runs of this plan.
 
-        state: `in_flight` (acknowledged, not finished), `done`, `failed`,
+        state: `sent` (its record committed before it went out, nothing
+        after), `in_flight` (acknowledged, not finished), `done`, `failed`,
         `aborted` or `unknown` (in flight when the link or the console died).
         This is what "never re-send a step" is keyed by: session (one capture)
         and plan, stored, so it holds after a restart.
@@ -330,8 +353,9 @@ class SessionStore:
     def recover_interrupted(self) -> list[dict]:
         """Runs whose console died (kill -9, power cut) while executing: mark them interrupted.
 
-        The step that was acknowledged but not finished gets an `unknown`
-        event (the robot may have moved it or not); the session gets an
+        A step that was sent (or acknowledged) but not finished gets an
+        `unknown` event (the robot may have moved it or not: the operator is
+        told to look at the shelf), never `not_sent`; the session gets an
         outcome saying so and the status `interrupted`. Runs of a console that
         is still alive (its store holds its owner lock) are left alone; lock
         files that crashed consoles left behind are removed. Returns one dict
@@ -353,7 +377,9 @@ class SessionStore:
 
         def fn(cur: sqlite3.Cursor) -> None:
             for i, box in rec.unknown:
-                self._insert_event(cur, sid, h, "unknown", i, box, {"reason": store_steps.INTERRUPTED_REASON})
+                reason = rec.outcome["steps"][i]["detail"]["reason"] if i < len(rec.outcome["steps"]) \
+                    else store_steps.INTERRUPTED_REASON
+                self._insert_event(cur, sid, h, "unknown", i, box, {"reason": reason})
             cur.execute("INSERT OR IGNORE INTO outcomes(session_id, at, outcome) VALUES (?,?,?)",
                         (sid, utc_now(), json.dumps(rec.outcome)))
             cur.execute("UPDATE sessions SET status='interrupted' WHERE id=?", (sid,))
@@ -413,5 +439,5 @@ class SessionStore:
             yield self.load_session(int(s["id"]))
 
 
-__all__ = ["SessionStore", "SessionRecord", "PlanRecord", "StoreError", "DEFAULT_DB", "SCHEMA_VERSION",
+__all__ = ["SessionStore", "SessionRecord", "PlanRecord", "StoreError", "RunConflict", "DEFAULT_DB", "SCHEMA_VERSION",
            "utc_now"]

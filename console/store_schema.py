@@ -109,6 +109,10 @@ class StoreError(ShelfpickError):
     """The session database cannot be opened or written (locked, read-only, full, corrupt)."""
 
 
+class RunConflict(StoreError):
+    """A run is already going on this database (another console's, or this one's): one run at a time."""
+
+
 def explain(exc: sqlite3.Error, path: Path) -> str:
     """One line for an SQLite error: the file, what went wrong, what to do."""
     msg = str(exc)

@@ -2,7 +2,11 @@
 
 `step_states` is "never re-send a step": a step acknowledged by the robot
 and never reported finished stays `in_flight`, and `unknown` when the link or
-the console died with it, whatever happens after. `interrupted_run` is the
+the console died with it, whatever happens after. A step whose `sent` record
+(committed before the step goes out) has nothing after it is `sent`: a run
+that ended normally had it unacknowledged (the robot must not move before
+its `ack`), but when the console died with it, its `ack` may have come and
+not been committed, so the restart calls it unknown, never `not_sent`. `interrupted_run` is the
 record a restarted console writes for a run whose console died mid-run.
 `verification_stats` and `step_stats` pair what the plan predicted for each
 step with what the robot and the look after the step reported.
@@ -18,6 +22,8 @@ StepStates = dict[int, tuple[str, str | None]]
 
 INTERRUPTED_REASON = ("the console stopped (crash or kill) while this step was in flight; "
                       "its outcome is unknown")
+SENT_REASON = ("the console stopped (crash, kill, or closed with records it could not commit) after this "
+               "step was sent; its acknowledgement is not on record, so its outcome is unknown: look at the shelf")
 
 
 def step_states(rows: Iterable[sqlite3.Row]) -> StepStates:
@@ -26,7 +32,9 @@ def step_states(rows: Iterable[sqlite3.Row]) -> StepStates:
     for r in rows:
         kind, step = r["kind"], int(r["step"])
         prev = out.get(step, ("", None))[0]
-        if kind == "ack":
+        if kind == "sent":
+            state = "sent" if prev in ("", "sent", "failed", "aborted") else prev
+        elif kind == "ack":
             state = "in_flight"
         elif kind == "done":
             state = "done"
@@ -43,24 +51,28 @@ def step_states(rows: Iterable[sqlite3.Row]) -> StepStates:
     return out
 
 
+OPEN_STATES = ("in_flight", "sent")   # what a dead console's run leaves with an unknown outcome
+
+
 @dataclass(frozen=True)
 class InterruptedRun:
     """A dead console's run as the restart records it."""
 
     outcome: dict                             # the session's outcome: interrupted, not ok
-    unknown: list[tuple[int, str | None]]     # (step, box) in flight when it died: an `unknown` event each
+    unknown: list[tuple[int, str | None]]     # (step, box) sent or in flight when it died: an `unknown` each
     completed: list[str]                      # boxes whose step the robot reported done
 
 
 def interrupted_run(plan_hash: str, sequence: list,
                     states: Mapping[int, tuple[str, str | None]]) -> InterruptedRun:
-    """The outcome of a run whose console died: steps in flight are unknown, the rest as reported."""
-    unknown = [(i, box) for i, (st, box) in sorted(states.items()) if st == "in_flight"]
+    """The outcome of a run whose console died: steps sent or in flight are unknown, the rest as reported."""
+    unknown = [(i, box) for i, (st, box) in sorted(states.items()) if st in OPEN_STATES]
     steps = []
     for i, box in enumerate(sequence):
         st = states.get(i, ("not_sent", box))[0]
-        steps.append({"step": i, "box": box, "status": "unknown" if st == "in_flight" else st,
-                      "detail": {"reason": INTERRUPTED_REASON} if st == "in_flight" else {}})
+        reason = {"in_flight": INTERRUPTED_REASON, "sent": SENT_REASON}.get(st)
+        steps.append({"step": i, "box": box, "status": "unknown" if reason else st,
+                      "detail": {"reason": reason} if reason else {}})
     done = [box for i, box in enumerate(sequence) if states.get(i, ("",))[0] == "done"]
     err = "the console stopped during execution (crash or kill)" + (
         "; step " + ", ".join(f"{i + 1} ({b})" for i, b in unknown) + ": outcome unknown" if unknown else "")

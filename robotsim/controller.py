@@ -18,9 +18,15 @@ transform and the box whose front face is there is pulled out, so what the
 console's perception thought and what the shelf holds may disagree, as on a
 real shelf. Without a truth scene it just acknowledges and reports done.
 
+One run at a time: from its `hello` until `bye` or the connection closes, a
+connection holds the robot for its run; a `hello` of another run on any
+other connection is answered `error` `BUSY` (after waiting up to
+`claim_wait` seconds for a connection that is just closing), so two
+consoles can never drive the robot at once.
+
 Fault injection for tests: refuse given steps, drop the connection after k
 completed steps or while step k is in flight, hang (go silent) on a step,
-take `step_time` seconds per step.
+take `ack_delay` seconds before an `ack` and `step_time` seconds per step.
 
     python -m robotsim --port 9000 [--truth scene.json] [--transform t.json]
 
@@ -46,6 +52,9 @@ from robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 log = logging.getLogger(__name__)
 
 
+CLAIM_WAIT = 1.0   # s a hello waits for another connection's run to let go before BUSY
+
+
 class _Server(socketserver.ThreadingTCPServer):
     allow_reuse_address = True
     daemon_threads = True
@@ -64,7 +73,8 @@ class RobotController:
                  transform: Transform | None = None, refuse_steps: Iterable[int] = (),
                  drop_after: int | None = None, drop_during: int | None = None,
                  hang_on_step: int | None = None, step_time: float = 0.0, seed: int = 0,
-                 name: str = "shelfpick-reference", grasp_tol: float = 0.06) -> None:
+                 name: str = "shelfpick-reference", grasp_tol: float = 0.06, ack_delay: float = 0.0,
+                 claim_wait: float = CLAIM_WAIT) -> None:
         self.truth = truth
         self.transform = transform or Transform.identity()
         self.refuse_steps = set(refuse_steps)
@@ -72,6 +82,8 @@ class RobotController:
         self.drop_during = drop_during
         self.hang_on_step = hang_on_step
         self.step_time = float(step_time)
+        self.ack_delay = float(ack_delay)
+        self.claim_wait = float(claim_wait)
         self.seed = int(seed)
         self.name = name
         self.grasp_tol = grasp_tol
@@ -83,6 +95,9 @@ class RobotController:
         self._done_keys: set[tuple[str | None, str, int]] = set()   # (run id, plan hash, step)
         self._n_done = 0
         self._conns: set[socket.socket] = set()
+        self._holders: dict[int, str | None] = {}    # connection number -> its run (None: no run id)
+        self._n_conns = 0
+        self._released = threading.Condition(self._lock)
         self._server = _Server((host, port), _Handler, bind_and_activate=True)
         self._server.controller = self  # type: ignore[attr-defined]
         self._thread: threading.Thread | None = None
@@ -145,11 +160,40 @@ class RobotController:
                                               for i, (p, q) in self._sim.poses().items())
 
     # ------------------------------------------------------------------ one connection
+    def active_runs(self) -> list[str | None]:
+        """The runs that hold the robot now (one at most, or several connections of one run)."""
+        with self._lock:
+            return list(self._holders.values())
+
+    def _claim(self, state: dict, run: str | None) -> str | None:
+        """Hold the robot for this connection's run; None, or which other run holds it (BUSY)."""
+        me = state["conn"]
+        deadline = time.monotonic() + self.claim_wait
+        with self._lock:
+            while True:
+                others = {r for c, r in self._holders.items() if c != me}
+                if not others or (run is not None and others == {run}):
+                    self._holders[me] = run
+                    return None
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return ", ".join(sorted(str(r) if r is not None else "(a run without id)" for r in others))
+                self._released.wait(min(left, 0.05))   # a connection that is just closing lets go
+
+    def _let_go(self, state: dict) -> None:
+        with self._lock:
+            if state["conn"] in self._holders:
+                del self._holders[state["conn"]]
+                self._released.notify_all()
+
     def _serve(self, sock: socket.socket) -> None:
         with self._lock:
             self._conns.add(sock)
+            self._n_conns += 1
+            number = self._n_conns
         conn = LineConn(sock)
-        state = {"hung": False, "busy": False, "abort": None, "step": None, "closed": False, "run": None}
+        state = {"hung": False, "busy": False, "abort": None, "step": None, "closed": False, "run": None,
+                 "conn": number}
         try:
             while not state["closed"]:
                 try:
@@ -171,6 +215,7 @@ class RobotController:
         finally:
             if state["abort"] is not None:
                 state["abort"].set()  # link gone: a real robot stops the motion safely
+            self._let_go(state)
             with self._lock:
                 self._conns.discard(sock)
             conn.close()
@@ -194,6 +239,12 @@ class RobotController:
                 self._send(conn, state, {"type": "error", "code": "BAD_REQUEST",
                                          "message": f"run must be a string of 1-{MAX_RUN_ID} characters"})
                 return
+            holder = self._claim(state, msg.get("run"))
+            if holder is not None:
+                self._send(conn, state, {"type": "error", "code": "BUSY",
+                                         "message": f"another run is active on this robot (run {holder}); "
+                                                    f"one run at a time"})
+                return
             state["run"] = msg.get("run")
             self._send(conn, state, {"type": "hello", "protocol": PROTOCOL, "robot": self.name,
                                      "executes": "truth-sim" if self.truth is not None else "acknowledge"})
@@ -214,6 +265,7 @@ class RobotController:
                                          "completed": finished})
         elif kind == "bye":
             state["closed"] = True
+            self._let_go(state)
         else:
             self._send(conn, state, {"type": "error", "code": "BAD_REQUEST",
                                      "message": f"unknown message type {kind!r}"})
@@ -254,6 +306,8 @@ class RobotController:
         if self.hang_on_step == step:
             state["hung"] = True
             return
+        if self.ack_delay > 0:
+            time.sleep(self.ack_delay)   # a slow robot controller: the console waits for the ack
         self._send(conn, state, {"type": "ack", "plan": plan, "step": step, "box": box})
         abort = threading.Event()
         state["abort"], state["step"], state["busy"] = abort, step, True
@@ -284,11 +338,13 @@ class RobotController:
             n_done = self._n_done
         if self.drop_during == step:
             state["closed"] = True  # executed, but the console never hears `done`
+            self._let_go(state)
             _hard_close(conn)
             return
         self._send(conn, state, {"type": "done", "plan": plan, "step": step, "box": box, "detail": detail})
         if self.drop_after is not None and n_done >= self.drop_after:
             state["closed"] = True
+            self._let_go(state)
             _hard_close(conn)
 
     # ------------------------------------------------------------------ the robot's work
@@ -350,13 +406,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--truth", help="scene JSON the robot acts on in its own simulation")
     ap.add_argument("--transform", help="shelf-to-robot transform JSON (as given to the console)")
     ap.add_argument("--step-time", type=float, default=1.0, help="seconds per step (default 1)")
+    ap.add_argument("--ack-delay", type=float, default=0.0, help="seconds before each ack (default 0)")
     ap.add_argument("--refuse", type=int, action="append", default=[], help="refuse this step index")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     truth = Scene.load(args.truth) if args.truth else None
     transform = Transform.load(args.transform) if args.transform else None
     ctl = RobotController(args.host, args.port, truth=truth, transform=transform, refuse_steps=args.refuse,
-                          step_time=args.step_time, seed=args.seed).start()
+                          step_time=args.step_time, seed=args.seed, ack_delay=args.ack_delay).start()
     print(f"robot controller listening on {ctl.url} ({'truth sim' if truth else 'acknowledge only'})", flush=True)
     try:
         while True:
