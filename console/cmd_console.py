@@ -2,9 +2,9 @@
 
 Settings come from the command line, else a cell file (`--cell cell.toml`, console/cell.py), else
 the defaults; everything is checked, and every optional library the settings need is looked up,
-before the database is opened or the server starts. SIGTERM (a service manager stopping it) stops
-a robot run as the Stop button does, waits for the robot to acknowledge, closes the server and the
-database, and exits 143.
+before the database is opened or the server starts. SIGTERM (a service manager stopping it) and
+Ctrl-C (SIGINT) stop a robot run as the Stop button does, wait for the robot to acknowledge, close
+the server and the database, and exit 143 and 130.
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import secrets
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -23,7 +24,9 @@ log = logging.getLogger(__name__)
 HELP = "start the operator console: capture, compare plans, approve, execute, replay (web app)"
 ENV_PASSPHRASE = "SHELFPICK_SUPERVISOR_PASSPHRASE"
 EXIT_TERMINATED = 143
-STOP_WAIT_S = 30.0       # how long SIGTERM waits for a stopped robot run to end before closing
+STOP_WAIT_S = 30.0       # how long SIGTERM or Ctrl-C waits for a stopped robot run to end before closing
+EXIT_INTERRUPTED = 130   # Ctrl-C (SIGINT)
+SERVER_START_S = 60.0    # how long the web server may take to start listening
 DEFAULTS = {"source": "demo", "host": "127.0.0.1", "port": 8080, "db": None, "robot": "sim", "samples": 10,
             "seed": 0, "workers": min(2, os.cpu_count() or 1)}
 
@@ -105,6 +108,8 @@ def build(args: argparse.Namespace):
         if not lo <= value <= hi:
             raise ShelfpickError(f"{flag}: must be from {lo} to {hi}, got {value}")
     args.robot = check_robot_spec(args.robot, "--robot")     # the cell file's robot bounds, one validator
+    if not 0 <= args.port <= 65535:    # the server thread would die on it and leave the start waiting
+        raise ShelfpickError(f"--port: expected 1-65535, or 0 for any free port, got {args.port}")
     check_libraries(args, cell)
     from console.app import ConsoleApp, check_host
 
@@ -139,6 +144,7 @@ def build(args: argparse.Namespace):
         from console.robot_tcp import TcpRobot
 
         TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens
+    check_listen(args.host)           # an address not of this machine: one line, not a start that hangs
     store = SessionStore(db)          # a folder it cannot make, a file not ours: StoreError, one line
 
     def robot_factory(truth, seed):
@@ -146,12 +152,75 @@ def build(args: argparse.Namespace):
 
     wf = Workflow(source, store, robot_factory, passphrase, samples=args.samples, seed=args.seed,
                   workers=workers, segmenter=segmenter, tolerance=tolerance, perceive_options=options)
-    app = ConsoleApp(wf, host=args.host, port=args.port, passphrase_set=bool(given))
+    try:
+        app = start_app(lambda: ConsoleApp(wf, host=args.host, port=args.port, passphrase_set=bool(given)),
+                        f"--host {args.host} --port {args.port}")
+    except BaseException:
+        wf.close()
+        store.close()
+        raise
     return app, wf, store, passphrase, bool(given), db
 
 
+def check_listen(host: str) -> None:
+    """Refuse, in one line, an address this machine cannot listen on (the web server would try
+    1000 ports on it and leave the start waiting for ever)."""
+    import socket
+
+    from perception.errors import ShelfpickError
+
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        family, _, _, _, addr = infos[0]
+        with socket.socket(family, socket.SOCK_STREAM) as sock:
+            sock.bind(addr)
+    except (OSError, UnicodeError, IndexError) as exc:
+        raise ShelfpickError(f"--host: cannot listen on {host!r} ({exc})") from None
+
+
+def start_app(make, where: str, timeout: float = SERVER_START_S):
+    """`make()` (the app, whose web server starts on a thread of its own), or one-line ShelfpickError.
+
+    viser waits for its server thread to say "listening"; a thread that dies first (an OverflowError
+    on a port out of range, say) would leave that wait, and the command, hanging for ever. So the app
+    is made on a helper thread, and an exception in any thread meanwhile, or no server after
+    `timeout` s, ends the start in one line."""
+    from perception.errors import ShelfpickError
+
+    made: list = []
+    failed: list[BaseException] = []
+    previous = threading.excepthook
+
+    def caught(hook_args) -> None:     # no traceback: the failure is said in one line below
+        failed.append(hook_args.exc_value)
+
+    def make_it() -> None:
+        try:
+            made.append(make())
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            failed.append(exc)
+
+    threading.excepthook = caught
+    try:
+        maker = threading.Thread(target=make_it, name="shelfpick-server-start", daemon=True)
+        maker.start()
+        end = time.monotonic() + timeout
+        while maker.is_alive() and not failed and time.monotonic() < end:
+            maker.join(0.05)
+    finally:
+        threading.excepthook = previous
+    if made:
+        return made[0]
+    if failed:
+        exc = failed[0]
+        if isinstance(exc, ShelfpickError):
+            raise exc
+        raise ShelfpickError(f"the web server could not start ({where}): {exc.__class__.__name__}: {exc}")
+    raise ShelfpickError(f"the web server did not start within {timeout:g} s ({where})")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Serve until Ctrl-C (exit 0) or SIGTERM (the robot stopped, then exit 143)."""
+    """Serve until Ctrl-C (the robot stopped, then exit 130) or SIGTERM (the same, exit 143)."""
     return serve(build(args), args)
 
 
@@ -169,14 +238,16 @@ def serve(parts: tuple, args: argparse.Namespace) -> int:
 def _serve(parts: tuple, args: argparse.Namespace) -> int:
     app, wf, store, passphrase, given, db = parts
     done = threading.Event()
-    terminated = threading.Event()
+    got: list[int] = []       # the first of SIGTERM / SIGINT (Ctrl-C): both stop a run, then exit
 
-    def on_term(signum, frame) -> None:   # runs in the main thread, between bytecodes
-        terminated.set()
+    def on_signal(signum, frame) -> None:   # runs in the main thread, between bytecodes
+        if not got:
+            got.append(signum)
         done.set()
 
-    previous = signal.signal(signal.SIGTERM, on_term) if threading.current_thread() is threading.main_thread() \
-        else None
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         print(f"shelfpick console: {app.url}  (source {args.source}, robot {args.robot}, database {db})",
               flush=True)
@@ -184,34 +255,41 @@ def _serve(parts: tuple, args: argparse.Namespace) -> int:
             print(f"supervisor passphrase (generated for this run): {passphrase}", flush=True)
         for note in wf.state.recovered:   # on stdout with the URL, as README's safety rules say
             print(f"recovered: {note}", flush=True)
-        if not args.no_capture and not terminated.is_set():
+        if not args.no_capture and not got:
             wf.capture()
             st = wf.state
             log.info("first capture: %s", f"{st.message or ''} {st.error or ''}".strip())
         try:
             while not done.wait(3600):
                 pass
-        except KeyboardInterrupt:
-            pass
-        if terminated.is_set():
-            stop_for_sigterm(wf)
+        except KeyboardInterrupt:     # no handler of ours (not the main thread): still stop the run
+            got.append(signal.SIGINT)
+        if got:
+            stop_for_signal(wf, signal.Signals(got[0]).name)
     finally:
         app.stop()
         store.close()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-    if terminated.is_set():
-        log.info("stopped by SIGTERM; database %s closed", db)
-        return EXIT_TERMINATED
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if got:
+        name = signal.Signals(got[0]).name
+        log.info("stopped by %s; database %s closed", name, db)
+        return EXIT_TERMINATED if got[0] == signal.SIGTERM else EXIT_INTERRUPTED
     return 0
 
 
-def stop_for_sigterm(wf) -> None:
-    """Stop a robot run as the Stop button does (recorded as by 'SIGTERM') and wait for it to end."""
+def stop_for_signal(wf, who: str) -> None:
+    """Stop a robot run as the Stop button does (recorded as by `who`: SIGTERM or SIGINT) and wait
+    for it to end."""
     running = wf.state.robot in ("running", "stopping")
     if running:
-        log.warning("SIGTERM: stopping the robot run")
-    wf.stop(who="SIGTERM")            # also withdraws an approval not yet run
+        log.warning("%s: stopping the robot run", who)
+    wf.stop(who=who)                  # also withdraws an approval not yet run
     st = wf.wait_robot(timeout=STOP_WAIT_S)
     log.info("robot: %s", st.robot)
     sys.stdout.flush()
+
+
+def stop_for_sigterm(wf) -> None:
+    """`stop_for_signal` as SIGTERM (kept for callers of the older name)."""
+    stop_for_signal(wf, "SIGTERM")
