@@ -1,8 +1,11 @@
 # Two commands do all set-up: `make run` and `make test` (both create .venv on first use).
+# `make run` installs what the console needs (`.[console]`: no torch, ~0.9 GB); `make test` adds
+# every extra and the dev tools (`.[all,dev]`, torch and its CUDA libraries: ~7 GB).
 PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+RUN_STAMP := $(VENV)/.installed-run
 export YOLO_OFFLINE := 1
 export YOLO_AUTOINSTALL := 0
 export YOLO_VERBOSE := 0
@@ -24,6 +27,13 @@ endif
 
 .PHONY: run test test-all bench perceive-bench clean-venv browser-deps lock
 
+# the console and what it imports (pyproject.toml's `console` extra) at the versions in constraints.txt
+$(RUN_STAMP): pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[console]"
+	touch $(RUN_STAMP)
+
 # every extra (pyproject.toml) at the versions in constraints.txt
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -40,7 +50,7 @@ lock: $(STAMP)
 	  $(BIN)/python -m pip list --format=freeze --exclude-editable | grep -viE '^(pip|setuptools|wheel)=='; \
 	} > constraints.txt.tmp && mv constraints.txt.tmp constraints.txt
 
-run: $(STAMP)
+run: $(RUN_STAMP)
 	$(BIN)/shelfpick console --source demo
 
 test: $(STAMP) $(BROWSER_DEPS)

