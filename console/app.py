@@ -10,6 +10,7 @@ connected view at once.
 """
 from __future__ import annotations
 
+import re
 import threading
 import traceback
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
@@ -35,17 +36,47 @@ class ConsoleError(ShelfpickError):
     """A console start-up setting the user must change."""
 
 
-def check_host(host: str, passphrase: str | None) -> None:
-    """Listening beyond this machine requires a supervisor passphrase chosen by a person,
-    at least MIN_PASSPHRASE characters that are not all blank."""
+def check_host(host: str, passphrase: str | None, where: str = "--supervisor-passphrase") -> None:
+    """Listening beyond this machine requires a supervisor passphrase chosen by a person, and not
+    a trivial one (`trivial_passphrase`); `where` names where it came from in the refusal."""
     if host in LOCAL_HOSTS:
         return
     if not passphrase:
-        raise ConsoleError(f"--host {host}: listening on a non-local address needs a supervisor "
-                           "passphrase (--supervisor-passphrase or SHELFPICK_SUPERVISOR_PASSPHRASE)")
-    if len(passphrase.strip()) < MIN_PASSPHRASE:
-        raise ConsoleError(f"--supervisor-passphrase: at least {MIN_PASSPHRASE} characters (not counting "
-                           f"blanks at the ends) when listening on {host}, got {len(passphrase.strip())}")
+        raise ConsoleError(f"--host {host}: listening on a non-local address needs a supervisor passphrase "
+                           f"(--supervisor-passphrase-file, SHELFPICK_SUPERVISOR_PASSPHRASE or --supervisor-passphrase)")
+    why = trivial_passphrase(passphrase)
+    if why:
+        raise ConsoleError(f"{where}: refused when listening on {host}: {why}")
+
+
+_SEQUENCES = ("abcdefghijklmnopqrstuvwxyz", "0123456789", "qwertyuiopasdfghjklzxcvbnm", "azertyuiopqsdfghjklmwxcvbn",
+              "qwertzuiopasdfghjklyxcvbnm")
+_WORDS = re.compile(r"(?:password|passphrase|passwort|supervisor|shelfpick|letmein|changeme|secret|admin|"
+                    r"qwerty|welcome|robot|console)+")
+MIN_DISTINCT = 5             # different characters a passphrase needs beyond this machine
+
+
+def trivial_passphrase(passphrase: str) -> str | None:
+    """Why a passphrase is too easy to guess, or None. Trivial: fewer than MIN_PASSPHRASE characters
+    (blanks at the ends not counted), fewer than MIN_DISTINCT different characters, a piece said
+    twice or more (`abcdefabcdef`), a run along the alphabet, the digits or a keyboard row
+    (`abcdefghijkl`, `qwertyuiopas`, either way), or only common words (`password`, `shelfpick`, ...)
+    with digits and punctuation around them."""
+    p = passphrase.strip()
+    if len(p) < MIN_PASSPHRASE:
+        return f"at least {MIN_PASSPHRASE} characters (not counting blanks at the ends), got {len(p)}"
+    if len(set(p)) < MIN_DISTINCT:
+        return f"at least {MIN_DISTINCT} different characters, got {len(set(p))}"
+    period = next((d for d in range(1, len(p) // 2 + 1) if p == (p[:d] * (len(p) // d + 1))[:len(p)]), None)
+    if period is not None:
+        return "it repeats a piece of itself"
+    low = p.lower()
+    if any(low in seq * 3 or low in (seq * 3)[::-1] for seq in _SEQUENCES):
+        return "a run along the alphabet, the digits or a keyboard row"
+    letters = re.sub(r"[^a-z]", "", low)
+    if letters and _WORDS.fullmatch(letters):
+        return "only common words, digits and punctuation"
+    return None
 
 
 class _InPanel:
@@ -331,4 +362,4 @@ class ConsoleApp:
         self.workflow.close()
 
 
-__all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "MIN_PASSPHRASE"]
+__all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "trivial_passphrase", "MIN_PASSPHRASE"]

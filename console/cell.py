@@ -27,7 +27,7 @@ SECTIONS: dict[str, tuple[str, ...]] = {
     "perception": ("segmenter", "weights", "catalogue"),
     "robot": ("url", "transform", "position", "orientation") + TIMEOUTS,
     "safety": ("samples", "seed", "workers", "host", "port", "db", "tolerance_displacement",
-               "tolerance_rotation", "tolerance_match_radius"),
+               "tolerance_rotation", "tolerance_match_radius", "allow_origins"),
 }
 
 
@@ -324,7 +324,25 @@ def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
     if "db" in sec:
         db = _path(_string(sec, "safety", "db", origin), base, origin, "safety.db", must_exist=False)
         out["db"] = db
+    if "allow_origins" in sec:
+        out["allow_origins"] = _origins(sec["allow_origins"], origin)
     return out
+
+
+def _origins(value: Any, origin: str) -> tuple[str, ...]:
+    """safety.allow_origins: browser origins besides the console's own (console/origin_guard.py)."""
+    from console.origin_guard import normalize_origin
+
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise CellError(origin, "safety.allow_origins", f"expected a list of origins like "
+                                                        f"[\"https://proxy.example:8443\"], got {value!r}")
+    out = []
+    for v in value:
+        try:
+            out.append(normalize_origin(v))
+        except ValueError as exc:
+            raise CellError(origin, "safety.allow_origins", f"{v!r}: {exc}") from None
+    return tuple(out)
 
 
 __all__ = ["Cell", "CellError", "CELL_FORMAT", "ROBOT_NUMBERS", "check_robot_spec", "read_cell", "robot_number"]

@@ -184,3 +184,109 @@ def test_box_ids_from_a_scene_file_do_not_name_scene_nodes(app):
     nodes = draw_boxes(a.server.scene, scene)
     names = {n.box.name for n in nodes.values()} | {n.label.name for n in nodes.values()}
     assert set(nodes) == {"a", "a/label", ".."} and len(names) == 6
+
+
+# ------------------------------------------------- issue 30: the passphrase's source, allowed origins
+def console_args(tmp_path, *extra):
+    from console.cli import build_parser
+
+    return build_parser().parse_args(["console", "--port", "0", "--no-capture", "--db", str(tmp_path / "c.db"),
+                                      *extra])
+
+
+def refused(args) -> str:
+    """build() must refuse in one line (ShelfpickError) before anything is opened."""
+    from console import cmd_console
+    from perception.errors import ShelfpickError
+
+    try:
+        parts = cmd_console.build(args)
+    except ShelfpickError as exc:
+        return str(exc)
+    parts[0].stop()
+    parts[2].close()
+    pytest.fail("the console started")
+
+
+@pytest.mark.parametrize("pw", ["aaaaaaaaaaaa", "abcdefabcdef", "qwertyuiopas", "Password1234!", "abcdefghijkl"])
+@pytest.mark.parametrize("how", ["env", "file"])
+def test_a_trivial_passphrase_beyond_localhost_refuses_to_start(pw, how, tmp_path, monkeypatch):
+    from console.cmd_console import ENV_PASSPHRASE
+
+    monkeypatch.delenv(ENV_PASSPHRASE, raising=False)
+    extra = ["--host", "0.0.0.0"]
+    if how == "env":
+        monkeypatch.setenv(ENV_PASSPHRASE, pw)
+    else:
+        (tmp_path / "pw").write_text(pw + "\n")
+        (tmp_path / "pw").chmod(0o600)
+        extra += ["--supervisor-passphrase-file", str(tmp_path / "pw")]
+    fault()
+    msg = refused(console_args(tmp_path, *extra))
+    assert msg.startswith(ENV_PASSPHRASE if how == "env" else f"--supervisor-passphrase-file {tmp_path / 'pw'}")
+    assert "refused when listening on 0.0.0.0" in msg and "\n" not in msg
+    assert not (tmp_path / "c.db").exists()
+
+
+def test_the_passphrase_comes_from_a_file_or_the_environment_not_only_argv(tmp_path, monkeypatch, caplog):
+    import os
+
+    from console import cmd_console
+
+    monkeypatch.delenv(cmd_console.ENV_PASSPHRASE, raising=False)
+    pw = tmp_path / "pw"
+    pw.write_text("tulip 7 cobalt ferry\nsecond line ignored\n")
+    pw.chmod(0o640)
+    with caplog.at_level("WARNING"):
+        app, wf, store, _, given, _ = cmd_console.build(console_args(tmp_path, "--host", "0.0.0.0",
+                                                                     "--supervisor-passphrase-file", str(pw)))
+    try:
+        assert given and wf._passphrase == "tulip 7 cobalt ferry"
+        assert "other users may read it (mode 640)" in caplog.text
+    finally:
+        app.stop()
+        store.close()
+    monkeypatch.setenv(cmd_console.ENV_PASSPHRASE, "heron 4 basalt quill")
+    app, wf, store, _, given, _ = cmd_console.build(console_args(tmp_path, "--host", "0.0.0.0"))
+    try:
+        assert given and wf._passphrase == "heron 4 basalt quill"
+    finally:
+        app.stop()
+        store.close()
+    fault(4)
+    assert "give one of them" in refused(console_args(tmp_path, "--supervisor-passphrase", "x" * 20,
+                                                      "--supervisor-passphrase-file", str(pw)))
+    (tmp_path / "empty").write_text("\n")
+    assert "the first line is empty" in refused(console_args(tmp_path, "--supervisor-passphrase-file",
+                                                             str(tmp_path / "empty")))
+    (tmp_path / "big").write_text("y" * 5000)
+    assert "at most 4096" in refused(console_args(tmp_path, "--supervisor-passphrase-file", str(tmp_path / "big")))
+    os.mkfifo(tmp_path / "fifo")                                     # must not block the start
+    assert "not a regular file" in refused(console_args(tmp_path, "--supervisor-passphrase-file",
+                                                        str(tmp_path / "fifo")))
+
+
+def test_allowed_origins_come_from_the_command_line_or_the_cell_file(tmp_path):
+    from websockets.exceptions import InvalidStatus
+
+    from console import cmd_console
+    from console.cell import CellError
+    from test_origin import websocket
+
+    fault(2)
+    assert refused(console_args(tmp_path, "--allow-origin", "https://proxy.example/app")).startswith(
+        "--allow-origin 'https://proxy.example/app': an origin is scheme, host and port only")
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[safety]\nallow_origins = ["https://Cell.example:443"]\n')
+    app, wf, store, *_ = cmd_console.build(console_args(tmp_path, "--cell", str(cell)))
+    try:
+        with websocket(app, "https://cell.example") as ws:
+            assert ws.recv(timeout=10)
+        with pytest.raises(InvalidStatus):
+            websocket(app, "https://proxy.example")
+    finally:
+        app.stop()
+        store.close()
+    cell.write_text('[safety]\nallow_origins = ["https://cell.example/x"]\n')
+    with pytest.raises(CellError, match=r"cell.toml: safety.allow_origins: 'https://cell.example/x': an origin"):
+        cmd_console.build(console_args(tmp_path, "--cell", str(cell)))
