@@ -19,8 +19,8 @@ place and `guarded_viser_server` raises `OriginGuardError` (the console does not
 unguarded); tests/console/test_origin.py fails then too.
 
 Same origin means: the `Origin` is the address the request was sent to (its `Host` header), and
-that host is one this console answers as (a loopback name, the `--host` it listens on, and, when
-it listens on every address, any IP address or this machine's name), so a foreign name that
+that host is one this console answers as (a loopback name, the `--host` it listens on, this
+machine's name, and, when it listens on every address, any IP address), so a foreign name that
 resolves to this machine (DNS rebinding) is foreign. Other origins come from `--allow-origin` or
 the cell file's `safety.allow_origins` (a reverse proxy's address, say). A request with no
 `Origin` is not from a browser page and is let through (a script can send any header anyway).
@@ -122,11 +122,10 @@ def policy_for(host: str, allow_origins: Iterable[str] = ()) -> OriginPolicy:
         except ValueError as exc:
             raise ValueError(f"{o!r}: {exc}") from None
     bind = host.strip("[]").lower()
-    names = set(LOOPBACK) | {bind}
-    wildcard = bind in WILDCARD
-    if wildcard:
-        names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
-    return OriginPolicy(frozenset(allowed), frozenset(n for n in names if n), wildcard)
+    names = set(LOOPBACK) | {bind, socket.gethostname().lower()}
+    if bind in WILDCARD:           # a DNS look-up, only where the console answers on every address
+        names.add(socket.getfqdn().lower())
+    return OriginPolicy(frozenset(allowed), frozenset(n for n in names if n), bind in WILDCARD)
 
 
 def _guarded_request(policy: OriginPolicy, inner: Callable[..., Any] | None) -> Callable[..., Any]:

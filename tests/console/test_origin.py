@@ -4,6 +4,7 @@ stops starting its server the way the guard expects, the console refuses to star
 from __future__ import annotations
 
 import http.client
+import socket
 
 import pytest
 
@@ -65,6 +66,8 @@ def test_same_origin_needs_a_host_name_of_ours_dns_rebinding_is_foreign():
     assert local.admits(["http://127.0.0.1:8080"], ["127.0.0.1:8080"])[0]
     assert local.admits(["http://localhost:8080"], ["localhost:8080"])[0]
     assert local.admits([], ["127.0.0.1:8080"])[0]                        # not a browser page
+    me = socket.gethostname().lower()
+    assert local.admits([f"http://{me}:8080"], [f"{me}:8080"])[0]        # this machine's own name
     # a foreign name resolving to this machine: Origin and Host agree, the name is not ours
     assert local.admits(["http://evil.example:8080"], ["evil.example:8080"]) == \
         (False, "the host name 'evil.example' is not one this console answers as")
