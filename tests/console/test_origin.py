@@ -95,3 +95,26 @@ def test_a_bad_allowed_origin_is_one_line_before_anything_starts(tmp_path):
         ConsoleApp(wf, port=0, allow_origins=("http://x/app",))
     wf.close()
     store.close()
+
+
+def test_a_viser_that_no_longer_starts_its_server_through_websockets_serve_is_refused(monkeypatch):
+    """Fail closed: if viser stops calling websockets.asyncio.server.serve, the guard is not in place
+    and the console must not start unguarded."""
+    import viser
+
+    from console.origin_guard import OriginGuardError, guarded_viser_server, policy_for
+
+    stopped = []
+
+    class ServesItsOwnWay:                      # a viser whose server starts some other way
+        def __init__(self, **kwargs):
+            pass
+
+        def stop(self):
+            stopped.append(True)
+
+    monkeypatch.setattr(viser, "ViserServer", ServesItsOwnWay)
+    fault()
+    with pytest.raises(OriginGuardError, match="the origin guard is not in place"):
+        guarded_viser_server("127.0.0.1", 0, policy_for("127.0.0.1"))
+    assert stopped == [True]
