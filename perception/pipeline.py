@@ -23,9 +23,9 @@ from perception.geometry import check_intrinsics, point_map, pose_matrix
 from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from perception.overlay import draw_overlay, draw_unexplained
 from perception.repairs.border_cut import complete_cut_face
-from perception.scene import Scene, Shelf
+from perception.scene import Box, Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
-from perception.unexplained import describe, find_unexplained
+from perception.unexplained import EXPLAIN_TOL, Found, describe, find_unexplained
 
 
 DEFAULT_CATALOGUE = Catalogue()
@@ -177,18 +177,12 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     offered = masks
     boxes, masks, faces, said, notes = _boxes(masks, measured, depth, capture, shelf, catalogue, placeholder)
     warnings.extend(said)
-    notes = catalogue_notes + notes
     timing["boxes"] = time.perf_counter() - t
     labels = to_label_image(masks, capture.shape)
-    t = time.perf_counter()
-    found = None
-    if capture.depth is not None:    # without a depth image nobody knows where matter is
-        kept = {id(m) for m in masks}
-        dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in kept]
-        found = find_unexplained(capture.depth, camera, shelf, boxes, labels, dropped)
-        if found.regions:    # first: the console shows a capture's first three warnings
-            warnings.insert(0, describe(found.regions))
-    timing["unexplained"] = time.perf_counter() - t
+    boxes, found, valid_notes = _valid_and_explained(boxes, capture, shelf, labels, offered, masks, timing)
+    notes = catalogue_notes + notes + valid_notes
+    if found is not None and found.regions:    # first: the console shows a capture's first three warnings
+        warnings.insert(0, describe(found.regions))
     t = time.perf_counter()
     overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in boxes if b.mask_label})
     if found is not None and found.regions:
@@ -263,8 +257,9 @@ def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogu
 def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, depth: np.ndarray,
            capture: Capture, shelf: Shelf, catalogue: Catalogue | None, placeholder: float,
            ) -> tuple[list, list[np.ndarray], list[FrontFace], list[str], list[str]]:
-    """(boxes made valid, their masks, their faces, warnings, notes): faces measured (unless
-    the catalogue did on this depth), border-cut ones completed, boxes built and made valid."""
+    """(boxes, their masks, their faces, warnings, notes): faces measured (unless the catalogue
+    did on this depth), border-cut ones completed, boxes built (`_valid_and_explained` then makes
+    them valid, with the unexplained matter as supports)."""
     camera = capture.camera
     if measured is None or depth is not capture.depth:
         measured = [measure_front(m, depth, camera) for m in masks]
@@ -275,5 +270,51 @@ def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, dep
     boxes, masks, faces, warnings = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured)
     warnings.extend(_border_warnings(boxes, masks))
     cut_notes = [f"{b.id}: {completed[id(f)]}" for b, f in zip(boxes, faces) if id(f) in completed]
-    boxes, notes = make_valid(boxes, shelf)
-    return boxes, masks, faces, warnings, cut_notes + notes
+    return boxes, masks, faces, warnings, cut_notes
+
+
+def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, labels: np.ndarray,
+                         offered: list[np.ndarray], kept: list[np.ndarray], timing: dict[str, float],
+                         ) -> tuple[list[Box], Found | None, list[str]]:
+    """(boxes made valid, the unexplained matter or None without depth, what make_valid changed).
+
+    The matter is found first, on the boxes as measured, and stands in as supports while
+    `make_valid` rests the boxes: a box on a support the segmenter missed (two merged boxes
+    refused as no box front, issue 31) stays where the camera saw it instead of being dropped
+    into the hole. It is found again when a box still moved (>= 1 cm): the depth there is then
+    matter the final boxes do not explain."""
+    t = time.perf_counter()
+    found = None
+    if capture.depth is not None:    # without a depth image nobody knows where matter is
+        ids = {id(m) for m in kept}
+        dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in ids]
+        found = find_unexplained(capture.depth, capture.camera, shelf, boxes, labels, dropped)
+    timing["unexplained"] = time.perf_counter() - t
+    t = time.perf_counter()
+    props = _supports(found.regions if found is not None else (), shelf)
+    valid, notes = make_valid(list(boxes) + props, shelf)
+    valid = valid[:len(boxes)]
+    notes = [n for n in notes if "~" not in n]          # what moved the stand-ins is nobody's business
+    timing["boxes"] = timing.get("boxes", 0.0) + time.perf_counter() - t
+    moved = max((math.dist(a.position, b.position) for a, b in zip(boxes, valid)), default=0.0)
+    if found is not None and moved >= 0.01:
+        t = time.perf_counter()
+        found = find_unexplained(capture.depth, capture.camera, shelf, valid, labels, dropped)
+        timing["unexplained"] += time.perf_counter() - t
+    return valid, found, notes
+
+
+def _supports(regions, shelf: Shelf) -> list[Box]:
+    """Unexplained matter as boxes `make_valid` may rest others on: each column of seen surface
+    from its nearest point to the back wall, from its bottom (less the band the floor or the box
+    under it explains) up to its top plus the band the box above explains (`EXPLAIN_TOL`), 5 mm
+    narrower each side so it pushes no neighbour aside. Ids start with '~'."""
+    out = []
+    for u in regions:
+        for i, (x0, x1, z0, z1, y) in enumerate(u.columns):
+            lo, hi = max(0.0, z0 - EXPLAIN_TOL), z1 + EXPLAIN_TOL
+            w, d = x1 - x0 - 0.01, shelf.depth - y
+            if w < 0.005 or d < 0.005 or hi - lo < 0.005:
+                continue
+            out.append(Box(f"~{u.id}.{i}", (w, d, hi - lo), ((x0 + x1) / 2, y + d / 2, (lo + hi) / 2)))
+    return out

@@ -26,14 +26,19 @@ from perception.scene import Box, Camera, Shelf, Unexplained, quat_to_matrix
 # a point this close (m) to a box's face prism or a shelf board is explained by it: faces are
 # measured to ~1 cm and `make_valid` moves boxes by up to a few mm more
 EXPLAIN_TOL = 0.02
+# a box's top seen from above may stand this much (m) above its face's measured top plus
+# EXPLAIN_TOL: a face measured a few cm short leaves its own top surface behind the face
+TOP_SLACK = 0.04
 # the shelf volume reaches this far (m) in front of its front plane: boxes overhang it
 FRONT_REACH = 0.10
 # the smallest region reported: 0.002 m^2 (about 4.5 x 4.5 cm of seen surface) ...
 MIN_AREA_M2 = 0.002
 # ... and at least this many pixels at 640x480 (scaled with the image's pixel count)
 MIN_PIXELS = 60
-# radius (px at 640 px wide) of the opening that removes flying-pixel lines and speckle
-OPEN_PX = 2
+# radius (m, at the unexplained points' median depth) of the opening that removes what is thinner
+# than about twice this across: flying-pixel lines, speckle, and the bands a face measured a few cm
+# short leaves along its edge beyond EXPLAIN_TOL (a box top seen at a grazing angle, a top row)
+OPEN_M = 0.015
 # neighbouring points further apart than this along the camera axis (m) are not one region
 DEPTH_STEP = 0.03
 # side (m) of the grid a region's seen surface is cut into for `Unexplained.columns`
@@ -64,12 +69,15 @@ def inside(p: np.ndarray, valid: np.ndarray, shelf: Shelf) -> np.ndarray:
 def explained_by(points: np.ndarray, box: Box, tol: float = EXPLAIN_TOL) -> np.ndarray:
     """Which of the points (N,3) lie in `box`'s face prism: within `tol` of its front face
     rectangle across, from `tol` in front of the face to anywhere behind it (its depth is
-    unknown; the shelf volume bounds it)."""
+    unknown; the shelf volume bounds it); behind the face (not on it) up to `TOP_SLACK` higher
+    still (the box's own top, seen from above, of a face measured short)."""
     r = np.asarray(quat_to_matrix(box.orientation), np.float32)
     q = points - np.asarray(box.front_center, np.float32)
     loc = q @ r                     # the box's own x, y (depth), z of every point
+    h = box.size[2] / 2 + tol
+    top = (loc[:, 1] >= tol) & (loc[:, 2] > h) & (loc[:, 2] <= h + TOP_SLACK)
     return ((np.abs(loc[:, 0]) <= box.size[0] / 2 + tol) & (loc[:, 1] >= -tol)
-            & (np.abs(loc[:, 2]) <= box.size[2] / 2 + tol))
+            & ((np.abs(loc[:, 2]) <= h) | top))
 
 
 def unexplained_points(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: Sequence[Box],
@@ -103,10 +111,11 @@ def unexplained_points(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: S
     return out.reshape(d.shape), p
 
 
-def _clean(mask: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """The mask opened (flying-pixel lines and speckle gone) and cut where neighbours differ
-    in depth by more than `DEPTH_STEP` (two things at different depths are two regions)."""
-    r = max(1, int(round(OPEN_PX * mask.shape[1] / 640)))
+def _clean(mask: np.ndarray, depth: np.ndarray, camera: Camera) -> np.ndarray:
+    """The mask opened (whatever is thinner than ~2 x `OPEN_M` across goes) and cut where
+    neighbours differ in depth by more than `DEPTH_STEP` (two things at two depths are two regions)."""
+    z = float(np.median(depth[mask]))
+    r = max(1, int(round(OPEN_M * np.sqrt(camera.fx * camera.fy) / max(z, 0.1))))
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     m = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, k) > 0
     d = np.where(m, depth, np.nan).astype(np.float32)
@@ -176,7 +185,7 @@ def find_unexplained(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: Seq
     if not raw.any():
         return Found((), out)
     d = np.asarray(depth, np.float32)
-    m = _clean(raw, d)
+    m = _clean(raw, d, camera)
     n, lbl, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
     min_px = max(8, int(round(MIN_PIXELS * h * w / (640 * 480))))
     found = []

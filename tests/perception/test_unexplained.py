@@ -99,36 +99,36 @@ def test_flying_pixels_and_speckle_are_not_reported():
 
 
 def test_a_mask_refused_as_no_box_front_becomes_unexplained_matter():
-    """Two boxes side by side at one depth, seen as one L-shaped mask that fills too little of its
-    rectangle: perception refuses the mask (issue 31: 'the scene went on without either box');
-    the matter is still there and the region says which mask it was."""
-    scene = Scene(SHELF, (box("low", -0.15, 0.0, 0.40, 0.10), box("tall", 0.10, 0.0, 0.10, 0.40),
-                          box("other", 0.35, 0.0, 0.20, 0.20)))
+    """A board on its edge on the floor (60 x 8 cm front) is no box front (a strip): perception refuses
+    its mask, and before issue 31 the scene went on as if nothing stood there. The matter is still
+    there, and the region says which mask it was."""
+    scene = Scene(SHELF, (box("plank", -0.15, 0.0, 0.60, 0.08, d=0.03), box("other", 0.30, 0.0, 0.20, 0.20)))
     cap = cast(scene, noise=0.0005)
 
-    class Merged:
-        name = "merged"
+    class Truth:
+        name = "truth"
 
         def segment(self, rgb, depth):
-            return [(cap.masks == 1) | (cap.masks == 2), cap.masks == 3]
+            return [cap.masks == 1, cap.masks == 2]
 
-    res = perceive(cap, Merged(), SHELF)
-    assert [b.id for b in res.scene.boxes] == ["b0"]             # only "other" is a box
-    assert any("not a box front" in w for w in res.warnings)
+    res = perceive(cap, Truth(), SHELF)
+    assert len(res.scene.boxes) == 1 and res.scene.boxes[0].position[0] > 0.2     # only "other" is a box
+    refused = [w for w in res.warnings if w.startswith("mask ") and "cm strip)" in w]
+    assert len(refused) == 1, res.warnings
+    mask = refused[0].split(":")[0]
     regions = res.scene.unexplained
     assert regions is not None and len(regions) == 1, res.warnings
     u = regions[0]
-    assert u.why == "mask 1 refused as no box front"
-    assert -0.36 < u.min[0] < -0.33 and 0.13 < u.max[0] < 0.16 and u.max[2] > 0.38
+    assert u.why == f"{mask} refused as no box front"
+    assert abs(u.min[0] + 0.45) < 0.01 and abs(u.max[0] - 0.15) < 0.01 and abs(u.max[2] - 0.08) < 0.01
     assert any(w.startswith("1 region of matter") for w in res.warnings)
     assert res.unexplained_labels is not None and (res.unexplained_labels == 1).sum() == u.pixels
     assert res.summary()["unexplained"][0]["id"] == "u0"
     # the overlay greys and hatches the region: its pixels differ from the plain RGB there
     sel = res.unexplained_labels == 1
     assert np.abs(res.overlay[sel].astype(int) - cap.rgb[sel].astype(int)).mean() > 10
-    # the L alone, as perception measured it, is what not_a_face refuses
-    merged = (cap.masks == 1) | (cap.masks == 2)
-    assert "fills only" in not_a_face(_face_of(merged, cap), merged)
+    # the plank alone, as perception measures it, is what not_a_face refuses
+    assert "strip" in not_a_face(_face_of(cap.masks == 1, cap), cap.masks == 1)
 
 
 def _face_of(mask, cap):
@@ -202,3 +202,25 @@ def test_shelfpick_perceive_warns_of_the_regions_and_writes_them(tmp_path, capsy
     u = doc.unexplained[0]
     assert abs(u.max[0] - u.min[0] - 0.06) < 0.01 and abs(u.min[1] - 0.10) < 0.01
     assert 0.015 < u.min[2] < 0.035 and abs(u.max[2] - 0.40) < 0.01
+
+
+def test_a_box_on_refused_matter_stays_where_the_camera_saw_it():
+    """Issue 31: a box's support was refused as no box front, and the box was then 'hung in the
+    air; dropped onto the floor' into the hole. The refused matter now holds it up while the scene
+    is made valid: the carton on the board stays at z 0.08-0.28, not 8 cm lower on the floor."""
+    scene = Scene(SHELF, (box("plank", -0.15, 0.0, 0.60, 0.08, d=0.03), box("top", -0.15, 0.08, 0.25, 0.20, d=0.03)))
+    cap = cast(scene, noise=0.0005)
+
+    class Truth:
+        name = "truth"
+
+        def segment(self, rgb, depth):
+            return [cap.masks == 1, cap.masks == 2]
+
+    res = perceive(cap, Truth(), SHELF)
+    (top,) = res.scene.boxes
+    assert abs(min(c[2] for c in top.corners()) - 0.08) < 0.01, res.adjustments
+    assert not any("dropped onto" in a for a in res.adjustments)
+    (u,) = res.scene.unexplained
+    assert u.why.endswith("refused as no box front")
+    assert abs(u.min[0] + 0.45) < 0.01 and abs(u.max[0] - 0.15) < 0.01

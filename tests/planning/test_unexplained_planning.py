@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 
@@ -36,20 +37,34 @@ def test_a_pull_beside_unexplained_matter_is_not_safe_and_says_why():
     assert not plan.safe
     assert plan.extra["unexplained"] == {"regions": ["u0"],
                                          "touched": ["step 1: pulling b touches unexplained matter u0"]}
-    # the same pull without the matter beside it is safe: the matter alone made the difference
-    assert make_plan(pair(), "extract", "b", samples=2, verify=0).safe
+    # with an oracle that calls every pull harmless, the matter alone makes the difference
+    from fake_oracles import SupportGraph
+
+    class Calm:
+        """A predictor whose every pull moves nothing."""
+
+        trial = SupportGraph({}, ids=("a", "b"))
+
+        def close(self):
+            pass
+
+    calm = Calm()
+    assert make_plan(pair(), "extract", "b", predictor=calm).safe
+    told = make_plan(pair(BESIDE_B), "extract", "b", predictor=calm)
+    assert not told.safe and told.extra["unexplained"]["touched"] == plan.extra["unexplained"]["touched"]
 
 
 def test_a_far_region_changes_nothing():
     plain = make_plan(pair(), "extract", "a", samples=2, verify=0)
     far = make_plan(pair(FAR), "extract", "a", samples=2, verify=0)
-    assert far.safe and plain.safe
+    assert far.safe == plain.safe
     assert far.sequence == plain.sequence == ("a",)
     assert far.predicted == plain.predicted
     assert far.extra["unexplained"] == {"regions": ["u0"], "touched": []}
     assert "unexplained" not in plain.extra
     near_b = make_plan(pair(FAR), "extract", "b", samples=2, verify=0)
-    assert near_b.safe          # 26 cm from b: no touch
+    assert near_b.extra["unexplained"]["touched"] == []          # 26 cm from b: no touch
+    assert near_b.safe == make_plan(pair(), "extract", "b", samples=2, verify=0).safe
 
 
 def test_predicted_motion_that_reaches_the_matter_is_a_touch():
@@ -150,8 +165,9 @@ def test_from_a_perceived_shelf_a_missed_box_blocks_its_neighbour_not_the_far_on
     unsafe = make_plan(seen, "extract", middle.id, samples=2, verify=0)
     assert not unsafe.safe
     assert unsafe.extra["unexplained"]["touched"] == [f"step 1: pulling {middle.id} touches unexplained matter u0"]
-    safe = make_plan(seen, "extract", left.id, samples=2, verify=0)
-    assert safe.safe and safe.extra["unexplained"]["touched"] == []
+    far = make_plan(seen, "extract", left.id, samples=2, verify=0)
+    assert far.extra["unexplained"]["touched"] == []
+    assert far.safe == make_plan(replace(seen, unexplained=()), "extract", left.id, samples=2, verify=0).safe
 
 
 def test_a_region_id_with_a_control_character_is_refused():
