@@ -16,8 +16,9 @@ import traceback
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 from console.page_markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
-from console.panels import OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel
-from console.replay_view import LookView, ReplayView, record_view
+from console.panels import OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel, quoted
+from console.look import as_planned
+from console.replay_view import LookView, ReplayView, record_view, replay_status
 from console.workflow import PlanEntry, State, Workflow, WorkflowError
 from perception.errors import ShelfpickError
 from perception.scene import Camera, Scene
@@ -132,6 +133,10 @@ class ClientView:
             self.sessions = SessionsPanel(g, self.wf)
         self.sessions.btn_replay.on_click(self._replay)
         self.sessions.btn_live.on_click(self._live)
+        self.sessions.btn_export.on_click(lambda e: self._do(e, self._export))
+        # this browser's 3D view shows the plan its supervisor is deciding on
+        self.supervisor.approve_plan.on_update(lambda e: self.preview.follow(self.supervisor.approve_plan.value))
+        self.observed: tuple[Scene, Scene] | None = None   # (the last look's shelf, it with the plan's ids)
         self.sessions.look_pick.on_update(lambda e: self._show_look(self.sessions.look_pick.value))
         client.scene.set_up_direction("+z")
 
@@ -146,7 +151,7 @@ class ClientView:
         try:
             fn(*args)
         except (WorkflowError, ShelfpickError) as exc:
-            self.notify("Not done", str(exc))
+            self.notify("Not done", quoted(exc))
         except Exception as exc:  # noqa: BLE001 - the server keeps running
             traceback.print_exc()
             self.notify("Error", f"{exc.__class__.__name__}: {exc}")
@@ -159,24 +164,25 @@ class ClientView:
 
     def _click_box(self, box_id: str) -> None:
         if self.replay is not None:
+            self.notify("Not done", "a replayed session: press “Back to live” (Sessions tab) to pick a target")
             return
         try:
             self.wf.select_target(box_id)
         except (WorkflowError, ShelfpickError) as exc:
-            self.notify("Not done", str(exc))
+            self.notify("Not done", quoted(exc))
 
     def stop_preview(self) -> None:
         """The preview thread ends at its next frame (the browser went away or the server stops)."""
         self.preview.playing = False
 
     # ---------------------------------------------------------------- render
-    def _preview_source(self, name: str) -> tuple[Sequence[Any], Plan | None]:
+    def _preview_source(self, name: str) -> tuple[Any, ...]:
         """(preview step results, plan) for the chosen planner, live or replayed."""
         if self.replay is not None:
             r = self.replay.plans.get(name)
             return (r.preview, r.plan) if r else ((), None)
         e = self.wf.state.plans.get(name)
-        return (e.preview, e.plan) if e else ((), None)
+        return (e.preview, e.plan, e.collapse_steps) if e else ((), None)
 
     def _scene(self) -> Scene | None:
         if self.replay is not None:
@@ -207,13 +213,15 @@ class ClientView:
     def _render(self, state: State) -> None:
         live = self.replay is None
         op = self.operator
-        op.status.content = status_markdown(state, "" if live else f"**replaying session "
-                                            f"{self.replay.id}** (press `Back to live`)")
-        op.progress.visible = state.planning
+        # a replay shows the stored session only: no live status, no live robot (the audit stays)
+        op.status.content = status_markdown(state) if live else replay_status(state, self.replay)
+        op.progress.visible = state.planning and live
         op.progress.value = 100.0 * state.progress
         for b in (op.btn_extract, op.btn_clear):
-            b.disabled = state.planning
-        op.robot_md.content = robot_markdown(state)
+            b.disabled = state.planning or not live
+        op.btn_capture.disabled = not live
+        op.target.disabled = not live
+        op.robot_md.content = robot_markdown(state) if live else self.replay.robot_md
         op.deviation_md.content = deviation_markdown(state) if self.replay is None else ""
         self.supervisor.render(state)
         self.sessions.render(state)
@@ -223,16 +231,27 @@ class ClientView:
         if state.capture is not self.shown_capture:
             self.shown_capture = state.capture
             op.show_images(state.capture.rgb if state.capture is not None else None, state.overlay)
-        if state.scene is not self.shown_scene:
-            self._draw_scene(state.scene, state.capture.camera if state.capture is not None else None)
-            self.shown_scene = state.scene
+        scene = self._shelf_now(state)
+        if scene is not self.shown_scene:
+            self._draw_scene(scene, state.capture.camera if state.capture is not None else None)
+            self.shown_scene = scene
             self.shown_plans = None
             op.show_targets(state.scene)
         op.follow_target(state.target)
         if state.plans is not self.shown_plans:
             self.shown_plans = state.plans
+            self.preview.show_plans(state.plans)
             self.preview.load()
         self._highlight()
+
+    def _shelf_now(self, state: State) -> Scene | None:
+        """The shelf as last seen: after a robot step the look's shelf (with the plan's ids on the
+        boxes it matched), else the capture's."""
+        if state.observed is None or not state.verifications or state.observed is state.scene:
+            return state.scene
+        if self.observed is None or self.observed[0] is not state.observed:
+            self.observed = (state.observed, as_planned(state.observed, state.verifications[-1]))
+        return self.observed[1]
 
     # ---------------------------------------------------------------- replay
     def _replay(self, event: Any) -> None:
@@ -254,7 +273,7 @@ class ClientView:
             self.shown_capture = None
             self.shown_plans = None
             self.operator.results.content = rec.plans_md
-            self.sessions.start_replay(rec.summary_md, [lk.label for lk in rec.looks])
+            self.sessions.start_replay(rec.summary_md, [lk.label for lk in rec.looks], rec.rgb, rec.overlay)
             self.preview.load()
             self.render(self.wf.state)
 
@@ -272,6 +291,10 @@ class ClientView:
                 self._draw_scene(look.observed, self.replay.camera)
                 self.sessions.show_look(self.client.scene, look.predicted, look.md)
             self._highlight()
+
+    def _export(self) -> None:
+        name = self.sessions.export(self.client)
+        self.notify("Exported", f"{name}: the session as one web page (your browser's downloads)", color="green")
 
     def _live(self, event: Any) -> None:
         with self.lock:

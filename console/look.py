@@ -90,4 +90,11 @@ def _look_once(source: Source, world: Scene | None, step: int, box: str, predict
                 perception, predicted)
 
 
-__all__ = ["Look", "look_again"]
+def as_planned(observed: Scene, v: Verification) -> Scene:
+    """The shelf a look saw, with the plan's ids on the boxes it matched to the plan's (the ids the
+    operator knows); a box it matched to none keeps the look's id, marked `?`."""
+    back = {o: p for p, o in v.observed_of().items()}
+    return replace(observed, boxes=tuple(replace(b, id=back.get(b.id, f"{b.id}?")) for b in observed.boxes))
+
+
+__all__ = ["Look", "look_again", "as_planned"]

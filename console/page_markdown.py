@@ -7,18 +7,24 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from console.panels import md, pct
+from console.panels import md, ours, pct
 from console.workflow import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
 from planning.plan import Plan
 
 
+NBSP = "\u00a0"
+SHOWN = (*PLANNERS, "continue")        # the plans a page shows side by side, in this order
+
+
 def results_markdown(state: State) -> str:
-    """The two plans side by side."""
+    """The plans side by side (the physics and heuristic plans, or the held plan's `continue`)."""
     if state.planning:
         return f"**Planning…** {md(state.progress_text)}"
+    if state.capturing:
+        return "**Capturing…** The plan buttons work once the capture is in."
     if not state.plans:
-        return "_No plans yet. Select a target, then press `Plan extraction` or `Plan clearance`._"
-    cols = [p for p in PLANNERS if p in state.plans]
+        return "_No plans yet. Select a target, then press **Plan extraction** or **Plan clearance**._"
+    cols = [p for p in SHOWN if p in state.plans]
     rows = ["| | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
 
     def row(name: str, fn: Callable[[PlanEntry], str]) -> None:
@@ -26,17 +32,22 @@ def results_markdown(state: State) -> str:
 
     row("sequence", lambda e: " → ".join(md(b) for b in e.plan.sequence) or "—")
     row("boxes removed", lambda e: str(len(e.plan.sequence)))
-    row("collapse risk per step", lambda e: ", ".join(
-        f"{md(p.box)} {pct(p.collapse_prob)}" for p in e.plan.predicted) or "—")
+    # one step a line, box and risk kept together: a long sequence never wraps inside an item
+    row("collapse risk per step", lambda e: "<br>".join(
+        f"{i + 1}.{NBSP}{md(p.box)}{NBSP}{pct(p.collapse_prob)}" for i, p in enumerate(e.plan.predicted)) or "—")
     row("max risk", lambda e: pct(e.plan.risk))
     row("predicted safe", lambda e: "yes" if e.plan.safe else "**NO**")
     row("sample worlds behind the risks", lambda e: _worlds(e.plan))
     row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
         if e.scene_problems else "stands as seen")
-    row(f"est. execution ({SECONDS_PER_BOX:g} s/box)", lambda e: f"{e.est_seconds:.1f} s")
-    row("planning time", lambda e: f"{_planning_seconds(e.plan):.2f} s")
+    row(f"est. execution ({SECONDS_PER_BOX:g}{NBSP}s/box)", lambda e: f"{e.est_seconds:.1f}{NBSP}s")
+    row("planning time", lambda e: f"{_planning_seconds(e.plan):.2f}{NBSP}s"
+        if e.plan.planner != "continue" else "—")
     row("plan hash", lambda e: f"`{md(e.hash)}`")
     out = "\n".join(rows)
+    out += ("\n\n_Risks are counted over sample worlds: shelves the camera cannot tell apart (box "
+            "depths, masses, friction). A plan the search finds safe is asked again of more worlds "
+            "before it is called safe._")
     if state.scene_problems:
         out += "\n\n**⚠ The shelf does not stand as seen** (no plan on it is safe):\n" + "\n".join(
             f"- {md(problem_text(p))}" for p in state.scene_problems)
@@ -46,33 +57,57 @@ def results_markdown(state: State) -> str:
 
 
 def _planning_seconds(plan: Plan) -> float:
-    """Search time plus the depth-sample set-up it needed and the extra worlds a safe plan was
-    asked of (all in the plan's timing)."""
+    """What the operator waited for this plan: the console's wall time for it (search, risks and
+    preview; `wall_s`) when known, else the planner's search time, plus the depth-sample set-up and
+    the extra worlds a safe plan was asked of."""
     t = dict(plan.timing or {})
-    return sum(float(t.get(k, 0.0)) for k in ("planning_s", "setup_s", "verify_s"))
+    own = float(t["wall_s"]) if "wall_s" in t else float(t.get("planning_s", 0.0)) + float(t.get("verify_s", 0.0))
+    return own + float(t.get("setup_s", 0.0))
 
 
 def _worlds(plan: Plan) -> str:
-    """How many sample worlds the plan's risks are over: the search's, or more for a plan found safe."""
+    """How many sample worlds the plan's risks are over, and why a plan found safe has more."""
     search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
-    n = search.get("verified_worlds") or search.get("worlds")
-    return str(n) if isinstance(n, int) and not isinstance(n, bool) else "—"
+    n, v = search.get("worlds"), search.get("verified_worlds")
+    if not (isinstance(n, int) and not isinstance(n, bool)):
+        return "—"
+    if isinstance(v, int) and not isinstance(v, bool) and v > n:
+        return f"{v} ({n} searched, {v - n} more to confirm it safe)"
+    return f"{n} (searched)"
 
 
 def robot_markdown(state: State) -> str:
+    """The run so far: one row per step (the robot's events, then the look after it), in step order,
+    every step of the plan; what belongs to no step (notes, stop) below it."""
     lines = [f"**Robot:** {md(state.robot)}"]
-    for ev in state.robot_events[-8:]:
-        step = f" step {ev.step + 1}" if isinstance(ev.step, int) else ""
+    steps: dict[int, dict] = {}
+    other: list[str] = []
+    for ev in state.robot_events:
         note = ""
         if ev.kind in ("error", "disconnected", "aborted", "note") and ev.detail:
             note = ": " + md(ev.detail.get("message") or ev.detail.get("reason") or ev.detail.get("code") or "")
-        lines.append(f"- {md(ev.kind)}{step}" + (f" {md(ev.box)}" if ev.box else "") + note)
-    lines.extend(verification_lines(state))
+        if isinstance(ev.step, int):
+            row = steps.setdefault(ev.step, {"box": ev.box, "robot": [], "look": ""})
+            row["robot"].append(md(ev.kind) + note)
+        else:
+            other.append(f"- {md(ev.kind)}" + (f" {md(ev.box)}" if ev.box else "") + note)
+    for v in state.verifications:
+        row = steps.setdefault(v.step, {"box": v.box, "robot": [], "look": ""})
+        text = v.summary()
+        head = f"step {v.step + 1} ({v.box}): "
+        row["look"] = f"{'✓' if v.within else '⚠'} {md(text[len(head):] if text.startswith(head) else text)}"
+    if steps:
+        lines += ["", "| step | box | robot | look after it |", "|---|---|---|---|"]
+        for k in sorted(steps):
+            r = steps[k]
+            lines.append(f"| {k + 1} | {md(r['box'] or '')} | {' → '.join(r['robot']) or '—'} | {r['look'] or '—'} |")
+        lines.append("")
+    lines += other
     out = state.outcome
     if out is not None:
         lines.append(f"\n**Outcome:** {'success' if out.ok else 'not completed'}; "
                      f"completed: {', '.join(md(b) for b in out.completed) or 'none'}"
-                     + (f"; error: {md(out.error)}" if out.error else ""))
+                     + (f"; error: {ours(out.error)}" if out.error else ""))
     return "\n".join(lines)
 
 
@@ -86,9 +121,12 @@ def verification_lines(state: State) -> list[str]:
 
 
 def deviation_markdown(state: State) -> str:
-    """Why the robot is held: each box predicted vs observed (ids are outside text: md())."""
+    """Why the robot is held: each box predicted vs observed (ids are outside text: md()).
+
+    Shown while the robot stands held (`robot == "held"`); once a run starts from
+    the held capture (continue, or a new plan) the notice is history: the replay keeps it."""
     dev = state.deviation
-    if dev is None:
+    if dev is None or state.robot != "held":
         return ""
     v = dev.verification
     rows = [f"**⚠ Robot held before step {v.step + 2}:** {md(v.summary())}", "",
@@ -108,13 +146,13 @@ def deviation_markdown(state: State) -> str:
 def status_markdown(state: State, viewer: str = "") -> str:
     parts = []
     if state.audit:
-        parts.append(f"**⛔ AUDIT: {md(state.audit)}**")
+        parts.append(f"**⛔ AUDIT: {ours(state.audit)}**")
     for note in state.recovered:
-        parts.append(f"**⚠ {md(note)}**")
+        parts.append(f"**⚠ {ours(note)}**")
     if state.error:
-        parts.append(f"**⚠ {md(state.error)}**")
+        parts.append(f"**⚠ {ours(state.error)}**")
     if state.message:
-        parts.append(md(state.message))
+        parts.append(ours(state.message))
     head = f"Source {md(state.source)}"
     if state.session_id is not None:
         head += f" · session {state.session_id}"
@@ -126,4 +164,4 @@ def status_markdown(state: State, viewer: str = "") -> str:
     return "\n\n".join(parts)
 
 
-__all__ = ["results_markdown", "robot_markdown", "verification_lines", "deviation_markdown", "status_markdown"]
+__all__ = ["ours", "results_markdown", "robot_markdown", "verification_lines", "deviation_markdown", "status_markdown"]

@@ -60,8 +60,29 @@ def md(value: Any) -> str:
     return "".join(out)
 
 
+_QUOTED = re.compile(r"`([^`\n]{1,80})`")
+
+
+def quoted(text: object) -> str:
+    """Our message as plain text: the names of buttons it quotes in `backticks` in quotes instead."""
+    return _QUOTED.sub(lambda m: f"\u201c{m.group(1)}\u201d", "" if text is None else str(text))
+
+
+def ours(text: object) -> str:
+    """A message of our own that may carry outside text (ids, database errors): escaped like all
+    outside text, with the names of buttons it quotes in `backticks` shown in quotes, not as backticks."""
+    return md(quoted(text))
+
+
 def pct(p: float) -> str:
     return f"{100.0 * p:.0f}%"
+
+
+def _worlds_of(plan: Plan | None) -> int | None:
+    """How many sample worlds the search drew (the preview shows the first of them)."""
+    search = (plan.extra or {}).get("search", {}) if plan is not None and isinstance(plan.extra, dict) else {}
+    n = search.get("worlds") if isinstance(search, dict) else None
+    return n if isinstance(n, int) and not isinstance(n, bool) else None
 
 
 class ShelfDrawing:
@@ -146,8 +167,11 @@ class PreviewPlayer:
     def load(self, force: bool = False) -> None:
         with self.lock:
             self.playing = False
-            preview, plan = self.source(self.prev_plan.value)
-            self.frames = sv.timeline(preview) if preview else []
+            got = self.source(self.prev_plan.value)
+            preview, plan = got[0], got[1]
+            shown = got[2] if len(got) > 2 else {}
+            n_worlds = _worlds_of(plan)
+            self.frames = sv.timeline(preview, shown=shown, worlds=n_worlds) if preview else []
             self.risk = sv.risky_boxes(plan) if plan is not None else set()
             n = len(self.frames)
             self.slider.max = max(1, n - 1)
@@ -163,6 +187,17 @@ class PreviewPlayer:
                     sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene)
             self.after_load()
 
+    def show_plans(self, plans: Mapping[str, Any] | None) -> None:
+        """Offer the plans there are (the physics and heuristic plans, or `continue` while held)."""
+        names = tuple(n for n in (*PLANNERS, "continue") if n in (plans or {})) or PLANNERS
+        if tuple(self.prev_plan.options) != names:
+            self.prev_plan.options = names
+
+    def follow(self, name: str) -> None:
+        """Show the plan the supervisor is deciding on (this browser's 3D view follows its choice)."""
+        if name in self.prev_plan.options and self.prev_plan.value != name:
+            self.prev_plan.value = name       # loads it (on_update)
+
     def show_frame(self, i: int) -> None:
         with self.lock:
             if not self.frames or not self.drawing.nodes:
@@ -173,29 +208,34 @@ class PreviewPlayer:
             sv.apply_keyframe(self.drawing.client, self.drawing.nodes, fr, scene.shelf, None)
             nsteps = max(k.step for k in self.frames) + 1
             txt = f"Step {fr.step + 1}/{nsteps}: pulling **{md(fr.box)}** · t = {fr.t:.2f} s"
+            if fr.world:
+                txt += f" · {fr.world}"
             if fr.collapsed:
                 txt += f" · **collapsed: {', '.join(md(b) for b in fr.collapsed)}**"
             self.prev_info.content = txt
 
     def play(self) -> None:
+        """Play from the slider's frame at the recorded pace (simulated seconds = wall seconds)."""
         with self.lock:
             if self.playing or not self.frames:
                 return
             self.playing = True
             if int(self.slider.value) >= len(self.frames) - 1:
                 self.slider.value = 0
+            start = time.monotonic() - self.frames[int(self.slider.value)].t
 
         def run() -> None:
             while True:
                 with self.lock:
                     if not self.playing:
                         return
-                    i = int(self.slider.value) + 1
-                    if i >= len(self.frames):
+                    i = sv.frame_at(self.frames, time.monotonic() - start)
+                    if i != int(self.slider.value):
+                        self.slider.value = i
+                    if i >= len(self.frames) - 1:
                         self.playing = False
                         return
-                    self.slider.value = i
-                time.sleep(1 / 20)
+                time.sleep(1 / 30)
 
         threading.Thread(target=run, name="shelfpick-preview", daemon=True).start()
 
@@ -216,6 +256,7 @@ class OperatorPanel:
         self.target = g.add_dropdown("Target", ("—",), initial_value="—")
         self.btn_extract = g.add_button("Plan extraction", color="blue")
         self.btn_clear = g.add_button("Plan clearance")
+        self.answer = g.add_markdown("")      # what became of the last click here (stays until the next)
         self.progress = g.add_progress_bar(0.0, visible=False, animated=True)
         self.results = g.add_markdown("")
         with g.add_folder("Preview"):
@@ -227,10 +268,10 @@ class OperatorPanel:
             self.img_rgb = g.add_image(PLACEHOLDER, label="RGB")
             self.img_overlay = g.add_image(PLACEHOLDER, label="Segmentation")
 
-        self.btn_capture.on_click(lambda e: do(e, wf.capture))
-        self.btn_extract.on_click(lambda e: do(e, wf.plan, "extract"))
-        self.btn_clear.on_click(lambda e: do(e, wf.plan, "clear"))
-        self.btn_stop.on_click(lambda e: do(e, wf.stop, "operator"))
+        self.btn_capture.on_click(lambda e: do(e, answered(self.answer, "Capture", wf.capture)))
+        self.btn_extract.on_click(lambda e: do(e, answered(self.answer, "Plan extraction", wf.plan, "extract")))
+        self.btn_clear.on_click(lambda e: do(e, answered(self.answer, "Plan clearance", wf.plan, "clear")))
+        self.btn_stop.on_click(lambda e: do(e, answered(self.answer, "Stop robot", wf.stop, "operator")))
 
         @self.target.on_update
         def _(event: Any) -> None:
@@ -255,6 +296,23 @@ class OperatorPanel:
             self.target.value = want
 
 
+def answered(where: Any, what: str, fn: Callable[..., Any], *args: Any) -> Callable[[], None]:
+    """`fn(*args)` with its answer in the panel's `where` markdown: a click is never silent.
+
+    A refusal (a capture still running, nothing approved...) is said there and stays
+    until the next click, whatever the status line says meanwhile; the error still
+    goes on to the browser's notification."""
+    def go() -> None:
+        where.content = f"_{what}: …_"
+        try:
+            fn(*args)
+        except Exception as exc:
+            where.content = f"**{what}: not done.** {ours(exc)}"
+            raise
+        where.content = f"_{what}: done._" if what in ("Capture", "Stop robot") else f"_{what}: started._"
+    return go
+
+
 class SupervisorPanel:
     """The `Supervisor` tab: the pending plans, approve (and run) or reject with a passphrase."""
 
@@ -272,6 +330,7 @@ class SupervisorPanel:
         self.btn_approve = g.add_button("Approve", color="green")
         self.reason = g.add_text("Reject reason", "")
         self.btn_reject = g.add_button("Reject", color="orange")
+        self.answer = g.add_markdown("")      # what became of the last Approve / Reject
         self.decisions_md = g.add_markdown("")
         self.btn_approve.on_click(self.approve)
         self.btn_reject.on_click(self.reject)
@@ -282,6 +341,7 @@ class SupervisorPanel:
         self.approve_plan.on_update(lambda e: self.review(self.wf.state))
 
     def render(self, state: State) -> None:
+        self.show_plans(state)
         self.review(state)
         self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
 
@@ -301,11 +361,33 @@ class SupervisorPanel:
                 self.accept_risk.value = False
             self.sup_info.content = supervisor_markdown(state) + review_markdown(name, entry)
 
+    def show_plans(self, state: State) -> None:
+        """The `Plan` dropdown offers exactly the plans there are to decide on: `continue` only while
+        a run is held, nothing while there are none; a choice that went away moves to what is left."""
+        names = tuple(n for n in (*PLANNERS, "continue") if n in (state.plans or {})) or ("—",)
+        if tuple(self.approve_plan.options) != names:
+            keep = self.approve_plan.value
+            self.approve_plan.options = names
+            if keep in names and self.approve_plan.value != keep:
+                self.approve_plan.value = keep
+
     def _entry_for_approval(self) -> PlanEntry:
         entry = self.wf.state.plans.get(self.approve_plan.value)
         if entry is None:
             raise WorkflowError("no plan to decide on: plan first")
         return entry
+
+    def _risk_unticked(self, entry: PlanEntry) -> str | None:
+        """Why this approval needs `Accept predicted risk` ticked, when it is not: said before the
+        passphrase is taken, so a missing tick costs no retyping (the workflow checks it again)."""
+        if self.accept_risk.value:
+            return None
+        if (entry.plan.extra or {}).get("continues"):
+            return "continuing a held plan needs 'Accept predicted risk' ticked"
+        if not entry.plan.safe or entry.scene_problems:
+            return (f"the {entry.plan.planner} plan is predicted unsafe: tick 'Accept predicted risk' to "
+                    f"approve it anyway")
+        return None
 
     def _take_passphrase(self) -> str:
         """The typed passphrase, and the field cleared at once: every use needs it typed again."""
@@ -313,14 +395,20 @@ class SupervisorPanel:
         self.passphrase.value = ""
         return given
 
-    def _acknowledged(self) -> tuple[tuple[str, str], str, bool]:
+    def _acknowledged(self, check_tick: bool) -> tuple[tuple[str, str], str, bool]:
         """(plan under review, passphrase, risk tick), taken together under the lock `review` clears
         them under: a decision never pairs one plan's acknowledgements with another plan."""
         with self.ack_lock:
             reviewed = self.reviewed
+            if reviewed is None:
+                self._take_passphrase()
+                raise WorkflowError("no plan to decide on: plan first")
+            entry = self.wf.state.plans.get(reviewed[0])
+            unticked = self._risk_unticked(entry) if check_tick and entry is not None \
+                and entry.hash == reviewed[1] else None
+            if unticked is not None:          # refused before the passphrase is used: it stays typed
+                raise WorkflowError(f"approval refused: {unticked}")
             given, accept = self._take_passphrase(), bool(self.accept_risk.value)
-        if reviewed is None:
-            raise WorkflowError("no plan to decide on: plan first")
         if not given:
             raise WorkflowError("type the supervisor passphrase first (it is cleared after every use and "
                                 "whenever the plan under review changes)")
@@ -328,23 +416,23 @@ class SupervisorPanel:
 
     def approve(self, event: Any) -> None:
         def go() -> None:
-            (name, plan_hash), given, accept = self._acknowledged()
+            (name, plan_hash), given, accept = self._acknowledged(check_tick=True)
             self.wf.approve(plan_hash, given, self.who.value.strip() or "supervisor",
                             accept_risk=accept, client=self.client_key(), planner=name)
             self.accept_risk.value = False
             self.wf.execute()
-        self.do(event, go)
+        self.do(event, answered(self.answer, "Approve", go))
 
     def reject(self, event: Any) -> None:
         def go() -> None:
             if not self.reason.value.strip():
                 self._take_passphrase()
                 raise WorkflowError("Reject needs a reason: type it in `Reject reason`")
-            (name, plan_hash), given, _ = self._acknowledged()
+            (name, plan_hash), given, _ = self._acknowledged(check_tick=False)
             self.wf.reject(plan_hash, given, self.who.value.strip() or "supervisor",
                            self.reason.value, client=self.client_key(), planner=name)
             self.reason.value = ""
-        self.do(event, go)
+        self.do(event, answered(self.answer, "Reject", go))
 
 
 def supervisor_markdown(state: State) -> str:
@@ -378,6 +466,7 @@ def decisions_markdown(decisions: Iterable[Mapping[str, Any]], key: str = "plan"
     return "\n".join(
         f"- {md(d['decision'])} `{md(d.get(key))}` by {md(d.get('who'))}"
         + (f" at {md(d['at'])}" if isinstance(d.get("at"), str) else "")
+        + (f" (the **{md(d['planner'])}** plan)" if d.get("planner") else "")
         + (f": {md(d['reason'])}" if d.get("reason") else "")
         for d in decisions)
 
@@ -397,8 +486,19 @@ class SessionsPanel:
                                         hint="replay: the observed shelf after a step, the predicted "
                                              "poses as blue outlines, what differs in red")
         self.btn_live = g.add_button("Back to live")
+        self.btn_export = g.add_button("Export HTML", icon="download",
+                                       hint="the chosen session as one self-contained web page (downloads)")
         self.replay_md = g.add_markdown("")
         self.look_md = g.add_markdown("")
+        with g.add_folder("Session images"):
+            self.img_rgb = g.add_image(PLACEHOLDER, label="Captured")
+            self.img_overlay = g.add_image(PLACEHOLDER, label="Segmentation")
+        self.picked = False               # the person chose a session: keep it, else follow the newest
+        self.session_pick.on_update(self._picked)
+
+    def _picked(self, event: Any) -> None:
+        if getattr(event, "client", None) is not None:
+            self.picked = True
 
     def render(self, state: State) -> None:
         """The sessions table again when the current session changed in a way it shows."""
@@ -419,23 +519,40 @@ class SessionsPanel:
             lines.append(f"| {md(r['id'])} | {md(_fmt_time(r.get('started')))} | {md(r.get('source', ''))} | "
                          f"{md(r.get('n_boxes', ''))} | {md(r.get('task') or '')} | {md(r.get('status') or '')} |")
         self.sessions_md.content = "\n".join(lines) if rows else "_No sessions yet._"
-        opts = tuple(str(r["id"]) for r in rows) or ("—",)
+        opts = tuple(str(r["id"]) for r in rows) or ("—",)     # newest first
         cur = self.session_pick.value
         self.session_pick.options = opts
-        self.session_pick.value = cur if cur in opts else opts[0]
+        self.session_pick.value = cur if self.picked and cur in opts else opts[0]
 
-    def start_replay(self, summary_md: str, look_labels: Sequence[str]) -> None:
-        """A stored session's summary, and its looks after each step to pick from."""
+    def start_replay(self, summary_md: str, look_labels: Sequence[str], rgb: np.ndarray | None = None,
+                     overlay: np.ndarray | None = None) -> None:
+        """A stored session's summary, its images, and its looks after each step to pick from."""
         self.replay_md.content = summary_md
+        self.img_rgb.image = rgb if rgb is not None else PLACEHOLDER
+        self.img_overlay.image = overlay if overlay is not None else PLACEHOLDER
         self.clear_look()
         self.look_pick.options = ("—",) + tuple(look_labels)
         self.look_pick.value = "—"
 
     def end_replay(self) -> None:
         self.replay_md.content = ""
+        self.img_rgb.image = PLACEHOLDER
+        self.img_overlay.image = PLACEHOLDER
         self.clear_look()
         self.look_pick.options = ("—",)
         self.look_pick.value = "—"
+
+    def export(self, client: Any) -> str:
+        """The chosen session as a self-contained HTML page, sent to this browser as a download."""
+        from console.replay import render_html
+
+        v = self.session_pick.value
+        if v == "—":
+            raise WorkflowError("no session to export")
+        page = render_html(self.wf.store.load_session(int(v)))
+        name = f"shelfpick-session-{int(v)}.html"
+        client.send_file_download(name, page.encode("utf-8"), save_immediately=True)
+        return name
 
     def clear_look(self) -> None:
         for h in self.look_nodes:

@@ -8,7 +8,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from perception.scene import Scene
-from planning.plan import PLANNERS
+from planning.plan import PLANNERS, Plan
 
 from console.run_json import step_json
 from console.workflow_core import WorkflowCore, close_quietly
@@ -141,7 +141,10 @@ class PlanningStage(WorkflowCore):
         from planning.predicted import predicted_shelves
 
         shelves = tuple(predicted_shelves(scene, plan.sequence, preview)) if preview else ()
-        return PlanEntry(plan, plan.content_hash(), preview, shelves)
+        worlds = collapse_worlds(predictor, plan) if preview else {}
+        # what the operator waited for this plan (search, risks, preview), shown as its planning time
+        plan = replace(plan, timing={**plan.timing, "wall_s": time.perf_counter() - t0})
+        return PlanEntry(plan, plan.content_hash(), preview, shelves, collapse_steps=worlds)
 
     def _plans_ready(self, gen: int, entries: dict[str, PlanEntry], repairs: tuple[str, ...]) -> None:
         phys = entries["physics"].plan
@@ -166,4 +169,32 @@ class PlanningStage(WorkflowCore):
                       message="plans ready: compare them, preview, then a supervisor approves one")
 
 
-__all__ = ["PlanningStage"]
+def collapse_worlds(predictor: Predictor, plan: Plan) -> dict[int, dict]:
+    """For each step predicted to collapse something: that step recorded in a sample world where it does.
+
+    The preview (and the predicted shelves the looks compare with) is the first
+    sample world, where a step at 10-40 % risk mostly holds; the operator should
+    see what the risk is. Returns step -> {"world", "collapsed_in", "of", "result"}:
+    the step's recorded pull in the first world whose trial collapsed, replayed from
+    the plan's start in that world (a world where the replay does not collapse is
+    passed over; none reproduced: the step is left out, the page says the count only).
+    """
+    out: dict[int, dict] = {}
+    removed: frozenset[str] = frozenset()
+    for k, (box, pred) in enumerate(zip(plan.sequence, plan.predicted)):
+        if pred.collapse_prob > 0:
+            results = predictor.results(removed, box)
+            fell = [w for w, r in enumerate(results) if r.collapsed]
+            doc = {"world": None, "collapsed_in": len(fell), "of": len(results), "result": None}
+            for w in fell[:2]:
+                rec = predictor.preview(plan.sequence[:k + 1], w)[k]
+                if rec.collapsed:
+                    doc.update(world=w, result=rec)
+                    break
+            if fell:
+                out[k] = doc
+        removed = removed | {box}
+    return out
+
+
+__all__ = ["PlanningStage", "collapse_worlds"]

@@ -226,7 +226,33 @@ def _pct(v: float | None) -> str:
     return "—" if v is None else f"{100 * v:.0f}%"
 
 
-def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[str]) -> str:
+def decided_planner(d: Mapping[str, Any], rec: SessionRecord) -> str | None:
+    """Which plan a decision was about, by planner: the decision's own record when it names one,
+    else the one plan of the session with its hash, else (two planners gave the same sequence) the
+    plan the robot then ran for an approval; None when the record cannot tell."""
+    if isinstance(d.get("planner"), str):
+        return d["planner"]
+    same = {pr.plan.planner for pr in rec.plans if pr.hash == d.get("plan_hash")}
+    if len(same) == 1:
+        return next(iter(same))
+    out = rec.outcome or {}
+    if d.get("decision") == "approve" and out.get("plan") == d.get("plan_hash") and out.get("planner") in same:
+        return str(out["planner"])
+    return None
+
+
+def approved_plans(rec: SessionRecord) -> set[tuple[str, str]]:
+    """(planner, hash) of every approved plan: one card marked even when two planners gave one sequence."""
+    out = set()
+    for d in rec.decisions:
+        if d["decision"] == "approve":
+            who = decided_planner(d, rec)
+            out |= {(pr.plan.planner, pr.hash) for pr in rec.plans
+                    if pr.hash == d["plan_hash"] and who in (None, pr.plan.planner)}
+    return out
+
+
+def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[tuple[str, str]]) -> str:
     plan = pr.plan
     pred = {p.box: p for p in plan.predicted}
     rows = []
@@ -236,9 +262,10 @@ def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[str])
                     f"<td>{_pct(p.collision_prob if p else None)}</td>"
                     f"<td>{_e(', '.join(p.moved)) if p and p.moved else ''}</td></tr>")
     timing = dict(plan.timing)
-    plan_s = timing.get("total", timing.get("planning", sum(v for v in timing.values()
-                                                             if isinstance(v, (int, float)))))
-    badge = ' <span class="ok">approved</span>' if pr.hash in approved else ""
+    plan_s = (float(timing["wall_s"]) + float(timing.get("setup_s", 0.0)) if "wall_s" in timing else
+              timing.get("total", timing.get("planning", sum(v for v in timing.values()
+                                                              if isinstance(v, (int, float))))))
+    badge = ' <span class="ok">approved</span>' if (plan.planner, pr.hash) in approved else ""
     check = _scene_check(plan)
     return (f'<div class="card"><h3>{_e(plan.planner)} plan{badge}</h3>'
             f'<p class="small">hash <code>{_e(pr.hash)}</code> · {_e(plan.task)}'
@@ -431,11 +458,12 @@ def render_html(rec: SessionRecord) -> str:
                    for c, img in images) or "<p><i>No images stored.</i></p>"
     if rec.missing_files:
         figs += f'<p class="err">missing files: {_e(", ".join(rec.missing_files))}</p>'
-    approved = {d["plan_hash"] for d in rec.decisions if d["decision"] == "approve"}
+    approved = approved_plans(rec)
     cards = "".join(_plan_card(pr, rec, i, approved) for i, pr in enumerate(rec.plans)) \
         or "<p><i>No plans in this session.</i></p>"
     dec_rows = "".join(f'<tr><td>{_e(d["at"])}</td><td>{_e(d["who"])}</td><td>{_e(d["decision"])}</td>'
-                       f'<td><code>{_e(d["plan_hash"])}</code></td><td>{_e(d.get("reason") or "")}</td></tr>'
+                       f'<td>{_e(decided_planner(d, rec) or "")} <code>{_e(d["plan_hash"])}</code></td>'
+                       f'<td>{_e(d.get("reason") or "")}</td></tr>'
                        for d in rec.decisions)
     decisions = (f'<table><tr><th>when (UTC)</th><th>who</th><th>decision</th><th>plan</th><th>reason</th></tr>'
                  f'{dec_rows}</table>') if dec_rows else "<p><i>No decisions.</i></p>"

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 from console.page_markdown import results_markdown
 from console.panels import decisions_markdown, md, pct
+from console.replay import decided_planner
 from console.workflow import PlanEntry, State
 from perception.scene import Camera, Scene
 from planning.plan import Plan
@@ -59,6 +60,7 @@ class ReplayView:
     plans_md: str
     summary_md: str
     looks: tuple[LookView, ...]
+    robot_md: str = ""                       # the robot's stored events and looks, as the live page shows a run
 
 
 def record_view(rec: SessionRecord) -> ReplayView:
@@ -79,7 +81,8 @@ def record_view(rec: SessionRecord) -> ReplayView:
     if rec.missing_files:
         lines.append(f"**⚠ missing files:** {', '.join(md(f) for f in rec.missing_files)}")
     lines.append("\n**Decisions**")
-    lines.append(decisions_markdown(rec.decisions, key="plan_hash") or "- none")
+    lines.append(decisions_markdown([{**d, "planner": decided_planner(d, rec)} for d in rec.decisions],
+                                    key="plan_hash") or "- none")
     refused = [e for e in rec.robot_events if e["kind"] == "auth_refused"]
     if refused:
         lines.append(f"- {len(refused)} attempt(s) refused: wrong supervisor passphrase")
@@ -88,7 +91,7 @@ def record_view(rec: SessionRecord) -> ReplayView:
         lines.append(f"- `Stop robot` pressed by {md((e.get('detail') or {}).get('who'))} at {md(e['at'])}")
     out = rec.outcome
     if out:
-        lines += _outcome_lines(out, plans)
+        lines += _outcome_lines(out, plans, set(rec.scene.ids))
     else:
         lines.append("\n_The robot did not run in this session._")
     target = None
@@ -101,7 +104,43 @@ def record_view(rec: SessionRecord) -> ReplayView:
         lines += [f"- {'✓' if lk.within else '⚠'} {md(lk.summary)}" for lk in looks]
     return ReplayView(id=rec.id, rgb=cap.rgb if cap is not None else None, overlay=rec.overlay,
                       scene=rec.scene, camera=cap.camera if cap is not None else rec.scene.camera,
-                      target=target, plans=plans, plans_md=plans_md, summary_md="\n".join(lines), looks=looks)
+                      target=target, plans=plans, plans_md=plans_md, summary_md="\n".join(lines), looks=looks,
+                      robot_md=stored_robot_markdown(rec))
+
+
+class _StoredLook:
+    """A stored verification in the shape `robot_markdown` reads (step, box, within, summary())."""
+
+    def __init__(self, doc: Mapping[str, Any]) -> None:
+        self.step = int(doc.get("step", 0))
+        self.box = str(doc.get("box") or "")
+        self.within = bool(doc.get("within"))
+        self._summary = str((doc.get("verdict") or {}).get("summary", ""))
+
+    def summary(self) -> str:
+        return self._summary
+
+
+def stored_robot_markdown(rec: SessionRecord) -> str:
+    """The replayed session's robot: its events step by step with the looks, as the live page shows them."""
+    from console.page_markdown import robot_markdown
+    from console.robot_types import RobotEvent
+
+    events = tuple(RobotEvent(e["kind"], e.get("step"), e.get("box"), e.get("detail") or {})
+                   for e in rec.robot_events if e["kind"] not in ("auth_refused", "start", "stop", "sent"))
+    state = State(robot=f"{rec.status} (replayed session {rec.id})", robot_events=events,
+                  verifications=tuple(_StoredLook(v) for v in rec.verifications))   # type: ignore[arg-type]
+    return robot_markdown(state) if events or rec.verifications else "_The robot did not run in this session._"
+
+
+def replay_status(state: State, view: ReplayView) -> str:
+    """The status line while a stored session is replayed: that session, not the live one (an audit
+    failure of the live console stays on top of every view)."""
+    head = (f"**Replaying session {view.id}** (stored: nothing here is live; press “Back to live” in "
+            f"the Sessions tab to return)")
+    if state.audit:
+        return f"**⛔ AUDIT: {md(state.audit)}**\n\n{head}"
+    return head
 
 
 def look_view(v: Mapping[str, Any]) -> LookView:
@@ -122,7 +161,7 @@ def look_view(v: Mapping[str, Any]) -> LookView:
                                    and d.get("status") in ("moved", "new")))
 
 
-def _outcome_lines(out: Mapping[str, Any], plans: Mapping[str, ReplayPlan]) -> list[str]:
+def _outcome_lines(out: Mapping[str, Any], plans: Mapping[str, ReplayPlan], seen: set[str]) -> list[str]:
     head = ("success" if out.get("ok") else "interrupted (the console stopped)" if out.get("interrupted")
             else "stopped" if out.get("stopped") else "not completed")
     lines = ["\n**Robot outcome vs prediction**",
@@ -130,22 +169,25 @@ def _outcome_lines(out: Mapping[str, Any], plans: Mapping[str, ReplayPlan]) -> l
              f"{', '.join(md(b) for b in out.get('completed') or []) or 'none'}"
              + (f"; error: {md(out['error'])}" if out.get("error") else "")]
     pred = {}
-    for p in plans.values():
+    ran = plans.get(str(out.get("planner")))     # the plan that ran, by planner: two may share a hash
+    for p in ([ran] if ran is not None and ran.hash == out.get("plan") else plans.values()):
         if p.hash == out.get("plan"):
             pred = {s.box: s for s in p.plan.predicted}
+            break
     lines.append("\n| step | box | predicted collapse | actual |\n|---|---|---|---|")
     steps = out.get("steps") or []
     for i, box in enumerate(out.get("sequence") or []):
         st = steps[i] if i < len(steps) else None
-        actual = _actual_text(st) if st is not None else ("not run" if box not in (out.get("completed") or [])
+        actual = _actual_text(st, seen) if st is not None else ("not run" if box not in (out.get("completed") or [])
                                                           else "done")
         p = pred.get(box)
         lines.append(f"| {i + 1} | {md(box)} | {pct(p.collapse_prob) if p else '—'} | {md(actual)} |")
     return lines
 
 
-def _actual_text(step: Any) -> str:
-    """A stored step of the outcome in words (a step that is not a JSON object is shown as it is)."""
+def _actual_text(step: Any, seen: set[str] | None = None) -> str:
+    """A stored step of the outcome in words (a step that is not a JSON object is shown as it is).
+    Collapsed boxes by the ids perception gave them (`seen`); one it never saw is said so."""
     if not isinstance(step, dict):
         return str(step)
     bits = []
@@ -153,11 +195,17 @@ def _actual_text(step: Any) -> str:
         bits.append(str(step["status"]))
     if "extracted" in step:
         bits.append("extracted" if step["extracted"] else "NOT extracted")
-    if step.get("collapsed"):
-        bits.append("collapsed: " + ", ".join(map(str, step["collapsed"])))
+    detail = step.get("detail") if isinstance(step.get("detail"), dict) else {}
+    fell = step.get("collapsed") or detail.get("collapsed_ids") or []
+    if fell:
+        from console.robot import seen_names
+
+        bits.append("collapsed: " + seen_names([str(b) if seen is None or str(b) in seen else None
+                                                for b in fell]))
     if step.get("error"):
         bits.append(f"error: {step['error']}")
     return "; ".join(bits) or "done"
 
 
-__all__ = ["ReplayView", "ReplayPlan", "LookView", "record_view", "look_view"]
+__all__ = ["ReplayView", "ReplayPlan", "LookView", "record_view", "look_view", "replay_status",
+           "stored_robot_markdown"]

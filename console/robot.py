@@ -257,13 +257,24 @@ class SimRobot:
         statuses[i] = {"step": i, "box": box, "status": "done", "detail": detail}
         held = self._verify(i, box)
         if res.collapsed:
-            msg = (f"step {i + 1} ({box}): boxes collapsed: {', '.join(detail['collapsed_ids'])}")
+            # the operator knows the perceived ids only: a box the camera never saw is said so (h6, issue 33)
+            msg = (f"step {i + 1} ({box}): boxes collapsed: "
+                   f"{seen_names([reverse.get(b) for b in res.collapsed])}")
             emit(on_event, RobotEvent("error", i, box, {"code": "COLLAPSE", "message": msg,
                                                          "collapsed": detail["collapsed_ids"]}))
             return msg + (f"; held: {held}" if held else "")
         if held is not None and i < len(plan.sequence) - 1:   # after the last step: evidence only
             return f"held after step {i + 1} ({box}): {held}"
         return None
+
+
+def seen_names(ids: list[str | None]) -> str:
+    """Perceived ids, and the boxes without one (never seen by the camera) counted in words."""
+    known = [b for b in ids if b is not None]
+    unseen = len(ids) - len(known)
+    if unseen:
+        known.append("a box the camera did not see" if unseen == 1 else f"{unseen} boxes the camera did not see")
+    return ", ".join(known)
 
 
 # --------------------------------------------------------------------------

@@ -22,14 +22,20 @@ PANEL = 0.02  # shelf board thickness drawn, m
 
 
 def box_color(index: int) -> tuple[int, int, int]:
-    """A distinct, stable colour per box (golden-angle hue walk)."""
-    h = (index * 0.618033988749895) % 1.0
-    r, g, b = colorsys.hsv_to_rgb(h, 0.45, 0.85)
-    return int(r * 255), int(g * 255), int(b * 255)
+    """A distinct, stable colour per index: the segmentation overlay's palette
+    (perception.overlay.palette), so a box is one colour in the 3D view and in the overlay."""
+    h = (index * 0.618034) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(h, 0.85, 0.95)
+    return int(255 * r), int(255 * g), int(255 * b)
 
 
-def colors_for(ids: Sequence[str]) -> dict[str, tuple[int, int, int]]:
-    return {bid: box_color(i) for i, bid in enumerate(ids)}
+def colors_for(scene_or_ids: Any) -> dict[str, tuple[int, int, int]]:
+    """Id -> colour. A perceived scene's boxes take their mask's overlay colour (`mask_label`);
+    boxes without one (a scene file, a replayed look) take the colour of their place in the list."""
+    boxes = getattr(scene_or_ids, "boxes", None)
+    if boxes is None:
+        return {bid: box_color(i) for i, bid in enumerate(scene_or_ids)}
+    return {b.id: box_color(b.mask_label if b.mask_label is not None else i) for i, b in enumerate(boxes)}
 
 
 def draw_shelf(scene_api: Any, shelf: Any, prefix: str = "/shelf") -> list:
@@ -72,8 +78,8 @@ class BoxNodes:
 
 
 def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, BoxNodes]:
-    """Each box coloured by id, labelled, with hidden target/risk shells that follow it."""
-    colors = colors_for(scene.ids)
+    """Each box coloured by id, labelled on its front face, with hidden target/risk shells that follow it."""
+    colors = colors_for(scene)
     out: dict[str, BoxNodes] = {}
     for i, b in enumerate(scene.boxes):
         # nodes are named by position, not id: an id from a scene file is outside text ("a/label", "..")
@@ -82,8 +88,10 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
                                    position=tuple(b.position), wxyz=tuple(b.orientation),
                                    cast_shadow=False, receive_shadow=False)
         # children follow the parent's pose during the preview animation
-        label = scene_api.add_label(f"{base}/label", b.id, position=(0.0, 0.0, b.size[2] / 2 + 0.03),
-                                    anchor="bottom-center", font_screen_scale=1.1)
+        # the id sits in the middle of the face the camera (and the operator) sees, just in front of
+        # it: a label at a box's top edge reads as the box above and one click picks the wrong target
+        label = scene_api.add_label(f"{base}/label", b.id, position=label_position(b),
+                                    anchor="center-center", font_screen_scale=1.1)
         grow = (b.size[0] + 0.02, b.size[1] + 0.02, b.size[2] + 0.02)
         target = scene_api.add_box(f"{base}/target", color=TARGET_COLOR, dimensions=grow,
                                    wireframe=True, visible=False, cast_shadow=False)
@@ -92,6 +100,11 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
                                  wireframe=True, visible=False, cast_shadow=False)
         out[b.id] = BoxNodes(handle, label, target, risk)
     return out
+
+
+def label_position(box: Any) -> tuple[float, float, float]:
+    """Where a box's id is drawn, in the box's own frame: the centre of its front (local -y) face."""
+    return (0.0, -box.size[1] / 2 - 0.002, 0.0)
 
 
 UNEXPLAINED_COLOR = (120, 120, 120)
@@ -148,16 +161,35 @@ def _get(obj: Any, key: str, default: Any = None) -> Any:
 class Keyframe:
     step: int                      # index in the plan's sequence
     box: str                       # the box being pulled in this step
-    t: float                       # seconds since the start of the preview
+    t: float                       # seconds since the start of the preview (simulated time: real pace)
     poses: Mapping[str, tuple]     # id -> (position, wxyz) for boxes present
     collapsed: tuple[str, ...]     # boxes this step's simulation judged collapsed
+    world: str = ""                # which sample world this step is shown in, in words
 
 
-def timeline(preview: Iterable[Any], max_frames_per_step: int = 40) -> list[Keyframe]:
-    """Flatten recorded step results (objects or their JSON) into evenly thinned keyframes."""
+def timeline(preview: Iterable[Any], max_frames_per_step: int = 90,
+             shown: Mapping[int, Mapping[str, Any]] | None = None, worlds: int | None = None) -> list[Keyframe]:
+    """Flatten recorded step results (objects or their JSON) into keyframes at their recorded times.
+
+    `shown`: step -> a recording of that step in a sample world where it collapses
+    (console.planning_stage.collapse_worlds), played instead of the first world's; each
+    keyframe says which world it shows. Frames are thinned only beyond
+    `max_frames_per_step` (the recording is ~30 fps), so a pull plays at its real pace.
+    """
     out: list[Keyframe] = []
     t0 = 0.0
+    shown = shown or {}
     for i, step in enumerate(preview):
+        alt = shown.get(i) or {}
+        if alt.get("result") is not None:
+            step = alt["result"]
+            world = (f"collapses in {alt['collapsed_in']} world{'s' if alt['collapsed_in'] != 1 else ''} "
+                     f"of {alt['of']}: shown in world {int(alt['world']) + 1}")
+        elif alt:
+            world = (f"collapses in {alt['collapsed_in']} world{'s' if alt['collapsed_in'] != 1 else ''} "
+                     f"of {alt['of']} (not shown: this world holds)")
+        else:
+            world = "sample world 1" + (f" of {worlds}" if worlds else "")
         frames = list(_get(step, "frames", ()) or ())
         if not frames:
             continue
@@ -171,10 +203,17 @@ def timeline(preview: Iterable[Any], max_frames_per_step: int = 40) -> list[Keyf
         for fr in keep:
             t, poses = (fr[0], fr[1]) if not isinstance(fr, Mapping) else (fr["t"], fr["poses"])
             poses = {k: (tuple(v[0]), tuple(v[1])) for k, v in poses.items()}
-            out.append(Keyframe(i, box, t0 + float(t), poses, collapsed))
+            out.append(Keyframe(i, box, t0 + float(t), poses, collapsed, world))
             last = float(t)
-        t0 += last
+        t0 += last + 0.3          # a short pause between pulls, so one step reads apart from the next
     return out
+
+
+def frame_at(frames: Sequence[Keyframe], t: float) -> int:
+    """Index of the last keyframe at or before time `t` (real-pace playback)."""
+    import bisect
+
+    return max(0, bisect.bisect_right([f.t for f in frames], t) - 1)
 
 
 def visible_pose(pose: tuple | None, shelf: Any) -> bool:
@@ -212,4 +251,4 @@ def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any) -> None:
 
 
 __all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "draw_outlines", "BoxNodes",
-           "risky_boxes", "Keyframe", "timeline", "apply_keyframe", "reset_boxes", "visible_pose"]
+           "risky_boxes", "Keyframe", "timeline", "frame_at", "label_position", "apply_keyframe", "reset_boxes", "visible_pose"]

@@ -4,7 +4,9 @@
 
 - `demo` (or `demo:NAME`): the shipped demo shelves `static/demo/*.json`
   (or one of them), rendered with `perception.render.render`, a new look
-  (seed) per capture, cycling through the shelves. The true scene is known,
+  (seed) per capture. After the robot worked on a shelf, the next capture
+  shows that shelf as the robot left it (the world of its last look); once
+  it is empty, the next demo shelf in turn. The true scene is known,
   so the simulated robot can execute against it. With no demo files a small
   built-in shelf is used.
 - `files:DIR`: `rgb.png`, `depth.png`, `camera.json` as written by
@@ -94,6 +96,9 @@ class DemoSource:
         self.name = name
         self._n = 0
         self._last: tuple[str, int] = (scenes[0][0], 0)   # the shelf and look number of the last capture
+        # the shelf as the robot left it (the world of its last look): the next capture shows it
+        self._worked: Scene | None = None
+        self._shelf = -1                  # index of the demo shelf shown (advanced when one is needed)
         self._lock = threading.Lock()
 
     @classmethod
@@ -110,16 +115,27 @@ class DemoSource:
         return cls(scenes, seed, name=f"demo:{pick}" if pick else "demo")
 
     def capture(self) -> Frame:
+        """The shelf the robot last worked on, as it now stands; a fresh demo shelf at the start and
+        once the robot has emptied it (the next of the demo shelves, in turn)."""
         from perception.render import render
 
         with self._lock:
             n = self._n
             self._n += 1
-        label, scene = self.scenes[n % len(self.scenes)]
+            worked, self._worked = self._worked, None
+            if worked is not None and worked.boxes:
+                label = self._last[0]
+                scene, note = worked, " (as the robot left it)"
+            else:
+                self._shelf += 1
+                label, scene = self.scenes[self._shelf % len(self.scenes)]
+                note = " (the robot emptied the last shelf: the next demo shelf)" if worked is not None else ""
         cap = _guard(f"demo:{label}", lambda: render(scene, self.camera, seed=self.seed + n))
         with self._lock:
             self._last = (label, n)
-        return Frame(cap, scene, f"demo:{label}#{n}")
+            if worked is not None and worked.boxes:
+                self._worked = worked       # until the robot changes it again: the same shelf
+        return Frame(cap, scene, f"demo:{label}#{n}{note}")
 
     def look_again(self, world: Scene | None, step: int, attempt: int = 0) -> Frame:
         """The simulated robot's true shelf as it now stands, rendered (a new look: seeded by step
@@ -128,6 +144,8 @@ class DemoSource:
 
         with self._lock:
             label, n = self._last
+            if world is not None:
+                self._worked = world
         if world is None:
             raise SourceError(f"demo:{label}: the shelf after the robot's step is not known (the demo "
                               f"renders the simulated robot's shelf; this robot is not simulated here)")

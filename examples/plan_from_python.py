@@ -41,8 +41,10 @@ def main() -> int:
         # the robot acts on the true shelf; perceived ids are matched to true boxes by position
         true_ids = [nearest(truth, seen.box(b).front_center) for b in plan.sequence]
         outcome = execute_plan(truth, true_ids, seed=args.seed)
+        # "succeeded": every box came out and nothing collapsed. (The console says "held" for a robot
+        # it stopped after a look that differed from the prediction: a word with that one meaning.)
         result[planner] = {"sequence": list(plan.sequence), "predicted_safe": plan.safe,
-                           "held": outcome.ok, "collapsed": outcome.collapsed}
+                           "succeeded": outcome.ok, "collapsed": outcome.collapsed}
     json.dump(result, sys.stdout, indent=2)
     sys.stdout.write("\n")
     return 0

@@ -35,11 +35,14 @@ def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | No
         cv2.polylines(out, [corners], True, col, 2, cv2.LINE_AA)
         text = (names or {}).get(k, str(k))
         cx, cy = (int(v) for v in rect[0])
-        scale = 0.5 if out.shape[1] <= 800 else 1.0
-        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 2)
+        # ids readable where the image is shown scaled down (the console's side panel): a text
+        # height of about 1/20 of the image width
+        scale = max(0.6, out.shape[1] / 520)
+        thick = max(2, round(2 * scale))
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
         org = (cx - tw // 2, cy + th // 2)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 4, cv2.LINE_AA)
-        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 2, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 3, cv2.LINE_AA)
+        cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return out
 
 

@@ -46,14 +46,18 @@ def test_results_table_side_by_side():
     md = results_markdown(State(plans=two_plans()))
     lines = md.splitlines()
     assert lines[0] == "| | physics | heuristic |"
-    row = {ln.split("|")[1].strip(): [c.strip() for c in ln.split("|")[2:4]] for ln in lines[2:]}
+    row = {ln.split("|")[1].strip().replace("\u00a0", " "): [c.strip().replace("\u00a0", " ")
+                                                             for c in ln.split("|")[2:4]]
+           for ln in lines[2:] if ln.startswith("|")}
     assert row["sequence"] == ["b1 → b0", "b2 → b1 → b0"]
     assert row["boxes removed"] == ["2", "3"]
-    assert row["collapse risk per step"] == ["b1 0%, b0 0%", "b2 0%, b1 50%, b0 0%"]
+    # one step a line, each item kept whole (no-break spaces) so a narrow column never splits one
+    assert row["collapse risk per step"] == ["1. b1 0%<br>2. b0 0%", "1. b2 0%<br>2. b1 50%<br>3. b0 0%"]
     assert row["est. execution (12.5 s/box)"] == ["25.0 s", "37.5 s"]
     assert row["planning time"] == ["2.25 s", "0.01 s"]
     assert row["predicted safe"] == ["yes", "**NO**"]
-    assert row["sample worlds behind the risks"] == ["20", "—"]
+    assert row["sample worlds behind the risks"] == ["20 (10 searched, 10 more to confirm it safe)", "—"]
+    assert "sample worlds: shelves the camera cannot tell apart" in md
     assert "Planning" in results_markdown(State(planning=True, progress_text="physics"))
 
 
@@ -69,7 +73,8 @@ def test_preview_timeline_from_results_and_json_hides_parked_boxes():
                {"box": "b", "collapsed": [], "frames": [[0.0, {"b": [[0.3, 0.1, 0.05], [1, 0, 0, 0]]}]]}]
     tl = timeline(as_json)
     assert [k.step for k in tl] == [0, 0, 0, 1]
-    assert tl[-1].t == pytest.approx(1.0) and tl[0].collapsed == ("b",)
+    # recorded times (real pace), a 0.3 s pause between two pulls
+    assert tl[-1].t == pytest.approx(1.3) and tl[1].t == pytest.approx(0.5) and tl[0].collapsed == ("b",)
     assert visible_pose(tl[1].poses["a"], shelf) and not visible_pose(tl[2].poses["a"], shelf)
     assert len(timeline(as_json * 50, max_frames_per_step=2)) <= 50 * 2 * 2
 

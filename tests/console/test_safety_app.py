@@ -115,6 +115,7 @@ def test_passphrase_is_cleared_even_when_refused(app):
     wf.capture()
     wf.plan("clear", wait=True)
     v.passphrase.value = "wrong wrong wrong"
+    v.accept_risk.value = True                 # else the refusal is the unticked box's, before the passphrase
     v._approve(None)
     assert v.passphrase.value == ""
     v.passphrase.value = PASS
