@@ -28,6 +28,8 @@ SECTIONS: dict[str, tuple[str, ...]] = {
     "robot": ("url", "transform", "position", "orientation") + TIMEOUTS,
     "safety": ("samples", "seed", "workers", "host", "port", "db", "tolerance_displacement",
                "tolerance_rotation", "tolerance_match_radius", "allow_origins"),
+    # the cell's stock and gripper as its sample worlds draw them, and its plan threshold (issue 32)
+    "planning": ("mass_kg", "friction", "pull_modes", "max_plan_risk"),
 }
 
 
@@ -57,6 +59,13 @@ class Cell:
     catalogue: bool = True
     robot: str | None = None                      # the robot spec open_robot takes, options included
     safety: Mapping[str, Any] = field(default_factory=dict)
+    planning: Mapping[str, Any] = field(default_factory=dict)   # the [planning] section, checked
+
+    def priors(self) -> Any:
+        """planning.priors.CellPriors from the [planning] section (defaults where not given)."""
+        from planning.priors import CellPriors
+
+        return CellPriors(**self.planning)
 
     def source_spec(self) -> str | None:
         """The console's --source with the cell's camera file as its ?camera= option."""
@@ -208,7 +217,7 @@ def _cell(doc: Mapping[str, Any], origin: str, base: Path) -> Cell:
         raise CellError(origin, "perception.catalogue", f"expected true or false, got {catalogue!r}")
     robot = _robot(sec["robot"], origin, base) if sec["robot"] else None
     return Cell(origin, shelf, source, camera_file, segmenter, weights, catalogue, robot,
-                _safety(sec["safety"], origin, base))
+                _safety(sec["safety"], origin, base), _planning(sec["planning"], origin))
 
 
 def _section(doc: Mapping[str, Any], name: str, origin: str) -> dict[str, Any]:
@@ -343,6 +352,31 @@ def _origins(value: Any, origin: str) -> tuple[str, ...]:
         except ValueError as exc:
             raise CellError(origin, "safety.allow_origins", f"{v!r}: {exc}") from None
     return tuple(out)
+
+
+def _planning(sec: Mapping[str, Any], origin: str) -> dict[str, Any]:
+    """The [planning] section as planning.priors.CellPriors' keyword arguments."""
+    from planning.uncertainty import PULL_MODES
+
+    out: dict[str, Any] = {}
+    for key, name, lo, hi in (("mass_kg", "mass", 0.01, 1000.0), ("friction", "friction", 0.01, 2.0)):
+        if key in sec:
+            v = sec[key]
+            if (not isinstance(v, list) or len(v) != 2 or any(isinstance(x, bool) or not isinstance(x, (int, float))
+                                                               or not (math.isfinite(x) and lo <= x <= hi) for x in v)
+                    or v[0] > v[1]):
+                raise CellError(origin, f"planning.{key}", f"expected [low, high] with {lo:g} <= low <= high <= {hi:g}, "
+                                                           f"got {v!r}")
+            out[name] = (float(v[0]), float(v[1]))
+    if "pull_modes" in sec:
+        v = sec["pull_modes"]
+        if not isinstance(v, list) or not v or any(m not in PULL_MODES for m in v) or len(set(v)) != len(v):
+            raise CellError(origin, "planning.pull_modes", f"expected a list of distinct modes of "
+                                                           f"{', '.join(PULL_MODES)}, got {v!r}")
+        out["pull_modes"] = tuple(v)
+    if "max_plan_risk" in sec:
+        out["max_plan_risk"] = _number(sec, "planning", "max_plan_risk", origin, lo=1e-4, hi=1.0)
+    return out
 
 
 __all__ = ["Cell", "CellError", "CELL_FORMAT", "ROBOT_NUMBERS", "check_robot_spec", "read_cell", "robot_number"]

@@ -37,6 +37,7 @@ def results_markdown(state: State) -> str:
         f"{i + 1}.{NBSP}{md(p.box)}{NBSP}{pct(p.collapse_prob)}" for i, p in enumerate(e.plan.predicted)) or "—")
     row("max risk", lambda e: pct(e.plan.risk))
     row("predicted safe", lambda e: "yes" if e.plan.safe else "**NO**")
+    row("chance of a collapse (calibrated)", lambda e: _plan_risk(e.plan))
     row("sample worlds behind the risks", lambda e: _worlds(e.plan))
     row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
         if e.scene_problems else "stands as seen")
@@ -63,6 +64,20 @@ def _planning_seconds(plan: Plan) -> float:
     t = dict(plan.timing or {})
     own = float(t["wall_s"]) if "wall_s" in t else float(t.get("planning_s", 0.0)) + float(t.get("verify_s", 0.0))
     return own + float(t.get("setup_s", 0.0))
+
+
+def _plan_risk(plan: Plan) -> str:
+    """The plan's calibrated chance of a collapse, its interval and the cell's threshold (issue 32):
+    the plan is safe when the interval's upper end is below the threshold."""
+    search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
+    g = search.get("plan_risk")
+    if not isinstance(g, dict):
+        return "—"
+    try:
+        p, hi, limit = (100.0 * float(g[k]) for k in ("probability", "high", "max_plan_risk"))
+        return f"{p:.1f}% (up to {hi:.1f}%; threshold {limit:.1f}%)"
+    except (KeyError, TypeError, ValueError):
+        return "—"
 
 
 def _worlds(plan: Plan) -> str:

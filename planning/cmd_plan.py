@@ -44,9 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=int, default=10,
                         help="depth samples per prediction for boxes of unknown depth (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the depth samples and pulls (default 0)")
-    parser.add_argument("--verify", type=int, default=10, metavar="N",
-                        help="a plan found safe is asked again of N more sample worlds and is safe only if "
-                             "it holds in all of them (default 10; 0: not asked again)")
+    parser.add_argument("--verify", type=int, default=30, metavar="N",
+                        help="the plan found is asked of up to N more sample worlds, 10 at a time, while its "
+                             "calibrated risk interval straddles --max-plan-risk (default 30; 0: only the "
+                             "search's worlds)")
+    parser.add_argument("--max-plan-risk", type=float, default=None, metavar="P",
+                        help="highest acceptable calibrated chance that the plan collapses: the plan is safe "
+                             "when the upper end of its interval is below it (default 0.05; the cell's "
+                             "planning.max_plan_risk in the console)")
     parser.add_argument("--risk", type=float, default=0.0,
                         help="highest acceptable collapse probability per step (default 0: no sample collapses)")
     parser.add_argument("--budget", type=float, default=None, metavar="SECONDS",
@@ -81,9 +86,11 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
         _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
     for why in (plan.extra.get("unexplained") or {}).get("touched", []):
         _warn(f"{why} (matter perception saw but no box explains); the plan is not safe")
-    if not plan.safe and plan.predicted and search.get("verified_worlds"):
-        _warn(f"the plan held in the search's {search.get('worlds')} sample worlds but not in all "
-              f"{search['verified_worlds']} it was then checked in: risk {plan.risk:.2f}; it is not safe")
+    gate = search.get("plan_risk")
+    if not plan.safe and plan.predicted and isinstance(gate, dict):
+        _warn(f"the plan's calibrated chance of a collapse is {gate['probability']:.3f} (up to {gate['high']:.3f}; "
+              f"it failed in {gate['failed_worlds']} of {gate['worlds']} sample worlds): not below the "
+              f"threshold {gate['max_plan_risk']:g}; it is not safe")
     if not plan.safe and plan.predicted:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
         step = plan.predicted[worst]
@@ -114,6 +121,12 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
     check_int(args.verify, "--verify", VERIFY, "a number of sample worlds")
+    from planning.calibration import DEFAULT_MAX_PLAN_RISK
+
+    if args.max_plan_risk is None:
+        args.max_plan_risk = DEFAULT_MAX_PLAN_RISK
+    if not 0.0 < args.max_plan_risk <= 1.0:
+        raise FormatError("", "--max-plan-risk", f"expected a probability in (0, 1], got {args.max_plan_risk}")
     check_int(args.seed, "--seed", SEEDS, "a seed")
     if args.workers is None:
         args.workers = 2 if (os.cpu_count() or 1) >= 2 else 1
@@ -133,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
                              seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene,
-                             workers=args.workers, verify=args.verify, model=_model(args))
+                             workers=args.workers, verify=args.verify, model=_model(args),
+                             max_plan_risk=args.max_plan_risk)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
     plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk)

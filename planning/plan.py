@@ -108,6 +108,23 @@ def _check_safe(safe: bool, predicted: tuple[StepPrediction, ...], prov: Mapping
                           "(provenance.risk)")
 
 
+def _check_gated(safe: bool, gated: Any, origin: str) -> None:
+    """A plan that says `safe: true` after the gate has the upper end of its calibrated chance of a
+    collapse below its threshold (`search.plan_risk`): the planner never writes otherwise."""
+    where = "search.plan_risk"
+    if not isinstance(gated, Mapping):
+        raise FormatError(origin, where, f"expected an object, got {gated!r}")
+    vals = {}
+    for k in ("probability", "low", "high", "max_plan_risk"):
+        v = gated.get(k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+            raise FormatError(origin, f"{where}.{k}", f"expected a probability in [0, 1], got {v!r}")
+        vals[k] = float(v)
+    if safe and not vals["high"] < vals["max_plan_risk"]:
+        raise FormatError(origin, "safe", f"true, but the plan's calibrated risk reaches {vals['high']:g}, not below "
+                          f"its threshold {vals['max_plan_risk']:g} ({where})")
+
+
 @dataclass(frozen=True)
 class Plan:
     """An ordered removal sequence and what the planner predicted for it."""
@@ -222,7 +239,12 @@ class Plan:
         """A plan file, its `safe` flag checked against its predictions (a stored session's plans
         are read as recorded, so an archive always replays)."""
         plan = cls.from_json(read_json(path), str(path))
-        _check_safe(plan.safe, plan.predicted, plan.provenance, str(path))
+        search = plan.extra.get("search")
+        gated = search.get("plan_risk") if isinstance(search, Mapping) else None
+        if gated is not None:    # a gated plan (issue 32): its claim rests on the calibrated interval
+            _check_gated(plan.safe, gated, str(path))
+        else:
+            _check_safe(plan.safe, plan.predicted, plan.provenance, str(path))
         return plan
 
     def save(self, path: str | Path) -> None:

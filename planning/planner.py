@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING, Any, Callable
 from perception.errors import FormatError
 from perception.scene import Scene
 from planning.clear import prefer_baseline, search_clear, visit_order
+from planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration
 from planning.extract import CountingOracle, search_extract, success_prob
+from planning.gate import GateResult, gate
 from planning.heuristic import heuristic_order
 from planning.oracle import Predicting, Screening, Verifying
 from planning.plan import PLANNERS, TASKS, Plan, StepPrediction
@@ -108,9 +110,10 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
 
 
 def _verdict(predicted: tuple[StepPrediction, ...], risk: float, search: dict[str, Any],
-             check: Any) -> tuple[bool, dict[str, Any]]:
-    """(safe, the plan's extra): every step within `risk`, on a shelf that stands as seen."""
-    safe = all(p.risk <= risk for p in predicted)
+             check: Any, gated: GateResult | None = None) -> tuple[bool, dict[str, Any]]:
+    """(safe, the plan's extra): the calibrated chance of a collapse surely below the plan
+    threshold (`gated`; without a gate, every step within `risk`), on a shelf that stands as seen."""
+    safe = gated.safe if gated is not None else all(p.risk <= risk for p in predicted)
     extra: dict[str, Any] = {"search": search}
     if isinstance(check, dict):
         extra["scene_check"] = check
@@ -124,7 +127,8 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
               config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
               *, budget_s: float | None = None, origin: str = "", workers: int = 1,
               model: Uncertainty | None = None, pool: "WorkerPool | None" = None,
-              clients: "ClientPool | None" = None, verify: int = 10) -> Plan:
+              clients: "ClientPool | None" = None, verify: int = 30,
+              max_plan_risk: float = DEFAULT_MAX_PLAN_RISK, calibration: Calibration | None = None) -> Plan:
     """Plan `task` ("extract" with `target`, or "clear") with the `physics` or `heuristic` planner.
 
     `predictor` (a `planning.oracle.Predicting`; a `Screening` one is used to the full) is
@@ -134,10 +138,15 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     error, the pull) and `seed` (over `workers` processes of `pool`, or of a pool
     of its own: same plan, less wait; Bullet clients from `clients` when given),
     and closed afterwards. `budget_s` bounds the physics search; when it runs out
-    the plan says so (``extra["search"]["timed_out"]``). A plan the search calls safe is
-    asked again of `verify` more sample worlds (a `Screening` predictor's), and is safe
-    only if it holds in all of them: its predictions are then over every world.
+    the plan says so (``extra["search"]["timed_out"]``). The plan found is then gated
+    (`planning.gate`): the worlds in which some step fails give a calibrated chance of a
+    collapse (`calibration`, default the fitted one) with an interval, asked of up to `verify`
+    more worlds while the interval straddles `max_plan_risk`; the plan is safe when the upper
+    end is below it. Its predictions are then over every world it was asked of.
     """
+    if isinstance(max_plan_risk, bool) or not isinstance(max_plan_risk, (int, float)) \
+            or not 0.0 < max_plan_risk <= 1.0:
+        raise FormatError(origin, "max_plan_risk", f"expected a probability in (0, 1], got {max_plan_risk!r}")
     check_request(scene, task, target, planner, samples, risk, origin)
     if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
         raise FormatError(origin, "budget", f"expected a positive number of seconds, got {budget_s!r}")
@@ -173,8 +182,17 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         check = sampling.scene_check if sampling is not None else None
         if sampling is not None:
             search["worlds"] = sampling.worlds
+        gated = None
         safe, _ = _verdict(predicted, risk, search, check)
-        if safe and verify and isinstance(predictor, Verifying):
+        if hasattr(predictor, "plan_results") and sampling is not None and sequence:
+            t1 = time.perf_counter()
+            stands = bool((check or {}).get("stands_as_seen", True))
+            gated = gate(predictor, sequence, stands, calibration or Calibration(), float(max_plan_risk),
+                         sampling.worlds, sampling.worlds + max(0, int(verify)))
+            predicted = gated.predicted
+            timing["verify_s"] = time.perf_counter() - t1
+            search["verified_worlds"] = gated.worlds
+        elif safe and verify and isinstance(predictor, Verifying):
             t1 = time.perf_counter()
             predicted = predictor.verify(sequence, verify)
             timing["verify_s"] = time.perf_counter() - t1
@@ -182,8 +200,12 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     finally:
         if own:
             predictor.close()  # type: ignore[union-attr]
-    search["success_prob"] = success_prob(predicted)
-    safe, extra = _verdict(predicted, risk, search, check)
+    search["worlds_success_prob"] = success_prob(predicted)   # prod(1 - step risk) over the worlds
+    search["success_prob"] = 1.0 - gated.probability if gated is not None else success_prob(predicted)
+    search["max_plan_risk"] = float(max_plan_risk)
+    if gated is not None:
+        search["plan_risk"] = gated.to_json()
+    safe, extra = _verdict(predicted, risk, search, check, gated)
     safe, extra = unexplained_verdict(scene, sequence, predicted, safe, extra)   # a plan touching it is not safe
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench

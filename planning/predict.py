@@ -303,6 +303,26 @@ class Predictor:
             removed = removed | {box}
         return tuple(out)
 
+    def plan_results(self, sequence: Sequence[str], total: int) -> list[list[StepResult]]:
+        """Every step of `sequence` in the first `total` sample worlds (built as needed, kept: the
+        worlds a Predictor of that many samples has), one list of per-world results per step. A
+        known shelf with nothing else drawn has one world."""
+        total = max(1, int(total)) if self._drawn else self._n
+        if total > self._built:
+            t0 = time.perf_counter()
+            self._extend(total)
+            self.stats["build_s"] += time.perf_counter() - t0
+        out = []
+        removed: frozenset[str] = frozenset()
+        for box in sequence:
+            out.append(list(self._run((removed, box), total)[:total]))
+            removed = removed | {box}
+        return out
+
+    def aggregate(self, box: str, results: list[StepResult]) -> StepPrediction:
+        """The prediction of one step over the given per-world results."""
+        return self._aggregate(box, results, len(results))
+
     def _aggregate(self, box: str, results: list[StepResult], n: int) -> StepPrediction:
         order = self._order
         collapse = sum(1 for r in results if r.collapsed)

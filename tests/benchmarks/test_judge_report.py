@@ -117,12 +117,13 @@ def test_physics_overrides_reach_the_planner() -> None:
 @pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
 def test_a_physics_row_records_the_plans_predicted_success(tmp_path: Path) -> None:
     """The plan's chance that nothing goes wrong rides along (a plan-level reliability check
-    reads it), and it agrees with the steps' risks: prod(1 - risk)."""
+    reads it). Since issue 32 it is the calibrated one (1 - search.plan_risk.probability), not
+    prod(1 - risk) over the steps' shares of failing worlds: a plan whose steps all held in every
+    world still carries the calibrated chance of a collapse."""
     out = tmp_path / "rows.jsonl"
     assert jr.main(["--judge-dir", str(JUDGE), "--tasks", "s00:b5", "--planners", "physics", "--samples", "2",
                     "--out", str(out)]) == 0
     row = json.loads(out.read_text().splitlines()[0])
-    expected = 1.0
-    for r in row["step_risk"]:
-        expected *= 1.0 - r
-    assert 0.0 <= row["success_prob"] <= 1.0 and row["success_prob"] == pytest.approx(expected, abs=1e-3)
+    assert 0.0 < row["success_prob"] < 1.0
+    if all(r == 0.0 for r in row["step_risk"]):
+        assert row["success_prob"] > 0.5

@@ -203,3 +203,39 @@ def test_sigterm_stops_the_robot_run_and_closes_the_database(tmp_path):
 def test_the_example_cell_file_reads():
     cell = read_cell(ROOT / "examples" / "cell.toml")
     assert cell.robot == "sim" and cell.shelf == (1.0, 0.30, 1.60) and cell.safety["samples"] == 10
+
+
+PLANNING = GOOD + """
+[planning]
+mass_kg = [0.5, 3.0]
+friction = [0.6, 0.8]
+pull_modes = ["lift"]
+max_plan_risk = 0.02
+"""
+
+
+def test_the_planning_section_gives_the_sample_worlds_priors_and_the_plan_threshold(tmp_path):
+    from planning.calibration import DEFAULT_MAX_PLAN_RISK
+    from planning.uncertainty import Uncertainty
+
+    priors = read_cell(write_cell(tmp_path, PLANNING)).priors()
+    assert priors.max_plan_risk == 0.02
+    model = priors.model()
+    assert model.mass == (0.5, 3.0) and model.friction == (0.6, 0.8) and model.pull_modes == ("lift",)
+    assert model.catalogue == Uncertainty().catalogue          # what the cell does not say stays the default
+    default = read_cell(write_cell(tmp_path)).priors()          # no [planning]: the documented defaults
+    assert default.max_plan_risk == DEFAULT_MAX_PLAN_RISK and default.model() == Uncertainty()
+
+
+@pytest.mark.parametrize("old, new, field, value", [
+    ("mass_kg = [0.5, 3.0]", "mass_kg = [3.0, 0.5]", "planning.mass_kg", "[3.0, 0.5]"),
+    ("friction = [0.6, 0.8]", "friction = [0.6]", "planning.friction", "[0.6]"),
+    ('pull_modes = ["lift"]', 'pull_modes = ["yank"]', "planning.pull_modes", "'yank'"),
+    ("max_plan_risk = 0.02", "max_plan_risk = 1.5", "planning.max_plan_risk", "1.5"),
+    ("max_plan_risk = 0.02", "max_risk = 0.02", "planning.max_risk", "unknown key"),
+])
+def test_a_wrong_planning_value_is_one_line_naming_the_field(tmp_path, old, new, field, value):
+    with pytest.raises(CellError) as err:
+        read_cell(write_cell(tmp_path, PLANNING.replace(old, new)))
+    msg = str(err.value)
+    assert "\n" not in msg and field in msg and value in msg, msg

@@ -194,7 +194,8 @@ def test_small_overlap_is_repaired_with_a_warning(tmp_path, capsys):
 def test_unwritable_out_is_one_line(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "free", "--planner", "heuristic",
+    # -qq: a plan one world cannot call safe warns so; the error must still be one line
+    line = _err(capsys, ["plan", "-qq", str(_stack(tmp_path)), "--target", "free", "--planner", "heuristic",
                          "--samples", "1", "--out", str(blocker / "plan.json")])
     assert "--out" in line and "cannot write" in line
 
@@ -224,15 +225,33 @@ def test_bad_verify(tmp_path, capsys):
     assert "--verify" in line and "-1" in line
 
 
-def test_a_safe_plan_is_checked_in_more_worlds_unless_told_not_to(tmp_path, capsys):
+def test_a_plan_the_worlds_cannot_yet_place_is_asked_of_more_unless_told_not_to(tmp_path, capsys):
+    """The gate (issue 32) asks more worlds only while the calibrated interval straddles
+    --max-plan-risk: a threshold between the upper ends at 10 and at 40 quiet worlds needs more than
+    10 of them, and with --verify 0 the plan stays on the search's 10 and is not safe."""
+    from planning.calibration import Calibration
+
+    cal = Calibration()
+    limit = (cal.interval(0, 10)[1] + cal.interval(0, 40)[1]) / 2
     scene = str(_stack(tmp_path))
-    assert main(["plan", scene, "--target", "top", "--workers", "1"]) == 0
+    assert main(["plan", scene, "--target", "top", "--workers", "1", "--max-plan-risk", f"{limit:.6f}"]) == 0
     checked = Plan.from_json(json.loads(capsys.readouterr().out))
-    assert main(["plan", scene, "--target", "top", "--workers", "1", "--verify", "0"]) == 0
+    assert main(["plan", scene, "--target", "top", "--workers", "1", "--verify", "0",
+                 "--max-plan-risk", f"{limit:.6f}"]) == 0
     unchecked = Plan.from_json(json.loads(capsys.readouterr().out))
-    assert checked.sequence == unchecked.sequence == ("top",) and checked.safe and unchecked.safe
-    assert checked.extra["search"]["verified_worlds"] == 20 and "verified_worlds" not in unchecked.extra["search"]
+    assert checked.sequence == unchecked.sequence == ("top",)
+    gated, plain = checked.extra["search"]["plan_risk"], unchecked.extra["search"]["plan_risk"]
+    assert plain["worlds"] == 10 and not unchecked.safe and plain["high"] >= limit
+    assert gated["worlds"] > 10 and checked.extra["search"]["verified_worlds"] == gated["worlds"]
+    assert checked.safe == (gated["failed_worlds"] == 0) and gated["high"] <= limit + 1e-4
+    assert checked.extra["search"]["max_plan_risk"] == pytest.approx(limit, abs=1e-6)
     assert checked.extra["search"]["worlds"] == unchecked.extra["search"]["worlds"] == 10
+
+
+def test_a_wrong_plan_threshold_is_one_line(tmp_path, capsys):
+    for bad in ("0", "1.5", "nan"):
+        line = _err(capsys, ["plan", str(_stack(tmp_path)), "--target", "top", "--max-plan-risk", bad])
+        assert "--max-plan-risk" in line and bad in line
 
 
 def test_the_plan_says_which_box_types_it_assumed_and_no_catalogue_turns_them_off(tmp_path, capsys):

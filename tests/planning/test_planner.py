@@ -63,8 +63,8 @@ def test_a_plan_the_search_calls_safe_is_safe_only_if_the_extra_worlds_agree():
     doubting = DoubtingPredictor(SupportGraph(GRAPH, ids=STACK.ids))
     plan = make_plan(STACK, "extract", "bot", predictor=doubting)
     assert plan.sequence == ("top", "bot") and not plan.safe
-    assert plan.predicted[-1].collapse_prob == 0.05 and plan.extra["search"]["verified_worlds"] == 20
-    assert plan.extra["search"]["success_prob"] == 0.95
+    assert plan.predicted[-1].collapse_prob == 1 / 40 and plan.extra["search"]["verified_worlds"] == 40
+    assert plan.extra["search"]["success_prob"] == 1 - 1 / 40
     unasked = make_plan(STACK, "extract", "bot", predictor=doubting, verify=0)
     assert unasked.sequence == plan.sequence and unasked.safe and "verified_worlds" not in unasked.extra["search"]
     # a plan already unsafe is not asked again: its risk stands over the search's worlds

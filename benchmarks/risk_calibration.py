@@ -1,0 +1,184 @@
+"""Our own perturbed-truth bench for the risk calibration (issue 32): collect, then fit.
+
+    .venv/bin/python benchmarks/risk_calibration.py collect --out cal.jsonl [--scenes 3] [--seed 11] [--worlds 30]
+    .venv/bin/python benchmarks/risk_calibration.py fit cal.jsonl --json planning/calibration.json \
+        --png docs/img/risk-reliability.png --md docs/results/risk-gate-fit.md
+
+`collect`: shelves from our own generator (`planning.shelves`, every kind, 8-14 boxes, seeds of
+their own), a truth drawn per shelf (`planning.bench.true_world`: true masses, another friction,
+a drag without lift, another speed and force limit), what the camera gives (`bench.observe`, 0 or
+1 cm of error). Steps come from two sources: every box pulled alone from the full shelf, and every
+step of the physics plan for a few targets per shelf (up to and including the truth's first
+collapse). Each step is asked of `--worlds` sample worlds (`Predictor.results`: the per-world
+verdicts, so a prefix of them is what fewer worlds would have said) and executed on the truth
+(`execute_plan`). One JSON line per step. The judge in ../shared/judge is never read.
+
+`fit`: the map from the fraction of collapsing worlds to a probability of collapse
+(`planning.calibration.fit`), its reliability table and diagram (held-out half of the shelves
+against the half fitted on, and all), written where asked.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import sys
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+KINDS = ("structured", "unstructured", "proud", "bridge", "lean", "overhang")
+
+
+def _world_flags(results) -> dict[str, list[int]]:
+    """Per world: collapsed, collided, stuck (0/1 each)."""
+    return {"c": [int(bool(r.collapsed)) for r in results], "x": [int(bool(r.collided)) for r in results],
+            "s": [int(r.note.startswith("stuck")) for r in results]}
+
+
+def _truth_step(st, cfg) -> dict:
+    """What the truth did at one step: our collapse verdict, and the end-state one (a box that ends
+    more than the end-of-step thresholds away; a box that rocked and came back is not counted)."""
+    end = any(d > cfg.collapse_displacement for d in st.displacement.values()) or \
+        any(a > cfg.collapse_rotation for a in st.rotation.values())
+    return {"collapse": bool(st.collapsed), "end_collapse": bool(end), "extracted": bool(st.extracted)}
+
+
+def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int, base_seed: int,
+                  truth_pull: str = "drag") -> list[dict]:
+    """Every row of one shelf at one noise level."""
+    from perception.errors import SceneError
+    from planning.bench import derive_seed, observe, true_world, TruthModel
+    from planning.execute import execute_plan
+    from planning.physics import PhysicsConfig
+    from planning.planner import make_plan
+    from planning.predict import Predictor
+    from planning.shelves import generate
+
+    name = f"{kind}-{seed}"
+    scene = generate(kind, seed, None)
+    try:
+        truth, physics, _ = true_world(scene, _truth_model(truth_pull, noise, derive_seed(base_seed, name, "lift")),
+                                       derive_seed(base_seed, name, "truth"))
+    except SceneError:
+        return []
+    seen = observe(truth, noise, derive_seed(base_seed, name, noise, "observe"))
+    plan_seed = derive_seed(base_seed, name, "plan")
+    rows: list[dict] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            counter = Predictor(seen, samples=worlds, seed=plan_seed)
+        except SceneError:
+            return []
+        planner = Predictor(seen, samples=10, seed=plan_seed)
+    stands = bool(counter.scene_check.get("stands_as_seen", True))
+    stands10 = bool(planner.scene_check.get("stands_as_seen", True))
+    common = {"scene": name, "kind": kind, "noise": noise, "n_boxes": len(scene.boxes), "truth_pull": truth_pull,
+              "truth_lift": physics.pull_lift,
+              "stands": stands, "stands10": stands10, "worlds": counter.worlds}
+    cfg = PhysicsConfig()
+    try:
+        # every box pulled alone from the full shelf
+        for i, b in enumerate(truth.ids):
+            flags = _world_flags(counter.results(frozenset(), b))
+            ex = execute_plan(truth, [b], seed=derive_seed(base_seed, name, "alone", b), config=physics)
+            rows.append(dict(common, source="alone", box=b, removed=[], **flags,
+                             **_truth_step(ex.steps[0], cfg)))
+        rng = random.Random(derive_seed(base_seed, name, "targets"))
+        for target in rng.sample(list(truth.ids), min(targets, len(truth.ids))):
+            plan = make_plan(seen, "extract", target, "physics", 10, plan_seed, predictor=planner)
+            ex = execute_plan(truth, plan.sequence, seed=derive_seed(base_seed, name, target), config=physics)
+            removed: list[str] = []
+            # every step, also past the truth's first collapse: the plan's worlds need all of them
+            for k, (b, st) in enumerate(zip(plan.sequence, ex.steps)):
+                flags = _world_flags(counter.results(frozenset(removed), b))
+                rows.append(dict(common, source="plan", target=target, step=k, steps=len(plan.sequence),
+                                 box=b, removed=list(removed), **flags, plan_ok=bool(ex.ok),
+                                 plan_safe=bool(plan.safe), **_truth_step(st, cfg)))
+                removed.append(b)
+    finally:
+        counter.close()
+        planner.close()
+    return rows
+
+
+def _truth_model(pull: str, noise: float, seed: int):
+    """The bench's truth (planning.bench.TruthModel) with the gripper's pull: `drag` (the bench's
+    own: no lift, the box rides on its support) or `lift` (the gripper lifts 3-8 mm first where
+    nothing rests on the box, as the planner's own pull does; the height drawn per shelf)."""
+    from planning.bench import TruthModel
+
+    if pull == "drag":
+        return TruthModel(noise=noise)
+    return TruthModel(noise=noise, pull_lift=round(random.Random(seed).uniform(0.003, 0.008), 4))
+
+
+def _job(args: tuple) -> list[dict]:
+    return collect_scene(*args)
+
+
+def collect(out: str, scenes: int, seed: int, worlds: int, targets: int, noises: tuple[float, ...],
+            jobs: int, truth_pull: str = "drag") -> None:
+    """Every kind x `scenes` shelves x each noise level, appended to `out` as JSON lines."""
+    todo = [(k, seed + i, nz, worlds, targets, seed, truth_pull) for k in KINDS for i in range(scenes)
+            for nz in noises]
+    done = set()
+    p = Path(out)
+    if p.exists():
+        for line in p.read_text().splitlines():
+            r = json.loads(line)
+            done.add((r["scene"], r["noise"]))
+    todo = [t for t in todo if (f"{t[0]}-{t[1]}", t[2]) not in done]
+    t0 = time.perf_counter()
+    with open(out, "a") as fh:
+        if jobs > 1:
+            from multiprocessing import get_context
+
+            with get_context("spawn").Pool(jobs) as pool:
+                for rows in pool.imap_unordered(_job, todo):
+                    fh.write("".join(json.dumps(r) + "\n" for r in rows))
+                    fh.flush()
+                    print(f"{time.perf_counter() - t0:.0f}s {rows[0]['scene'] if rows else '-'}", flush=True)
+        else:
+            for t in todo:
+                rows = _job(t)
+                fh.write("".join(json.dumps(r) + "\n" for r in rows))
+                fh.flush()
+                print(f"{time.perf_counter() - t0:.0f}s {t[0]}-{t[1]} noise {t[2]}: {len(rows)} steps", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("collect")
+    c.add_argument("--out", required=True)
+    c.add_argument("--scenes", type=int, default=3, help="shelves per kind")
+    c.add_argument("--seed", type=int, default=11)
+    c.add_argument("--worlds", type=int, default=30)
+    c.add_argument("--targets", type=int, default=3, help="plan targets per shelf")
+    c.add_argument("--noise", default="0,0.01")
+    c.add_argument("--jobs", type=int, default=1)
+    c.add_argument("--truth-pull", choices=("drag", "lift"), default="drag",
+                   help="how the truth's gripper pulls: drag (no lift, the bench's) or lift (3-8 mm first)")
+    f = sub.add_parser("fit")
+    f.add_argument("rows")
+    f.add_argument("--json")
+    f.add_argument("--png")
+    f.add_argument("--md")
+    a = ap.parse_args(argv)
+    if a.cmd == "collect":
+        collect(a.out, a.scenes, a.seed, a.worlds, a.targets, tuple(float(v) for v in a.noise.split(",")), a.jobs,
+                a.truth_pull)
+        return 0
+    from benchmarks.risk_fit import run_fit
+
+    return run_fit(a.rows, a.json, a.png, a.md)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

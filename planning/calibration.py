@@ -1,0 +1,127 @@
+"""From "this plan collapsed in k of n sample worlds" to a probability of collapse, with its interval.
+
+The sample worlds are drawn wide on purpose (docs/physics.md), so the share of them in which a plan
+collapses is not the chance that it collapses on a real shelf: measured on our own perturbed-truth
+bench, plans that collapse in 1 or 2 worlds of 10 rarely collapse on the truth (docs/planners.md,
+"A calibrated risk"). `Calibration` maps that share to a probability, fitted on the bench
+(`benchmarks/risk_calibration.py`; never on ../shared/judge), and gives an interval from the number
+of worlds behind it: the Wilson score interval of the share, pushed through the same map. A plan is
+safe when the upper end is below the cell's `max_plan_risk`; `worlds_needed` says when more worlds
+would decide a plan the interval cannot yet place on one side of it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Mapping, Sequence
+
+from perception.errors import FormatError
+
+DEFAULT_MAX_PLAN_RISK = 0.05   # the highest acceptable chance that a plan collapses (cell setting)
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+def _sigmoid(x: float) -> float:
+    if x >= 0:
+        return 1.0 / (1.0 + math.exp(-x))
+    e = math.exp(x)
+    return e / (1.0 + e)
+
+
+def wilson(k: int, n: int, z: float) -> tuple[float, float]:
+    """The Wilson score interval of a share k/n at `z` standard errors (each end one-sided)."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = k / n
+    d = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / d
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    lo = 0.0 if k <= 0 else max(0.0, centre - half)
+    hi = 1.0 if k >= n else min(1.0, centre + half)
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """p = sigmoid(intercept + slope * logit(share) + not_standing * [shelf not standing as seen]),
+    with the share of failing worlds clipped to [floor, 1 - floor]; the interval's ends are the
+    Wilson ends of the share (at `z`) through the same map."""
+
+    intercept: float = 0.0
+    slope: float = 1.0
+    not_standing: float = 0.0
+    floor: float = 0.01
+    z: float = 1.2816          # one-sided 90 % at each end
+    fitted_on: str = "not fitted: the share of failing worlds itself"
+
+    def _map(self, share: float, stands: bool) -> float:
+        s = min(max(share, self.floor), 1.0 - self.floor)
+        return _sigmoid(self.intercept + self.slope * _logit(s) + (0.0 if stands else self.not_standing))
+
+    def probability(self, k: int, n: int, stands: bool = True) -> float:
+        """The calibrated chance of a collapse for a plan that failed in `k` of `n` worlds."""
+        return self._map((k + 0.5) / (n + 1.0), stands)
+
+    def interval(self, k: int, n: int, stands: bool = True) -> tuple[float, float]:
+        """(low, high) of that chance, from how many worlds stand behind it."""
+        lo, hi = wilson(k, n, self.z)
+        return self._map(lo, stands), self._map(hi, stands)
+
+    def decided(self, k: int, n: int, threshold: float, stands: bool = True) -> bool:
+        """Whether the interval lies wholly on one side of `threshold` (more worlds would not change
+        the verdict at this confidence)."""
+        lo, hi = self.interval(k, n, stands)
+        return hi < threshold or lo >= threshold
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any], origin: str = "") -> "Calibration":
+        known = set(cls.__dataclass_fields__)
+        for k, v in doc.items():
+            if k not in known:
+                raise FormatError(origin, f"calibration.{k}", "unknown field")
+            if k != "fitted_on" and (isinstance(v, bool) or not isinstance(v, (int, float)) or v != v):
+                raise FormatError(origin, f"calibration.{k}", f"expected a number, got {v!r}")
+        return cls(**dict(doc))
+
+
+def plan_failures(per_step: Sequence[Sequence[bool]]) -> tuple[int, int]:
+    """(worlds in which some step of the plan failed, worlds) from each step's per-world verdicts
+    (every step over the same worlds): the steps of one world are not independent draws."""
+    if not per_step:
+        return 0, 0
+    n = min(len(s) for s in per_step)
+    return sum(1 for i in range(n) if any(s[i] for s in per_step)), n
+
+
+def fit(rows: Sequence[tuple[int, int, bool, bool]], floor: float = 0.01, z: float = 1.2816,
+        fitted_on: str = "", iters: int = 200) -> Calibration:
+    """Maximum-likelihood logistic fit of (k, n, stands, collapsed on the truth) rows (Newton's
+    method on three parameters, a small ridge so a bench with one kind of shelf still fits)."""
+    import numpy as np
+
+    if not rows:
+        raise ValueError("no rows to fit the calibration on")
+
+    def feats(k: int, n: int, stands: bool) -> list[float]:
+        s = min(max((k + 0.5) / (n + 1.0), floor), 1.0 - floor)
+        return [1.0, _logit(s), 0.0 if stands else 1.0]
+
+    x = np.array([feats(k, n, st) for k, n, st, _ in rows], dtype=float)
+    y = np.array([1.0 if c else 0.0 for *_, c in rows])
+    w = np.zeros(3)
+    ridge = 1e-3 * np.eye(3)
+    for _ in range(iters):
+        p = 1.0 / (1.0 + np.exp(-(x @ w)))
+        g = x.T @ (p - y) + ridge @ w
+        h = (x * (p * (1 - p))[:, None]).T @ x + ridge
+        step = np.linalg.solve(h, g)
+        w = w - step
+        if float(np.abs(step).max()) < 1e-9:
+            break
+    return Calibration(float(w[0]), float(w[1]), float(w[2]), floor, z, fitted_on)

@@ -1,0 +1,26 @@
+"""The plan table shows the calibrated chance of a collapse, its upper end and the plan threshold
+(issue 32), and nothing where a plan carries no gate (a stored plan from before)."""
+from __future__ import annotations
+
+from planning.plan import Plan, StepPrediction
+
+
+def _rows(md: str) -> dict[str, list[str]]:
+    return {ln.split("|")[1].strip(): [c.strip() for c in ln.split("|")[2:-1]]
+            for ln in md.splitlines()[2:] if ln.startswith("|")}
+
+
+def test_the_table_shows_the_calibrated_risk_and_the_threshold():
+    from console.page_markdown import results_markdown
+    from console.workflow import PlanEntry, State
+
+    gated = Plan("extract", "b0", "physics", ("b1", "b0"), (StepPrediction("b1"), StepPrediction("b0")), True,
+                 {"planning_s": 1.0}, 0, {"search": {"worlds": 10, "verified_worlds": 20, "max_plan_risk": 0.05,
+                                                     "plan_risk": {"probability": 0.0123, "low": 0.004, "high": 0.031,
+                                                                   "failed_worlds": 0, "worlds": 20,
+                                                                   "max_plan_risk": 0.05}}})
+    old = Plan("extract", "b0", "heuristic", ("b0",), (StepPrediction("b0", 0.5),), False, {"planning_s": 0.1}, 0)
+    md = results_markdown(State(plans={"physics": PlanEntry(gated, gated.content_hash()),
+                                       "heuristic": PlanEntry(old, old.content_hash())}))
+    row = _rows(md)["chance of a collapse (calibrated)"]
+    assert row == ["1.2% (up to 3.1%; threshold 5.0%)", "—"]
