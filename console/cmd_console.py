@@ -162,7 +162,8 @@ def build(args: argparse.Namespace):
         return open_robot(spec, truth=truth, seed=seed)
 
     wf = Workflow(source, store, robot_factory, passphrase, samples=args.samples, seed=args.seed,
-                  workers=workers, segmenter=segmenter, tolerance=tolerance, perceive_options=options)
+                  workers=workers, segmenter=segmenter, tolerance=tolerance, perceive_options=options,
+                  priors=cell.priors() if cell is not None else None)
     try:
         app = start_app(lambda: ConsoleApp(wf, host=args.host, port=args.port, passphrase_set=bool(given),
                                            allow_origins=tuple(args.allow_origins or ())),

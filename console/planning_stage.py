@@ -78,7 +78,7 @@ class PlanningStage(WorkflowCore):
             close_quietly(kept[1])
         self._progress(gen, 0.05, f"building {self.samples} depth samples")
         return Predictor(scene, samples=self.samples, seed=self.seed, workers=self.workers,
-                         clients=self._client_pool()), epoch
+                         clients=self._client_pool(), model=self.priors.model()), epoch
 
     def _keep(self, gen: int, epoch: int, predictor: Predictor) -> None:
         """Keep `predictor` for the next plan of this capture; closed when that is over."""
@@ -127,7 +127,7 @@ class PlanningStage(WorkflowCore):
         self._progress(gen, 0.1 + 0.85 * i / n, f"{planner} planner: searching")
         t0 = time.perf_counter()
         plan = make_plan(scene, task, target, planner=planner, samples=self.samples,
-                         seed=self.seed, predictor=predictor)
+                         seed=self.seed, predictor=predictor, max_plan_risk=self.priors.max_plan_risk)
         timing = dict(plan.timing)
         timing.setdefault("planning_s", time.perf_counter() - t0)
         if planner == "physics":

@@ -33,11 +33,13 @@ class WorkflowCore:
     def __init__(self, source: Source | None, store: SessionStore, robot_factory: RobotFactory,
                  supervisor_passphrase: str, samples: int = 10, seed: int = 0,
                  segmenter: Segmenter | None = None, workers: int = 1, throttle: Throttle | None = None,
-                 tolerance: Tolerance | None = None, perceive_options: Mapping[str, Any] | None = None) -> None:
+                 tolerance: Tolerance | None = None, perceive_options: Mapping[str, Any] | None = None,
+                 priors: Any = None) -> None:
         """`tolerance` (console.verify.Tolerance): how far a box may be from its predicted pose
         after a step before the robot is held; the look after each step needs a source with
         `look_again` (demo, files, RealSense). `perceive_options`: a cell file's `shelf` (used
-        when the source knows no truth) and `catalogue` (console/cell.py)."""
+        when the source knows no truth) and `catalogue` (console/cell.py). `priors`
+        (planning.priors.CellPriors): the cell's masses, friction, pull modes and plan threshold."""
         if not supervisor_passphrase:
             raise ValueError("a supervisor passphrase is required")
         self.source = source
@@ -49,6 +51,9 @@ class WorkflowCore:
         self.segmenter = segmenter
         self.perceive_options = dict(perceive_options or {})
         self.workers = max(1, int(workers))     # processes for the depth samples (same plans for any count)
+        from planning.priors import CellPriors
+
+        self.priors = priors if priors is not None else CellPriors()   # the cell's [planning] section
         self.throttle = throttle or Throttle()
         from console.verify import Tolerance
 

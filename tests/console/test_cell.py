@@ -239,3 +239,30 @@ def test_a_wrong_planning_value_is_one_line_naming_the_field(tmp_path, old, new,
         read_cell(write_cell(tmp_path, PLANNING.replace(old, new)))
     msg = str(err.value)
     assert "\n" not in msg and field in msg and value in msg, msg
+
+
+def test_the_console_plans_with_the_cells_priors_and_threshold(tmp_path):
+    """The cell's [planning] section reaches the console's planner: its sample worlds draw the
+    cell's pull modes and its plans are gated with the cell's threshold (recorded in the plan)."""
+    sys.path.insert(0, str(HERE))
+    from test_workflow import PASS, CodeShelfSource, small_scene
+
+    from console import cmd_console
+    from console.cli import build_parser
+
+    text = PLANNING.replace('url = "tcp://127.0.0.1:9000"', 'url = "sim"').replace(
+        "position = [0.6, 0.0, -0.2]\norientation = [1.0, 0.0, 0.0, 0.0]\nstep_timeout = 90\n", "")
+    args = build_parser().parse_args(["console", "--cell", str(write_cell(tmp_path, text)), "--port", "0",
+                                      "--no-capture", "--samples", "2", "--supervisor-passphrase", PASS])
+    parts = cmd_console.build(args)
+    wf, store = parts[1], parts[2]
+    try:
+        assert wf.priors.max_plan_risk == 0.02 and wf.priors.model().pull_modes == ("lift",)
+        wf.source = CodeShelfSource(small_scene())
+        wf.capture()
+        wf.plan("clear", wait=True)
+        search = wf.state.plans["physics"].plan.extra["search"]
+        assert search["max_plan_risk"] == 0.02 and search["plan_risk"]["max_plan_risk"] == 0.02
+    finally:
+        wf.close()
+        store.close()
