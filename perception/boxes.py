@@ -251,16 +251,67 @@ def not_a_face(f: FrontFace, mask: np.ndarray) -> str:
 
 
 # --------------------------------------------------------------------------
+MIN_PART_SIDE = 0.06     # a part cut off a merged mask is a box front at least this wide and high
+
+
+def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, depth: np.ndarray,
+                 camera: Camera, shelf: Shelf, min_px: int) -> tuple[list[np.ndarray], list[FrontFace | None], list[str]]:
+    """(masks, faces, notes): a mask that is two boxes cut by geometry (issue 31): at a depth step
+    running through it (one box behind the other), or, when it fills its rectangle too badly to be
+    one front, at the row or column that leaves well-filled parts (two boxes of one colour side by
+    side). A mask is cut only when every part measures as a box front; its faces are re-measured."""
+    from perception.faces import face_normal
+    from perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
+
+    out_m: list[np.ndarray] = []
+    out_f: list[FrontFace | None] = []
+    notes: list[str] = []
+    for i, m in enumerate(masks):
+        m = np.asarray(m, bool)
+        f = faces[i] if faces is not None else measure_front(m, depth, camera)
+        if f is not None:
+            t = off_plane_trimmed(m, f.center, face_normal(f.yaw, f.tilt), depth, camera)
+            g = measure_front(t, depth, camera) if t is not m and t.sum() >= 0.7 * m.sum() else None
+            if g is not None:
+                m, f = t, g
+        parts, how = depth_step_parts(m, depth, min_px), "cut at a depth step into"
+        if len(parts) < 2 and f is not None and not not_a_front(f, shelf) and not_a_face(f, m).startswith("fills"):
+            t = trimmed(m)
+            base = t if t.sum() >= 0.6 * m.sum() else m
+            if rect_fill(base) >= MIN_RECT_FILL:
+                parts, how = [base], "thin strands trimmed,"
+            else:
+                parts, how = rectangle_parts(base, min_px), "cut at the outline's corners into"
+        if len(parts) >= 2 or parts[0] is not m:
+            pf = [measure_front(p, depth, camera) for p in parts]
+            if all(q is not None and not (not_a_front(q, shelf) or not_a_face(q, p)) and min(q.width, q.height)
+                   >= MIN_PART_SIDE for q, p in zip(pf, parts)):
+                notes.append(f"mask {i + 1} is {len(parts)} front{'s' if len(parts) > 1 else ''}: {how} "
+                             + " and ".join(q.size_cm for q in pf if q is not None))
+                out_m.extend(parts)
+                out_f.extend(pf)
+                continue
+        out_m.append(m)
+        out_f.append(f)
+    return out_m, out_f, notes
+
+
 def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera, shelf: Shelf,
                      placeholder: float = 0.25, faces: list[FrontFace | None] | None = None,
+                     split_min_px: int | None = None,
                      ) -> tuple[list[Box], list[np.ndarray], list[FrontFace], list[str]]:
     """Measure every mask; boxes get ids b0.. ordered bottom-up then left to right.
 
     Returns boxes, the masks in the same order (mask_label = index + 1), the faces
     and warnings about masks that could not be measured. `faces`: the masks' faces when
     they were measured already (`measure_front` on the same depth), None to measure here.
+    `split_min_px`: cut masks that are two boxes (`split_merged`, parts of at least this many
+    pixels; real depth only); None: never.
     """
     warnings: list[str] = []
+    if split_min_px is not None:
+        masks, faces, cut = split_merged(masks, faces, depth, camera, shelf, split_min_px)
+        warnings.extend(cut)
     measured = faces
     faces: list[tuple[FrontFace, np.ndarray]] = []  # type: ignore[no-redef]
     for i, m in enumerate(masks):

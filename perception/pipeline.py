@@ -267,7 +267,10 @@ def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, dep
     types = catalogue if capture.depth is not None and catalogue is not None and masks and \
         catalogue_applies(measured, masks, catalogue.within(shelf.depth)) else None
     measured, completed = _complete_cut_faces(masks, measured, camera, types)
-    boxes, masks, faces, warnings = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured)
+    # masks that are two boxes (a depth step, an L outline) are cut by geometry: real depth only
+    split = _min_pixels(capture.shape) if capture.depth is not None else None
+    boxes, masks, faces, warnings = boxes_from_masks(masks, depth, camera, shelf, placeholder, faces=measured,
+                                                     split_min_px=split)
     warnings.extend(_border_warnings(boxes, masks))
     cut_notes = [f"{b.id}: {completed[id(f)]}" for b, f in zip(boxes, faces) if id(f) in completed]
     return boxes, masks, faces, warnings, cut_notes

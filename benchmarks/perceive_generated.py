@@ -1,0 +1,111 @@
+"""Segmentation figures on the TUNING frames of issue 31 (docs/perception.md, "Roles"): look `flat` of
+`benchmarks/generators` on `planning.shelves.generate` shelves, seeds 31000-31019 (even structured, odd
+unstructured). Perceived in this process (`perception.pipeline.perceive`, default segmenter); perceived
+boxes matched to true ones by front-face position as `camera_to_plan.match_fronts` does.
+
+    .venv/bin/python benchmarks/perceive_generated.py --out /tmp/tune            # figures + per-frame lines
+    .venv/bin/python benchmarks/perceive_generated.py --seeds 31004 --out /tmp/tune --keep   # one frame, overlay kept
+
+Prints a line per frame (true fronts, perceived, matched, missed true ids, unmatched perceived ids, warnings)
+and the totals. Held-out looks are refused: they are measured only by camera_to_plan.py.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+TUNE_SEEDS = range(31000, 31020)
+TUNE_LOOKS = ("flat",)
+
+
+def tune_scene(seed: int, cache: Path) -> dict:
+    """The tuning shelf of a seed (settled by planning.shelves.generate), cached as JSON."""
+    path = cache / f"shelf_{seed}.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    from planning.shelves import generate
+
+    doc = generate("structured" if seed % 2 == 0 else "unstructured", seed).to_json()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc))
+    return doc
+
+
+def one_frame(seed: int, look: str, out: Path, keep: bool) -> dict:
+    """Render, perceive in process, match: the frame's figures."""
+    import cv2
+    import numpy as np
+
+    from benchmarks.camera_to_plan import VISIBLE_PX, match_fronts, visible_fronts
+    from benchmarks.generators import write_frame
+    from perception.capture import load_capture
+    from perception.pipeline import perceive
+
+    truth = tune_scene(seed, out / "shelves")
+    folder = out / look / str(seed)
+    paths = write_frame(truth, look, 0, folder, f"tune{seed}")
+    cap = load_capture(paths["rgb"], paths["depth"], paths["camera"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t = time.perf_counter()
+        res = perceive(cap)
+        took = time.perf_counter() - t
+    seen = {k for k, n in visible_fronts(truth, folder).items() if n >= VISIBLE_PX}
+    m = match_fronts(res.scene.to_json(), truth)
+    if keep:
+        cv2.imwrite(str(folder / "overlay.png"), cv2.cvtColor(res.overlay, cv2.COLOR_RGB2BGR))
+    matched_true = {t for t, _ in m.values()}
+    return {"seed": seed, "true": len(seen), "perceived": len(res.scene.boxes), "matched": len(m),
+            "matched_true": len(matched_true & seen), "missed": sorted(seen - matched_true),
+            "unmatched": sorted(b.id for b in res.scene.boxes if b.id not in m),
+            "err": [d for _, d in m.values()], "s": took, "warnings": list(res.warnings),
+            "notes": list(res.adjustments), "median_cm": 100 * float(np.median([d for _, d in m.values()] or [np.nan]))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--look", default="flat")
+    ap.add_argument("--seeds", default=f"{TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}", help="a range A-B or a comma list")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--keep", action="store_true", help="write each frame's overlay.png")
+    ap.add_argument("-v", action="store_true", help="print warnings and notes per frame")
+    a = ap.parse_args(argv)
+    if a.look not in TUNE_LOOKS:
+        print(f"perceive_generated: --look: {a.look!r} is not a tuning look ({', '.join(TUNE_LOOKS)}); "
+              "held-out looks are measured by camera_to_plan.py only", file=sys.stderr)
+        return 2
+    seeds = ([*range(int(a.seeds.split("-")[0]), int(a.seeds.split("-")[1]) + 1)] if "-" in a.seeds
+             else [int(s) for s in a.seeds.split(",")])
+    if any(s not in TUNE_SEEDS for s in seeds):
+        print(f"perceive_generated: --seeds: only the tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}", file=sys.stderr)
+        return 2
+    rows = []
+    for s in seeds:
+        r = one_frame(s, a.look, Path(a.out), a.keep)
+        rows.append(r)
+        print(f"{s}: true {r['true']} perceived {r['perceived']} matched {r['matched_true']} "
+              f"median {r['median_cm']:.2f} cm, {r['s']:.2f} s; missed {r['missed']} unmatched {r['unmatched']}",
+              flush=True)
+        if a.v:
+            for w in r["warnings"] + r["notes"]:
+                print(f"    {w}")
+    import numpy as np
+
+    t, p = sum(r["true"] for r in rows), sum(r["perceived"] for r in rows)
+    errs = [e for r in rows for e in r["err"]]
+    print(f"TOTAL {len(rows)} frames: recall {sum(r['matched_true'] for r in rows) / t:.3f} "
+          f"precision {sum(r['matched'] for r in rows) / max(p, 1):.3f} centre median "
+          f"{100 * float(np.median(errs)):.2f} cm; perceive p50 {float(np.median([r['s'] for r in rows])):.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
