@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from perception.errors import FormatError
 from perception.scene import Scene
 from planning.clear import prefer_baseline, search_clear, visit_order
-from planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration
+from planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration, calibration_for
 from planning.extract import CountingOracle, search_extract, success_prob
 from planning.gate import GateResult, gate
 from planning.heuristic import heuristic_order
@@ -187,7 +187,8 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         if hasattr(predictor, "plan_results") and sampling is not None and sequence:
             t1 = time.perf_counter()
             stands = bool((check or {}).get("stands_as_seen", True))
-            gated = gate(predictor, sequence, stands, calibration or Calibration(), float(max_plan_risk),
+            pulls = getattr(getattr(predictor, "model", None), "pull_modes", Uncertainty().pull_modes)
+            gated = gate(predictor, sequence, stands, calibration or calibration_for(pulls), float(max_plan_risk),
                          sampling.worlds, sampling.worlds + max(0, int(verify)))
             predicted = gated.predicted
             timing["verify_s"] = time.perf_counter() - t1
