@@ -137,7 +137,7 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tupl
     for i in order:
         a = _aabb(out[i])
         bottom = a[0, 2]
-        delta, under, held = -bottom, "the floor", False
+        delta, under, held, k = -bottom, "the floor", False, None
         for j in placed:
             c = _aabb(out[j])
             if _overlap(a, c, 0) < min_contact or _overlap(a, c, 1) <= 0:
@@ -147,9 +147,14 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tupl
                 notes.append(note)
                 held = True
             if up is not None and up > delta:
-                delta, under = up, out[j].id
+                delta, under, k = up, out[j].id, j
         if held and delta < -snap:
             delta = 0.0         # its unseen back may rest on that box: the measured face stays
+        if delta < -snap and k is not None and -delta <= MAX_HIDDEN_TOP and _top_hidden(out[k]):
+            # the support's top edge was hidden behind a box in front: it is taller than it was seen
+            out[k] = _taller(out[k], -delta)
+            notes.append(f"{out[k].id}: top edge hidden, grown {-delta * 100:.1f} cm up to {out[i].id} above it")
+            delta = 0.0
         if abs(delta) > 1e-3:
             if delta > 0:
                 notes.append(f"{out[i].id}: pushed up {delta * 100:.1f} cm out of {under}")
@@ -161,6 +166,20 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tupl
             out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
         placed.append(i)
     return out, notes
+
+
+MAX_HIDDEN_TOP = 0.12    # a support whose top edge was hidden grows at most this much to carry a box
+
+
+def _top_hidden(b: Box) -> bool:
+    return bool((b.extra.get("perceived") or {}).get("top_hidden"))
+
+
+def _taller(b: Box, dz: float) -> Box:
+    """The box `dz` taller along its own z axis, its bottom where it was."""
+    ez = np.asarray(quat_to_matrix(b.orientation))[:, 2]
+    pos = np.asarray(b.position) + ez * dz / 2
+    return replace(b, size=(b.size[0], b.size[1], b.size[2] + dz), position=tuple(float(p) for p in pos))
 
 
 def _clamp(b: Box, shelf: Shelf, notes: list[str]) -> Box:
@@ -331,6 +350,11 @@ def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera,
         faces.append((f, m))
     faces.sort(key=lambda fm: (round((fm[0].center[2] - fm[0].height / 2) / 0.05), fm[0].center[0]))
     boxes = [box_from_face(f, f"b{k}", k + 1, shelf, placeholder) for k, (f, _) in enumerate(faces)]
+    if split_min_px is not None:       # real depth: where a box in front hides a face's top edge
+        from perception.repairs.merged import top_edge_hidden
+
+        boxes = [replace(b, extra={**b.extra, "perceived": {**b.extra["perceived"], "top_hidden": True}})
+                 if top_edge_hidden(m, depth) else b for b, (_, m) in zip(boxes, faces)]
     return boxes, [m for _, m in faces], [f for f, _ in faces], warnings
 
 

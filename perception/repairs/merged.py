@@ -162,3 +162,21 @@ def off_plane_trimmed(mask: np.ndarray, centre, normal: np.ndarray, depth: np.nd
     out = np.zeros_like(mask)
     out[sy, sx] = kept
     return out
+
+
+def top_edge_hidden(mask: np.ndarray, depth: np.ndarray, band: int = 4, step: float = STEP_M,
+                    share: float = 0.6) -> bool:
+    """Whether something in front hides the face's top edge: above at least `share` of the mask's
+    columns, the `band` pixels over its top pixel hold depth closer than the face by `step`."""
+    mask = np.asarray(mask, bool)
+    cols = np.flatnonzero(mask.any(axis=0))
+    if len(cols) < 5:
+        return False
+    top = np.argmax(mask[:, cols], axis=0)
+    inside = depth[np.minimum(top + 3, mask.shape[0] - 1), cols]
+    above = np.stack([depth[np.maximum(top - k, 0), cols] for k in range(1, band + 1)])
+    valid_above = np.where(above > 0, above, np.inf).min(axis=0)
+    ok = (inside > 0) & (top >= band)
+    counted = int(ok.sum())
+    hidden = int((ok & (valid_above < inside - step)).sum())
+    return counted >= 5 and hidden >= share * counted

@@ -4,6 +4,7 @@ thin strands along a neighbour's edge, a top face of the same colour seen from a
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from perception.boxes import boxes_from_masks, planar_depth
 from perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
@@ -80,3 +81,32 @@ def test_pixels_off_the_face_plane_are_trimmed() -> None:
     kept = off_plane_trimmed(mask, (0.0, 0.0, 0.8), np.array([0.0, 1.0, 0.0]), depth, CAM)
     assert kept.sum() == 105 * 200 and not kept[200:215].any()
     assert off_plane_trimmed(mask, (0.0, 0.0, 0.8), np.array([0.0, 1.0, 0.0]), planar_depth(CAM, 1.04), CAM) is mask
+
+
+def test_a_top_edge_hidden_behind_a_box_in_front_is_seen() -> None:
+    from perception.repairs.merged import top_edge_hidden
+
+    depth = planar_depth(CAM, 1.04).copy()
+    mask = _rect(200, 320, 220, 420)
+    assert not top_edge_hidden(mask, depth)
+    depth[150:200, 200:440] = 0.97                      # a box standing 7 cm proud just above
+    assert top_edge_hidden(mask, depth)
+
+
+def _box(i: str, z0: float, h: float, hidden: bool = False):
+    from perception.scene import Box
+
+    extra = {"perceived": {"top_hidden": True}} if hidden else {"perceived": {}}
+    return Box(i, (0.2, 0.2, h), (0.0, 0.1, z0 + h / 2), (1.0, 0.0, 0.0, 0.0), None, False, 1, extra)
+
+
+def test_a_box_over_a_support_whose_top_was_hidden_grows_the_support_not_drops() -> None:
+    from perception.boxes import make_valid
+
+    shelf = Shelf()
+    boxes, notes = make_valid([_box("b0", 0.0, 0.15, hidden=True), _box("b1", 0.2, 0.2)], shelf)
+    assert boxes[1].position[2] == pytest.approx(0.3) and boxes[0].size[2] == pytest.approx(0.2)
+    assert boxes[0].position[2] == pytest.approx(0.1)
+    assert any("top edge hidden" in n for n in notes)
+    boxes, _ = make_valid([_box("b0", 0.0, 0.15), _box("b1", 0.2, 0.2)], shelf)         # seen whole: dropped
+    assert boxes[1].position[2] == pytest.approx(0.25) and boxes[0].size[2] == pytest.approx(0.15)
