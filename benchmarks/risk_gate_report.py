@@ -42,6 +42,22 @@ def calibration_error(rows: Sequence[dict], bins: int = 10) -> tuple[float, list
     return ece, table
 
 
+def as_evaluate_rows(rows: Sequence[dict], engine: str) -> list[dict]:
+    """`judge_report.py` rows (one plan judged by several engines) as evaluate.py's rows for `engine`:
+    ok, declared_safe, risk = 1 - success_prob (the same plans evaluate.py makes, docs/bench.md)."""
+    out = []
+    for r in rows:
+        if "judges" not in r:
+            out.append(r)
+            continue
+        v = r["judges"].get(engine)
+        sp = r.get("success_prob")
+        out.append({"scene": r["scene"], "target": r["target"], "ok": bool(v and v["ok"]),
+                    "declared_safe": bool(r.get("declared_safe")) if v else False,
+                    "risk": None if sp is None else round(1 - sp, 4)})
+    return out
+
+
 def figures(rows: Sequence[dict]) -> dict[str, Any]:
     ok = [r for r in rows if r["ok"]]
     safe = [r for r in rows if r.get("declared_safe")]
@@ -53,7 +69,7 @@ def figures(rows: Sequence[dict]) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", nargs="+", help="LABEL=ROWS.jsonl")
+    ap.add_argument("runs", nargs="+", help="LABEL=ROWS.jsonl, or LABEL=ROWS.jsonl@ENGINE for judge_report.py rows")
     ap.add_argument("--md")
     a = ap.parse_args(argv)
     out = ["| run | ok | held, declared safe | declared safe, collapsed | risk AUC | calibration error |",
@@ -61,7 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     tables = []
     for run in a.runs:
         label, _, path = run.partition("=")
+        path, _, engine = path.partition("@")
         rows = [json.loads(x) for x in Path(path).read_text().splitlines() if x.strip().startswith("{")]
+        rows = as_evaluate_rows(rows, engine or "pybullet")
         f = figures(rows)
         held = f"{f['held_declared_safe']}/{f['ok']}" + (f" ({100 * f['held_declared_safe'] / f['ok']:.0f}%)" if f["ok"] else "")
         bad = f"{f['safe_collapsed']}/{f['declared_safe']}" + (
