@@ -87,7 +87,7 @@ def _worlds(plan: Plan) -> str:
     if not (isinstance(n, int) and not isinstance(n, bool)):
         return "—"
     if isinstance(v, int) and not isinstance(v, bool) and v > n:
-        return f"{v} ({n} searched, {v - n} more to confirm it safe)"
+        return f"{v} ({n} searched; {v - n} more asked, as the search found it safe)"
     return f"{n} (searched)"
 
 

@@ -154,6 +154,7 @@ class PreviewPlayer:
         self.frames: list[sv.Keyframe] = []
         self.risk: set[str] = set()
         self.playing = False
+        self.loaded: tuple | None = None      # (planner, plan hash, steps) of the preview loaded
         self.prev_plan = gui.add_dropdown("Preview plan", PLANNERS, initial_value=PLANNERS[0])
         self.btn_play = gui.add_button("Play", icon="player-play")
         self.btn_pause = gui.add_button("Pause", icon="player-pause")
@@ -165,18 +166,25 @@ class PreviewPlayer:
         self.slider.on_update(lambda e: self.show_frame(int(self.slider.value)))
 
     def load(self, force: bool = False) -> None:
+        """The chosen plan's preview from its first frame; the same plan again (it gained the worlds a
+        risky step is shown in) keeps its place and keeps playing."""
         with self.lock:
-            self.playing = False
             got = self.source(self.prev_plan.value)
             preview, plan = got[0], got[1]
             shown = got[2] if len(got) > 2 else {}
+            key = (self.prev_plan.value, plan.content_hash() if plan is not None else None, len(preview))
+            same, self.loaded = key == self.loaded and not force, key
+            if not same:
+                self.playing = False
             n_worlds = _worlds_of(plan)
             self.frames = sv.timeline(preview, shown=shown, worlds=n_worlds) if preview else []
             self.risk = sv.risky_boxes(plan) if plan is not None else set()
             n = len(self.frames)
             self.slider.max = max(1, n - 1)
             self.slider.disabled = n == 0
-            if self.slider.value != 0:
+            if same and n:
+                self.show_frame(min(int(self.slider.value), n - 1))
+            elif self.slider.value != 0:
                 self.slider.value = 0          # triggers show_frame(0)
             elif n:
                 self.show_frame(0)
@@ -364,7 +372,8 @@ class SupervisorPanel:
     def show_plans(self, state: State) -> None:
         """The `Plan` dropdown offers exactly the plans there are to decide on: `continue` only while
         a run is held, nothing while there are none; a choice that went away moves to what is left."""
-        names = tuple(n for n in (*PLANNERS, "continue") if n in (state.plans or {})) or ("—",)
+        open_plans = {} if state.needs_recapture else (state.plans or {})   # after a run: nothing to decide
+        names = tuple(n for n in (*PLANNERS, "continue") if n in open_plans) or ("—",)
         if tuple(self.approve_plan.options) != names:
             keep = self.approve_plan.value
             self.approve_plan.options = names

@@ -34,8 +34,10 @@ class PlanningStage(WorkflowCore):
                 self._refuse("nothing to plan: capture a shelf with boxes first")
             if st.needs_recapture:
                 self._refuse("the shelf has changed since this capture: press `Capture` again")
-            if st.planning or (self._plan_thread is not None and self._plan_thread.is_alive()):
+            if st.planning:
                 self._refuse("planning is already running; wait for it to finish")
+            if self._plan_thread is not None and self._plan_thread.is_alive():
+                self._refuse("the preview of the last plans is still being recorded; press again in a moment")
             if task == "extract" and st.target is None:
                 self._refuse("select a target box first")
             target = st.target if task == "extract" else None
@@ -104,6 +106,7 @@ class PlanningStage(WorkflowCore):
                         self._recorded.add((sid, e.hash))
             self._plans_ready(gen, entries, repairs)
             ok = True
+            self._show_collapse_worlds(gen, entries, predictor)
         except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
             traceback.print_exc()
             with self._lock:
@@ -141,10 +144,27 @@ class PlanningStage(WorkflowCore):
         from planning.predicted import predicted_shelves
 
         shelves = tuple(predicted_shelves(scene, plan.sequence, preview)) if preview else ()
-        worlds = collapse_worlds(predictor, plan) if preview else {}
         # what the operator waited for this plan (search, risks, preview), shown as its planning time
         plan = replace(plan, timing={**plan.timing, "wall_s": time.perf_counter() - t0})
-        return PlanEntry(plan, plan.content_hash(), preview, shelves, collapse_steps=worlds)
+        return PlanEntry(plan, plan.content_hash(), preview, shelves)
+
+    def _show_collapse_worlds(self, gen: int, entries: dict[str, PlanEntry], predictor: Predictor) -> None:
+        """After the plans are shown: each risky step recorded in a world where it collapses, for the
+        preview. Done after the click's answer (it costs a pull sequence per risky step); the plans
+        are the same (same hashes, recorded as they were), they only gain what the preview shows."""
+        try:
+            worlds = {p: collapse_worlds(predictor, e.plan) for p, e in entries.items() if e.preview}
+        except Exception:  # noqa: BLE001 - the preview then shows the first world only, as before
+            traceback.print_exc()
+            return
+        if not any(worlds.values()):
+            return
+        with self._lock:
+            now = self._state.plans
+            if gen != self._generation or any(now.get(p) is not e for p, e in entries.items()):
+                return          # a new capture, target or plan meanwhile: these are not shown any more
+            self._set(plans={**now, **{p: replace(e, collapse_steps=worlds[p]) for p, e in entries.items()
+                                       if worlds.get(p)}})
 
     def _plans_ready(self, gen: int, entries: dict[str, PlanEntry], repairs: tuple[str, ...]) -> None:
         phys = entries["physics"].plan
