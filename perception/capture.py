@@ -150,11 +150,23 @@ def _image_bytes(p: Path) -> np.ndarray:
         raise PerceptionError(f"{p}: empty file (0 bytes)")
     if data.startswith(b"\x89PNG") and b"IEND" not in data[-64:]:
         raise PerceptionError(f"{p}: truncated PNG (no IEND chunk at the end of its {len(data)} bytes)")
+    image_size(data, p)                 # before any decoding, the truncated-JPEG check's included
     if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(b"\xff\xd9") \
             and not _jpeg_complete(data):
         raise PerceptionError(f"{p}: truncated JPEG (no end-of-image marker in its {len(data)} bytes)")
-    image_size(data, p)
     return np.frombuffer(data, np.uint8)
+
+
+def _decode(data: np.ndarray, flags: int) -> np.ndarray | None:
+    """cv2.imdecode with fd 2 sent to /dev/null meanwhile: libpng and libjpeg print their own
+    complaints about a corrupt file there ("libpng error: IDAT: invalid block type"), a second
+    line beside the one-line error this module raises."""
+    import cv2
+
+    from perception.stdio import redirected_fds
+
+    with redirected_fds(None, os.devnull):
+        return cv2.imdecode(data, flags)
 
 
 def read_rgb(path: str | Path) -> np.ndarray:
@@ -162,9 +174,9 @@ def read_rgb(path: str | Path) -> np.ndarray:
     import cv2
 
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():          # a device, FIFO or folder: refused by _file_bytes, named as such
         raise PerceptionError(f"{p}: RGB image not found")
-    img = cv2.imdecode(_image_bytes(p), cv2.IMREAD_COLOR)
+    img = _decode(_image_bytes(p), cv2.IMREAD_COLOR)
     if img is None:
         raise PerceptionError(f"{p}: not a readable image (PNG or JPEG expected)")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
@@ -176,7 +188,7 @@ def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
     import cv2
 
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():          # a device, FIFO or folder: refused by _file_bytes, named as such
         raise PerceptionError(f"{p}: depth image not found")
     if p.suffix.lower() == ".npy":
         raw = _load_npy(p)
@@ -188,7 +200,7 @@ def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
         # float arrays are metres already; integer arrays are sensor units
         depth = raw.astype(np.float32) if raw.dtype.kind == "f" else raw.astype(np.float32) * depth_scale
     else:
-        raw = cv2.imdecode(_image_bytes(p), cv2.IMREAD_UNCHANGED)
+        raw = _decode(_image_bytes(p), cv2.IMREAD_UNCHANGED)
         if raw is None:
             raise PerceptionError(f"{p}: not a readable depth image (uint16 PNG or .npy expected)")
         if raw.ndim != 2:
@@ -218,6 +230,10 @@ def _load_npy(p: Path) -> np.ndarray:
                            else np.lib.format.read_array_header_2_0(f))
     except Exception as exc:  # noqa: BLE001 - any header failure is the file's fault
         raise PerceptionError(f"{p}: not a readable .npy depth array ({str(exc)[:200]})") from None
+    if dtype.hasobject:
+        raise PerceptionError(f"{p}: not a readable .npy depth array (Python objects, which are never unpickled)")
+    if len(shape) != 2:
+        raise PerceptionError(f"{p}: depth array must be 2-D, got shape {tuple(shape)}")
     if len(shape) == 2 and (max(shape) > MAX_IMAGE_SIDE or shape[0] * shape[1] > MAX_IMAGE_PIXELS):
         raise PerceptionError(f"{p}: depth array is {shape[1]}x{shape[0]}; at most {MAX_IMAGE_SIDE} a side and "
                               f"{MAX_IMAGE_PIXELS} values are read")
@@ -292,7 +308,7 @@ def read_masks(path: Path, shape: tuple[int, int]) -> np.ndarray:
     """The ground-truth label image beside a rendered capture: one channel, the RGB's size."""
     import cv2
 
-    raw = cv2.imdecode(_image_bytes(path), cv2.IMREAD_UNCHANGED)
+    raw = _decode(_image_bytes(path), cv2.IMREAD_UNCHANGED)
     if raw is None or raw.ndim != 2 or raw.shape != tuple(shape):
         got = "not a readable image" if raw is None else f"shape {raw.shape}"
         raise PerceptionError(f"{path}: mask image must be one channel of {shape[1]}x{shape[0]} px, got {got}")

@@ -39,14 +39,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _check_numbers(args: argparse.Namespace) -> None:
-    """Options that are sizes or distances: finite and > 0 (a scene written with a 0 m wide shelf
-    cannot be loaded again)."""
-    for flag, vals in (("--front-distance", [args.front_distance] if args.front_distance is not None else []),
-                       ("--box-size", list(args.box_size or [])), ("--shelf", list(args.shelf or []))):
+    """Options that are sizes or distances: finite, > 0 and within the scene format's bounds (a
+    scene written with a 0 m or a 1e300 m wide shelf cannot be loaded again)."""
+    from perception.scene import BOX_SIZE_M, CAMERA_POSITION_M, SHELF_M
+
+    for flag, vals, (lo, hi) in (
+            ("--front-distance", [args.front_distance] if args.front_distance is not None else [],
+             (0.05, CAMERA_POSITION_M)),
+            ("--box-size", list(args.box_size or []), BOX_SIZE_M), ("--shelf", list(args.shelf or []), SHELF_M)):
         bad = [v for v in vals if not (math.isfinite(v) and v > 0)]
         if bad:
             raise PerceptionError(f"{flag}: sizes and distances must be finite and > 0 m, got "
                                   f"{' '.join(f'{v:g}' for v in vals)}")
+        if any(not lo <= v <= hi for v in vals):
+            raise PerceptionError(f"{flag}: must be within [{lo:g}, {hi:g}] m, got {' '.join(f'{v:g}' for v in vals)}")
 
 
 def _check_depth_given(args: argparse.Namespace) -> None:

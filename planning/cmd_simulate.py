@@ -29,6 +29,9 @@ def run(args: argparse.Namespace) -> int:
     from planning.execute import execute_plan
     from planning.plan import Plan, scene_hash
 
+    from planning.cmd_plan import SEEDS, check_int
+
+    check_int(args.seed, "--seed", SEEDS, "a seed")
     if args.out:
         output_path(args.out, "--out")     # before the simulation: never onto a device, FIFO or folder
     scene = Scene.load(args.scene)

@@ -89,3 +89,58 @@ def test_case_as_a_subprocess(name: str, tmp_path: Path) -> None:
 @pytest.mark.parametrize("name", sorted(set(MANIFEST) - set(REPRESENTATIVE)))
 def test_every_case_as_a_subprocess(name: str, tmp_path: Path) -> None:
     _subprocess(name, tmp_path)
+
+
+# ---------------------------------------------------------------- the second corpus (issue 30)
+import make_fuzz  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import fuzz_cli  # noqa: E402
+
+# one or two of each kind: files, arguments, images, databases, URLs, cell files, outputs
+FUZZ_REPRESENTATIVE = ["scene-id-ansi", "scene-id-lone-surrogate", "scene-shelf-1e300", "scene-size-1e-12",
+                       "scene-camera-1e300-away", "plan-safe-risk-1", "camera-width-30000",
+                       "image-rgb-png-30000x30000", "image-depth-npy-100000-square", "image-rgb-png-bad-idat",
+                       "arg-plan-samples-1e9", "arg-console-samples-1e9", "arg-replay-id-2-70",
+                       "url-bracket-open", "url-heartbeat-0", "url-sim-delay-1e308", "cell-symlink-dev-zero",
+                       "cell-step-timeout-1e308", "db-replay-plan-not-json", "db-stats-detail-deep",
+                       "db-replay-rgb-30000", "out-plan-fifo", "out-perceive-overlay-fifo", "out-replay-html-folder"]
+FUZZ_SUBPROCESS = ["image-rgb-png-30000x30000", "arg-plan-samples-1e9", "cell-symlink-dev-zero", "db-stats-plan-deep"]
+
+
+@pytest.fixture(scope="module")
+def fuzz(tmp_path_factory) -> dict[str, "make_fuzz.FuzzCase"]:
+    return {c.name: c for c in make_fuzz.build(tmp_path_factory.mktemp("fuzz"))}
+
+
+def test_the_second_corpus_has_150_new_cases_of_every_kind(fuzz) -> None:
+    kinds = {n.split("-")[0] for n in fuzz}
+    assert len(fuzz) >= 150 and kinds == {"scene", "plan", "camera", "image", "arg", "url", "cell", "db", "out"}
+    assert not set(fuzz) & set(MANIFEST)
+    assert set(FUZZ_REPRESENTATIVE) <= set(fuzz) and set(FUZZ_SUBPROCESS) <= set(fuzz)
+
+
+@pytest.mark.parametrize("name", FUZZ_REPRESENTATIVE)
+def test_fuzz_case_in_process(name: str, fuzz, capsys) -> None:
+    case = fuzz[name]
+    t0 = time.monotonic()
+    try:
+        rc = main(list(case.argv))
+    except SystemExit as exc:        # an argparse refusal
+        rc = int(exc.code or 0)
+    seconds = time.monotonic() - t0
+    err = capsys.readouterr().err
+    assert fuzz_cli.judge(case, rc, err, seconds, 0) == (), (name, rc, err)
+
+
+@pytest.mark.parametrize("name", FUZZ_SUBPROCESS)
+def test_fuzz_case_as_a_subprocess_in_time_and_memory(name: str, fuzz) -> None:
+    r = fuzz_cli.run_case(fuzz[name], fuzz_cli.child_env())
+    assert r.problems == (), r
+
+
+@pytest.mark.slow
+def test_every_fuzz_case_as_a_subprocess(fuzz) -> None:
+    results = [fuzz_cli.run_case(c, fuzz_cli.child_env()) for c in fuzz.values()]
+    failed = [r for r in results if r.problems]
+    assert len(results) >= 150 and failed == [], fuzz_cli.summary(failed)
