@@ -255,11 +255,11 @@ def not_a_face(f: FrontFace, mask: np.ndarray) -> str:
     """Why a mask on the shelf is still no box front ('' when it can be): a ragged region filling
     its rectangle less than `MIN_RECT_FILL` (the dark edge of a machine base), or a long thin
     strip not cut by the top/left/right border (pallet boards seen from above, shelf lips)."""
-    ys, xs = np.nonzero(mask)
-    if len(xs) < 3:
+    from perception.repairs.merged import rect_fill
+
+    if int(np.count_nonzero(mask)) < 3:
         return ""
-    (_, _), (rw, rh), _ = cv2.minAreaRect(np.column_stack([xs, ys]).astype(np.float32))
-    fill = len(xs) / max(rw * rh, 1.0)
+    fill = rect_fill(mask)
     if fill < MIN_RECT_FILL:
         return f"fills only {fill:.2f} of its rectangle"
     short, long_ = sorted((f.width, f.height))

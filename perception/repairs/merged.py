@@ -73,12 +73,20 @@ def depth_step_parts(mask: np.ndarray, depth: np.ndarray, min_px: int, step: flo
 
 
 def rect_fill(mask: np.ndarray) -> float:
-    """How well a mask fills its min-area rectangle (as `boxes.not_a_face` measures it)."""
-    ys, xs = np.nonzero(mask)
-    if len(xs) < 3:
+    """How well a mask fills its min-area rectangle (pixels / rectangle area, the rectangle fitted
+    to pixel centres). Fitted to the outline on the mask's crop: the same rectangle as over every
+    pixel (the outline holds the hull), several times faster."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
         return 0.0
-    (_, _), (rw, rh), _ = cv2.minAreaRect(np.column_stack([xs, ys]).astype(np.float32))
-    return len(xs) / max(rw * rh, 1.0)
+    sy, sx = _crop(mask, 1)
+    m = mask[sy, sx].astype(np.uint8)
+    n = int(m.sum())
+    if n < 3:
+        return 0.0
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    (_, _), (rw, rh), _ = cv2.minAreaRect(np.concatenate(contours).reshape(-1, 2).astype(np.float32))
+    return n / max(rw * rh, 1.0)
 
 
 def _largest(mask: np.ndarray) -> np.ndarray:
