@@ -25,7 +25,7 @@ from perception.overlay import draw_overlay, draw_unexplained
 from perception.repairs.border_cut import complete_cut_face
 from perception.scene import Box, Scene, Shelf
 from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
-from perception.unexplained import EXPLAIN_TOL, Found, describe, find_unexplained
+from perception.unexplained import EXPLAIN_TOL, Found, candidates, describe, find_unexplained
 
 
 DEFAULT_CATALOGUE = Catalogue()
@@ -291,7 +291,8 @@ def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, label
     if capture.depth is not None:    # without a depth image nobody knows where matter is
         ids = {id(m) for m in kept}
         dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in ids]
-        found = find_unexplained(capture.depth, capture.camera, shelf, boxes, labels, dropped)
+        cand = candidates(capture.depth, capture.camera, shelf)
+        found = find_unexplained(capture.depth, capture.camera, shelf, boxes, labels, dropped, cand)
     timing["unexplained"] = time.perf_counter() - t
     t = time.perf_counter()
     props = _supports(found.regions if found is not None else (), shelf)
@@ -302,7 +303,7 @@ def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, label
     moved = max((math.dist(a.position, b.position) for a, b in zip(boxes, valid)), default=0.0)
     if found is not None and moved >= 0.01:
         t = time.perf_counter()
-        found = find_unexplained(capture.depth, capture.camera, shelf, valid, labels, dropped)
+        found = find_unexplained(capture.depth, capture.camera, shelf, valid, labels, dropped, cand)
         timing["unexplained"] += time.perf_counter() - t
     return valid, found, notes
 

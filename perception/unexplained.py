@@ -80,20 +80,29 @@ def explained_by(points: np.ndarray, box: Box, tol: float = EXPLAIN_TOL) -> np.n
             & ((np.abs(loc[:, 2]) <= h) | top))
 
 
-def unexplained_points(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: Sequence[Box],
-                       labels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(HxW mask of unexplained points, HxWx3 shelf-frame points). `labels`: the boxes' masks
-    (label = `Box.mask_label`): a box's own pixels are tested against it first, the rest
-    against every box (the same answer, fewer points to test)."""
+def candidates(depth: np.ndarray, camera: Camera, shelf: Shelf) -> tuple[np.ndarray, np.ndarray]:
+    """(HxWx3 shelf-frame points, flat indices of the valid ones inside the shelf volume that
+    the shelf itself does not explain): what every box is then asked about."""
     d = np.asarray(depth, np.float32)
     valid = np.isfinite(d) & (d > 0)
     p = point_map(camera, np.where(valid, d, 0.0).astype(np.float32))
-    flat = np.flatnonzero(inside(p, valid, shelf) & ~shelf_parts(p, shelf))
+    return p, np.flatnonzero(inside(p, valid, shelf) & ~shelf_parts(p, shelf))
+
+
+def unexplained_points(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: Sequence[Box],
+                       labels: np.ndarray | None = None,
+                       cand: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(HxW mask of unexplained points, HxWx3 shelf-frame points). `labels`: the boxes' masks
+    (label = `Box.mask_label`): a box's own pixels are tested against it first, the rest
+    against every box (the same answer, fewer points to test). `cand`: `candidates` of this
+    depth, when known already."""
+    d = np.asarray(depth, np.float32)
+    p, flat = cand if cand is not None else candidates(depth, camera, shelf)
     pts = p.reshape(-1, 3)[flat]
     keep = np.ones(len(flat), bool)
     if labels is not None and len(flat):
         lab = labels.ravel()[flat]
-        order = np.argsort(lab, kind="stable")
+        order = np.argsort(lab)
         sorted_lab = lab[order]
         for b in boxes:
             if b.mask_label is None:
@@ -175,11 +184,12 @@ def _why(sel: np.ndarray, dropped: Sequence[tuple[int, np.ndarray]]) -> str:
 
 def find_unexplained(depth: np.ndarray, camera: Camera, shelf: Shelf, boxes: Sequence[Box],
                      labels: np.ndarray | None = None,
-                     dropped: Sequence[tuple[int, np.ndarray]] = ()) -> Found:
+                     dropped: Sequence[tuple[int, np.ndarray]] = (),
+                     cand: tuple[np.ndarray, np.ndarray] | None = None) -> Found:
     """The unexplained regions of a capture (see the module docstring), biggest first, ids u0..
-    `labels`: the boxes' mask labels (a speed-up only); `dropped`: (mask number, mask) of the
-    masks perception refused, named in the regions they make up."""
-    raw, p = unexplained_points(depth, camera, shelf, boxes, labels)
+    `labels`: the boxes' mask labels and `cand` (`candidates` of this depth): speed-ups only;
+    `dropped`: (mask number, mask) of the masks perception refused, named in the regions."""
+    raw, p = unexplained_points(depth, camera, shelf, boxes, labels, cand)
     h, w = raw.shape
     out = np.zeros((h, w), np.uint16)
     if not raw.any():
