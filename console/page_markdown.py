@@ -41,6 +41,8 @@ def results_markdown(state: State) -> str:
     row("sample worlds behind the risks", lambda e: _worlds(e.plan))
     row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
         if e.scene_problems else "stands as seen")
+    if any(_touched(state.plans[c].plan) is not None for c in cols):    # issue 31: matter no box explains
+        row("unexplained matter", lambda e: "<br>".join(md(t) for t in _touched(e.plan) or ()) or "not touched")
     row(f"est. execution ({SECONDS_PER_BOX:g}{NBSP}s/box)", lambda e: f"{e.est_seconds:.1f}{NBSP}s")
     row("planning time", lambda e: f"{_planning_seconds(e.plan):.2f}{NBSP}s"
         if e.plan.planner != "continue" else "—")
@@ -64,6 +66,15 @@ def _planning_seconds(plan: Plan) -> float:
     t = dict(plan.timing or {})
     own = float(t["wall_s"]) if "wall_s" in t else float(t.get("planning_s", 0.0)) + float(t.get("verify_s", 0.0))
     return own + float(t.get("setup_s", 0.0))
+
+
+def _touched(plan: Plan) -> list[str] | None:
+    """Why the plan touches unexplained matter (planning/unexplained.py; [] when it does not), None
+    when its scene had none."""
+    doc = (plan.extra or {}).get("unexplained")
+    if not isinstance(doc, dict):
+        return None
+    return [str(t) for t in doc.get("touched") or [] if isinstance(t, str)]
 
 
 def _plan_risk(plan: Plan) -> str:

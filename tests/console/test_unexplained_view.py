@@ -44,3 +44,21 @@ def test_a_scene_without_regions_draws_nothing(server):
 
     assert draw_unexplained(server.scene, _scene()) == []
     assert draw_unexplained(server.scene, Scene(Shelf(), ())) == []
+
+
+def test_the_plan_table_says_what_touches_unexplained_matter():
+    from console.page_markdown import results_markdown
+    from console.workflow import PlanEntry, State
+    from planning.plan import Plan, StepPrediction
+
+    touched = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), False, {}, 0,
+                   {"unexplained": {"regions": ["u0"], "touched": ["step 1: pulling b0 touches unexplained matter u0"]}})
+    clear = Plan("extract", "b0", "heuristic", ("b0",), (StepPrediction("b0"),), True, {}, 0,
+                 {"unexplained": {"regions": ["u0"], "touched": []}})
+    plans = {"physics": PlanEntry(touched, touched.content_hash()), "heuristic": PlanEntry(clear, clear.content_hash())}
+    md = results_markdown(State(plans=plans))
+    row = next(ln for ln in md.splitlines() if ln.startswith("| unexplained matter |"))
+    assert "pulling b0 touches unexplained matter u0" in row and "not touched" in row   # escaped: outside text
+    plain = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), True, {}, 0, {})
+    md = results_markdown(State(plans={"physics": PlanEntry(plain, plain.content_hash())}))
+    assert "unexplained matter" not in md          # a scene without regions: no row
