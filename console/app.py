@@ -195,7 +195,8 @@ class ClientView:
     def _highlight(self) -> None:
         target = self.replay.target if self.replay is not None else self.wf.state.target
         risk = set(self.preview.risk)
-        dev = self.wf.state.deviation if self.replay is None else None
+        st = self.wf.state
+        dev = st.deviation if self.replay is None and st.robot == "held" else None   # shown while held
         look = self.shown_look if self.replay is not None else None
         if look is not None:
             risk = set(look.differ_o)
