@@ -18,7 +18,7 @@ import math
 import os
 import time
 import warnings
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
@@ -26,6 +26,7 @@ import numpy as np
 
 from perception.errors import FormatError, SceneError, ShelfpickError
 from perception.scene import Scene, quat_to_matrix, read_json, write_json
+from planning.bench_config import BenchConfig, TruthModel
 from planning.bench_report import (
     TIMING_KEYS,
     comparable,
@@ -39,7 +40,6 @@ from planning.physics import PhysicsConfig
 from planning.planner import make_plan
 from planning.predict import Predictor
 from planning.sim import ShelfSim
-from planning.uncertainty import Uncertainty
 
 __all__ = ["BenchConfig", "Job", "RecordLog", "TruthModel", "comparable", "derive_seed", "draw_truth",
            "observe", "read_records", "TIMING_KEYS", "run_bench", "run_scene", "summarize", "to_markdown", "true_world"]
@@ -47,57 +47,6 @@ __all__ = ["BenchConfig", "Job", "RecordLog", "TruthModel", "comparable", "deriv
 
 RECORDS = "records.jsonl"
 RUN_META = "run.json"
-
-
-@dataclass(frozen=True)
-class TruthModel:
-    """How the bench's truth differs from what the planner is given and assumes (docs/bench.md).
-
-    The planner sees front faces only (depth unknown, no masses) with `noise` m of
-    perception error on each front-face centre and size; the plan runs on the true
-    shelf with true masses and a physics drawn per scene: another friction, a pull of
-    another speed and force limit, without the planner's lift.
-    """
-
-    noise: float = 0.01                                   # m, sd per axis of a front face's centre and size
-    mass: tuple[float, float] = (0.3, 5.0)                # kg per box (kept where the scene gives one)
-    friction: tuple[float, float] = (0.5, 0.9)
-    pull_speed: tuple[float, float] = (0.15, 0.35)        # m/s (the planner assumes 0.5)
-    pull_force: tuple[float, float] = (100.0, 200.0)      # N
-    pull_lift: float = 0.0                                # m: a drag, no lift
-    stand_tolerance: float = 0.015                        # m a true box may move while the truth settles
-    draws: int = 6                                        # truth draws tried before a scene is given up
-
-    def to_json(self) -> dict:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
-
-
-@dataclass(frozen=True)
-class BenchConfig:
-    planners: tuple[str, ...] = ("physics", "heuristic")
-    samples: int = 10
-    seed: int = 0
-    exhaustive_max_boxes: int = 8
-    robot_time: float = 12.5
-    # False: every target gets a fresh Predictor and its build counts in plan_s, which is
-    # what an operator waits for. True: one Predictor per scene shared by all its targets
-    # (faster throughput; later targets reuse cached trials, so plan_s understates latency).
-    shared_predictor: bool = False
-    # the truth plans are judged on: a perturbed one (default), or None for the planner's own
-    # world (depths hidden, nothing else differs: the old bench, which flatters the planner)
-    truth: TruthModel | None = TruthModel()
-    # the planner's prior that a face of a stock box type has that type's depth (Uncertainty.catalogue)
-    catalogue: bool = True
-
-    def model(self) -> Uncertainty:
-        """What the planner draws per sample world."""
-        return Uncertainty() if self.catalogue else Uncertainty(catalogue=())
-
-    def to_json(self) -> dict:
-        d = asdict(self)
-        d["planners"] = list(self.planners)
-        d["truth"] = None if self.truth is None else self.truth.to_json()
-        return d
 
 
 def derive_seed(*parts: Any) -> int:

@@ -7,12 +7,10 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
 from perception.scene import write_json
-
-if TYPE_CHECKING:  # pragma: no cover
-    from planning.bench import BenchConfig
+from planning.bench_config import BenchConfig
 
 # fields of a record that are measurements of the machine, not results
 TIMING_KEYS = ("plan_s", "setup_s", "exec_wall_s", "exhaustive_s", "worker")
