@@ -196,3 +196,18 @@ def test_the_scene_schema_takes_regions_and_refuses_what_the_loader_refuses():
     assert list(check.iter_errors(bad))
     with pytest.raises(FormatError):
         Scene.from_json(bad)
+
+
+def test_shelfpick_plan_warns_what_touches_the_matter(tmp_path, capsys):
+    from console.cli import main
+
+    path = tmp_path / "scene.json"
+    pair(BESIDE_B).save(path)
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(path), "--task", "extract", "--target", "b", "--samples", "2", "--workers", "1",
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "step 1: pulling b touches unexplained matter u0 (matter perception saw but no box explains); " \
+           "the plan is not safe" in err
+    plan = json.loads(out.read_text())
+    assert plan["safe"] is False and plan["unexplained"]["touched"] == ["step 1: pulling b touches unexplained matter u0"]
