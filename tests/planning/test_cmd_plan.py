@@ -213,6 +213,9 @@ def test_workers_give_the_same_plan(tmp_path, capsys):
         plans.append(Plan.load(out))
     assert plans[0].sequence == plans[1].sequence == ("top", "bot")
     assert [p.risk for p in plans[0].predicted] == [p.risk for p in plans[1].predicted]
+    # the gate asks the same worlds whatever the worker count: the same calibrated verdict
+    assert plans[0].extra["search"]["plan_risk"] == plans[1].extra["search"]["plan_risk"]
+    assert plans[0].safe == plans[1].safe
 
 
 def test_bad_workers(tmp_path, capsys):
