@@ -10,14 +10,11 @@ from __future__ import annotations
 
 import heapq
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 from scipy import ndimage
 
-if TYPE_CHECKING:
-    from perception.segment_photo import PhotoConfig
+from perception.photo_config import PhotoConfig
 
 
 @dataclass(frozen=True)
