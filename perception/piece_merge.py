@@ -11,14 +11,11 @@ face), not how the image is cut.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 from scipy import ndimage
 
-if TYPE_CHECKING:
-    from perception.segment_depth import DepthEdgeConfig
+from perception.depth_edge_config import DepthEdgeConfig
 
 
 def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
