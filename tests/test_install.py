@@ -1,16 +1,22 @@
 """The wheel installs on its own: built from this checkout, installed into a clean venv (core
 dependencies only, numpy and pybullet, from the package index), it plans and simulates from the
-demo shelves it carries, and a command that needs an extra says which in one line.
+demo shelves it carries, and a command that needs an extra says which in one line. `make run` on
+a copy of the checkout installs the console without torch and starts it.
 
-Slow (venvs and up to ~760 MB of wheels: 20-35 s a test with pip's cache warm); `make test-all` runs them.
+Slow (venvs and up to ~900 MB of wheels: 20-90 s a test with pip's cache warm); `make test-all` runs them.
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
+import signal
+import sqlite3
 import subprocess
 import sys
+import time
+import urllib.request
 import venv
 import zipfile
 from pathlib import Path
@@ -50,7 +56,7 @@ def wheel(tmp_path_factory) -> Path:
 
 def test_the_wheel_carries_weights_demo_shelves_and_the_license(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    assert "static/weights/shelfpick-seg.pt" in names
+    assert {"static/weights/shelfpick-seg.pt", "static/weights/shelfpick-learned.onnx"} <= names
     assert {f"static/demo/{p.name}" for p in (ROOT / "static" / "demo").glob("*.json")} <= names
     assert any(n.endswith("licenses/LICENSE") for n in names)
     assert not any(n.startswith(("tests/", "benchmarks/")) for n in names)
@@ -105,14 +111,16 @@ def test_the_yolo_segmenter_finds_its_weights_in_the_installed_wheel(wheel, tmp_
 
 
 def test_perception_extra_renders_and_perceives_from_a_clean_venv(wheel, tmp_path):
-    """`pip install 'shelfpick[perception]'` (opencv, scipy, pillow, tqdm; ~760 MB): the default
-    segmenter runs without torch, on a render of the wheel's demo shelf, and plans on the result."""
+    """`pip install 'shelfpick[perception]'` (opencv, scipy, pillow, tqdm, onnxruntime; ~850 MB): the
+    default segmenter, the learned one on ONNX Runtime, runs without torch on a render of the wheel's
+    demo shelf, and plans on the result; `--segmenter yolo` names the `train` extra in one line."""
     env_dir = tmp_path / "venv"
     venv.EnvBuilder(with_pip=True).create(env_dir)
     py = env_dir / "bin" / "python"
     proc = run([str(py), "-m", "pip", "install", "-q", f"shelfpick[perception] @ {wheel.as_uri()}"], tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert "torch" not in run([str(py), "-m", "pip", "freeze"], tmp_path).stdout.lower()
+    freeze = run([str(py), "-m", "pip", "freeze"], tmp_path).stdout.lower()
+    assert "torch" not in freeze and "onnxruntime" in freeze
     exe = str(env_dir / "bin" / "shelfpick")
     site = run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path).stdout.strip()
     demo = str(Path(site) / "static" / "demo" / "demo-small-6.json")
@@ -122,6 +130,53 @@ def test_perception_extra_renders_and_perceives_from_a_clean_venv(wheel, tmp_pat
                     "cap/camera.json", "--out", "scene.json"], tmp_path)
     assert perceive.returncode == 0, perceive.stderr
     scene = json.loads((tmp_path / "scene.json").read_text())
-    assert len(scene["boxes"]) == 6
+    assert len(scene["boxes"]) == 6 and scene["source"]["segmenter"] == "learned"
+    yolo = run([exe, "perceive", "--rgb", "cap/rgb.png", "--depth", "cap/depth.png", "--camera", "cap/camera.json",
+                "--segmenter", "yolo", "--out", "y.json"], tmp_path)
+    assert yolo.returncode == 2 and "shelfpick[train]" in yolo.stderr and len(yolo.stderr.strip().splitlines()) == 1
     plan = run([exe, "plan", "scene.json", "--task", "clear", "--planner", "heuristic"], tmp_path)
     assert plan.returncode == 0 and json.loads(plan.stdout)["task"] == "clear", plan.stderr
+
+
+def _wait_for(proc: subprocess.Popen, log: Path, pattern: str, timeout: float) -> re.Match:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        m = re.search(pattern, log.read_text(errors="replace"))
+        if m or proc.poll() is not None:
+            break
+        time.sleep(1)
+    assert m, log.read_text(errors="replace")[-2000:]
+    return m
+
+
+def test_make_run_installs_the_console_without_torch_and_starts_it(tmp_path):
+    """Issue 34: `make run` on a fresh copy of the checkout installs `.[console]` only (no torch,
+    `.venv` <= 1.5 GB; it was 7.0 GB), starts the console on the demo shelf, whose first capture
+    the learned segmenter perceives (on ONNX Runtime), serves its page, and stops on SIGTERM."""
+    repo = source_copy(tmp_path / "repo")
+    python = f"python{sys.version_info.major}.{sys.version_info.minor}"
+    proc = run(["make", ".venv/.installed-run", f"PY={shutil.which(python) or sys.executable}"], repo, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    size = int(subprocess.run(["du", "-sk", str(repo / ".venv")], capture_output=True, text=True).stdout.split()[0])
+    assert size <= 1.5 * 2**20, f".venv is {size / 2**20:.2f} GiB"
+    freeze = run([str(repo / ".venv" / "bin" / "python"), "-m", "pip", "freeze"], repo).stdout.lower()
+    assert "torch" not in freeze and "ultralytics" not in freeze and "onnxruntime" in freeze
+    assert not (repo / ".venv" / ".installed").exists()        # the full install is make test's
+    log = tmp_path / "run.log"
+    with open(log, "w") as f:
+        console = subprocess.Popen(["make", "run"], cwd=repo, stdout=f, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
+    try:
+        url = _wait_for(console, log, r"shelfpick console: (http://\S+)", 300).group(1)
+        _wait_for(console, log, r"first capture: captured demo", 300)
+        with urllib.request.urlopen(url, timeout=30) as page:
+            assert page.status == 200 and b"<html" in page.read(4096).lower()
+        db = sqlite3.connect(f"file:{repo / 'data' / 'shelfpick.db'}?mode=ro", uri=True)
+        sources = [json.loads(doc).get("source", {}) for (doc,) in db.execute("select scene from scenes where kind = 'perceived'")]
+        db.close()
+        assert sources and all(s.get("segmenter") == "learned" for s in sources), sources
+    finally:
+        os.killpg(console.pid, signal.SIGTERM)
+        console.wait(timeout=60)
+    assert "stopped by SIGTERM" in log.read_text()
+
