@@ -1,7 +1,10 @@
 """What every repair step works with: the capture (`RepairContext`), a mask's measured face
-(`Measured`, memoised per call in a `FaceCache`), and the masks next to a mask."""
+(`Measured`, memoised per call in a `FaceCache`), and the masks next to a mask (on a face's plane:
+`plane_dist`, here because `neighbour_pieces` needs it and `perception.repairs.planes` needs
+`RepairContext`)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -9,9 +12,9 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from perception.faces import FrontFace, measure_front
+from perception.faces import FrontFace, face_axes, measure_front
+from perception.geometry import backproject
 from perception.masks import border_sides
-from perception.repairs.planes import plane_dist
 from perception.scene import Camera
 
 if TYPE_CHECKING:
@@ -107,3 +110,17 @@ def neighbour_pieces(i: int, masks: list[np.ndarray], ctx: RepairContext,
             continue
         out.append(j)
     return out
+
+
+def plane_dist(face: FrontFace, mask: np.ndarray, ctx: RepairContext) -> float:
+    """Median distance (m) of the mask's depth points to the plane of `face`."""
+    depth = ctx.depth
+    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    if len(xs) < 10:
+        return math.inf
+    if len(xs) > 3000:
+        st = len(xs) // 3000 + 1
+        ys, xs = ys[::st], xs[::st]
+    p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64), depth[ys, xs].astype(np.float64))
+    n = face_axes(face)[:, 1]
+    return float(np.median(np.abs((p - np.asarray(face.center)) @ n)))

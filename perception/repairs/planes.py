@@ -2,18 +2,15 @@
 pieces joined with the unclaimed on-plane pixels between them."""
 from __future__ import annotations
 
-import math
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 
 from perception.faces import FrontFace, face_axes
 from perception.geometry import backproject, ray_plane
+# plane_dist lives with RepairContext (neighbour_pieces measures with it); named here too, beside
+# the other on-plane measures, for the steps that import it from here
+from perception.repairs.measure import RepairContext, plane_dist
 from perception.scene import Camera
-
-if TYPE_CHECKING:
-    from perception.repairs.measure import RepairContext
 
 
 def coords(face: FrontFace, mask: np.ndarray,
@@ -35,21 +32,7 @@ def extent(v: np.ndarray, q: float = 0.02) -> float:
     return float(hi - lo) / (1 - 2 * q)
 
 
-def plane_dist(face: FrontFace, mask: np.ndarray, ctx: "RepairContext") -> float:
-    """Median distance (m) of the mask's depth points to the plane of `face`."""
-    depth = ctx.depth
-    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
-    if len(xs) < 10:
-        return math.inf
-    if len(xs) > 3000:
-        st = len(xs) // 3000 + 1
-        ys, xs = ys[::st], xs[::st]
-    p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64), depth[ys, xs].astype(np.float64))
-    n = face_axes(face)[:, 1]
-    return float(np.median(np.abs((p - np.asarray(face.center)) @ n)))
-
-
-def plane_res(face: FrontFace, where: np.ndarray, ctx: "RepairContext") -> np.ndarray:
+def plane_res(face: FrontFace, where: np.ndarray, ctx: RepairContext) -> np.ndarray:
     """Per pixel of `where`, the distance (m) of its depth point to the plane of `face`
     (inf where there is no depth or outside `where`)."""
     depth = ctx.depth
@@ -62,7 +45,7 @@ def plane_res(face: FrontFace, where: np.ndarray, ctx: "RepairContext") -> np.nd
     return out
 
 
-def on_plane(face: FrontFace, where: np.ndarray, ctx: "RepairContext", tol: float) -> np.ndarray:
+def on_plane(face: FrontFace, where: np.ndarray, ctx: RepairContext, tol: float) -> np.ndarray:
     """The pixels of `where` whose depth point lies within `tol` of the plane of `face`."""
     depth = ctx.depth
     out = np.zeros_like(where)
@@ -101,7 +84,7 @@ def min_area_rect(m: np.ndarray) -> np.ndarray:
 
 
 def join_on_plane(a: np.ndarray, b: np.ndarray, face: FrontFace, taken: np.ndarray,
-                  ctx: "RepairContext") -> tuple[np.ndarray, float]:
+                  ctx: RepairContext) -> tuple[np.ndarray, float]:
     """Two pieces joined with the unclaimed pixels between them that lie on their plane (a
     label, a tape edge, the depth holes of a seam), within the union's min-area rectangle;
     and how well that fills the rectangle."""
@@ -127,7 +110,7 @@ def join_on_plane(a: np.ndarray, b: np.ndarray, face: FrontFace, taken: np.ndarr
     return out, fill
 
 
-def _add_on_plane(cand: np.ndarray, free: np.ndarray, face: FrontFace, ctx: "RepairContext",
+def _add_on_plane(cand: np.ndarray, free: np.ndarray, face: FrontFace, ctx: RepairContext,
                   y0: int, x0: int) -> None:
     """Set the pixels of `free` (a crop at y0, x0) whose depth point lies on the face's plane."""
     d = ctx.depth[y0:y0 + free.shape[0], x0:x0 + free.shape[1]]
