@@ -68,6 +68,23 @@ class RobotRun(WorkflowCore):
             j.close()
         super().close()
 
+    def _run_elsewhere(self, action: str) -> None:
+        """Refuse `action` while a run of a live console (another process, or this one's last run whose
+        records still wait) is open on this database; `store.start_run` checks it again, atomically."""
+        active = getattr(self.store, "active_run", None)
+        try:
+            row = active() if active is not None else None
+        except Exception:  # noqa: BLE001 - cannot tell: the start's own check decides
+            return
+        if row is None:
+            return
+        if row["owner"] == getattr(self.store, "owner", None):
+            self._refuse(f"{action} refused: this console's last run (plan {row['plan_hash']}) is still open "
+                         f"in the database: its records wait to be committed")
+        self._refuse(f"{action} refused: another console ({row['owner']}) is running plan {row['plan_hash']} of "
+                     f"session {row['session_id']} on this database; one run at a time: wait for it to end "
+                     f"or press Stop there")
+
     def execute(self, wait: bool = False) -> State:
         """Send the approved plan to the robot on a background thread, once its start is committed."""
         with self._lock:

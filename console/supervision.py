@@ -92,6 +92,7 @@ class Supervision(WorkflowCore):
             if self._state.needs_recapture:
                 self._refuse("approval refused: the shelf has changed, capture and plan again")
             self._held("approval")
+            self._run_elsewhere("approval")   # one run at a time per database (console/robot_run.py)
             risk_note = self._risk_note(entry, accept_risk)
         self._authenticate(plan_hash, passphrase, who, "approval", client)
         with self._lock:   # the state may have moved while the passphrase was checked

@@ -11,20 +11,44 @@ from __future__ import annotations
 
 import math
 import random
-from typing import TYPE_CHECKING
+from typing import Iterable, Protocol, runtime_checkable
 
-from perception.scene import quat_to_matrix, xyzw_to_wxyz
+from perception.scene import Quat, Vec3, quat_to_matrix, xyzw_to_wxyz
+from planning.bullet_clients import Client
 from planning.geometry3 import dist, matvec, norm, rot_angle_deg
+from planning.physics import PhysicsConfig
 from planning.step_result import Frame, StepResult
 
-if TYPE_CHECKING:
-    from planning.sim import ShelfSim
+
+@runtime_checkable
+class PullWorld(Protocol):
+    """What a pull needs of the world it runs in: `ShelfSim`'s members "for a pull trial".
+    Declared here, by the pull, so that this module does not import the simulation that calls it
+    (`ShelfSim.remove` runs `pull(self, ...)`)."""
+
+    @property
+    def client(self) -> Client: ...
+    @property
+    def config(self) -> PhysicsConfig: ...
+    @property
+    def ids(self) -> tuple[str, ...]: ...
+    @property
+    def gripper_body(self) -> int: ...
+    def body(self, box_id: str) -> int: ...
+    def half_extents(self, box_id: str) -> tuple[float, float, float]: ...
+    def frozen_twins(self) -> dict[str, int]: ...
+    def active(self) -> list[str]: ...
+    def free_lift(self, box_id: str) -> float: ...
+    def raw_poses(self, ids: Iterable[str]) -> dict[str, tuple[Vec3, Quat]]: ...
+    def step(self) -> None: ...
+    def park(self, bid: str) -> None: ...
+    def park_gripper(self) -> None: ...
 
 
 class CollapseMonitor:
     """The other boxes of a step: when each started moving, and when its collapse became certain."""
 
-    def __init__(self, sim: "ShelfSim", others: list[str]) -> None:
+    def __init__(self, sim: PullWorld, others: list[str]) -> None:
         self.p, self.cfg = sim.client, sim.config
         self.others = others
         self.bodies = [sim.body(b) for b in others]
@@ -111,7 +135,7 @@ class _SetPoint:
 class PullTrial:
     """The state of one pull: the drive's target, the vibration, the contacts, the frames."""
 
-    def __init__(self, sim: "ShelfSim", box_id: str, seed: int, record: bool) -> None:
+    def __init__(self, sim: PullWorld, box_id: str, seed: int, record: bool) -> None:
         self.sim, self.box_id, self.record = sim, box_id, record
         p, cfg = sim.client, sim.config
         self.p, self.cfg = p, cfg
@@ -133,7 +157,7 @@ class PullTrial:
         self.note = ""
         self._geometry(sim)
 
-    def _geometry(self, sim: "ShelfSim") -> None:
+    def _geometry(self, sim: PullWorld) -> None:
         p, cfg, dt = self.p, self.cfg, self.cfg.time_step
         self.pos0, self.orn0 = p.getBasePositionAndOrientation(self.body)
         pos0 = self.pos0
@@ -281,7 +305,7 @@ class PullTrial:
                           tuple(self.frames), round(self.step * cfg.time_step, 6), self.note)
 
 
-def pull(sim: "ShelfSim", box_id: str, seed: int, record: bool, stop_on_collapse: bool) -> StepResult:
+def pull(sim: PullWorld, box_id: str, seed: int, record: bool, stop_on_collapse: bool) -> StepResult:
     """Pull `box_id` out of `sim` and judge the step (see `ShelfSim.remove`)."""
     trial = PullTrial(sim, box_id, seed, record)
     extracted = trial.drive(stop_on_collapse)

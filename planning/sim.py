@@ -29,7 +29,7 @@ from planning.overlap_repair import repair_overlaps
 from planning.physics import PhysicsConfig
 from planning.pull import pull
 from planning.step_result import StepResult
-from planning.unexplained import add_obstacles
+from planning.unexplained import obstacles
 
 _PARK_X0 = 50.0      # parked boxes are put far from the shelf, out of the broadphase
 _PARK_DX = 3.0
@@ -62,7 +62,8 @@ class ShelfSim:
         self._boxes: dict[str, Box] = {b.id: b for b in scene.boxes}
         self._static: dict[int, str] = {}
         self._build_shelf(scene)
-        add_obstacles(self, scene)        # unexplained matter: static, where perception saw it
+        for name, half, centre in obstacles(scene):    # unexplained matter: static, where perception saw it
+            self._static_box(name, half, centre)
         self._body: dict[str, int] = {}
         self._half: dict[str, tuple[float, float, float]] = {}
         self._shape: dict[str, int] = {}

@@ -22,7 +22,6 @@ from perception.unexplained import EXPLAIN_TOL, FRONT_REACH
 
 if TYPE_CHECKING:  # pragma: no cover
     from planning.plan import StepPrediction
-    from planning.sim import ShelfSim
 
 # a box within this much (m) of a region's seen surface, across the pull, touches it: perception
 # leaves EXPLAIN_TOL of unexplained matter next to a box unseen, and 1 cm more is contact
@@ -75,12 +74,6 @@ def obstacles(scene: Scene) -> list[tuple[str, tuple[float, float, float], tuple
             centre = ((o[0] + o[1]) / 2, (o[2] + o[3]) / 2, (o[4] + o[5]) / 2)
             out.append((f"unexplained {u.id}", half, centre))
     return out
-
-
-def add_obstacles(sim: "ShelfSim", scene: Scene) -> None:
-    """Put the scene's unexplained matter into a world being built (before its boxes)."""
-    for name, half, centre in obstacles(scene):
-        sim._static_box(name, half, centre)
 
 
 def near(b: Box, u: Unexplained, margin: float = TOUCH_MARGIN) -> bool:

@@ -25,9 +25,13 @@ HERE = Path(__file__).resolve().parent
 STORE_TIMEOUT = 0.5      # the console store's busy timeout in the child (s); the lock is held far longer
 
 CHILD = textwrap.dedent("""
-    import sys, time
+    import sys, threading, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
+    said = threading.Lock()
+    def say(*words):                 # the listener's thread and this one print: whole lines only
+        with said:
+            print(*words, flush=True)
     from console.store import SessionStore
     from console.workflow import Workflow
     from console.robot import open_robot
@@ -40,23 +44,23 @@ CHILD = textwrap.dedent("""
         for line in (f"AUDIT {{s.audit}}" if s.audit else None, f"ROBOT {{s.robot}}"):
             if line and line not in seen:
                 seen.add(line)
-                print(line.replace(chr(10), " "), flush=True)
+                say(line.replace(chr(10), " "))
     wf.add_listener(show)
     wf.capture()
     wf.plan("clear", wait=True)
     h = wf.state.plans["physics"].hash
     wf.approve(h, PASS, "sue")
-    print("EXECUTE", wf.state.session_id, h, flush=True)
+    say("EXECUTE", wf.state.session_id, h)
     wf.execute()
     wf.wait_robot(120)
-    print("ENDED", wf.state.robot, flush=True)
+    say("ENDED", wf.state.robot)
     pending = lambda: wf.journal.pending() if hasattr(wf, "journal") else 0   # (a console without one)
     end = time.monotonic() + 60
     while pending() and time.monotonic() < end:
         time.sleep(0.05)
-    print("FLUSHED", pending(), flush=True)
+    say("FLUSHED", pending())
     time.sleep(0.5)
-    print("FINAL AUDIT", wf.state.audit, flush=True)
+    say("FINAL AUDIT", wf.state.audit)
     wf.close()
     store.close()
 """)
@@ -77,6 +81,9 @@ class Child:
                          daemon=True).start()
 
     def wait_for(self, prefix: str, timeout: float) -> str:
+        for line in self.seen:        # a line another wait read past (threads print in any order)
+            if line.startswith(prefix):
+                return line
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             try:
@@ -227,3 +234,43 @@ def test_a_console_that_dies_with_its_ack_unrecorded_leaves_the_step_unknown(tmp
     finally:
         wf.close()
         store.close()
+
+
+def test_a_step_whose_sent_record_cannot_be_committed_is_not_sent():
+    """Both drivers ask the console to commit `sent` before a step goes out; a refusal keeps that
+    step (and every later one) off the robot."""
+    import threading
+
+    from console.robot import SimRobot
+    from console.robot_tcp import TcpRobot, Timeouts
+    from console.robot_types import StepHistory
+    from planning.plan import Plan
+    from test_robot_tcp import row_scene
+
+    plan = Plan("clear", None, "physics", ("b0", "b1", "b2"))
+    asked: list[tuple[int, str]] = []
+
+    def record_sent(step: int, box: str) -> None:
+        asked.append((step, box))
+        if step == 1:
+            raise OSError("database is locked")
+
+    with RobotController() as ctl:
+        host, port = ctl.address
+        robot = TcpRobot(host, port, timeouts=Timeouts(heartbeat_interval=0.1), history=StepHistory())
+        robot.record_sent = record_sent
+        out = robot.execute(plan, row_scene(), lambda e: None, threading.Event())
+        steps = [m["step"] for m in ctl.received("step")]
+    assert steps == [0] and asked == [(0, "b0"), (1, "b1")]
+    assert [s["status"] for s in out.steps] == ["done", "not_sent", "not_sent"]
+    assert "was not sent" in out.error and "database is locked" in out.error
+
+    asked.clear()
+    sim = SimRobot(row_scene(), seed=0)
+    sim.record_sent = record_sent
+    try:
+        out = sim.execute(plan, row_scene(), lambda e: None, threading.Event())
+    finally:
+        sim.close()
+    assert asked == [(0, "b0"), (1, "b1")] and out.completed == ("b0",)
+    assert [s["status"] for s in out.steps][1:] == ["not_sent", "not_sent"]

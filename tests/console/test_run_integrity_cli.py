@@ -14,6 +14,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from robotsim.controller import RobotController
 from safety_kit import fault, judge_stop
 
@@ -107,6 +109,7 @@ def test_ctrl_c_during_a_run_records_the_stop_aborts_the_step_and_exits_130(tmp_
     store.close()
 
 
+@pytest.mark.slow        # tests/console/test_cell.py covers SIGTERM in `make test`; this is the shared handler
 def test_sigterm_still_exits_143_with_the_same_handler(tmp_path):
     """The shared handler keeps SIGTERM's contract (the sim robot: the stop is recorded, 143)."""
     from console.store import SessionStore

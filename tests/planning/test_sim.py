@@ -215,3 +215,13 @@ def test_a_client_pool_disconnects_every_client_when_closed():
     assert not c.isConnected()
     with pytest.raises(RuntimeError, match="closed"):
         ShelfSim(grid(2, 2), clients=clients)
+
+
+def test_a_shelf_sim_is_the_world_a_pull_needs():
+    """planning.pull names what it needs of a world (`PullWorld`) instead of importing the
+    simulation that calls it; a `ShelfSim` must still be one."""
+    from planning.pull import PullWorld
+
+    with quiet(stacked()) as sim:
+        assert isinstance(sim, PullWorld)
+    assert not isinstance(object(), PullWorld)
