@@ -297,7 +297,7 @@ def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
         if "position" in sec or "orientation" in sec:
             raise CellError(origin, "robot.transform", "give a transform file or position/orientation, not both")
         tfile = _file(sec, "robot", "transform", origin, base)
-        from console.robot_tcp import Transform
+        from robotsim.transform import Transform   # where it lives (via console.robot_tcp: a cycle)
 
         Transform.load(tfile)                 # its own one-line error names the transform file
         opts.append(("transform", tfile))
