@@ -66,6 +66,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", default=None, help="rows (JSONL); the summary goes to <out>.md")
     ap.add_argument("--resume", action="store_true", help="keep rows already in --out made with the same settings")
     ap.add_argument("--no-true", action="store_true", help="skip the plans on the true faces (T)")
+    ap.add_argument("--summary-only", action="store_true",
+                    help="run nothing: summarize the rows in --out made with these settings for the units asked for")
     return ap.parse_args(argv)
 
 
@@ -90,8 +92,8 @@ def check_args(a: argparse.Namespace) -> tuple[list[str], list[str], Path]:
         v = getattr(a, name)
         if v is not None and v < 0:
             raise UsageError(f"--{name.replace('_', '-')}: expected a count >= 0, got {v}")
-    if a.resume and not a.out:
-        raise UsageError("--resume: needs --out (the rows to continue)")
+    if (a.resume or a.summary_only) and not a.out:
+        raise UsageError(f"--{'resume' if a.resume else 'summary-only'}: needs --out (the rows to read)")
     frames = Path(a.frames) if a.frames else (Path(a.out).with_suffix(".frames") if a.out else
                                              Path(os.environ.get("TMPDIR", "/tmp")) / "camera_to_plan_frames")
     return looks, shelves, frames
@@ -344,14 +346,14 @@ def run(a: argparse.Namespace) -> dict:
     looks, shelves, frames = check_args(a)
     units, sid = build_units(a, looks, shelves, frames)
     out = Path(a.out) if a.out else None
-    rows = kept_rows(out, a.resume, sid, {u["key"] for u in units})
+    rows = kept_rows(out, a.resume or a.summary_only, sid, {u["key"] for u in units})
     done = {r["key"] for r in rows}
-    todo = [u for u in units if u["key"] not in done]
+    todo = [] if a.summary_only else [u for u in units if u["key"] not in done]
     print(f"camera_to_plan: {len(units)} units ({len(rows)} kept, {len(todo)} to run); looks {looks}; "
           f"{len(shelves)} shelves, planning on {len(plan_shelves(shelves, a.plan_shelves))}", file=sys.stderr)
     t0 = time.perf_counter()
     f = None
-    if out:
+    if out and not a.summary_only:
         out.parent.mkdir(parents=True, exist_ok=True)
         f = open(out, "w", encoding="utf-8")
         for r in rows:
@@ -388,7 +390,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{', '.join(r['planned']) or 'none'}; {r['wall_s']} s")
     text = to_markdown(summary, header)
     print(text, end="")
-    if a.out:
+    if a.out and not a.summary_only:
         Path(a.out).with_suffix(".md").write_text(text, encoding="utf-8")
     return 0
 

@@ -69,3 +69,5 @@ def test_one_shelf_from_the_image_to_the_judge(tmp_path: Path) -> None:
     assert "## look `flat`" in text and "from the image, highest-first" in text
     assert c2p.main(argv + ["--resume"]) == 0          # nothing left to run, the same rows
     assert [json.loads(line)["key"] for line in out.read_text().splitlines()] == ["seen|flat|s00", "true|s00:b5"]
+    assert c2p.main(argv[:-2] + ["--out", str(out), "--summary-only", "--no-true"]) == 0   # reads, runs nothing
+    assert [json.loads(line)["key"] for line in out.read_text().splitlines()] == ["seen|flat|s00", "true|s00:b5"]
