@@ -14,19 +14,17 @@ rules follow:
 - a long-running process with threads calls `c_output_detached()` once: Python's
   stdout moves to a private copy of fd 1, fd 1 itself goes to /dev/null, and
   the redirections then change no file descriptor at all.
+
+The counts and the saved descriptors are the state of one `StdioGuard`, which this module
+creates when it is first imported (`STDIO`); the functions below are that guard's.
 """
 from __future__ import annotations
 
 import os
 import sys
 import threading
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from typing import Iterator
-
-_COND = threading.Condition(threading.Lock())
-_depth = 0                      # redirections in force (all threads)
-_saved: list[tuple[int, int]] = []   # (fd, copy of what it was) while _depth > 0
-_detached = 0                   # > 0 while c_output_detached() is in force
 
 
 def _point(fd: int, to: str | int) -> None:
@@ -36,74 +34,104 @@ def _point(fd: int, to: str | int) -> None:
         os.close(target)
 
 
-@contextmanager
-def redirected_fds(stdout_to: str | int | None, stderr_to: str | int | None) -> Iterator[None]:
-    """fd 1 / fd 2 sent to a path or another fd (None: left alone) for the block. Inside another
-    redirection, or while detached, nothing changes (C output is already off stdout)."""
-    global _depth
-    with _COND:
-        if _depth == 0 and not _detached:
-            sys.stdout.flush()
-            sys.stderr.flush()
-            for fd, to in ((1, stdout_to), (2, stderr_to)):
-                if to is not None:
-                    _saved.append((fd, os.dup(fd)))
-                    _point(fd, to)
-        _depth += 1
-    try:
-        yield
-    finally:
-        with _COND:
-            _depth -= 1
-            if _depth == 0:
+class StdioGuard:
+    """Who points fd 1 and 2 elsewhere, and when: the count of redirections in force (all
+    threads), the descriptors they saved, and whether C output is detached.
+
+    One per process, made by this module at import (`STDIO`), and every redirection goes
+    through it: file descriptors 1 and 2 belong to the process, not to an object, so a second
+    guard would count only its own redirections and could put fd 1 back in the middle of the
+    other's (the lost lines and the stdout left at /dev/null that this guard exists to stop).
+    Its state changes only under its own lock."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition(threading.Lock())
+        self._depth = 0                             # redirections in force (all threads)
+        self._saved: list[tuple[int, int]] = []     # (fd, copy of what it was) while _depth > 0
+        self._detached = 0                          # > 0 while detached() is in force
+
+    @contextmanager
+    def redirected(self, stdout_to: str | int | None, stderr_to: str | int | None) -> Iterator[None]:
+        """fd 1 / fd 2 sent to a path or another fd (None: left alone) for the block. Inside another
+        redirection, or while detached, nothing changes (C output is already off stdout)."""
+        with self._cond:
+            if self._depth == 0 and not self._detached:
                 sys.stdout.flush()
                 sys.stderr.flush()
-                while _saved:
-                    fd, copy = _saved.pop()
-                    os.dup2(copy, fd)
-                    os.close(copy)
-                _COND.notify_all()
+                for fd, to in ((1, stdout_to), (2, stderr_to)):
+                    if to is not None:
+                        self._saved.append((fd, os.dup(fd)))
+                        _point(fd, to)
+            self._depth += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._depth -= 1
+                if self._depth == 0:
+                    sys.stdout.flush()
+                    sys.stderr.flush()
+                    while self._saved:
+                        fd, copy = self._saved.pop()
+                        os.dup2(copy, fd)
+                        os.close(copy)
+                    self._cond.notify_all()
+
+    @contextmanager
+    def quiet(self) -> Iterator[None]:
+        """File descriptors 1 and 2 sent to /dev/null (pybullet's C code printf()s on them); nothing
+        changes while `detached()` is in force (C output already goes nowhere)."""
+        with self.redirected(os.devnull, os.devnull):
+            yield
+
+    @contextmanager
+    def detached(self) -> Iterator[None]:
+        """For a process with threads: Python's stdout keeps the terminal (a private copy of fd 1),
+        fd 1 goes to /dev/null for C code, and pybullet is imported quietly once. Restored on exit.
+
+        Enter it before the threads that write start (they look `sys.stdout` up when they print);
+        a thread inside a redirection is waited for. Inside another detachment it changes nothing."""
+        if self._detached:
+            yield
+            return
+        with self.redirected(os.devnull, os.devnull):
+            import pybullet  # noqa: F401 - its build-time banner, printed on import, goes nowhere
+        with self._cond:
+            self._cond.wait_for(lambda: self._depth == 0)   # no thread is between a redirect and its restore
+            old = sys.stdout
+            old.flush()
+            stream = open(os.dup(1), "w", encoding=old.encoding, errors=old.errors, buffering=1,  # noqa: SIM115
+                          closefd=True)
+            saved = os.dup(1)
+            _point(1, os.devnull)
+            sys.stdout = stream
+            self._detached += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._detached -= 1
+                stream.flush()
+                if sys.stdout is stream:
+                    sys.stdout = old
+                os.dup2(saved, 1)
+                os.close(saved)
+                stream.close()
 
 
-@contextmanager
-def quiet_stdio() -> Iterator[None]:
-    """File descriptors 1 and 2 sent to /dev/null (pybullet's C code printf()s on them); nothing
-    changes while `c_output_detached()` is in force (C output already goes nowhere)."""
-    with redirected_fds(os.devnull, os.devnull):
-        yield
+STDIO = StdioGuard()   # the process's one guard (see StdioGuard): created here, once, at import
 
 
-@contextmanager
-def c_output_detached() -> Iterator[None]:
-    """For a process with threads: Python's stdout keeps the terminal (a private copy of fd 1),
-    fd 1 goes to /dev/null for C code, and pybullet is imported quietly once. Restored on exit.
+def redirected_fds(stdout_to: str | int | None, stderr_to: str | int | None) -> AbstractContextManager[None]:
+    """`STDIO.redirected`: fd 1 / fd 2 sent to a path or another fd (None: left alone) for the block."""
+    return STDIO.redirected(stdout_to, stderr_to)
 
-    Enter it before the threads that write start (they look `sys.stdout` up when they print);
-    a thread inside a redirection is waited for. Inside another detachment it changes nothing."""
-    global _detached
-    if _detached:
-        yield
-        return
-    with redirected_fds(os.devnull, os.devnull):
-        import pybullet  # noqa: F401 - its build-time banner, printed on import, goes nowhere
-    with _COND:
-        _COND.wait_for(lambda: _depth == 0)     # no thread is between a redirect and its restore
-        old = sys.stdout
-        old.flush()
-        stream = open(os.dup(1), "w", encoding=old.encoding, errors=old.errors, buffering=1,  # noqa: SIM115
-                      closefd=True)
-        saved = os.dup(1)
-        _point(1, os.devnull)
-        sys.stdout = stream
-        _detached += 1
-    try:
-        yield
-    finally:
-        with _COND:
-            _detached -= 1
-            stream.flush()
-            if sys.stdout is stream:
-                sys.stdout = old
-            os.dup2(saved, 1)
-            os.close(saved)
-            stream.close()
+
+def quiet_stdio() -> AbstractContextManager[None]:
+    """`STDIO.quiet`: fd 1 and 2 sent to /dev/null for the block (pybullet's C printf()s)."""
+    return STDIO.quiet()
+
+
+def c_output_detached() -> AbstractContextManager[None]:
+    """`STDIO.detached`: for a process with threads, C output off stdout for the block (see there)."""
+    return STDIO.detached()
