@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -164,6 +165,137 @@ def test_the_cycle_finder_finds_cycles():
     assert import_cycles(graph) == [(["a", "b", "c"], ["a", "b", "c", "a"]), (["d", "e"], ["d", "e", "d"])]
     assert import_cycles({"x": {"y": ""}, "y": {}}) == []
     assert "planning.sim" in import_graph()["planning.bench"]       # a real edge is seen
+
+
+# methods that change the container they are called on
+MUTATORS = frozenset({"append", "extend", "insert", "pop", "popitem", "remove", "clear", "update", "setdefault",
+                      "add", "discard", "difference_update", "intersection_update", "symmetric_difference_update",
+                      "appendleft", "extendleft", "popleft", "sort", "reverse", "__setitem__", "__delitem__"})
+
+
+def _module_level_names(tree: ast.Module) -> set[str]:
+    """Names a module binds itself at its top level (assignments, classes; not imports or functions),
+    also inside top-level if/try/with blocks."""
+    names: set[str] = set()
+    todo = list(tree.body)
+    while todo:
+        st = todo.pop()
+        if isinstance(st, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            for target in (st.targets if isinstance(st, ast.Assign) else [st.target]):
+                names |= {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+        elif isinstance(st, ast.ClassDef):
+            names.add(st.name)
+        elif isinstance(st, (ast.If, ast.Try, ast.With)):
+            todo += st.body + getattr(st, "orelse", []) + getattr(st, "finalbody", [])
+            todo += [s for h in getattr(st, "handlers", []) for s in h.body]
+    return names
+
+
+def _local_names(fn: ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda) -> set[str]:
+    """The names a function binds itself (parameters, assignments, imports, nested definitions),
+    less those it declares `global`: these hide a module-level name of the same spelling."""
+    a = fn.args
+    out = {x.arg for x in a.posonlyargs + a.args + a.kwonlyargs} | {x.arg for x in (a.vararg, a.kwarg) if x}
+    declared: set[str] = set()
+    todo: list[ast.AST] = list(fn.body) if isinstance(fn.body, list) else [fn.body]
+    while todo:
+        n = todo.pop()
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(n.name)
+            continue
+        if isinstance(n, ast.Lambda):
+            continue
+        if isinstance(n, ast.Global):
+            declared |= set(n.names)
+        elif isinstance(n, ast.Name) and isinstance(n.ctx, (ast.Store, ast.Del)):
+            out.add(n.id)
+        elif isinstance(n, (ast.Import, ast.ImportFrom)):
+            out |= {(x.asname or x.name).split(".")[0] for x in n.names}
+        elif isinstance(n, ast.ExceptHandler) and n.name:
+            out.add(n.name)
+        todo += list(ast.iter_child_nodes(n))
+    return out - declared
+
+
+def _root(e: ast.expr) -> str | None:
+    while isinstance(e, (ast.Attribute, ast.Subscript)):
+        e = e.value
+    return e.id if isinstance(e, ast.Name) else None
+
+
+def module_state_changes(path: Path) -> list[str]:
+    """Where a function changes module-level state of its own module: a `global` statement, or an
+    item or attribute set or deleted on, or a mutating method (`MUTATORS`) called on, a name the
+    module binds at its top level and the function does not hide (`X[k] = v`, `X.a = v`,
+    `X.append(v)`, `X.cache.update(...)`). Module-level code itself (building a table at import) is
+    not a change; nor is another module's state (an imported name), nor an object's own methods
+    changing it (`self`)."""
+    tree = ast.parse(path.read_text())
+    module_names = _module_level_names(tree)
+    shown = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    out: list[str] = []
+
+    def scan(node: ast.AST, hidden: set[str], where: str) -> None:
+        for ch in ast.iter_child_nodes(node):
+            if isinstance(ch, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                name = getattr(ch, "name", "<lambda>")
+                scan(ch, hidden | _local_names(ch), f"{where}.{name}" if where else name)
+                continue
+            what = None
+            if where and isinstance(ch, ast.Global):
+                what = "global " + ", ".join(ch.names)
+            elif where and isinstance(ch, (ast.Subscript, ast.Attribute)) and isinstance(ch.ctx, (ast.Store, ast.Del)):
+                if _root(ch) in module_names - hidden:
+                    what = ast.unparse(ch) + (" set" if isinstance(ch.ctx, ast.Store) else " deleted")
+            elif (where and isinstance(ch, ast.Call) and isinstance(ch.func, ast.Attribute)
+                  and ch.func.attr in MUTATORS and _root(ch.func.value) in module_names - hidden):
+                what = ast.unparse(ch.func) + "(...)"
+            if what:
+                out.append(f"{shown}:{ch.lineno} in {where}: {what}")
+            scan(ch, hidden, where)
+
+    scan(tree, set(), "")
+    return out
+
+
+def test_no_function_changes_module_level_state():
+    """State that changes belongs to an object somebody creates and owns (a pool, a store, a guard),
+    not to a module: module globals are shared by every caller, thread and test in the process."""
+    found = [hit for path in _modules().values() for hit in module_state_changes(path)]
+    assert not found, "module-level state changed from functions:\n" + "\n".join(found)
+
+
+def test_the_state_finder_finds_changes(tmp_path):
+    """The finder itself, on a small module: globals, items, attributes and mutating calls on module
+    names are found, also in a nested function; a parameter or local of the same name is not."""
+    src = tmp_path / "m.py"
+    src.write_text(textwrap.dedent("""
+        import os
+        CACHE = {}
+        SEEN: list = []
+        class Registry:
+            items = {}
+        COUNT = 0
+        CACHE["built at import"] = 1
+        def bump():
+            global COUNT
+            COUNT += 1
+        def remember(k, v):
+            CACHE[k] = v
+            Registry.items.update({k: v})
+            def inner():
+                SEEN.append(k)
+            return inner
+        def fine(CACHE, v):
+            CACHE[0] = v
+            seen = []
+            seen.append(v)
+            os.environ.setdefault("X", "1")
+            return Registry().items.get(v)
+    """))
+    hits = [h.split(" in ", 1)[1] for h in module_state_changes(src)]
+    assert hits == ["bump: global COUNT", "remember: CACHE[k] set", "remember: Registry.items.update(...)",
+                    "remember.inner: SEEN.append(...)"]
 
 
 def test_the_module_map_names_every_module():
