@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import signal
 import subprocess
 import sys
@@ -64,35 +63,41 @@ def judge(case: make_fuzz.FuzzCase, rc: int | None, err: str, seconds: float, rs
     return tuple(out)
 
 
-def _limit() -> None:
-    os.setsid()                                   # its own group: a timeout kills what it started too
-    resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_LIMIT, ADDRESS_LIMIT))
+# A small wrapper process sets the address-space limit, forks and execs the command, and writes the
+# command's ru_maxrss to a file. Measured from this process directly, the child's peak would start
+# at this process's own size: Linux carries the memory of the process that was replaced by exec into
+# ru_maxrss, and a spawned child starts as a copy of (or shares) a parent that may be a large pytest run.
+WRAP = """import os, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, ({0}, {0}))
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.executable, [sys.executable, "-m", "console.cli", *sys.argv[2:]])
+_, status, usage = os.wait4(pid, 0)
+with open(sys.argv[1], "w") as f:
+    f.write(str(usage.ru_maxrss))
+code = os.waitstatus_to_exitcode(status)
+os._exit(code if code >= 0 else 128 - code)
+""".format(ADDRESS_LIMIT)
 
 
 def run_case(case: make_fuzz.FuzzCase, env: dict[str, str]) -> Result:
     """One subprocess: `python -m console.cli ARGV`, its exit, stderr, wall time and peak RSS."""
-    with tempfile.TemporaryFile() as err_file:
+    with tempfile.TemporaryFile() as err_file, tempfile.TemporaryDirectory() as scratch:
+        rss_file = Path(scratch) / "maxrss"
         t0 = time.monotonic()
-        proc = subprocess.Popen([sys.executable, "-m", "console.cli", *case.argv], cwd=ROOT, env=env,
+        proc = subprocess.Popen([sys.executable, "-c", WRAP, str(rss_file), *case.argv], cwd=ROOT, env=env,
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err_file,
-                                preexec_fn=_limit)
-        rc: int | None = None
-        rusage = None
-        while True:
-            pid, status, rusage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                rc = os.waitstatus_to_exitcode(status)
-                break
-            if time.monotonic() - t0 > SECONDS:
-                os.killpg(proc.pid, signal.SIGKILL)
-                _, _, rusage = os.wait4(proc.pid, 0)
-                break
-            time.sleep(0.01)
+                                start_new_session=True)   # its own group: a timeout kills all it started
+        try:
+            rc: int | None = proc.wait(timeout=SECONDS)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            rc = None
         seconds = time.monotonic() - t0
-        proc.returncode = -1                      # reaped here, not by Popen
         err_file.seek(0)
         err = err_file.read().decode("utf-8", "replace")
-    rss = int(rusage.ru_maxrss) * 1024 if rusage is not None else 0   # Linux: KiB
+        rss = int(rss_file.read_text() or 0) * 1024 if rss_file.exists() else 0   # Linux: KiB
     lines = [ln for ln in err.splitlines() if ln.strip()]
     return Result(case.name, rc, len(lines), lines[0][:300] if lines else "", round(seconds, 2), rss,
                   judge(case, rc, err, seconds, rss))

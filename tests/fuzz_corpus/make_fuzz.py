@@ -55,6 +55,42 @@ def _png_header(w: int, h: int, colour: int = 2, depth: int = 8) -> bytes:
             + chunk(b"IEND", b""))
 
 
+def _zeros_deflate(units: int) -> bytes:
+    """A raw deflate stream of 1 + 2064 * units zero bytes, built directly: one literal 0, then
+    (length 258, distance 1) matches, 8 to a unit, in a fixed-Huffman block. 8 matches are 104 bits,
+    a whole number of bytes, so the stream is one 13-byte pattern repeated (zlib would need minutes
+    to compress a gigabyte of zeros)."""
+    acc, n = 0, 0
+
+    def code(value: int, count: int) -> None:       # a Huffman code: most significant bit first
+        nonlocal acc, n
+        for i in range(count - 1, -1, -1):
+            acc |= ((value >> i) & 1) << n
+            n += 1
+
+    code(0b110, 3)                                  # BFINAL 1, BTYPE 01 (as bits 1, 1, 0)
+    code(0x30, 8)                                   # literal 0
+    for _ in range(16):
+        code(0b11000101, 8)                         # length 258
+        code(0, 5)                                  # distance 1
+    code(0, 7)                                      # end of block
+    two = acc.to_bytes((n + 7) // 8, "little")     # the stream for 2 units
+    return two[:15] + two[2:15] * (units - 2) + two[15:] if units >= 2 else b""
+
+
+def _png_full_of_zeros(w: int, h: int) -> bytes:
+    """A real w x h RGB PNG, all black, every row present: decodes to w * h * 3 bytes. (1 + 3 w) h
+    must be 1 more than a multiple of 2064 (`_zeros_deflate`)."""
+    size = (1 + 3 * w) * h
+    assert (size - 1) % 2064 == 0
+    body = b"\x78\x01" + _zeros_deflate((size - 1) // 2064) + struct.pack(">I", ((size % 65521) << 16) | 1)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", body) + chunk(b"IEND", b""))
+
+
 def _jpeg_header(w: int, h: int) -> bytes:
     """SOI, a baseline SOF0 claiming w x h, EOI: a header and nothing to decode."""
     sof = b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, h, w, 3) + b"\x01\x22\x00\x02\x11\x01\x03\x11\x01"
@@ -193,6 +229,9 @@ def image_cases(t: Path, good: Path) -> list[FuzzCase]:
 
     rgb("png-30000x30000", _w(d / "p30000.png", _png_header(30000, 30000)), "image of more than 40000000 pixels")
     rgb("png-20000x2500", _w(d / "p20000.png", _png_header(20000, 2500)), "image is 20000x2500 px")
+    # a whole 20000 x 19729 image of zeros in 7.5 MB: 1.2 GB once decoded (the old code decoded it)
+    rgb("png-full-1.2gb", _w(d / "full.png", _png_full_of_zeros(20000, 19729)),
+        "full.png: image of more than 40000000 pixels")
     rgb("png-12001x16", _w(d / "p12001.png", _png_header(12001, 16)), "image is 12001x16 px")
     rgb("png-1x40000001", _w(d / "ptall.png", _png_header(1, 40_000_001)), "pixels")
     rgb("png-16bit-huge", _w(d / "p16.png", _png_header(15000, 15000, 2, 16)), "p16.png: image")
