@@ -9,6 +9,7 @@ SQLite's errors become one-line `StoreError`s naming the file and the cause.
 from __future__ import annotations
 
 import sqlite3
+import time
 from pathlib import Path
 
 from perception.errors import ShelfpickError
@@ -188,11 +189,11 @@ def open_writable(path: Path, timeout: float, max_pages: int | None) -> sqlite3.
         raise StoreError(f"{path}: database cannot be written (file is read-only, mode "
                          f"{path.stat().st_mode & 0o777:o}); make it writable or use another --db")
     if path.exists() and path.stat().st_size > 0:
-        open_readonly(path).close()      # ours? (refused before anything is written to it)
+        ours_or_being_made(path, timeout)      # ours? (refused before anything is written to it)
     try:
         db = sqlite3.connect(str(path), timeout=timeout, isolation_level=None, check_same_thread=False)
         db.row_factory = sqlite3.Row
-        mode = db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        mode = to_wal(db, timeout)
         if str(mode).lower() != "wal":
             raise sqlite3.OperationalError(f"cannot switch to WAL mode (journal_mode={mode}), "
                                            f"read-only or unsupported file system")
@@ -205,6 +206,60 @@ def open_writable(path: Path, timeout: float, max_pages: int | None) -> sqlite3.
     except sqlite3.Error as exc:
         raise StoreError(explain(exc, path)) from None
     return db
+
+
+SQLITE_HEADER = b"SQLite format 3\x00"
+
+
+def to_wal(db: sqlite3.Connection, timeout: float) -> str:
+    """PRAGMA journal_mode=WAL; the journal mode it gives. SQLite answers "locked" at once, without
+    its busy wait, while another connection switches the same new file too: tried again until
+    `timeout` s (two consoles started at once on a new --db)."""
+    end = time.monotonic() + max(timeout, 1.0)
+    while True:
+        try:
+            return str(db.execute("PRAGMA journal_mode=WAL").fetchone()[0])
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc).lower() or time.monotonic() >= end:
+                raise
+        time.sleep(0.02)
+
+
+def ours_or_being_made(path: Path, timeout: float) -> None:
+    """`open_readonly`'s check, looked at again for up to `timeout` s while the file is an SQLite
+    file with no table yet: another console creating this log at the same moment (two consoles
+    started at once on a new --db) has made the file and not yet committed its schema. Anything
+    else that is not ours is refused at once."""
+    end = time.monotonic() + max(timeout, 1.0)
+    while True:
+        try:
+            open_readonly(path).close()
+            return
+        except StoreError:
+            if time.monotonic() >= end:
+                raise
+            if not _no_table_yet(path):    # tables now (committed since that look) or not SQLite:
+                open_readonly(path).close()  # one more look decides
+                return
+        time.sleep(0.02)
+
+
+def _no_table_yet(path: Path) -> bool:
+    """An SQLite file with no table in it (or not readable yet, mid-creation); False for anything else."""
+    try:
+        with path.open("rb") as f:
+            if f.read(len(SQLITE_HEADER)) != SQLITE_HEADER:
+                return False
+    except OSError:
+        return False
+    try:
+        db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=0.1)
+        try:
+            return db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0] == 0
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return True
 
 
 def create_schema(db: sqlite3.Connection) -> None:

@@ -251,3 +251,32 @@ def test_the_database_holds_one_open_run_of_a_live_console(tmp_path):
     finally:
         a.close()
         b.close()
+
+
+def test_consoles_opening_one_new_database_at_once_all_open_it(tmp_path):
+    """Two consoles started at the same moment on a new --db (the two-console test above met it):
+    one had made the file and not yet committed its schema, so the other was refused as 'not a
+    shelfpick session database', or 'locked' by SQLite's journal-mode switch (9 of 50 rounds of 4
+    before). Each round: 4 stores open one new file at once; every one must open it."""
+    from console.store import SessionStore, StoreError
+
+    refused: list[str] = []
+    for r in range(30):
+        db = tmp_path / f"new{r}.sqlite"
+        start = threading.Barrier(4)
+        stores: list[SessionStore] = []
+
+        def open_it() -> None:
+            start.wait()
+            try:
+                stores.append(SessionStore(db))
+            except StoreError as exc:
+                refused.append(str(exc))
+        threads = [threading.Thread(target=open_it) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        for s in stores:
+            s.close()
+    assert refused == []
