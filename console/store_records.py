@@ -151,6 +151,7 @@ def load_images(row: sqlite3.Row, base: Path, root: Path | None = None
     Only files inside `root` (the database's `<db>.files/`) are read: a stored path that leads out
     of it is reported as not read (a damaged or hostile archive must not embed other files)."""
     from perception.capture import load_capture, read_rgb
+    from perception.errors import PerceptionError
 
     keys = ("rgb", "camera", "depth", "masks", "overlay")
     refused = [row[k] for k in keys if row[k] and _outside(row[k], base, root)]
@@ -160,8 +161,11 @@ def load_images(row: sqlite3.Row, base: Path, root: Path | None = None
     if not {row["rgb"], row["camera"]} & skip and not (row["depth"] and row["depth"] in skip):
         capture = load_capture(base / row["rgb"], base / row["depth"] if row["depth"] else None,
                                base / row["camera"])
-    overlay = None
+    overlay, unread = None, []
     if row["overlay"] and row["overlay"] not in skip:
-        overlay = read_rgb(base / row["overlay"])      # bounded: the header is checked before decoding
+        try:
+            overlay = read_rgb(base / row["overlay"])  # bounded: the header is checked before decoding
+        except PerceptionError as exc:                 # the overlay is an illustration: the record replays
+            unread.append(f"{row['overlay']} (not read: {str(exc).split(': ', 1)[-1]})")
     shown = missing + [f"{r} (outside {root.name if root else 'the session store'}/: not read)" for r in refused]
-    return capture, overlay, shown
+    return capture, overlay, shown + unread

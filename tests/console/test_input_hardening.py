@@ -95,6 +95,24 @@ def test_replay_reads_no_file_outside_the_session_store(archive, tmp_path: Path,
     capsys.readouterr()
 
 
+def test_a_huge_stored_overlay_is_not_decoded_and_the_session_still_replays(archive, tmp_path: Path,
+                                                                            capsys) -> None:
+    import struct
+    import zlib
+
+    db = copy_of(archive, tmp_path)
+    overlay = db.with_name(db.name + ".files") / str(archive[1]) / "overlay.png"
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    overlay.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 30000, 30000, 8, 2, 0, 0, 0))
+                        + chunk(b"IDAT", zlib.compress(b"\0" * 4096)) + chunk(b"IEND", b""))
+    out = tmp_path / "r.html"
+    assert main(["replay", str(archive[1]), "--html", str(out), "--db", str(db)]) == 0
+    assert "overlay.png (not read: image of more than 40000000 pixels" in out.read_text()
+    capsys.readouterr()
+
+
 def test_read_only_commands_leave_no_wal_or_shm_beside_an_archive(archive, tmp_path: Path, capsys) -> None:
     db = copy_of(archive, tmp_path)
     side = [db.with_name(db.name + s) for s in ("-wal", "-shm")]
