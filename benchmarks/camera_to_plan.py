@@ -347,6 +347,9 @@ def run(a: argparse.Namespace) -> dict:
     units, sid = build_units(a, looks, shelves, frames)
     out = Path(a.out) if a.out else None
     rows = kept_rows(out, a.resume or a.summary_only, sid, {u["key"] for u in units})
+    # a shelf seen without plans is not kept where its tasks are now asked for (a larger --plan-shelves)
+    want = {u["key"]: [t["target"] for t in u["tasks"]] for u in units if u["what"] == "seen"}
+    rows = [r for r in rows if r["what"] != "seen" or [t["target"] for t in r["tasks"]] == want[r["key"]]]
     done = {r["key"] for r in rows}
     todo = [] if a.summary_only else [u for u in units if u["key"] not in done]
     print(f"camera_to_plan: {len(units)} units ({len(rows)} kept, {len(todo)} to run); looks {looks}; "
