@@ -40,7 +40,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.judge_rows import (UsageError, cli_plan_settings, init_worker, judged,  # noqa: E402
-                                   kept_rows, make_timed_plan, observe_seed, run_unit)
+                                   kept_rows, make_timed_plan, run_unit)
 from benchmarks.judge_summary import engine_summary, percentile  # noqa: E402
 
 HELD_OUT = ("printed", "stereo")          # docs/perception.md, "Roles": never tuned on
