@@ -153,6 +153,8 @@ DRAG = Calibration(intercept=0.8398, slope=0.8149, not_standing=1.3610,
 
 def calibration_for(pull_modes: Sequence[str]) -> Calibration:
     """The fitted map for a cell whose gripper pulls in `pull_modes` (the worlds' prior): a gripper
-    that lifts where it can (`lift` among them, the planner's own pull) is calibrated against a
-    truth that lifts; one that only drags, against a truth that drags."""
-    return LIFT if "lift" in tuple(pull_modes) else DRAG
+    that lifts where it can (`lift` among them, the planner's own pull; none drawn: the worlds keep
+    the planner's own pull, which lifts) is calibrated against a truth that lifts; one that only
+    drags, against a truth that drags."""
+    modes = tuple(pull_modes)
+    return LIFT if not modes or "lift" in modes else DRAG

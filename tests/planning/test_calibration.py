@@ -149,3 +149,14 @@ def test_a_wrong_plan_threshold_is_refused_naming_it(bad):
     scene = Scene(Shelf(), (cube("a", 0.0, 0.1),))
     with pytest.raises(FormatError, match="max_plan_risk"):
         make_plan(scene, "extract", "a", max_plan_risk=bad)
+
+
+def test_the_map_follows_how_the_cells_gripper_pulls():
+    from planning.calibration import DRAG, LIFT, calibration_for
+    from planning.uncertainty import Uncertainty
+
+    assert calibration_for(Uncertainty().pull_modes) is LIFT          # lift or drag: it lifts where it can
+    assert calibration_for(()) is LIFT                                # nothing drawn: the planner's own pull lifts
+    assert calibration_for(("drag",)) is DRAG and calibration_for(("ride", "drag")) is DRAG
+    # a dragging truth failed quiet plans often on our bench: no plan is safe against it at 5 %
+    assert DRAG.interval(0, 40)[1] > DEFAULT_MAX_PLAN_RISK > LIFT.interval(0, 10)[1]
