@@ -436,6 +436,15 @@ def _box_bounds(lo: Vec3, hi: Vec3, origin: str, fld: str) -> None:
         raise FormatError(origin, fld, f"min {list(lo)!r} exceeds max {list(hi)!r}")
 
 
+# what counts as unexplained matter (perception/unexplained.py finds it, planning/unexplained.py
+# keeps clear of it); here, beside the record, so that planning needs no OpenCV to read them:
+# a point this close (m) to a box's face prism or a shelf board is explained by it: faces are
+# measured to ~1 cm and `make_valid` moves boxes by up to a few mm more
+EXPLAIN_TOL = 0.02
+# the shelf volume reaches this far (m) in front of its front plane: boxes overhang it
+FRONT_REACH = 0.10
+
+
 @dataclass(frozen=True)
 class Unexplained:
     """Matter the depth image shows inside the shelf that no perceived box (nor the shelf) explains.

@@ -21,16 +21,12 @@ import cv2
 import numpy as np
 
 from perception.geometry import point_map
-from perception.scene import Box, Camera, Shelf, Unexplained, quat_to_matrix
+from perception.scene import (EXPLAIN_TOL, FRONT_REACH, Box, Camera, Shelf, Unexplained,  # noqa: F401
+                              quat_to_matrix)
 
-# a point this close (m) to a box's face prism or a shelf board is explained by it: faces are
-# measured to ~1 cm and `make_valid` moves boxes by up to a few mm more
-EXPLAIN_TOL = 0.02
 # a box's top seen from above may stand this much (m) above its face's measured top plus
 # EXPLAIN_TOL: a face measured a few cm short leaves its own top surface behind the face
 TOP_SLACK = 0.04
-# the shelf volume reaches this far (m) in front of its front plane: boxes overhang it
-FRONT_REACH = 0.10
 # the smallest region reported: 0.002 m^2 (about 4.5 x 4.5 cm of seen surface) ...
 MIN_AREA_M2 = 0.002
 # ... and at least this many pixels at 640x480 (scaled with the image's pixel count)

@@ -17,8 +17,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Sequence
 
-from perception.scene import Box, Scene, Unexplained
-from perception.unexplained import EXPLAIN_TOL, FRONT_REACH
+from perception.scene import EXPLAIN_TOL, FRONT_REACH, Box, Scene, Unexplained
 
 if TYPE_CHECKING:  # pragma: no cover
     from planning.plan import StepPrediction
