@@ -26,12 +26,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from planning.bench import comparable, read_records  # noqa: E402
+from shelfpick.planning.bench import comparable, read_records  # noqa: E402
 
 
 def _shelfpick() -> list[str]:
     exe = Path(sys.executable).with_name("shelfpick")
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "console.cli"]
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "shelfpick.console.cli"]
 
 
 def make_scenes(out: Path, count: int, boxes: str, seed: int) -> Path:

@@ -155,9 +155,9 @@ def visible_fronts(truth: dict, folder: Path) -> dict[str, int]:
     """True box id -> visible front-face pixels in the generated frame (its ground-truth masks)."""
     import cv2
 
-    from perception.bench_truth import front_face_masks
-    from perception.capture import Capture
-    from perception.scene import Camera, Scene
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.capture import Capture
+    from shelfpick.perception.scene import Camera, Scene
 
     cam = Camera.from_json(json.loads((folder / "camera.json").read_text()))
     masks = cv2.imread(str(folder / "masks.png"), cv2.IMREAD_UNCHANGED)

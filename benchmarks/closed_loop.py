@@ -88,8 +88,8 @@ def predicted_truth(truth: Any, perceived: Any, sequence: Any, preview: Any, ste
     The true box at the capture carried by the motion its perceived twin made
     in the recorded preview; a true box perception did not see is predicted to stay.
     """
-    from console.robot import match_boxes
-    from planning.predicted import moved_box, on_shelf as sim_on_shelf, sim_poses_after, start_poses
+    from shelfpick.console.robot import match_boxes
+    from shelfpick.planning.predicted import moved_box, on_shelf as sim_on_shelf, sim_poses_after, start_poses
 
     twin = {t: p for p, t in match_boxes(perceived, truth).items()}
     start = start_poses(preview)
@@ -109,7 +109,7 @@ def predicted_truth(truth: Any, perceived: Any, sequence: Any, preview: Any, ste
 
 def truth_boxes(truth: Any, world: Any, predicted: dict[str, Any], seen: dict[str, int]) -> list[dict]:
     """Per true box: how far it is from its predicted pose (m, deg), fell, visible."""
-    from console.verify import rotation_deg
+    from shelfpick.console.verify import rotation_deg
 
     now = {b.id: b for b in world.boxes}
     rows = []
@@ -131,9 +131,9 @@ def truth_boxes(truth: Any, world: Any, predicted: dict[str, Any], seen: dict[st
 # --------------------------------------------------------------------------- one shelf
 def plan_entries(perceived: Any, task: str, samples: int, seed: int, clients: Any) -> dict[str, tuple]:
     """planner -> (Plan, preview, predicted shelves), as the console's workflow makes them."""
-    from planning.planner import make_plan
-    from planning.predict import Predictor
-    from planning.predicted import predicted_shelves
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.predicted import predicted_shelves
 
     target = perceived.ids[-1] if task == "extract" else None   # the console's default target
     predictor = Predictor(perceived, samples=samples, seed=seed, clients=clients)
@@ -153,9 +153,9 @@ def plan_entries(perceived: Any, task: str, samples: int, seed: int, clients: An
 def run_plan(truth: Any, perceived: Any, source: Any, seen0: dict[str, int], plan: Any, preview: Any,
              shelves: Any, seed: int, tol: Any, mode: str) -> list[dict]:
     """Execute one plan on a surprising sim robot, the console's look after each step; one row per step."""
-    from console.robot import SimRobot
-    from console.workflow import look_again
-    from planning.uncertainty import Uncertainty
+    from shelfpick.console.robot import SimRobot
+    from shelfpick.console.workflow import look_again
+    from shelfpick.planning.uncertainty import Uncertainty
 
     robot = SimRobot(truth, seed=seed, surprise=Uncertainty())
     rows: list[dict] = []
@@ -202,10 +202,10 @@ def run_plan(truth: Any, perceived: Any, source: Any, seen0: dict[str, int], pla
 
 def run_shelf(kind: str, seed: int, args: argparse.Namespace, tol: Any, clients: Any) -> list[dict]:
     """Every planner's rows for one generated shelf (or one row saying why it was skipped)."""
-    from console.sources import DemoSource
-    from perception.pipeline import perceive
-    from perception.scene import Scene
-    from planning.shelves import generate
+    from shelfpick.console.sources import DemoSource
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.scene import Scene
+    from shelfpick.planning.shelves import generate
 
     from benchmarks.perceive_plan import framing_camera
 
@@ -232,9 +232,9 @@ def run_shelf(kind: str, seed: int, args: argparse.Namespace, tol: Any, clients:
 # --------------------------------------------------------------------------- scoring
 def verdict_within(row: dict, disp: float, rot: float) -> bool:
     """The step's recorded look compared again at another tolerance (console.verify.compare)."""
-    from console.store import stored_scene
-    from console.verify import Tolerance, compare
-    from perception.scene import Box
+    from shelfpick.console.store import stored_scene
+    from shelfpick.console.verify import Tolerance, compare
+    from shelfpick.perception.scene import Box
 
     if row["verdict"].get("unavailable") or row.get("predicted") is None or row.get("observed") is None:
         return False
@@ -343,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--score", default=None, help="score an existing steps.jsonl instead of running")
     ap.add_argument("--sweep", action="store_true", help="with --score: every tolerance of a grid")
     args = ap.parse_args(argv)
-    from console.verify import Tolerance
+    from shelfpick.console.verify import Tolerance
 
     tol = Tolerance()
     tol = Tolerance(args.tolerance_cm / 100 if args.tolerance_cm is not None else tol.displacement,
@@ -357,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run_all(args: argparse.Namespace, tol: Any) -> int:
-    from planning.bullet_clients import ClientPool
+    from shelfpick.planning.bullet_clients import ClientPool
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -21,10 +21,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 
 def _workflow(db: Path, workers: int, seed: int):
-    from console.robot import open_robot
-    from console.sources import open_source
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.robot import open_robot
+    from shelfpick.console.sources import open_source
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
 
     store = SessionStore(db)
     wf = Workflow(open_source("demo", seed=seed), store, lambda t, s: open_robot("sim", truth=t, seed=s),

@@ -71,7 +71,7 @@ WRAP = """import os, resource, sys
 resource.setrlimit(resource.RLIMIT_AS, ({0}, {0}))
 pid = os.fork()
 if pid == 0:
-    os.execv(sys.executable, [sys.executable, "-m", "console.cli", *sys.argv[2:]])
+    os.execv(sys.executable, [sys.executable, "-m", "shelfpick.console.cli", *sys.argv[2:]])
 _, status, usage = os.wait4(pid, 0)
 with open(sys.argv[1], "w") as f:
     f.write(str(usage.ru_maxrss))
@@ -81,7 +81,7 @@ os._exit(code if code >= 0 else 128 - code)
 
 
 def run_case(case: make_fuzz.FuzzCase, env: dict[str, str]) -> Result:
-    """One subprocess: `python -m console.cli ARGV`, its exit, stderr, wall time and peak RSS."""
+    """One subprocess: `python -m shelfpick.console.cli ARGV`, its exit, stderr, wall time and peak RSS."""
     with tempfile.TemporaryFile() as err_file, tempfile.TemporaryDirectory() as scratch:
         rss_file = Path(scratch) / "maxrss"
         t0 = time.monotonic()

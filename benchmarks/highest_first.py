@@ -24,12 +24,12 @@ def kind_rates(kind: str, count: int, seed: int, boxes: tuple[int, int] | None) 
     """Highest-first failure counts on one kind, under the perturbed truth and the nominal physics."""
     import numpy as np
 
-    from perception.errors import SceneError
-    from planning.bench import BenchConfig, derive_seed, true_world
-    from planning.cmd_scenes import scene_seed
-    from planning.execute import execute_plan
-    from planning.heuristic import heuristic_order
-    from planning.shelves import generate
+    from shelfpick.perception.errors import SceneError
+    from shelfpick.planning.bench import BenchConfig, derive_seed, true_world
+    from shelfpick.planning.cmd_scenes import scene_seed
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.heuristic import heuristic_order
+    from shelfpick.planning.shelves import generate
 
     model = BenchConfig().truth
     out = {"kind": kind, "scenes": 0, "no_truth": 0, "tasks": 0, "fail_truth": 0, "fail_nominal": 0}
@@ -54,7 +54,7 @@ def kind_rates(kind: str, count: int, seed: int, boxes: tuple[int, int] | None) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from planning.shelves import KINDS
+    from shelfpick.planning.shelves import KINDS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--kinds", default=",".join(KINDS), help=f"comma list of {', '.join(KINDS)}")
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"highest_first: --kinds: unknown kind {bad[0]!r}" if bad else
               f"highest_first: --count: expected a positive number, got {a.count}", file=sys.stderr)
         return 2
-    from planning.cmd_scenes import parse_range
+    from shelfpick.planning.cmd_scenes import parse_range
     boxes = parse_range(a.boxes)
     rows = []
     print("| kind | shelves | no truth | tasks | highest-first fails (perturbed truth) | (nominal physics) | s |")

@@ -102,7 +102,7 @@ def build_units(a: argparse.Namespace, engines: list[str]) -> tuple[list[dict], 
 # perception of one true shelf (cached: a shelf carries 3 tasks)
 @functools.cache
 def _segmenter() -> Any:
-    from perception.segment import load_segmenter
+    from shelfpick.perception.segment import load_segmenter
 
     return load_segmenter(None, SEGMENTER)
 
@@ -111,10 +111,10 @@ def _segmenter() -> Any:
 def perceived_shelf(judge_dir: str, scene: str) -> dict:
     """Render the judge's true shelf with a framing camera, perceive it, map perceived ids to true ids."""
     from benchmarks.perceive_plan import framing_camera, map_ids
-    from perception.bench_truth import front_face_masks
-    from perception.pipeline import perceive
-    from perception.render import render
-    from perception.scene import Scene
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.render import render
+    from shelfpick.perception.scene import Scene
 
     truth = Scene.from_json(json.loads((Path(judge_dir) / "scenes" / f"{scene}.json").read_text(encoding="utf-8")),
                             f"{scene}.json")

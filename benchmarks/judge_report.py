@@ -108,7 +108,7 @@ def check_args(a: argparse.Namespace) -> tuple[list[float], list[str], list[str]
     if a.resume and not a.out:
         raise UsageError("--resume: needs --out (the rows to continue)")
     if a.physics is not None:
-        from planning.physics import PhysicsConfig
+        from shelfpick.planning.physics import PhysicsConfig
         try:
             fields = json.loads(a.physics)
             PhysicsConfig(**fields)

@@ -94,7 +94,7 @@ def judge_fn(engine: str) -> Callable[[dict, dict], dict]:
 
 def cli_plan_settings(overrides: dict) -> dict:
     """What `shelfpick plan` passes to make_plan by default (its parser's defaults), with overrides."""
-    from planning import cmd_plan
+    from shelfpick.planning import cmd_plan
 
     parser = argparse.ArgumentParser()
     cmd_plan.add_arguments(parser)
@@ -107,10 +107,10 @@ def cli_plan_settings(overrides: dict) -> dict:
 
 def make_timed_plan(obs: dict, target: str | None, planner: str, settings: dict) -> tuple[dict, dict]:
     """make_plan on the observed scene, in this process; (plan fields for the row, plan document)."""
-    from perception.errors import ShelfpickError
-    from perception.scene import Scene
-    from planning.physics import PhysicsConfig
-    from planning.planner import make_plan
+    from shelfpick.perception.errors import ShelfpickError
+    from shelfpick.perception.scene import Scene
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.planner import make_plan
 
     settings = dict(settings)
     if settings.get("physics"):

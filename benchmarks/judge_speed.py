@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from planning.bench_report import percentile  # noqa: E402
+from shelfpick.planning.bench_report import percentile  # noqa: E402
 
 
 def _cpu() -> float:
@@ -54,10 +54,10 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, args.judge_dir)
     from observe import observed  # the judge's camera model, run from its own folder
 
-    from perception.scene import Scene
-    from planning.bullet_clients import ClientPool
-    from planning.planner import make_plan
-    from planning.worker_pool import WorkerPool
+    from shelfpick.perception.scene import Scene
+    from shelfpick.planning.bullet_clients import ClientPool
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.worker_pool import WorkerPool
 
     tasks = [t for t in json.load(open(os.path.join(args.judge_dir, "tasks.json")))
              if args.min_boxes <= t["n_boxes"] <= args.max_boxes][: args.limit]

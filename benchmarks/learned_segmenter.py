@@ -36,9 +36,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def frame_scores(scene, cap, segmenter, least: int) -> dict:
     """One capture through `perceive` with `segmenter`: counts, IoUs and times."""
-    from perception.bench import match
-    from perception.bench_truth import front_face_masks
-    from perception.pipeline import perceive
+    from shelfpick.perception.bench import match
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.pipeline import perceive
 
     gt_ids = [k for k, m in front_face_masks(scene, cap).items() if m.sum() >= least]
     gt_all = front_face_masks(scene, cap)
@@ -71,9 +71,9 @@ def pool(frames: list[dict]) -> dict:
 
 def rendered_set(name: str, seeds: list[int], segmenters: dict, progress: bool = True) -> dict:
     """Both segmenters on each frame of a rendered set."""
-    from perception.bench import MIN_GT_PIXELS, min_gt_pixels
-    from perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
-    from perception.render import render
+    from shelfpick.perception.bench import MIN_GT_PIXELS, min_gt_pixels
+    from shelfpick.perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
+    from shelfpick.perception.render import render
 
     out: dict[str, list[dict]] = {k: [] for k in segmenters}
     for i, s in enumerate(seeds):
@@ -83,7 +83,7 @@ def rendered_set(name: str, seeds: list[int], segmenters: dict, progress: bool =
             least = min_gt_pixels(cam)
         elif name == "shelves":
             from benchmarks.perceive_plan import framing_camera
-            from planning.shelves import generate
+            from shelfpick.planning.shelves import generate
 
             scene = generate("structured" if s % 2 == 0 else "unstructured", s, 10)
             cam = framing_camera(scene)
@@ -101,7 +101,7 @@ def rendered_set(name: str, seeds: list[int], segmenters: dict, progress: bool =
 
 def photo_set(root: Path, segmenters: dict, which: str) -> dict:
     """Photos without depth (RCAN held-out half, or telexistence) through `bench_photos`."""
-    from perception.bench import RCAN_HELD_OUT, bench_rcan, bench_telexistence
+    from shelfpick.perception.bench import RCAN_HELD_OUT, bench_rcan, bench_telexistence
 
     out = {}
     for k, seg in segmenters.items():
@@ -118,9 +118,9 @@ def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float],
     only: varied renders 20000-20019 (through `perceive`) and the RCAN tune half (photos)."""
     import dataclasses
 
-    from perception.bench import RCAN_TUNE, bench_rcan, min_gt_pixels
-    from perception.bench_scenes import sample_varied_scene, varied_camera
-    from perception.render import render
+    from shelfpick.perception.bench import RCAN_TUNE, bench_rcan, min_gt_pixels
+    from shelfpick.perception.bench_scenes import sample_varied_scene, varied_camera
+    from shelfpick.perception.render import render
 
     frames = []
     for s in range(20000, 20020):
@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     import torch
 
-    from perception.segment import load_segmenter
+    from shelfpick.perception.segment import load_segmenter
 
     torch.set_num_threads(a.threads)
     if a.tune:

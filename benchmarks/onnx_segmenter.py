@@ -47,7 +47,7 @@ def installed_mib(*modules: str) -> float:
 def paired_ious(want: list[np.ndarray], got: list[np.ndarray]) -> list[float]:
     """For each mask of `want`, the IoU of the `got` mask paired with it: pairs taken greedily by
     IoU, highest first, one to one; a `want` mask left unpaired scores 0."""
-    from perception.bench import mask_iou
+    from shelfpick.perception.bench import mask_iou
 
     cands = sorted(((mask_iou(a, b), i, j) for i, a in enumerate(want) for j, b in enumerate(got)), reverse=True)
     out, used_i, used_j = [0.0] * len(want), set(), set()
@@ -64,8 +64,8 @@ def frames(name: str, count: int, realdata: Path):
     if name == "rcan":
         import cv2
 
-        from perception.bench import RCAN_HELD_OUT
-        from perception.capture import read_rgb
+        from shelfpick.perception.bench import RCAN_HELD_OUT
+        from shelfpick.perception.capture import read_rgb
 
         for n in RCAN_HELD_OUT[: count or None]:
             rgb = read_rgb(realdata / "RCAN_scd_samples" / "back" / "img" / n)
@@ -74,8 +74,8 @@ def frames(name: str, count: int, realdata: Path):
                 rgb = cv2.resize(rgb, (int(rgb.shape[1] * s), int(rgb.shape[0] * s)), interpolation=cv2.INTER_AREA)
             yield n, rgb, None, None, None
         return
-    from perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
-    from perception.render import render
+    from shelfpick.perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
+    from shelfpick.perception.render import render
 
     seeds = range(1000, 1050) if name == "renders" else range(22000, 22040)
     for i, s in enumerate(list(seeds)[: count or None]):
@@ -128,7 +128,7 @@ SET_NAMES = {"renders": "held-out renders 1000-1049 (RGB-D)", "varied": "varied 
 
 def report(args: argparse.Namespace, rows: dict, versions: dict) -> str:
     """The markdown of docs/results/onnx-segmenter.md."""
-    from perception.segment_learned import LEARNED_ONNX, LEARNED_WEIGHTS
+    from shelfpick.perception.segment_learned import LEARNED_ONNX, LEARNED_WEIGHTS
 
     cmd = "OMP_NUM_THREADS=1 python benchmarks/onnx_segmenter.py " + " ".join(sys.argv[1:])
     lines = ["# The learned segmenter on ONNX Runtime vs torch", "",
@@ -151,7 +151,7 @@ def report(args: argparse.Namespace, rows: dict, versions: dict) -> str:
               f"(torch, torchvision, ultralytics) | {installed_mib('onnxruntime'):.0f} (onnxruntime) |", "",
               "Installed sizes are the packages' own folders; torch from PyPI also pulls its CUDA libraries "
               "(nvidia-*, triton): the venvs' totals are in [install-footprint.md](install-footprint.md). "
-              "The ONNX file is exported from the checkpoint by `python -m perception.onnx_export`."]
+              "The ONNX file is exported from the checkpoint by `python -m shelfpick.perception.onnx_export`."]
     return "\n".join(lines) + "\n"
 
 
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     import onnxruntime
     import torch
 
-    from perception.segment_learned import LEARNED_ONNX, LEARNED_WEIGHTS, LearnedSegmenter
+    from shelfpick.perception.segment_learned import LEARNED_ONNX, LEARNED_WEIGHTS, LearnedSegmenter
 
     onnx_seg, torch_seg = LearnedSegmenter(LEARNED_ONNX, threads=1), LearnedSegmenter(LEARNED_WEIGHTS, threads=1)
     warm = np.random.default_rng(0).integers(0, 256, (360, 480, 3), dtype=np.uint8)

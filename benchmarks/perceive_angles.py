@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 def orientation_error(true_box, pred_box) -> tuple[float, float]:
     """(full frame error, normal error) in degrees, the full one minimised over the 4 turns
     about the face normal."""
-    from perception.scene import quat_to_matrix
+    from shelfpick.perception.scene import quat_to_matrix
 
     rt = np.asarray(quat_to_matrix(true_box.orientation))
     rp = np.asarray(quat_to_matrix(pred_box.orientation))
@@ -43,11 +43,11 @@ def orientation_error(true_box, pred_box) -> tuple[float, float]:
 
 
 def run_frame(seed: int) -> dict:
-    from perception.bench import match, min_gt_pixels
-    from perception.bench_scenes import sample_varied_scene, varied_camera
-    from perception.bench_truth import front_face_masks
-    from perception.pipeline import perceive
-    from perception.render import render
+    from shelfpick.perception.bench import match, min_gt_pixels
+    from shelfpick.perception.bench_scenes import sample_varied_scene, varied_camera
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.render import render
 
     scene = sample_varied_scene(seed)
     cam = varied_camera(seed)
@@ -119,7 +119,7 @@ def markdown(name: str, s: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from perception.bench_scenes import VARIED_SEEDS
+    from shelfpick.perception.bench_scenes import VARIED_SEEDS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--set", choices=sorted(VARIED_SEEDS), default="held_out")

@@ -31,7 +31,7 @@ def tune_scene(seed: int, cache: Path) -> dict:
     path = cache / f"shelf_{seed}.json"
     if path.exists():
         return json.loads(path.read_text())
-    from planning.shelves import generate
+    from shelfpick.planning.shelves import generate
 
     doc = generate("structured" if seed % 2 == 0 else "unstructured", seed).to_json()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -46,8 +46,8 @@ def one_frame(seed: int, look: str, out: Path, keep: bool) -> dict:
 
     from benchmarks.camera_to_plan import VISIBLE_PX, match_fronts, visible_fronts
     from benchmarks.generators import write_frame
-    from perception.capture import load_capture
-    from perception.pipeline import perceive
+    from shelfpick.perception.capture import load_capture
+    from shelfpick.perception.pipeline import perceive
 
     truth = tune_scene(seed, out / "shelves")
     folder = out / look / str(seed)

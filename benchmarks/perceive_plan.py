@@ -46,7 +46,7 @@ FRAME_MAX_BACK = 3.5       # never further than this from the shelf front (depth
 
 def front_corners(scene) -> np.ndarray:
     """The 4 corners of each box's front face (local -y side), (4N, 3) in the shelf frame."""
-    from perception.scene import quat_to_matrix
+    from shelfpick.perception.scene import quat_to_matrix
 
     out = []
     for b in scene.boxes:
@@ -60,7 +60,7 @@ def front_corners(scene) -> np.ndarray:
 
 def out_of_view(scene, camera, margin: float = 0.0) -> list[str]:
     """Ids of the boxes with a front-face corner outside the image (or behind the camera)."""
-    from perception.geometry import project
+    from shelfpick.perception.geometry import project
 
     uv, z = project(camera, front_corners(scene)) if scene.boxes else (np.zeros((0, 2)), np.zeros(0))
     ok = (z > 0) & (uv[:, 0] >= margin) & (uv[:, 0] <= camera.width - 1 - margin) \
@@ -71,7 +71,7 @@ def out_of_view(scene, camera, margin: float = 0.0) -> list[str]:
 def _pitched(base, y: float, z: float, pitch_deg: float):
     from dataclasses import replace
 
-    from perception.render import _rot_x
+    from shelfpick.perception.render import _rot_x
 
     return replace(base, position=(0.0, y, z), orientation=_rot_x(-np.radians(90.0 + pitch_deg)))
 
@@ -85,9 +85,9 @@ def framing_camera(scene, margin: float = FRAME_MARGIN_PX, height: float = FRAME
     image borders; the first distance where all corners are `margin` px inside wins.
     Raises ValueError when no distance up to FRAME_MAX_BACK frames the scene.
     """
-    from perception.render import default_camera
+    from shelfpick.perception.render import default_camera
 
-    from perception.geometry import project
+    from shelfpick.perception.geometry import project
 
     base = default_camera()
     pts = front_corners(scene)
@@ -142,11 +142,11 @@ def run_one(kind: str, seed: int, n_boxes: int, samples: int, task: str, segment
     The target is drawn among the faces visible to the DEFAULT camera (seeded), so both
     cameras extract the same box and the default rows stay what they were.
     """
-    from perception.bench_truth import front_face_masks
-    from perception.render import default_camera, render
-    from planning.execute import execute_plan
-    from planning.planner import make_plan
-    from planning.shelves import generate
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.render import default_camera, render
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.shelves import generate
 
     truth = generate(kind, seed, n_boxes)
     caps = {"default": render(truth, seed=seed)}
@@ -177,10 +177,10 @@ def run_one(kind: str, seed: int, n_boxes: int, samples: int, task: str, segment
 
 def _perceived_plan(truth, cap, gt, target, task, samples, seed, segmenter) -> dict:
     """Perceive the capture, plan on the perceived scene, execute on the true scene."""
-    from perception.errors import ShelfpickError
-    from perception.pipeline import perceive
-    from planning.execute import execute_plan
-    from planning.planner import make_plan
+    from shelfpick.perception.errors import ShelfpickError
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.planner import make_plan
 
     res = perceive(cap, segmenter, truth.shelf)
     ids = map_ids(res.masks, res.scene, gt)
@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
-    from perception.segment import load_segmenter, segmenter_name
+    from shelfpick.perception.segment import load_segmenter, segmenter_name
 
     seg = load_segmenter(args.weights, args.segmenter)
     cameras = ("default", "frame") if args.camera == "both" else (args.camera,)

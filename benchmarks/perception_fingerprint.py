@@ -53,7 +53,7 @@ class CatalogueTap:
     """Wraps `perception.pipeline.apply_catalogue` to record what the catalogue got and gave."""
 
     def __init__(self, save_dir: Path | None = None) -> None:
-        import perception.pipeline as pl
+        import shelfpick.perception.pipeline as pl
 
         self.pl, self.inner = pl, pl.apply_catalogue
         self.save_dir, self.name, self.calls, self.seconds = save_dir, "", [], 0.0
@@ -87,8 +87,8 @@ def _cat_json(cat) -> dict:
 
 def _frames(quick: bool):
     """(name, capture, shelf, catalogue kwargs) for each frame, rendered lazily."""
-    from perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
-    from perception.render import render
+    from shelfpick.perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
+    from shelfpick.perception.render import render
 
     for i in range(20 if quick else 50):
         seed = 1000 + i
@@ -105,15 +105,15 @@ def _frames(quick: bool):
         return
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from benchmarks.perceive_plan import framing_camera
-    from planning.shelves import generate
+    from shelfpick.planning.shelves import generate
 
     for seed in range(5000, 5040):
         truth = generate("unstructured", seed, 10)
         yield f"plan-{seed}", (lambda t=truth, seed=seed: render(t, framing_camera(t), seed=seed)), truth.shelf, {}
     neura = REALDATA / "neura_smart_palletizer"
     if neura.is_dir():
-        from perception.bench import neura_capture
-        from perception.pipeline import DEFAULT_CATALOGUE
+        from shelfpick.perception.bench import neura_capture
+        from shelfpick.perception.pipeline import DEFAULT_CATALOGUE
 
         cap, shelf, _ = neura_capture(neura)
         yield "neura-nocat", (lambda: cap), shelf, {"catalogue": None}
@@ -121,8 +121,8 @@ def _frames(quick: bool):
 
 
 def fingerprint(quick: bool = False, save: Path | None = None) -> dict:
-    from perception.cmd_render import c_stdout_to_stderr
-    from perception.pipeline import perceive
+    from shelfpick.perception.cmd_render import c_stdout_to_stderr
+    from shelfpick.perception.pipeline import perceive
 
     tap = CatalogueTap(save)
     frames, secs, cat_secs = {}, {}, {}
@@ -151,7 +151,7 @@ def fingerprint(quick: bool = False, save: Path | None = None) -> dict:
 
 def replay(save: Path) -> dict:
     """Re-run only `apply_catalogue` on the saved inputs: {file: (masks hash, notes)}, CPU s."""
-    from perception.box_catalogue import Catalogue, apply_catalogue
+    from shelfpick.perception.box_catalogue import Catalogue, apply_catalogue
 
     out, total = {}, 0.0
     for f in sorted(save.glob("*.npz")):

@@ -21,8 +21,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from planning.bench import derive_seed  # noqa: E402
-from planning.bench_report import percentile  # noqa: E402
+from shelfpick.planning.bench import derive_seed  # noqa: E402
+from shelfpick.planning.bench_report import percentile  # noqa: E402
 
 
 def _cpu(pool=None) -> float:
@@ -85,8 +85,8 @@ def build_work(args: argparse.Namespace) -> list[tuple[str, str, str, int, int]]
 
 def true_scene(cached: Path, kind: str, seed: int, n: int):
     """The true scene from the scene folder, or generated and written there (the same shelves next run)."""
-    from perception.scene import Scene
-    from planning.shelves import generate
+    from shelfpick.perception.scene import Scene
+    from shelfpick.planning.shelves import generate
 
     if cached.exists():
         return Scene.load(cached)
@@ -97,8 +97,8 @@ def true_scene(cached: Path, kind: str, seed: int, n: int):
 
 def timed_plan(hidden, task: str, target: str | None, seed: int, args: argparse.Namespace, config, pool):
     """make_plan, with its own Predictor on the pool when there are workers; (plan, wall s, CPU s)."""
-    from planning.planner import make_plan
-    from planning.predict import Predictor
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.predict import Predictor
 
     t0 = time.perf_counter()
     c0 = _cpu(pool)
@@ -118,7 +118,7 @@ def scene_rows(item: tuple[str, str, str, int, int], args: argparse.Namespace, c
     """Every target of one scene planned (timed) on the hidden-depth scene and executed on the truth."""
     import numpy as np
 
-    from planning.execute import execute_plan
+    from shelfpick.planning.execute import execute_plan
 
     g, task, kind, s, n = item
     try:
@@ -147,7 +147,7 @@ def run_work(work: list, args: argparse.Namespace, config, out: Path, scene_dir:
     """All scenes in turn (one worker pool for all of them when --workers > 1), with a progress bar."""
     from tqdm import tqdm
 
-    from planning.worker_pool import WorkerPool
+    from shelfpick.planning.worker_pool import WorkerPool
 
     pool = WorkerPool(args.workers) if args.workers > 1 else None
     rows: list[dict] = []
@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     """Plan every scene, write rows.jsonl, plan_speed.json and plan_speed.md under --out, print the table."""
     import os
 
-    from planning.physics import PhysicsConfig
+    from shelfpick.planning.physics import PhysicsConfig
 
     args = parse_args(argv)
     config = PhysicsConfig.from_json(json.loads(args.physics), "--physics") if args.physics else None

@@ -51,13 +51,13 @@ def _truth_step(st, cfg) -> dict:
 def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int, base_seed: int,
                   truth_pull: str = "drag") -> list[dict]:
     """Every row of one shelf at one noise level."""
-    from perception.errors import SceneError
-    from planning.bench import derive_seed, observe, true_world, TruthModel
-    from planning.execute import execute_plan
-    from planning.physics import PhysicsConfig
-    from planning.planner import make_plan
-    from planning.predict import Predictor
-    from planning.shelves import generate
+    from shelfpick.perception.errors import SceneError
+    from shelfpick.planning.bench import derive_seed, observe, true_world, TruthModel
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.shelves import generate
 
     name = f"{kind}-{seed}"
     scene = generate(kind, seed, None)
@@ -111,7 +111,7 @@ def _truth_model(pull: str, noise: float, seed: int):
     """The bench's truth (planning.bench.TruthModel) with the gripper's pull: `drag` (the bench's
     own: no lift, the box rides on its support) or `lift` (the gripper lifts 3-8 mm first where
     nothing rests on the box, as the planner's own pull does; the height drawn per shelf)."""
-    from planning.bench import TruthModel
+    from shelfpick.planning.bench import TruthModel
 
     if pull == "drag":
         return TruthModel(noise=noise)

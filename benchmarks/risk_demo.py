@@ -24,7 +24,7 @@ README_EXAMPLE = ("demo-structured-10.json", "b1")
 
 def tops(scene) -> list[str]:
     """Boxes with free space above them that stand on another box (not on the shelf floor)."""
-    from planning.sim import ShelfSim
+    from shelfpick.planning.sim import ShelfSim
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -36,7 +36,7 @@ def tops(scene) -> list[str]:
 
 
 def row(name: str, scene, target: str, how: str, workers: int) -> dict:
-    from planning.planner import make_plan
+    from shelfpick.planning.planner import make_plan
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -48,7 +48,7 @@ def row(name: str, scene, target: str, how: str, workers: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from perception.scene import Scene
+    from shelfpick.perception.scene import Scene
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=1)

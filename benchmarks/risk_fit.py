@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from planning.calibration import Calibration, fit  # noqa: E402
+from shelfpick.planning.calibration import Calibration, fit  # noqa: E402
 
 PREFIXES = (10, 20, 30)
 BINS = (0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.7, 1.0001)

@@ -17,8 +17,8 @@ import time
 import warnings
 from pathlib import Path
 
-from perception.scene import Box, Scene, Shelf
-from planning.physics import PhysicsConfig
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.physics import PhysicsConfig
 
 A = (0.31, 0.23, 0.25)   # the method's box types as (width, depth, height)
 B = (0.2, 0.2, 0.2)
@@ -48,8 +48,8 @@ def column_scene(n: int = 6) -> Scene:
 
 
 def timing(config: PhysicsConfig, repeat: int = 3) -> dict:
-    from planning.predict import Predictor
-    from planning.sim import ShelfSim
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.sim import ShelfSim
 
     scene = twelve_box_scene()
     with warnings.catch_warnings():
@@ -91,8 +91,8 @@ def timing(config: PhysicsConfig, repeat: int = 3) -> dict:
 
 def accuracy(configs: dict[str, PhysicsConfig], reference: PhysicsConfig, samples: int = 4) -> dict:
     """Collapse verdict and first collapsing box of every single-box removal, vs the reference."""
-    from planning.uncertainty import sample_depths
-    from planning.sim import ShelfSim
+    from shelfpick.planning.uncertainty import sample_depths
+    from shelfpick.planning.sim import ShelfSim
 
     base = twelve_box_scene().hide_depths()
     scenes = [sample_depths(base, 0, i) for i in range(samples)] + [column_scene()]
@@ -134,7 +134,7 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
     Compares the collapse verdict, the first collapsing box and the collision
     verdict, and counts steps and CPU time of both ways.
     """
-    from planning.uncertainty import sample_depths
+    from shelfpick.planning.uncertainty import sample_depths
 
     rows: list[dict] = []
     tot = {"full": [0.0, 0], "local": [0.0, 0]}
@@ -152,7 +152,7 @@ def locality(scenes: dict[str, Scene], config: PhysicsConfig, samples: int = 2,
 
 def _local_sim(sc: Scene, config: PhysicsConfig, label: str):
     """A ShelfSim that can run local trials, or None for an unstable draw (the Predictor would redraw)."""
-    from planning.sim import ShelfSim
+    from shelfpick.planning.sim import ShelfSim
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -240,7 +240,7 @@ def _above(sim, box: str) -> set[str]:
 
 def locality_scenes(quick: bool = False) -> dict[str, Scene]:
     """The accuracy set (12-box shelf, 6-box column) and synthetic 25-30 box shelves."""
-    from planning.shelves import generate
+    from shelfpick.planning.shelves import generate
 
     out = {"twelve": twelve_box_scene(), "column": column_scene()}
     for kind, seed, n in (("structured", 11, 28), ("unstructured", 12, 27),

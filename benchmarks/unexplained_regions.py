@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.scene import Box, Camera, Scene, Unexplained
+from shelfpick.perception.scene import Box, Camera, Scene, Unexplained
 
 JUDGE = Path(__file__).resolve().parents[2] / "shared" / "judge" / "scenes"
 NEAR = 0.03      # m a box's front centre may lie outside a region's seen bounds and still be covered
@@ -31,7 +31,7 @@ MATCH = 0.05     # m between a perceived and a true front centre: the same box
 def frames(role: str):
     """(name, look, truth scene) of every frame of a role, in a fixed order."""
     if role == "tune":
-        from planning.shelves import generate
+        from shelfpick.planning.shelves import generate
 
         for seed in range(31000, 31020):
             yield f"{seed}", "flat", generate("structured" if seed % 2 == 0 else "unstructured", seed)
@@ -49,7 +49,7 @@ def covers(u: Unexplained, b: Box, near: float = NEAR) -> bool:
 
 def one(name: str, look: str, truth: Scene, perceive_too: bool) -> dict:
     from benchmarks.generators import make_frame
-    from perception.unexplained import find_unexplained
+    from shelfpick.perception.unexplained import find_unexplained
 
     f = make_frame(truth.to_json(), look, 0, name)
     cam = Camera.from_json(f.cam.json(0.001))
@@ -68,8 +68,8 @@ def one(name: str, look: str, truth: Scene, perceive_too: bool) -> dict:
 
 
 def _perceived(f, cam: Camera, truth: Scene, px: dict) -> dict:
-    from perception.capture import Capture
-    from perception.pipeline import perceive
+    from shelfpick.perception.capture import Capture
+    from shelfpick.perception.pipeline import perceive
 
     t = time.perf_counter()
     res = perceive(Capture(f.rgb, f.depth, cam), None, truth.shelf)

@@ -10,14 +10,14 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "main": "console.cli",                                   # the `shelfpick` command line
-    "ConsoleApp": "console.app",                             # the viser server and its client views
-    "Workflow": "console.workflow",                          # capture -> plans -> approval -> robot run
-    "SessionStore": "console.store",                         # the SQLite record of every session
-    "open_robot": "console.robot", "SimRobot": "console.robot", "TcpRobot": "console.robot_tcp",
-    "open_source": "console.sources",                        # demo, files or RealSense captures
-    "read_cell": "console.cell", "Cell": "console.cell",     # a robot cell's configuration file
-    "compare": "console.verify", "Tolerance": "console.verify",  # predicted vs observed after a step
+    "main": "shelfpick.console.cli",                                   # the `shelfpick` command line
+    "ConsoleApp": "shelfpick.console.app",                             # the viser server and its client views
+    "Workflow": "shelfpick.console.workflow",                          # capture -> plans -> approval -> robot run
+    "SessionStore": "shelfpick.console.store",                         # the SQLite record of every session
+    "open_robot": "shelfpick.console.robot", "SimRobot": "shelfpick.console.robot", "TcpRobot": "shelfpick.console.robot_tcp",
+    "open_source": "shelfpick.console.sources",                        # demo, files or RealSense captures
+    "read_cell": "shelfpick.console.cell", "Cell": "shelfpick.console.cell",     # a robot cell's configuration file
+    "compare": "shelfpick.console.verify", "Tolerance": "shelfpick.console.verify",  # predicted vs observed after a step
 }
 
 __all__ = sorted(_WHERE)

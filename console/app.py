@@ -15,19 +15,19 @@ import threading
 import traceback
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
-from console.page_markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
-from console.panels import OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel, quoted
-from console.look import as_planned
-from console.replay_view import LookView, ReplayView, record_view, replay_status
-from console.workflow import PlanEntry, State, Workflow, WorkflowError
-from perception.errors import ShelfpickError
-from perception.scene import Camera, Scene
+from shelfpick.console.page_markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
+from shelfpick.console.panels import OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel, quoted
+from shelfpick.console.look import as_planned
+from shelfpick.console.replay_view import LookView, ReplayView, record_view, replay_status
+from shelfpick.console.workflow import PlanEntry, State, Workflow, WorkflowError
+from shelfpick.perception.errors import ShelfpickError
+from shelfpick.perception.scene import Camera, Scene
 
 if TYPE_CHECKING:
     import viser
 
-    from perception.capture import Capture
-    from planning.plan import Plan
+    from shelfpick.perception.capture import Capture
+    from shelfpick.planning.plan import Plan
 
 LOCAL_HOSTS = frozenset({"127.0.0.1", "localhost", "::1"})
 MIN_PASSPHRASE = 12          # characters, when the console listens beyond this machine
@@ -313,7 +313,7 @@ class ConsoleApp:
         """passphrase_set: a person chose the workflow's passphrase (a generated one is for localhost);
         allow_origins: browser origins besides the console's own that may drive it (console.origin_guard)."""
         check_host(host, workflow._passphrase if passphrase_set else None)
-        from console.origin_guard import guarded_viser_server, policy_for
+        from shelfpick.console.origin_guard import guarded_viser_server, policy_for
 
         try:
             policy = policy_for(host, allow_origins)

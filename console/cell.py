@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 from urllib.parse import quote
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 CELL_FORMAT = "shelfpick.cell/1"
 SEGMENTERS = ("auto", "depth", "photo", "yolo", "learned")
@@ -63,7 +63,7 @@ class Cell:
 
     def priors(self) -> Any:
         """planning.priors.CellPriors from the [planning] section (defaults where not given)."""
-        from planning.priors import CellPriors
+        from shelfpick.planning.priors import CellPriors
 
         return CellPriors(**self.planning)
 
@@ -77,7 +77,7 @@ class Cell:
 
     def tolerance(self) -> Any:
         """console.verify.Tolerance from the safety section (defaults where not given)."""
-        from console.verify import Tolerance
+        from shelfpick.console.verify import Tolerance
 
         d = Tolerance()
         s = self.safety
@@ -201,7 +201,7 @@ def _cell(doc: Mapping[str, Any], origin: str, base: Path) -> Cell:
         source = f"{kind}:{_path(where, base, origin, 'camera.source')}"
     camera_file = _file(cam, "camera", "file", origin, base) if "file" in cam else None
     if camera_file is not None:
-        from perception.scene import Camera
+        from shelfpick.perception.scene import Camera
 
         Camera.load(camera_file)          # its own one-line FormatError names the camera file and field
     per = sec["perception"]
@@ -297,7 +297,7 @@ def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
         if "position" in sec or "orientation" in sec:
             raise CellError(origin, "robot.transform", "give a transform file or position/orientation, not both")
         tfile = _file(sec, "robot", "transform", origin, base)
-        from robotsim.transform import Transform   # where it lives (via console.robot_tcp: a cycle)
+        from shelfpick.robotsim.transform import Transform   # where it lives (via console.robot_tcp: a cycle)
 
         Transform.load(tfile)                 # its own one-line error names the transform file
         opts.append(("transform", tfile))
@@ -318,7 +318,7 @@ def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
 
 
 def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
-    from planning.cmd_plan import SAMPLES, SEEDS, WORKERS
+    from shelfpick.planning.cmd_plan import SAMPLES, SEEDS, WORKERS
 
     out: dict[str, Any] = {}
     for key, (lo, hi) in (("samples", SAMPLES), ("workers", WORKERS), ("port", (0, 65535)), ("seed", SEEDS)):
@@ -340,7 +340,7 @@ def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
 
 def _origins(value: Any, origin: str) -> tuple[str, ...]:
     """safety.allow_origins: browser origins besides the console's own (console/origin_guard.py)."""
-    from console.origin_guard import normalize_origin
+    from shelfpick.console.origin_guard import normalize_origin
 
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise CellError(origin, "safety.allow_origins", f"expected a list of origins like "
@@ -356,7 +356,7 @@ def _origins(value: Any, origin: str) -> tuple[str, ...]:
 
 def _planning(sec: Mapping[str, Any], origin: str) -> dict[str, Any]:
     """The [planning] section as planning.priors.CellPriors' keyword arguments."""
-    from planning.uncertainty import PULL_MODES
+    from shelfpick.planning.uncertainty import PULL_MODES
 
     out: dict[str, Any] = {}
     for key, name, lo, hi in (("mass_kg", "mass", 0.01, 1000.0), ("friction", "friction", 0.01, 2.0)):

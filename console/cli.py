@@ -22,23 +22,23 @@ import sys
 from typing import Callable
 
 COMMANDS: dict[str, str] = {
-    "plan": "planning.cmd_plan",
-    "simulate": "planning.cmd_simulate",
-    "scenes": "planning.cmd_scenes",
-    "bench": "planning.cmd_bench",
-    "render": "perception.cmd_render",
-    "perceive": "perception.cmd_perceive",
-    "train-seg": "perception.cmd_train_seg",
-    "perceive-bench": "perception.cmd_perceive_bench",
-    "calibrate": "perception.cmd_calibrate",
-    "console": "console.cmd_console",
-    "sessions": "console.cmd_sessions",
-    "replay": "console.cmd_replay",
+    "plan": "shelfpick.planning.cmd_plan",
+    "simulate": "shelfpick.planning.cmd_simulate",
+    "scenes": "shelfpick.planning.cmd_scenes",
+    "bench": "shelfpick.planning.cmd_bench",
+    "render": "shelfpick.perception.cmd_render",
+    "perceive": "shelfpick.perception.cmd_perceive",
+    "train-seg": "shelfpick.perception.cmd_train_seg",
+    "perceive-bench": "shelfpick.perception.cmd_perceive_bench",
+    "calibrate": "shelfpick.perception.cmd_calibrate",
+    "console": "shelfpick.console.cmd_console",
+    "sessions": "shelfpick.console.cmd_sessions",
+    "replay": "shelfpick.console.cmd_replay",
 }
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_PLAN_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
 EXIT_PIPE_CLOSED = 141        # stdout's reader went away (`| head`): 128 + SIGPIPE, as a shell reports it
-LOGGERS = ("perception", "planning", "console")   # the packages whose records the CLI shows
+LOGGERS = ("shelfpick",)   # the package whose records the CLI shows (all of its modules log under it)
 # optional libraries -> the extra that installs them (pyproject.toml); a command that needs one that is
 # missing says so in one line (exit 2) instead of a traceback
 EXTRAS: dict[str, str] = {
@@ -187,7 +187,7 @@ class _Decrement(argparse.Action):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
     restore = configure_logging(args.command, getattr(args, "verbosity", 0) or 0)
-    log = logging.getLogger("console.cli")
+    log = logging.getLogger("shelfpick.console.cli")
     try:
         code = int(args._run(args) or 0)
         sys.stdout.flush()              # a closed pipe shows here, not in the interpreter's exit

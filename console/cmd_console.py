@@ -62,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def settle(args: argparse.Namespace):
     """Command line over cell file over defaults, into `args`; the cell (or None)."""
-    from console.cell import read_cell
+    from shelfpick.console.cell import read_cell
 
     cell = read_cell(args.cell) if getattr(args, "cell", None) else None
     from_cell = {}
@@ -77,7 +77,7 @@ def settle(args: argparse.Namespace):
 
 def need(module: str, extra: str, why: str) -> None:
     """Refuse to start, in one line, when an optional library the settings need is not installed."""
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     if importlib.util.find_spec(module) is None:
         raise ShelfpickError(f"{why} needs the optional library {module!r}, which is not installed here: "
@@ -106,12 +106,12 @@ def check_libraries(args: argparse.Namespace, cell) -> None:
 
 def build(args: argparse.Namespace):
     """Open source, store and robot factory, the workflow and the app (used by tests too)."""
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     cell = settle(args)
     # refuse bad settings before opening anything
-    from console.cell import check_robot_spec
-    from planning.cmd_plan import SAMPLES, SEEDS, WORKERS
+    from shelfpick.console.cell import check_robot_spec
+    from shelfpick.planning.cmd_plan import SAMPLES, SEEDS, WORKERS
 
     workers = getattr(args, "workers", 1)
     for flag, value, (lo, hi) in (("--workers", workers, WORKERS), ("--samples", args.samples, SAMPLES),
@@ -122,22 +122,22 @@ def build(args: argparse.Namespace):
     if not 0 <= args.port <= 65535:    # the server thread would die on it and leave the start waiting
         raise ShelfpickError(f"--port: expected 1-65535, or 0 for any free port, got {args.port}")
     check_libraries(args, cell)
-    from console.app import ConsoleApp, check_host
+    from shelfpick.console.app import ConsoleApp, check_host
 
     given, where = supervisor_passphrase(args)
     check_host(args.host, given or None, where)
     if not (args.robot == "sim" or args.robot.startswith("sim?") or args.robot.startswith("tcp://")):
         raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {args.robot!r}")
 
-    from console.robot import open_robot
-    from console.sources import open_source
-    from console.store import DEFAULT_DB, SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.robot import open_robot
+    from shelfpick.console.sources import open_source
+    from shelfpick.console.store import DEFAULT_DB, SessionStore
+    from shelfpick.console.workflow import Workflow
 
     segmenter, options, tolerance = None, {}, None
     if cell is not None:
-        from perception.scene import Shelf
-        from perception.segment import load_segmenter
+        from shelfpick.perception.scene import Shelf
+        from shelfpick.perception.segment import load_segmenter
 
         kind = "yolo" if cell.weights and cell.segmenter == "auto" else cell.segmenter
         segmenter = load_segmenter(cell.weights, kind)
@@ -152,7 +152,7 @@ def build(args: argparse.Namespace):
     spec = args.robot
     open_robot(spec, truth=None, seed=args.seed) if spec.startswith("sim") else None  # validates options
     if spec.startswith("tcp://"):
-        from console.robot_tcp import TcpRobot
+        from shelfpick.console.robot_tcp import TcpRobot
 
         TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens
     check_listen(args.host)           # an address not of this machine: one line, not a start that hangs
@@ -179,7 +179,7 @@ def supervisor_passphrase(args: argparse.Namespace) -> tuple[str, str]:
     """(passphrase, where it came from): --supervisor-passphrase-file, else --supervisor-passphrase,
     else the environment, else "" (one is generated). Both options at once are refused; the option
     itself draws a warning once the console runs (`_serve`), since other users see it in `ps`."""
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     path, text = getattr(args, "supervisor_passphrase_file", None), args.supervisor_passphrase
     if path is not None and text is not None:
@@ -196,7 +196,7 @@ def read_passphrase_file(path: str) -> str:
     one-line ShelfpickError for anything else. A file others may read draws a warning."""
     import stat
 
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     where = f"--supervisor-passphrase-file {path}"
     try:
@@ -227,7 +227,7 @@ def check_listen(host: str) -> None:
     1000 ports on it and leave the start waiting for ever)."""
     import socket
 
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     try:
         infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
@@ -245,7 +245,7 @@ def start_app(make, where: str, timeout: float = SERVER_START_S):
     on a port out of range, say) would leave that wait, and the command, hanging for ever. So the app
     is made on a helper thread, and an exception in any thread meanwhile, or no server after
     `timeout` s, ends the start in one line."""
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
 
     made: list = []
     failed: list[BaseException] = []
@@ -289,7 +289,7 @@ def serve(parts: tuple, args: argparse.Namespace) -> int:
 
     C code's printf() is kept off stdout once for the whole run (perception.stdio): a per-connect
     redirection of fd 1 and 2 would swallow what other threads print or log meanwhile."""
-    from perception.stdio import c_output_detached
+    from shelfpick.perception.stdio import c_output_detached
 
     with c_output_detached():
         return _serve(parts, args)

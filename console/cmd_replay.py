@@ -16,10 +16,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from console.cmd_sessions import stored
-    from console.replay import export_html
-    from console.store import DEFAULT_DB, SessionStore, StoreError
-    from perception.scene import output_path
+    from shelfpick.console.cmd_sessions import stored
+    from shelfpick.console.replay import export_html
+    from shelfpick.console.store import DEFAULT_DB, SessionStore, StoreError
+    from shelfpick.perception.scene import output_path
 
     if not 1 <= args.id <= MAX_ID:
         raise StoreError(f"id: expected a session id from 1 to {MAX_ID}, got {args.id}")

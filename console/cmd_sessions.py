@@ -24,8 +24,8 @@ def stored(read: Callable[[], T], db: Path, what: str) -> T:
     """`read()`, with a record in the database that is not JSON, is nested too deep or does not
     have the shape a record has (a damaged or hand-edited archive) made one line naming the
     database: StoreError, exit 2, instead of a traceback."""
-    from console.store import StoreError
-    from perception.errors import ShelfpickError
+    from shelfpick.console.store import StoreError
+    from shelfpick.perception.errors import ShelfpickError
 
     try:
         return read()
@@ -47,7 +47,7 @@ def format_table(rows: list[dict]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from console.store import DEFAULT_DB, SessionStore, StoreError
+    from shelfpick.console.store import DEFAULT_DB, SessionStore, StoreError
 
     db = Path(args.db) if args.db else DEFAULT_DB
     if not db.is_file():
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         rows = stored(store.list_sessions, db, "sessions")
         steps = stored(store.step_stats, db, "robot events") if args.stats else []
     if args.stats:
-        from console.session_stats import format_stats, risk_table, session_counts
+        from shelfpick.console.session_stats import format_stats, risk_table, session_counts
 
         table, counts = risk_table(steps), session_counts(rows)
         print(json.dumps({"by_risk": table, "sessions": counts}, indent=2) if args.json

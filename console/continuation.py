@@ -4,15 +4,15 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Mapping
 
-from perception.scene import Scene
-from planning.plan import Plan
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.plan import Plan
 
-from console.run_json import step_json
-from console.workflow_state import PlanEntry
+from shelfpick.console.run_json import step_json
+from shelfpick.console.workflow_state import PlanEntry
 
 if TYPE_CHECKING:
-    from console.verify import Verification
-    from console.workflow_state import PreviewStep
+    from shelfpick.console.verify import Verification
+    from shelfpick.console.workflow_state import PreviewStep
 
 
 def mapped_target(plan: Plan, v: Verification, scene: Scene) -> str | None:
@@ -28,8 +28,8 @@ def continuation(entry: PlanEntry, v: Verification, scene: Scene, held_session: 
     where the prediction stood after the held step, applied to the new
     capture's boxes, so the continued run is verified step by step too.
     """
-    from planning.plan import StepPrediction
-    from planning.predicted import predicted_shelves, sim_poses_after
+    from shelfpick.planning.plan import StepPrediction
+    from shelfpick.planning.predicted import predicted_shelves, sim_poses_after
 
     plan, k = entry.plan, v.step
     rest = plan.sequence[k + 1:]

@@ -5,13 +5,13 @@ import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Mapping, NamedTuple
 
-from perception.scene import Box, Scene, Shelf
+from shelfpick.perception.scene import Box, Scene, Shelf
 
 if TYPE_CHECKING:
-    from console.sources import Frame, Source
-    from console.verify import Tolerance, Verification
-    from perception.pipeline import Perception
-    from perception.segment import Segmenter
+    from shelfpick.console.sources import Frame, Source
+    from shelfpick.console.verify import Tolerance, Verification
+    from shelfpick.perception.pipeline import Perception
+    from shelfpick.perception.segment import Segmenter
 
 
 class Look(NamedTuple):
@@ -61,8 +61,8 @@ def _look_once(source: Source, world: Scene | None, step: int, box: str, predict
                shelf: Shelf | None, segmenter: Segmenter | None, tolerance: Tolerance | None,
                perceive_options: Mapping[str, Any] | None, removed: Box | None, attempt: int) -> Look:
     """One frame, perceived and compared."""
-    from console.verify import Tolerance, compare, unavailable
-    from perception.pipeline import perceive
+    from shelfpick.console.verify import Tolerance, compare, unavailable
+    from shelfpick.perception.pipeline import perceive
 
     tol = tolerance or Tolerance()
     t0 = time.perf_counter()

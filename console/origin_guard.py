@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Iterable
 from urllib.parse import urlsplit
 
-from perception.errors import ShelfpickError
+from shelfpick.perception.errors import ShelfpickError
 
 if TYPE_CHECKING:
     import viser

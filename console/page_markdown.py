@@ -7,9 +7,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from console.panels import md, ours, pct
-from console.workflow import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
-from planning.plan import Plan
+from shelfpick.console.panels import md, ours, pct
+from shelfpick.console.workflow import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
+from shelfpick.planning.plan import Plan
 
 
 NBSP = "\u00a0"

@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from console import scene_view as sv
-from console.workflow import PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError, problem_text
-from perception.scene import Camera, Scene
-from planning.plan import Plan
+from shelfpick.console import scene_view as sv
+from shelfpick.console.workflow import PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError, problem_text
+from shelfpick.perception.scene import Camera, Scene
+from shelfpick.planning.plan import Plan
 
 if TYPE_CHECKING:
     import viser
@@ -553,7 +553,7 @@ class SessionsPanel:
 
     def export(self, client: Any) -> str:
         """The chosen session as a self-contained HTML page, sent to this browser as a download."""
-        from console.replay import render_html
+        from shelfpick.console.replay import render_html
 
         v = self.session_pick.value
         if v == "—":

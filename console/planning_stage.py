@@ -7,15 +7,15 @@ import traceback
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from perception.scene import Scene
-from planning.plan import PLANNERS, Plan
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.plan import PLANNERS, Plan
 
-from console.run_json import step_json
-from console.workflow_core import WorkflowCore, close_quietly
-from console.workflow_state import PlanEntry, State, problem_text, scene_problems
+from shelfpick.console.run_json import step_json
+from shelfpick.console.workflow_core import WorkflowCore, close_quietly
+from shelfpick.console.workflow_state import PlanEntry, State, problem_text, scene_problems
 
 if TYPE_CHECKING:
-    from planning.predict import Predictor
+    from shelfpick.planning.predict import Predictor
 
 
 class PlanningStage(WorkflowCore):
@@ -69,7 +69,7 @@ class PlanningStage(WorkflowCore):
     def _predictor_for(self, gen: int, scene: Scene) -> tuple[Predictor, int]:
         """The Predictor of this capture: the one the last plan of it used (its sample worlds built,
         its answers known: the same plans, sooner), else a new one; with the epoch it was taken in."""
-        from planning.predict import Predictor
+        from shelfpick.planning.predict import Predictor
 
         with self._lock:
             kept, self._kept = self._kept, None
@@ -124,7 +124,7 @@ class PlanningStage(WorkflowCore):
 
     def _one_plan(self, gen: int, i: int, planner: str, scene: Scene, task: str, target: str | None,
                   predictor: Predictor, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
-        from planning.planner import make_plan
+        from shelfpick.planning.planner import make_plan
 
         n = len(PLANNERS)
         self._progress(gen, 0.1 + 0.85 * i / n, f"{planner} planner: searching")
@@ -141,7 +141,7 @@ class PlanningStage(WorkflowCore):
         plan = replace(plan, timing=timing, extra=extra)
         self._progress(gen, 0.1 + 0.85 * (i + 0.6) / n, f"{planner} planner: recording preview")
         preview = tuple(predictor.preview(plan.sequence, 0)) if plan.sequence else ()
-        from planning.predicted import predicted_shelves
+        from shelfpick.planning.predicted import predicted_shelves
 
         shelves = tuple(predicted_shelves(scene, plan.sequence, preview)) if preview else ()
         # what the operator waited for this plan (search, risks, preview), shown as its planning time

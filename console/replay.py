@@ -19,11 +19,11 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from perception.scene import Box, Scene, Shelf, quat_to_matrix
-from planning.plan import Plan
+from shelfpick.perception.scene import Box, Scene, Shelf, quat_to_matrix
+from shelfpick.planning.plan import Plan
 
-from console.store import PlanRecord, SessionRecord
-from console.workflow import SECONDS_PER_BOX   # the estimate the console shows, defined once
+from shelfpick.console.store import PlanRecord, SessionRecord
+from shelfpick.console.workflow import SECONDS_PER_BOX   # the estimate the console shows, defined once
 
 MAX_FRAMES_PER_STEP = 30
 
@@ -512,7 +512,7 @@ def _brief(detail: Any, limit: int = 160) -> str:
 
 def export_html(rec: SessionRecord, out: str | Path) -> Path:
     """Write the replay of one session to `out` (folders created)."""
-    from perception.scene import output_path, write_text
+    from shelfpick.perception.scene import output_path, write_text
 
     output_path(out, "--html")          # a device, FIFO or folder is refused before the page is built
     return write_text(out, render_html(rec), "--html")

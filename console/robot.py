@@ -30,11 +30,11 @@ import time
 from typing import Any, Callable, Mapping
 from urllib.parse import parse_qs, urlsplit
 
-from perception.errors import ShelfpickError
-from perception.scene import Box, Scene
-from planning.plan import Plan
+from shelfpick.perception.errors import ShelfpickError
+from shelfpick.perception.scene import Box, Scene
+from shelfpick.planning.plan import Plan
 
-from console.robot_types import (EVENT_KINDS, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
+from shelfpick.console.robot_types import (EVENT_KINDS, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
                                  RobotOutcome, StepHistory, emit, finish, query_float, record_before_sending)
 
 
@@ -78,8 +78,8 @@ def surprising_world(truth: Scene | None, config: Any, seed: int, model: Any) ->
         return truth, config
     from dataclasses import replace
 
-    from planning.physics import PhysicsConfig
-    from planning.uncertainty import draw_config, draw_scene
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.uncertainty import draw_config, draw_scene
 
     model = model.without_face_error()
     cfg = draw_config(config or PhysicsConfig(), seed, SURPRISE_DRAW, model)
@@ -138,7 +138,7 @@ class SimRobot:
 
     def _world(self, scene: Scene) -> Any:
         if self._sim is None:
-            from planning.sim import ShelfSim
+            from shelfpick.planning.sim import ShelfSim
 
             self._world_scene = self.truth if self.truth is not None else scene
             self._sim = ShelfSim(self._world_scene, self.config)
@@ -291,12 +291,12 @@ def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDri
         surprise = q.get("surprise", ["1"])[-1]
         if surprise not in ("0", "1"):
             raise RobotError(f"robot spec {spec!r}: surprise: expected 0 or 1, got {surprise!r}")
-        from planning.uncertainty import Uncertainty
+        from shelfpick.planning.uncertainty import Uncertainty
 
         return SimRobot(truth, seed=s, step_delay=query_float(q, "delay", spec, 0.0),
                         surprise=Uncertainty() if surprise == "1" else None)
     if parts.scheme == "tcp":
-        from console.robot_tcp import TcpRobot
+        from shelfpick.console.robot_tcp import TcpRobot
 
         return TcpRobot.from_spec(spec)
     raise RobotError(f"robot spec {spec!r}: expected 'sim' or 'tcp://HOST:PORT'")

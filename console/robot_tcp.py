@@ -30,12 +30,12 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 from urllib.parse import parse_qs, urlsplit
 
-from perception.scene import Box, Scene, quat_to_matrix
-from planning.plan import Plan
-from robotsim.transform import Transform
-from robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
+from shelfpick.perception.scene import Box, Scene, quat_to_matrix
+from shelfpick.planning.plan import Plan
+from shelfpick.robotsim.transform import Transform
+from shelfpick.robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 
-from console.robot_types import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
+from shelfpick.console.robot_types import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
                                  new_run_id, query_float, record_before_sending)
 
 MAX_TEXT = 500          # characters of a peer's code/message kept in events and errors

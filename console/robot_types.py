@@ -13,11 +13,11 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Protocol
 
-from perception.errors import ShelfpickError
-from perception.scene import Scene
-from planning.plan import Plan
+from shelfpick.perception.errors import ShelfpickError
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.plan import Plan
 
-log = logging.getLogger("console.robot")
+log = logging.getLogger("shelfpick.console.robot")
 
 EVENT_KINDS = ("ack", "done", "error", "aborted", "disconnected", "note")  # note: no step, no fault
 REPLAN = "a new capture and plan are needed"
@@ -171,7 +171,7 @@ def new_run_id(prefix: str = "") -> str:
 def query_float(q: dict[str, list[str]], key: str, spec: str, default: float) -> float:
     """A number option of a robot spec's query string within the cell file's bounds for it
     (console.cell.ROBOT_NUMBERS: one table for both), or `default`."""
-    from console.cell import ROBOT_NUMBERS
+    from shelfpick.console.cell import ROBOT_NUMBERS
 
     if key not in q:
         return default

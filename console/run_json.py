@@ -3,12 +3,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from console.workflow_state import PlanEntry
+from shelfpick.console.workflow_state import PlanEntry
 
 if TYPE_CHECKING:
-    from console.robot_types import RobotOutcome
-    from console.workflow_state import PreviewStep
-    from perception.pipeline import Perception
+    from shelfpick.console.robot_types import RobotOutcome
+    from shelfpick.console.workflow_state import PreviewStep
+    from shelfpick.perception.pipeline import Perception
 
 
 def perception_summary(perception: Perception) -> dict:

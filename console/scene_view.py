@@ -114,7 +114,7 @@ def draw_unexplained(scene_api: Any, scene: Any, prefix: str = "/unexplained") -
     """Matter perception saw that no box explains (`Scene.unexplained`), where planning puts it
     (`planning.unexplained.obstacles`: the seen surface back to the back wall): translucent grey
     blocks with dark edges, told apart from every box, and one label per region ("u0 ?")."""
-    from planning.unexplained import obstacles
+    from shelfpick.planning.unexplained import obstacles
 
     regions = getattr(scene, "unexplained", None) or ()
     out: list = []

@@ -34,9 +34,9 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import parse_qs
 
-from perception.capture import Capture
-from perception.errors import ShelfpickError
-from perception.scene import Box, Camera, Scene, Shelf
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.errors import ShelfpickError
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 
 DEMO_DIR = Path(__file__).resolve().parent.parent / "static" / "demo"
 
@@ -117,7 +117,7 @@ class DemoSource:
     def capture(self) -> Frame:
         """The shelf the robot last worked on, as it now stands; a fresh demo shelf at the start and
         once the robot has emptied it (the next of the demo shelves, in turn)."""
-        from perception.render import render
+        from shelfpick.perception.render import render
 
         with self._lock:
             n = self._n
@@ -140,7 +140,7 @@ class DemoSource:
     def look_again(self, world: Scene | None, step: int, attempt: int = 0) -> Frame:
         """The simulated robot's true shelf as it now stands, rendered (a new look: seeded by step
         and attempt; the console looks a second time to confirm a difference)."""
-        from perception.render import render
+        from shelfpick.perception.render import render
 
         with self._lock:
             label, n = self._last
@@ -166,7 +166,7 @@ class FilesSource:
                               f"camera.json)")
 
     def capture(self) -> Frame:
-        from perception.capture import load_capture_dir
+        from shelfpick.perception.capture import load_capture_dir
 
         for need in ("rgb.png", "camera.json"):
             if not (self.folder / need).is_file():
@@ -210,7 +210,7 @@ class RealSenseSource:
         self._lock = threading.Lock()
 
     def _open(self) -> Any:
-        from perception.realsense import RealSense
+        from shelfpick.perception.realsense import RealSense
 
         return RealSense(self.bag, pose=self.pose)
 

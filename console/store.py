@@ -34,9 +34,9 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from console import store_steps
-from console.store_owner import OwnerLock, owner_alive, sweep
-from console.store_records import (
+from shelfpick.console import store_steps
+from shelfpick.console.store_owner import OwnerLock, owner_alive, sweep
+from shelfpick.console.store_records import (
     PlanRecord,
     SessionRecord,
     SessionRows,
@@ -45,7 +45,7 @@ from console.store_records import (
     stored_scene,  # noqa: F401  (re-exported: benchmarks/closed_loop.py)
     utc_now,
 )
-from console.store_schema import (
+from shelfpick.console.store_schema import (
     OUR_TABLES,  # noqa: F401  (re-exported)
     SCHEMA_VERSION,
     RunConflict,
@@ -54,9 +54,9 @@ from console.store_schema import (
     open_readonly,
     open_writable,
 )
-from perception.capture import Capture
-from perception.scene import Scene
-from planning.plan import Plan
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.plan import Plan
 
 DEFAULT_DB = Path("data") / "shelfpick.db"
 ROBOT_KINDS = ("start", "sent", "ack", "done", "error", "aborted", "disconnected", "unknown")

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from perception.capture import Capture
-from perception.scene import Scene
-from planning.plan import Plan
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.plan import Plan
 
 
 def utc_now() -> str:
@@ -43,8 +43,8 @@ def stored_scene(text: str | None, origin: str = "") -> Scene | None:
     older console: a box predicted to fall) is kept, so the record still replays."""
     if not text:
         return None
-    from perception.errors import FormatError
-    from perception.scene import Box, Shelf
+    from shelfpick.perception.errors import FormatError
+    from shelfpick.perception.scene import Box, Shelf
 
     doc = json.loads(text)
     try:
@@ -150,8 +150,8 @@ def load_images(row: sqlite3.Row, base: Path, root: Path | None = None
     """Images back as arrays; a deleted file is reported, not fatal (the record stays readable).
     Only files inside `root` (the database's `<db>.files/`) are read: a stored path that leads out
     of it is reported as not read (a damaged or hostile archive must not embed other files)."""
-    from perception.capture import load_capture, read_rgb
-    from perception.errors import PerceptionError
+    from shelfpick.perception.capture import load_capture, read_rgb
+    from shelfpick.perception.errors import PerceptionError
 
     keys = ("rgb", "camera", "depth", "masks", "overlay")
     refused = [row[k] for k in keys if row[k] and _outside(row[k], base, root)]

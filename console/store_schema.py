@@ -12,7 +12,7 @@ import sqlite3
 import time
 from pathlib import Path
 
-from perception.errors import ShelfpickError
+from shelfpick.perception.errors import ShelfpickError
 
 SCHEMA_VERSION = 3          # 2: the runs table (crash recovery); 3: verifications (the look after each step)
 OUR_TABLES = frozenset({"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes",

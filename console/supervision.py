@@ -9,8 +9,8 @@ import hmac
 import time
 from typing import Mapping
 
-from console.workflow_core import WorkflowCore
-from console.workflow_state import AUTH_REFUSED, PlanEntry, RunLock, State, problem_text
+from shelfpick.console.workflow_core import WorkflowCore
+from shelfpick.console.workflow_state import AUTH_REFUSED, PlanEntry, RunLock, State, problem_text
 
 
 class Supervision(WorkflowCore):

@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
-from perception.scene import Box, Scene, quat_to_matrix
+from shelfpick.perception.scene import Box, Scene, quat_to_matrix
 
 STATUSES = ("ok", "moved", "missing", "new", "resegmented", "revealed")
 PASSING = ("ok", "resegmented", "revealed")   # statuses that let the next step go

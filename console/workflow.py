@@ -26,19 +26,19 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from planning.plan import PLANNERS  # noqa: F401 - the planners the console runs side by side (re-exported)
+from shelfpick.planning.plan import PLANNERS  # noqa: F401 - the planners the console runs side by side (re-exported)
 
-from console.look import Look, look_again  # noqa: F401 - re-exported: benchmarks/closed_loop.py uses it
-from console.planning_stage import PlanningStage
-from console.robot_run import RobotRun
-from console.run_json import perception_summary
-from console.supervision import Supervision
-from console.throttle import Throttle  # noqa: F401 - re-exported
-from console.workflow_state import (AUTH_REFUSED, SECONDS_PER_BOX, Deviation, PlanEntry, State,  # noqa: F401
+from shelfpick.console.look import Look, look_again  # noqa: F401 - re-exported: benchmarks/closed_loop.py uses it
+from shelfpick.console.planning_stage import PlanningStage
+from shelfpick.console.robot_run import RobotRun
+from shelfpick.console.run_json import perception_summary
+from shelfpick.console.supervision import Supervision
+from shelfpick.console.throttle import Throttle  # noqa: F401 - re-exported
+from shelfpick.console.workflow_state import (AUTH_REFUSED, SECONDS_PER_BOX, Deviation, PlanEntry, State,  # noqa: F401
                                     WorkflowError, problem_text, scene_problems)
 
 if TYPE_CHECKING:
-    from console.sources import Frame
+    from shelfpick.console.sources import Frame
 
 
 class Workflow(PlanningStage, Supervision, RobotRun):
@@ -75,14 +75,14 @@ class Workflow(PlanningStage, Supervision, RobotRun):
         except Exception as exc:  # noqa: BLE001 - camera faults are shown, not raised
             return self._capture_failed(f"camera: {exc}")
         try:
-            from perception.pipeline import perceive
+            from shelfpick.perception.pipeline import perceive
 
             opts = dict(self.perceive_options)
             cell_shelf = opts.pop("shelf", None)
             shelf = frame.truth.shelf if frame.truth is not None else cell_shelf  # installation geometry
             perception = perceive(frame.capture, self.segmenter, shelf=shelf, **opts)
         except Exception as exc:  # noqa: BLE001
-            from perception.scene import Scene, Shelf
+            from shelfpick.perception.scene import Scene, Shelf
 
             shelf = frame.truth.shelf if frame.truth is not None else Shelf()
             self._record("the failed capture", self.store.new_session, self._state.source,

@@ -15,16 +15,16 @@ import traceback
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
-from console.throttle import Throttle
-from console.workflow_state import Listener, RobotFactory, RunLock, State, WorkflowError
+from shelfpick.console.throttle import Throttle
+from shelfpick.console.workflow_state import Listener, RobotFactory, RunLock, State, WorkflowError
 
 if TYPE_CHECKING:
-    from console.sources import Source
-    from console.store import SessionStore
-    from console.verify import Tolerance
-    from perception.segment import Segmenter
-    from planning.bullet_clients import ClientPool
-    from planning.predict import Predictor
+    from shelfpick.console.sources import Source
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.verify import Tolerance
+    from shelfpick.perception.segment import Segmenter
+    from shelfpick.planning.bullet_clients import ClientPool
+    from shelfpick.planning.predict import Predictor
 
 
 class WorkflowCore:
@@ -51,11 +51,11 @@ class WorkflowCore:
         self.segmenter = segmenter
         self.perceive_options = dict(perceive_options or {})
         self.workers = max(1, int(workers))     # processes for the depth samples (same plans for any count)
-        from planning.priors import CellPriors
+        from shelfpick.planning.priors import CellPriors
 
         self.priors = priors if priors is not None else CellPriors()   # the cell's [planning] section
         self.throttle = throttle or Throttle()
-        from console.verify import Tolerance
+        from shelfpick.console.verify import Tolerance
 
         self.tolerance = tolerance or Tolerance()
         self._lock = threading.RLock()
@@ -82,7 +82,7 @@ class WorkflowCore:
 
     def _client_pool(self) -> ClientPool:
         """The Bullet clients the plans of this console reuse (made at the first plan)."""
-        from planning.bullet_clients import ClientPool
+        from shelfpick.planning.bullet_clients import ClientPool
 
         with self._lock:
             if self._clients is None:

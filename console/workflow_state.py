@@ -10,17 +10,17 @@ import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
-from perception.scene import Scene
-from planning.plan import Plan
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.plan import Plan
 
 if TYPE_CHECKING:   # for annotations only: importing these costs numpy, cv2 or the planner
     import numpy as np
 
-    from console.look import Look
-    from console.robot_types import RobotDriver, RobotEvent, RobotOutcome
-    from console.verify import Verification
-    from perception.capture import Capture
-    from planning.step_result import StepResult
+    from shelfpick.console.look import Look
+    from shelfpick.console.robot_types import RobotDriver, RobotEvent, RobotOutcome
+    from shelfpick.console.verify import Verification
+    from shelfpick.perception.capture import Capture
+    from shelfpick.planning.step_result import StepResult
 
     PreviewStep = StepResult | Mapping[str, Any]   # a recorded step, or its JSON (a continued plan's)
 

@@ -14,11 +14,11 @@ import json
 import sys
 from pathlib import Path
 
-from perception.pipeline import perceive
-from perception.render import render
-from perception.scene import Scene
-from planning.execute import execute_plan
-from planning.planner import make_plan
+from shelfpick.perception.pipeline import perceive
+from shelfpick.perception.render import render
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.execute import execute_plan
+from shelfpick.planning.planner import make_plan
 
 DEMO = Path(__file__).resolve().parents[1] / "static" / "demo" / "demo-small-6.json"
 

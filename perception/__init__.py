@@ -13,17 +13,17 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "perceive": "perception.pipeline", "Perception": "perception.pipeline",
-    "DEFAULT_CATALOGUE": "perception.pipeline",
-    "Capture": "perception.capture", "load_capture": "perception.capture",
-    "Scene": "perception.scene", "Shelf": "perception.scene", "Box": "perception.scene",
-    "Camera": "perception.scene", "BOX_TYPES": "perception.scene",
-    "Segmenter": "perception.segment", "load_segmenter": "perception.segment",
-    "Catalogue": "perception.box_catalogue", "apply_catalogue": "perception.box_catalogue",
-    "FrontFace": "perception.faces", "make_valid": "perception.boxes",
-    "default_camera": "perception.render",   # (render() itself: perception.render is also the module's name)
-    "ShelfpickError": "perception.errors", "FormatError": "perception.errors",
-    "SceneError": "perception.errors", "PerceptionError": "perception.errors",
+    "perceive": "shelfpick.perception.pipeline", "Perception": "shelfpick.perception.pipeline",
+    "DEFAULT_CATALOGUE": "shelfpick.perception.pipeline",
+    "Capture": "shelfpick.perception.capture", "load_capture": "shelfpick.perception.capture",
+    "Scene": "shelfpick.perception.scene", "Shelf": "shelfpick.perception.scene", "Box": "shelfpick.perception.scene",
+    "Camera": "shelfpick.perception.scene", "BOX_TYPES": "shelfpick.perception.scene",
+    "Segmenter": "shelfpick.perception.segment", "load_segmenter": "shelfpick.perception.segment",
+    "Catalogue": "shelfpick.perception.box_catalogue", "apply_catalogue": "shelfpick.perception.box_catalogue",
+    "FrontFace": "shelfpick.perception.faces", "make_valid": "shelfpick.perception.boxes",
+    "default_camera": "shelfpick.perception.render",   # (render() itself: perception.render is also the module's name)
+    "ShelfpickError": "shelfpick.perception.errors", "FormatError": "shelfpick.perception.errors",
+    "SceneError": "shelfpick.perception.errors", "PerceptionError": "shelfpick.perception.errors",
 }
 
 __all__ = sorted(_WHERE)

@@ -27,15 +27,15 @@ from typing import Iterable
 
 import numpy as np
 
-from perception.bench_scenes import sample_scene
-from perception.bench_truth import front_face_masks
-from perception.capture import Capture, read_depth, read_rgb
-from perception.errors import PerceptionError
-from perception.geometry import camera_from_matrix, matrix_to_quat, point_map
-from perception.mask_match import mask_iou, match  # noqa: F401 - re-exported for scripts
-from perception.render import DEFAULT_PITCH_DEG, _rot_x, default_camera, render
-from perception.scene import Scene, Shelf, quat_to_matrix
-from perception.segment import for_capture
+from shelfpick.perception.bench_scenes import sample_scene
+from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.capture import Capture, read_depth, read_rgb
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.geometry import camera_from_matrix, matrix_to_quat, point_map
+from shelfpick.perception.mask_match import mask_iou, match  # noqa: F401 - re-exported for scripts
+from shelfpick.perception.render import DEFAULT_PITCH_DEG, _rot_x, default_camera, render
+from shelfpick.perception.scene import Scene, Shelf, quat_to_matrix
+from shelfpick.perception.segment import for_capture
 
 MIN_GT_PIXELS = 400
 DEFAULT_DISTANCE = 1.05     # m: perception.render.default_camera's distance to the shelf front
@@ -82,7 +82,7 @@ def _angle_of(box) -> float:
 
 
 def eval_rendered(scene: Scene, name: str, seed: int, segmenter=None, camera=None) -> FrameResult:
-    from perception.pipeline import perceive
+    from shelfpick.perception.pipeline import perceive
 
     cap = render(scene, camera, seed=seed)
     least = MIN_GT_PIXELS if camera is None else min_gt_pixels(camera)
@@ -192,7 +192,7 @@ def bench_photos(pairs: list[tuple[Path, Path]], segmenter, progress: bool = Tru
     import cv2
     from tqdm import tqdm
 
-    from perception.masks import refine
+    from shelfpick.perception.masks import refine
 
     segmenter = for_capture(segmenter, has_depth=False)
     rows = []
@@ -335,7 +335,7 @@ def bench_neura(root: Path, segmenter=None, catalogue=None) -> dict:
     cartons (34x25x9.5, 25.5x15.5x10 cm) are not the reference stock. With the default catalogue
     and the floor dropped, its count/area share test passes by chance (24-28 x 14-16 cm pieces
     near type faces) and it joins and cuts faces wrongly (recall 0.50, precision 0.55, round 10)."""
-    from perception.pipeline import perceive
+    from shelfpick.perception.pipeline import perceive
 
     cap, shelf, sizes = neura_capture(root)
     t = time.perf_counter()

@@ -13,9 +13,9 @@ import math
 
 import numpy as np
 
-from perception.geometry import matrix_to_quat
-from perception.scene import BOX_TYPES as TYPE_TABLE
-from perception.scene import Box, Camera, Scene, Shelf
+from shelfpick.perception.geometry import matrix_to_quat
+from shelfpick.perception.scene import BOX_TYPES as TYPE_TABLE
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 
 BOX_TYPES = tuple(TYPE_TABLE.values())
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.capture import Capture
-from perception.geometry import ray_plane
-from perception.scene import Scene, quat_to_matrix
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.geometry import ray_plane
+from shelfpick.perception.scene import Scene, quat_to_matrix
 
 
 def front_face_masks(scene: Scene, capture: Capture) -> dict[str, np.ndarray]:

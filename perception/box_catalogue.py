@@ -26,17 +26,17 @@ from typing import Callable
 
 import numpy as np
 
-from perception.catalogue import REFERENCE_TYPES, Catalogue  # noqa: F401 - re-exported
-from perception.faces import FrontFace
-from perception.repairs.bands import take_bridging_parts
-from perception.repairs.enclosed import absorb_enclosed
-from perception.repairs.joins import join_pieces
-from perception.repairs.l_cuts import cut_l_shapes
-from perception.repairs.measure import FaceCache, Measured, RepairContext
-from perception.repairs.regroup import regroup_pieces
-from perception.repairs.splits import split_faces
-from perception.repairs.stepped import split_stepped_faces, take_stepped_parts
-from perception.scene import Camera
+from shelfpick.perception.catalogue import REFERENCE_TYPES, Catalogue  # noqa: F401 - re-exported
+from shelfpick.perception.faces import FrontFace
+from shelfpick.perception.repairs.bands import take_bridging_parts
+from shelfpick.perception.repairs.enclosed import absorb_enclosed
+from shelfpick.perception.repairs.joins import join_pieces
+from shelfpick.perception.repairs.l_cuts import cut_l_shapes
+from shelfpick.perception.repairs.measure import FaceCache, Measured, RepairContext
+from shelfpick.perception.repairs.regroup import regroup_pieces
+from shelfpick.perception.repairs.splits import split_faces
+from shelfpick.perception.repairs.stepped import split_stepped_faces, take_stepped_parts
+from shelfpick.perception.scene import Camera
 
 # a repair: the masks in, the masks out and what it changed (one line each)
 Step = Callable[[list[np.ndarray], RepairContext], tuple[list[np.ndarray], list[str]]]

@@ -14,12 +14,12 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from perception.contact import face_sweep, sweep
-from perception.errors import PerceptionError
-from perception.faces import FrontFace, face_axes, measure_front
-from perception.geometry import matrix_to_quat
-from perception.masks import border_sides
-from perception.scene import Box, Camera, Shelf, quat_to_matrix
+from shelfpick.perception.contact import face_sweep, sweep
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.faces import FrontFace, face_axes, measure_front
+from shelfpick.perception.geometry import matrix_to_quat
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.scene import Box, Camera, Shelf, quat_to_matrix
 
 
 def box_from_face(face: FrontFace, box_id: str, label: int, shelf: Shelf,
@@ -255,7 +255,7 @@ def not_a_face(f: FrontFace, mask: np.ndarray) -> str:
     """Why a mask on the shelf is still no box front ('' when it can be): a ragged region filling
     its rectangle less than `MIN_RECT_FILL` (the dark edge of a machine base), or a long thin
     strip not cut by the top/left/right border (pallet boards seen from above, shelf lips)."""
-    from perception.repairs.merged import rect_fill
+    from shelfpick.perception.repairs.merged import rect_fill
 
     if int(np.count_nonzero(mask)) < 3:
         return ""
@@ -279,8 +279,8 @@ def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, 
     running through it (one box behind the other), or, when it fills its rectangle too badly to be
     one front, at the row or column that leaves well-filled parts (two boxes of one colour side by
     side). A mask is cut only when every part measures as a box front; its faces are re-measured."""
-    from perception.faces import face_normal
-    from perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
+    from shelfpick.perception.faces import face_normal
+    from shelfpick.perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
 
     out_m: list[np.ndarray] = []
     out_f: list[FrontFace | None] = []
@@ -351,7 +351,7 @@ def boxes_from_masks(masks: list[np.ndarray], depth: np.ndarray, camera: Camera,
     faces.sort(key=lambda fm: (round((fm[0].center[2] - fm[0].height / 2) / 0.05), fm[0].center[0]))
     boxes = [box_from_face(f, f"b{k}", k + 1, shelf, placeholder) for k, (f, _) in enumerate(faces)]
     if split_min_px is not None:       # real depth: where a box in front hides a face's top edge
-        from perception.repairs.merged import top_edge_hidden
+        from shelfpick.perception.repairs.merged import top_edge_hidden
 
         boxes = [replace(b, extra={**b.extra, "perceived": {**b.extra["perceived"], "top_hidden": True}})
                  if top_edge_hidden(m, depth) else b for b, (_, m) in zip(boxes, faces)]

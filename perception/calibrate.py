@@ -23,9 +23,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from perception.errors import PerceptionError
-from perception.geometry import matrix_to_quat, project
-from perception.scene import Camera
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.geometry import matrix_to_quat, project
+from shelfpick.perception.scene import Camera
 
 PLACEMENTS: dict[str, np.ndarray] = {
     "front": np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]),    # columns: board x, y, z in the shelf

@@ -19,8 +19,8 @@ from typing import Mapping
 
 import numpy as np
 
-from perception.errors import FormatError, PerceptionError
-from perception.scene import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Camera, check_id, read_json, write_json
+from shelfpick.perception.errors import FormatError, PerceptionError
+from shelfpick.perception.scene import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Camera, check_id, read_json, write_json
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,7 +163,7 @@ def _decode(data: np.ndarray, flags: int) -> np.ndarray | None:
     line beside the one-line error this module raises."""
     import cv2
 
-    from perception.stdio import redirected_fds
+    from shelfpick.perception.stdio import redirected_fds
 
     with redirected_fds(None, os.devnull):
         return cv2.imdecode(data, flags)

@@ -10,8 +10,8 @@ import itertools
 import math
 from dataclasses import dataclass, field, replace
 
-from perception.masks import scaled_px
-from perception.scene import BOX_TYPES
+from shelfpick.perception.masks import scaled_px
+from shelfpick.perception.scene import BOX_TYPES
 
 # the method's box types (w, d, h in metres): perception.scene's table
 REFERENCE_TYPES: tuple[tuple[float, float, float], ...] = tuple(BOX_TYPES.values())

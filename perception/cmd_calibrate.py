@@ -5,7 +5,7 @@ import argparse
 import logging
 import math
 
-from perception.errors import PerceptionError
+from shelfpick.perception.errors import PerceptionError
 
 log = logging.getLogger(__name__)
 
@@ -32,9 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from perception.calibrate import BoardPlacement, BoardSpec, board_image, calibrate
-    from perception.capture import read_rgb
-    from perception.scene import Camera, output_path
+    from shelfpick.perception.calibrate import BoardPlacement, BoardSpec, board_image, calibrate
+    from shelfpick.perception.capture import read_rgb
+    from shelfpick.perception.scene import Camera, output_path
 
     for name in ("square", "marker"):
         v = getattr(args, name)

@@ -6,7 +6,7 @@ import logging
 import math
 from pathlib import Path
 
-from perception.errors import PerceptionError
+from shelfpick.perception.errors import PerceptionError
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _check_numbers(args: argparse.Namespace) -> None:
     """Options that are sizes or distances: finite, > 0 and within the scene format's bounds (a
     scene written with a 0 m or a 1e300 m wide shelf cannot be loaded again)."""
-    from perception.scene import BOX_SIZE_M, CAMERA_POSITION_M, SHELF_M
+    from shelfpick.perception.scene import BOX_SIZE_M, CAMERA_POSITION_M, SHELF_M
 
     for flag, vals, (lo, hi) in (
             ("--front-distance", [args.front_distance] if args.front_distance is not None else [],
@@ -104,10 +104,10 @@ def _write(path: str, what: str, write) -> None:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from perception.capture import check_depth_structure, load_capture
-    from perception.pipeline import perceive
-    from perception.scene import Shelf, output_path, write_json
-    from perception.segment import load_segmenter
+    from shelfpick.perception.capture import check_depth_structure, load_capture
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.scene import Shelf, output_path, write_json
+    from shelfpick.perception.segment import load_segmenter
 
     _check_numbers(args)
     for flag in ("out", "overlay", "masks", "report"):       # before any work: never onto a device or FIFO

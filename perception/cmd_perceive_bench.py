@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from perception.errors import PerceptionError
+from shelfpick.perception.errors import PerceptionError
 
 HELP = "measure perception (recall, precision, centre/size/angle error, time) on renders and real data"
 
@@ -28,9 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from perception import bench
-    from perception.scene import write_json
-    from perception.segment import load_segmenter, segmenter_name
+    from shelfpick.perception import bench
+    from shelfpick.perception.scene import write_json
+    from shelfpick.perception.segment import load_segmenter, segmenter_name
 
     if args.count < 1:
         raise PerceptionError(f"--count must be >= 1, got {args.count}")
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         if not scenes:
             raise PerceptionError(f"{args.scenes}: no scene JSON files in the folder")
         camera = bench.camera_at(args.distance) if args.distance is not None else None
-        from perception.cmd_render import c_stdout_to_stderr
+        from shelfpick.perception.cmd_render import c_stdout_to_stderr
 
         with c_stdout_to_stderr(keep_stderr=True):   # the renderer's pybullet prints argv[0]= on connect
             summary, frames = bench.bench_rendered(scenes, args.seed, seg, camera=camera)

@@ -8,7 +8,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-from perception.stdio import redirected_fds
+from shelfpick.perception.stdio import redirected_fds
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +36,8 @@ def c_stdout_to_stderr(keep_stderr: bool = False) -> Iterator[None]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from perception.render import render
-    from perception.scene import Camera, Scene
+    from shelfpick.perception.render import render
+    from shelfpick.perception.scene import Camera, Scene
 
     scene = Scene.load(args.scene)
     camera = Camera.load(args.camera) if args.camera else None

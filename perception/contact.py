@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.scene import Box, quat_to_matrix
+from shelfpick.perception.scene import Box, quat_to_matrix
 
 # a measured face: the front slab of a box whose depth is a placeholder (the camera sees the
 # face only; what lies behind it is unknown and must not move the face)

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.geometry import point_map
-from perception.scene import Camera, Shelf
+from shelfpick.perception.geometry import point_map
+from shelfpick.perception.scene import Camera, Shelf
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from perception.geometry import backproject, ray_plane
-from perception.scene import Camera
+from shelfpick.perception.geometry import backproject, ray_plane
+from shelfpick.perception.scene import Camera
 
 
 @dataclass(frozen=True)

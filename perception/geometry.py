@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from perception.errors import PerceptionError
-from perception.scene import Camera, quat_to_matrix
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.scene import Camera, quat_to_matrix
 
 
 def pose_matrix(camera: Camera) -> tuple[np.ndarray, np.ndarray]:

@@ -5,8 +5,8 @@ Why: the learned segmenter's network is the only part of the default console tha
 ~80 MB install. Training stays on torch (`train_learned.py`, the `train` extra); after a new
 checkpoint, export it once:
 
-    python -m perception.onnx_export                       # static/weights/shelfpick-learned.pt -> .onnx
-    python -m perception.onnx_export --weights /tmp/w.pt --out /tmp/w.onnx
+    python -m shelfpick.perception.onnx_export                       # static/weights/shelfpick-learned.pt -> .onnx
+    python -m shelfpick.perception.onnx_export --weights /tmp/w.pt --out /tmp/w.onnx
 
 Needs torch and onnx (the `train` extra). It uses torch's TorchScript exporter (`dynamo=False`):
 the dynamo exporter (torch 2.14's default, which needs onnxscript) had not finished after 17 min
@@ -23,9 +23,9 @@ import sys
 import warnings
 from pathlib import Path
 
-from perception.errors import PerceptionError
-from perception.onnx_net import META_PREFIX
-from perception.segment_learned import LEARNED_ONNX, LEARNED_WEIGHTS, load_checkpoint
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.onnx_net import META_PREFIX
+from shelfpick.perception.segment_learned import LEARNED_ONNX, LEARNED_WEIGHTS, load_checkpoint
 
 OPSET = 17
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.errors import PerceptionError
+from shelfpick.perception.errors import PerceptionError
 
 META_PREFIX = "shelfpick."
 
@@ -47,7 +47,7 @@ class OnnxNet:
             raise PerceptionError(f"{path}: not an ONNX model ({why})") from None
         if META_PREFIX + "config" not in meta:
             raise PerceptionError(f"{path}: not a shelfpick-learned ONNX file (no {META_PREFIX}config metadata;"
-                                  " export it with python -m perception.onnx_export)")
+                                  " export it with python -m shelfpick.perception.onnx_export)")
         self.path, self.threads = path, threads
         self.metadata = {k[len(META_PREFIX):]: json.loads(v) for k, v in meta.items() if k.startswith(META_PREFIX)}
         self.input_name = self.session.get_inputs()[0].name

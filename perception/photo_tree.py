@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from perception.photo_config import PhotoConfig
+from shelfpick.perception.photo_config import PhotoConfig
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from perception.depth_edge_config import DepthEdgeConfig
+from shelfpick.perception.depth_edge_config import DepthEdgeConfig
 
 
 def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,

@@ -15,17 +15,17 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
-from perception.boxes import boxes_from_masks, default_front_distance, distance_from_box_size, make_valid, planar_depth
-from perception.capture import Capture
-from perception.faces import FrontFace, measure_front
-from perception.geometry import check_intrinsics, point_map, pose_matrix
-from perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
-from perception.overlay import draw_overlay, draw_unexplained
-from perception.repairs.border_cut import complete_cut_face
-from perception.scene import Box, Scene, Shelf
-from perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
-from perception.unexplained import EXPLAIN_TOL, Found, candidates, describe, find_unexplained
+from shelfpick.perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
+from shelfpick.perception.boxes import boxes_from_masks, default_front_distance, distance_from_box_size, make_valid, planar_depth
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.faces import FrontFace, measure_front
+from shelfpick.perception.geometry import check_intrinsics, point_map, pose_matrix
+from shelfpick.perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
+from shelfpick.perception.overlay import draw_overlay, draw_unexplained
+from shelfpick.perception.repairs.border_cut import complete_cut_face
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
+from shelfpick.perception.unexplained import EXPLAIN_TOL, Found, candidates, describe, find_unexplained
 
 
 DEFAULT_CATALOGUE = Catalogue()

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.capture import Capture
-from perception.errors import PerceptionError
-from perception.scene import Camera
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.scene import Camera
 
 INSTALL_HINT = "install the optional extra: pip install 'shelfpick[realsense]' (pyrealsense2)"
 

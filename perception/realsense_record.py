@@ -13,8 +13,8 @@ from typing import Sequence
 
 import numpy as np
 
-from perception.capture import Capture
-from perception.errors import PerceptionError
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.errors import PerceptionError
 
 
 def _profiles(rs, sensor, cam):

@@ -18,11 +18,11 @@ from typing import Sequence
 
 import numpy as np
 
-from perception.capture import Capture
-from perception.cardboard import BACKGROUND_RGB, SHELF_RGB, box_texture, plain_box_texture, plain_texture, write_png
-from perception.geometry import pose_matrix, project  # noqa: F401 - project is part of this module's API
-from perception.scene import Camera, Scene, quat_to_matrix, wxyz_to_xyzw
-from perception.stdio import quiet_stdio
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.cardboard import BACKGROUND_RGB, SHELF_RGB, box_texture, plain_box_texture, plain_texture, write_png
+from shelfpick.perception.geometry import pose_matrix, project  # noqa: F401 - project is part of this module's API
+from shelfpick.perception.scene import Camera, Scene, quat_to_matrix, wxyz_to_xyzw
+from shelfpick.perception.stdio import quiet_stdio
 
 NEAR, FAR = 0.05, 6.0          # clip planes, metres
 MAX_RANGE = 4.0                # beyond this a D435 reports nothing useful

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 SCENE_FORMAT = "shelfpick.scene/1"
 CAMERA_FORMAT = "shelfpick.camera/1"

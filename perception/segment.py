@@ -26,7 +26,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from perception.errors import PerceptionError
+from shelfpick.perception.errors import PerceptionError
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-seg.pt"
@@ -77,7 +77,7 @@ class AutoSegmenter:
         """The learned segmenter's weights file is there and its runtime is installed
         (onnxruntime for the shipped `.onnx`, in the `perception` extra; torch for a `.pt`)."""
         if self.learned_weights is None:
-            from perception.segment_learned import LEARNED_ONNX
+            from shelfpick.perception.segment_learned import LEARNED_ONNX
 
             self.learned_weights = LEARNED_ONNX
         runtime = "onnxruntime" if self.learned_weights.suffix.lower() == ".onnx" else "torch"
@@ -85,7 +85,7 @@ class AutoSegmenter:
 
     def _learned_or_rules(self) -> Segmenter:
         """The learned segmenter (loaded once), or the rules where its weights or runtime are missing."""
-        from perception.segment_depth import DepthEdgeSegmenter
+        from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
         if not self.learned_available():
             return DepthEdgeSegmenter()
@@ -94,14 +94,14 @@ class AutoSegmenter:
         return self._learned
 
     def choose(self, has_depth: bool) -> Segmenter:
-        from perception.segment_depth import DepthEdgeSegmenter
+        from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
         if has_depth:
             return self._learned_or_rules() if self.rgbd_kind == "learned" else DepthEdgeSegmenter()
         if self.rgb_only_kind == "learned":
             return self._learned_or_rules()   # for_capture then takes its rgb_only() copy
         if self.rgb_only_kind == "photo":
-            from perception.segment_photo import PhotoSegmenter
+            from shelfpick.perception.segment_photo import PhotoSegmenter
 
             return PhotoSegmenter()
         if self.rgb_only_kind == "depth" or not DEFAULT_WEIGHTS.is_file():
@@ -128,17 +128,17 @@ def load_segmenter(weights: str | Path | None = None, kind: str = "auto") -> Seg
     if kind not in KINDS:
         raise PerceptionError(f"unknown segmenter {kind!r}; choose one of {', '.join(KINDS)}")
     if kind == "learned":   # EfficientNet-Lite0 + decoder (perception/segment_learned.py)
-        from perception.segment_learned import LEARNED_ONNX, LearnedSegmenter
+        from shelfpick.perception.segment_learned import LEARNED_ONNX, LearnedSegmenter
 
         return LearnedSegmenter(weights if weights is not None else LEARNED_ONNX)
     if kind in ("depth", "photo"):
         if weights is not None:
             raise PerceptionError(f"--weights is for the yolo segmenter, not {kind!r}")
         if kind == "photo":
-            from perception.segment_photo import PhotoSegmenter
+            from shelfpick.perception.segment_photo import PhotoSegmenter
 
             return PhotoSegmenter()
-        from perception.segment_depth import DepthEdgeSegmenter
+        from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
         return DepthEdgeSegmenter()
     if weights is None and kind == "auto":
@@ -146,7 +146,7 @@ def load_segmenter(weights: str | Path | None = None, kind: str = "auto") -> Seg
     path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
     if not path.is_file():
         raise PerceptionError(f"{path}: segmentation weights not found")
-    from perception.segment_yolo import YoloSegmenter
+    from shelfpick.perception.segment_yolo import YoloSegmenter
 
     return YoloSegmenter(str(path))
 

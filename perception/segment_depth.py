@@ -25,11 +25,11 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from perception.depth_edge_config import DepthEdgeConfig
-from perception.masks import pixel_scale, scaled_px
-from perception.piece_merge import merge_pieces, merge_tape
-from perception.face_gate import inside_shelf
-from perception.scene import Camera, Shelf, quat_to_matrix
+from shelfpick.perception.depth_edge_config import DepthEdgeConfig
+from shelfpick.perception.masks import pixel_scale, scaled_px
+from shelfpick.perception.piece_merge import merge_pieces, merge_tape
+from shelfpick.perception.face_gate import inside_shelf
+from shelfpick.perception.scene import Camera, Shelf, quat_to_matrix
 
 
 def _small_holes(valid: np.ndarray, max_px: int) -> np.ndarray:

@@ -33,11 +33,11 @@ import cv2
 import numpy as np
 from scipy import ndimage as ndi
 
-from perception.errors import PerceptionError
-from perception.face_gate import keep_faces, plausible_faces
-from perception.mask_match import match
-from perception.onnx_net import OnnxNet
-from perception.segment_depth import DepthEdgeSegmenter
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.face_gate import keep_faces, plausible_faces
+from shelfpick.perception.mask_match import match
+from shelfpick.perception.onnx_net import OnnxNet
+from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
 ROOT = Path(__file__).resolve().parent.parent
 LEARNED_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-learned.pt"   # the checkpoint (torch, training)

@@ -31,8 +31,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from perception.photo_config import PhotoConfig
-from perception.photo_tree import merge_tree, superpixels
+from shelfpick.perception.photo_config import PhotoConfig
+from shelfpick.perception.photo_tree import merge_tree, superpixels
 
 Candidate = tuple[float, tuple[int, int, int, int], np.ndarray]   # score, (y0, x0, y1, x1), mask in that box
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.errors import PerceptionError
+from shelfpick.perception.errors import PerceptionError
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG_DIR = ROOT / ".yolo"

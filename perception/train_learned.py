@@ -12,13 +12,13 @@ Seeds: training renders use seeds 30000 and up (wall frames 30800 and up), outsi
 tuning 20000-20019, check 21000-21019, held out 22000-22039; the older sets 0-1049 and the
 RCAN photos are never rendered or read here).
 
-    python -m perception.train_learned --frames 600 --minutes 45 --out static/weights/shelfpick-learned.pt
+    python -m shelfpick.perception.train_learned --frames 600 --minutes 45 --out static/weights/shelfpick-learned.pt
 
 Second round (issue 14, photos): `--init` fine-tunes a shipped checkpoint; `--walls N` adds N
 photo-like frames (`perception/train_scenes.py`: walls of flush cartons sharing a print, far
 and low/high cameras) at seeds from 30800, drawn for `--wall-share` of the crops:
 
-    python -m perception.train_learned --frames 800 --walls 500 --init static/weights/shelfpick-learned.pt \
+    python -m shelfpick.perception.train_learned --frames 800 --walls 500 --init static/weights/shelfpick-learned.pt \
         --lr 4e-4 --minutes 45 --cache /tmp/rcan2/cache --out /tmp/rcan2/shelfpick-learned.pt
 
 Fourth round: `--taped N` adds N walls whose faces are cut by tape, stickers and shadow edges
@@ -36,14 +36,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception import bench_scenes
-from perception.bench_scenes import sample_scene
-from perception.bench_truth import front_face_masks
-from perception.geometry import matrix_to_quat
-from perception.render import default_camera, render
-from perception.scene import Box, Camera, Scene, Shelf
-from perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
-from perception.train_scenes import TAPED_SEED0, WALL_SEED0, taped_wall_example, wall_example
+from shelfpick.perception import bench_scenes
+from shelfpick.perception.bench_scenes import sample_scene
+from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.geometry import matrix_to_quat
+from shelfpick.perception.render import default_camera, render
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf
+from shelfpick.perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
+from shelfpick.perception.train_scenes import TAPED_SEED0, WALL_SEED0, taped_wall_example, wall_example
 
 TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
 FROZEN_BLOCKS = 5          # stem and blocks 0-4 (strides 2-8) keep their ImageNet weights
@@ -347,7 +347,7 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         taped = build_cache(cache_dir, cfg.taped, cfg.taped_seed, log, taped_wall_example, "t")
     learned_cfg = LearnedConfig()
     if cfg.init:
-        from perception.segment_learned import load_checkpoint
+        from shelfpick.perception.segment_learned import load_checkpoint
 
         model, learned_cfg, init_meta = load_checkpoint(cfg.init)
     else:

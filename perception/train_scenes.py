@@ -21,11 +21,11 @@ import math
 import cv2
 import numpy as np
 
-from perception.bench_truth import front_face_masks
-from perception.cardboard import INK_RGB, TAPE_RGB, box_texture, plain_box_texture
-from perception.geometry import matrix_to_quat
-from perception.render import default_camera, render
-from perception.scene import Box, Camera, Scene, Shelf
+from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.cardboard import INK_RGB, TAPE_RGB, box_texture, plain_box_texture
+from shelfpick.perception.geometry import matrix_to_quat
+from shelfpick.perception.render import default_camera, render
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 
 WALL_SEED0 = 30800
 TAPED_SEED0 = 32000     # fourth round: walls whose faces are cut by tape, stickers, shadows

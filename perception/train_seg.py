@@ -24,12 +24,12 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from perception.errors import PerceptionError
-from perception.geometry import matrix_to_quat
-from perception.render import default_camera, render
-from perception.scene import BOX_TYPES as scene_box_types
-from perception.scene import Box, Camera, Scene, Shelf, yaw_quat
-from perception.segment_yolo import offline_env
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.geometry import matrix_to_quat
+from shelfpick.perception.render import default_camera, render
+from shelfpick.perception.scene import BOX_TYPES as scene_box_types
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf, yaw_quat
+from shelfpick.perception.segment_yolo import offline_env
 
 # The method's box types (cm, as listed): each may stand on any face that fits the shelf depth.
 BOX_TYPES: tuple[tuple[float, float, float], ...] = tuple(scene_box_types.values())

@@ -20,8 +20,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from perception.geometry import point_map
-from perception.scene import (EXPLAIN_TOL, FRONT_REACH, Box, Camera, Shelf, Unexplained,  # noqa: F401
+from shelfpick.perception.geometry import point_map
+from shelfpick.perception.scene import (EXPLAIN_TOL, FRONT_REACH, Box, Camera, Shelf, Unexplained,  # noqa: F401
                               quat_to_matrix)
 
 # a box's top seen from above may stand this much (m) above its face's measured top plus

@@ -10,16 +10,16 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "make_plan": "planning.planner", "PLANNERS": "planning.plan",
-    "Plan": "planning.plan", "StepPrediction": "planning.plan",
-    "PhysicsConfig": "planning.physics",
-    "Uncertainty": "planning.uncertainty",
-    "Predictor": "planning.predict",
-    "Predicting": "planning.oracle", "Screening": "planning.oracle",
-    "ShelfSim": "planning.sim", "StepResult": "planning.step_result",
-    "ClientPool": "planning.bullet_clients", "WorkerPool": "planning.worker_pool",
-    "execute_plan": "planning.execute", "Execution": "planning.execute",
-    "generate": "planning.shelves",
+    "make_plan": "shelfpick.planning.planner", "PLANNERS": "shelfpick.planning.plan",
+    "Plan": "shelfpick.planning.plan", "StepPrediction": "shelfpick.planning.plan",
+    "PhysicsConfig": "shelfpick.planning.physics",
+    "Uncertainty": "shelfpick.planning.uncertainty",
+    "Predictor": "shelfpick.planning.predict",
+    "Predicting": "shelfpick.planning.oracle", "Screening": "shelfpick.planning.oracle",
+    "ShelfSim": "shelfpick.planning.sim", "StepResult": "shelfpick.planning.step_result",
+    "ClientPool": "shelfpick.planning.bullet_clients", "WorkerPool": "shelfpick.planning.worker_pool",
+    "execute_plan": "shelfpick.planning.execute", "Execution": "shelfpick.planning.execute",
+    "generate": "shelfpick.planning.shelves",
 }
 
 __all__ = sorted(_WHERE)

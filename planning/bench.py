@@ -24,22 +24,22 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from perception.errors import FormatError, SceneError, ShelfpickError
-from perception.scene import Scene, quat_to_matrix, read_json, write_json
-from planning.bench_config import BenchConfig, TruthModel
-from planning.bench_report import (
+from shelfpick.perception.errors import FormatError, SceneError, ShelfpickError
+from shelfpick.perception.scene import Scene, quat_to_matrix, read_json, write_json
+from shelfpick.planning.bench_config import BenchConfig, TruthModel
+from shelfpick.planning.bench_report import (
     TIMING_KEYS,
     comparable,
     summarize,
     to_markdown,
     write_reports,
 )
-from planning.execute import execute_plan
-from planning.exhaustive import min_removals, true_scene_oracle
-from planning.physics import PhysicsConfig
-from planning.planner import make_plan
-from planning.predict import Predictor
-from planning.sim import ShelfSim
+from shelfpick.planning.execute import execute_plan
+from shelfpick.planning.exhaustive import min_removals, true_scene_oracle
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.planner import make_plan
+from shelfpick.planning.predict import Predictor
+from shelfpick.planning.sim import ShelfSim
 
 __all__ = ["BenchConfig", "Job", "RecordLog", "TruthModel", "comparable", "derive_seed", "draw_truth",
            "observe", "read_records", "TIMING_KEYS", "run_bench", "run_scene", "summarize", "to_markdown", "true_world"]

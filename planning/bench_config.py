@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from planning.uncertainty import Uncertainty
+from shelfpick.planning.uncertainty import Uncertainty
 
 __all__ = ["BenchConfig", "TruthModel"]
 

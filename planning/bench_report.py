@@ -9,8 +9,8 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from perception.scene import write_json
-from planning.bench_config import BenchConfig
+from shelfpick.perception.scene import write_json
+from shelfpick.planning.bench_config import BenchConfig
 
 # fields of a record that are measurements of the machine, not results
 TIMING_KEYS = ("plan_s", "setup_s", "exec_wall_s", "exhaustive_s", "worker")

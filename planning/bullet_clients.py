@@ -13,7 +13,7 @@ import functools
 import os
 import threading
 
-from perception.stdio import quiet_stdio
+from shelfpick.perception.stdio import quiet_stdio
 
 with quiet_stdio():   # the "pybullet build time" line goes to stderr on first import
     import pybullet

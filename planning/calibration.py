@@ -15,7 +15,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any, Mapping, Sequence
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 DEFAULT_MAX_PLAN_RISK = 0.05   # the highest acceptable chance that a plan collapses (cell setting)
 

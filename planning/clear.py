@@ -11,11 +11,11 @@ from __future__ import annotations
 
 from typing import Callable, Iterable
 
-from perception.scene import Scene
-from planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
-from planning.plan import StepPrediction
-from planning.resolution import prefer, resolution
-from planning.shorten import Screen, alternative
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.extract import CountingOracle, Oracle, SearchResult, _Deadline
+from shelfpick.planning.plan import StepPrediction
+from shelfpick.planning.resolution import prefer, resolution
+from shelfpick.planning.shorten import Screen, alternative
 
 
 def visit_order(scene: Scene) -> tuple[str, ...]:

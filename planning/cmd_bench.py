@@ -7,7 +7,7 @@ import argparse
 import logging
 import math
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from planning.bench import BenchConfig, TruthModel, run_bench, to_markdown
+    from shelfpick.planning.bench import BenchConfig, TruthModel, run_bench, to_markdown
 
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     for p in planners:

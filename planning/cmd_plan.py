@@ -10,11 +10,11 @@ import warnings
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from perception.errors import FormatError, SceneError
+from shelfpick.perception.errors import FormatError, SceneError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from planning.plan import Plan
-    from planning.uncertainty import Uncertainty
+    from shelfpick.planning.plan import Plan
+    from shelfpick.planning.uncertainty import Uncertainty
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +102,7 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
 
 def _model(args: argparse.Namespace) -> "Uncertainty | None":
     """What the worlds draw, where the options change the default model (None: the default)."""
-    from planning.uncertainty import Uncertainty
+    from shelfpick.planning.uncertainty import Uncertainty
 
     if not args.no_catalogue and args.face_error is None:
         return None
@@ -114,14 +114,14 @@ def _model(args: argparse.Namespace) -> "Uncertainty | None":
 
 
 def run(args: argparse.Namespace) -> int:
-    from perception.scene import Scene, output_path
-    from planning.planner import check_request, make_plan
+    from shelfpick.perception.scene import Scene, output_path
+    from shelfpick.planning.planner import check_request, make_plan
 
     check_int(args.samples, "--samples", SAMPLES, "a positive integer")
     if not 0.0 <= args.risk <= 1.0:
         raise FormatError("", "--risk", f"expected a probability in [0, 1], got {args.risk}")
     check_int(args.verify, "--verify", VERIFY, "a number of sample worlds")
-    from planning.calibration import DEFAULT_MAX_PLAN_RISK
+    from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
 
     if args.max_plan_risk is None:
         args.max_plan_risk = DEFAULT_MAX_PLAN_RISK

@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 log = logging.getLogger(__name__)
 
@@ -22,7 +22,7 @@ def parse_range(text: str) -> tuple[int, int]:
             lo = hi = int(text)
     except ValueError:
         raise FormatError("--boxes", "", f"expected MIN-MAX (e.g. 8-14), got {text!r}") from None
-    from planning.shelves import MAX_BOXES
+    from shelfpick.planning.shelves import MAX_BOXES
 
     if not 1 <= lo <= hi <= MAX_BOXES:
         raise FormatError("--boxes", "", f"expected 1 <= MIN <= MAX <= {MAX_BOXES}, got {text!r}")
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from planning.shelves import generate
+    from shelfpick.planning.shelves import generate
 
     if args.count < 1:
         raise FormatError("--count", "", f"expected a positive number, got {args.count!r}")

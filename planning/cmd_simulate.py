@@ -6,7 +6,7 @@ import json
 import logging
 import warnings
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 log = logging.getLogger(__name__)
 
@@ -25,11 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from perception.scene import Scene, output_path, write_json
-    from planning.execute import execute_plan
-    from planning.plan import Plan, scene_hash
+    from shelfpick.perception.scene import Scene, output_path, write_json
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.plan import Plan, scene_hash
 
-    from planning.cmd_plan import SEEDS, check_int
+    from shelfpick.planning.cmd_plan import SEEDS, check_int
 
     check_int(args.seed, "--seed", SEEDS, "a seed")
     if args.out:

@@ -10,10 +10,10 @@ import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-from perception.scene import Scene
-from planning.physics import PhysicsConfig
-from planning.sim import ShelfSim
-from planning.step_result import StepResult
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.sim import ShelfSim
+from shelfpick.planning.step_result import StepResult
 
 VERDICT_FORMAT = "shelfpick.verdict/1"
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 from collections import deque
 from typing import Callable, Iterable
 
-from perception.scene import Scene
-from planning.physics import PhysicsConfig
-from planning.sim import ShelfSim
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.sim import ShelfSim
 
 SafeFn = Callable[[frozenset[str], str], bool]
 

@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Iterable
 
-from planning.plan import StepPrediction
+from shelfpick.planning.plan import StepPrediction
 
 Oracle = Callable[[frozenset[str], str], StepPrediction]
 

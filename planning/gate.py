@@ -13,9 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-from planning.calibration import Calibration, plan_failures
-from planning.plan import StepPrediction
-from planning.step_result import StepResult
+from shelfpick.planning.calibration import Calibration, plan_failures
+from shelfpick.planning.plan import StepPrediction
+from shelfpick.planning.step_result import StepResult
 
 
 def world_failed(r: StepResult) -> bool:

@@ -6,7 +6,7 @@ is out (extract) or the shelf is empty (clear).
 """
 from __future__ import annotations
 
-from perception.scene import Scene
+from shelfpick.perception.scene import Scene
 
 
 def height_key(box) -> tuple:

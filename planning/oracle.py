@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol, Sequence, runtime_checkable
 
-from planning.plan import StepPrediction
+from shelfpick.planning.plan import StepPrediction
 
 
 @runtime_checkable

@@ -9,10 +9,10 @@ are left to the contact solver (docs/physics.md, "Repair and refusal").
 """
 from __future__ import annotations
 
-from perception.errors import SceneError
-from planning.bullet_clients import Client
-from planning.geometry3 import norm
-from planning.physics import PhysicsConfig
+from shelfpick.perception.errors import SceneError
+from shelfpick.planning.bullet_clients import Client
+from shelfpick.planning.geometry3 import norm
+from shelfpick.planning.physics import PhysicsConfig
 
 # (depth, box, other box or None for a shelf part, normal pointing out of the other, other body)
 Penetration = tuple[float, str, "str | None", tuple, int]

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Mapping
 
-from perception.errors import FormatError
+from shelfpick.perception.errors import FormatError
 
 
 @dataclass(frozen=True)

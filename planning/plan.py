@@ -7,9 +7,9 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
-from perception.errors import FormatError
-from perception.scene import Scene, check_id, read_json, write_json
-from planning.physics import PhysicsConfig
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Scene, check_id, read_json, write_json
+from shelfpick.planning.physics import PhysicsConfig
 
 PLAN_FORMAT = "shelfpick.plan/1"
 TASKS = ("extract", "clear")

@@ -12,25 +12,25 @@ import time
 import warnings
 from typing import TYPE_CHECKING, Any, Callable
 
-from perception.errors import FormatError
-from perception.scene import Scene
-from planning.clear import prefer_baseline, search_clear, visit_order
-from planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration, calibration_for
-from planning.extract import CountingOracle, search_extract, success_prob
-from planning.gate import GateResult, gate
-from planning.heuristic import heuristic_order
-from planning.oracle import Predicting, Screening, Verifying
-from planning.plan import PLANNERS, TASKS, Plan, StepPrediction
-from planning.predict import Predictor
-from planning.reorder import reorder_extraction
-from planning.shorten import shorten_extraction
-from planning.uncertainty import Uncertainty
-from planning.unexplained import verdict as unexplained_verdict
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.clear import prefer_baseline, search_clear, visit_order
+from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration, calibration_for
+from shelfpick.planning.extract import CountingOracle, search_extract, success_prob
+from shelfpick.planning.gate import GateResult, gate
+from shelfpick.planning.heuristic import heuristic_order
+from shelfpick.planning.oracle import Predicting, Screening, Verifying
+from shelfpick.planning.plan import PLANNERS, TASKS, Plan, StepPrediction
+from shelfpick.planning.predict import Predictor
+from shelfpick.planning.reorder import reorder_extraction
+from shelfpick.planning.shorten import shorten_extraction
+from shelfpick.planning.uncertainty import Uncertainty
+from shelfpick.planning.unexplained import verdict as unexplained_verdict
 
 if TYPE_CHECKING:  # pragma: no cover
-    from planning.bullet_clients import ClientPool
-    from planning.physics import PhysicsConfig
-    from planning.worker_pool import WorkerPool
+    from shelfpick.planning.bullet_clients import ClientPool
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.worker_pool import WorkerPool
 
 
 

@@ -13,16 +13,16 @@ import time
 from collections import Counter
 from typing import Sequence
 
-from perception.errors import SceneError
-from perception.scene import Scene
-from planning.bullet_clients import ClientPool
-from planning.physics import PhysicsConfig
-from planning.plan import StepPrediction
-from planning.sample_worlds import SampleWorlds, build_sample, not_standing, scene_check
-from planning.sim import ShelfSim
-from planning.step_result import StepResult
-from planning.uncertainty import Uncertainty
-from planning.worker_pool import Build, Extend, Preview, Pull, Worker, WorkerPool
+from shelfpick.perception.errors import SceneError
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.bullet_clients import ClientPool
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.plan import StepPrediction
+from shelfpick.planning.sample_worlds import SampleWorlds, build_sample, not_standing, scene_check
+from shelfpick.planning.sim import ShelfSim
+from shelfpick.planning.step_result import StepResult
+from shelfpick.planning.uncertainty import Uncertainty
+from shelfpick.planning.worker_pool import Build, Extend, Preview, Pull, Worker, WorkerPool
 
 
 class Predictor:

@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Mapping, Sequence
 
-from perception.errors import FormatError
-from perception.scene import Box, Scene, quat_to_matrix
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Box, Scene, quat_to_matrix
 
 Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
 _FAR = 5.0   # m: a pose this far from the shelf is a parked body, not a box on the shelf

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from planning.calibration import DEFAULT_MAX_PLAN_RISK
-from planning.uncertainty import PULL_MODES, Uncertainty
+from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
+from shelfpick.planning.uncertainty import PULL_MODES, Uncertainty
 
 _DEFAULT = Uncertainty()
 

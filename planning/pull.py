@@ -13,11 +13,11 @@ import math
 import random
 from typing import Iterable, Protocol, runtime_checkable
 
-from perception.scene import Quat, Vec3, quat_to_matrix, xyzw_to_wxyz
-from planning.bullet_clients import Client
-from planning.geometry3 import dist, matvec, norm, rot_angle_deg
-from planning.physics import PhysicsConfig
-from planning.step_result import Frame, StepResult
+from shelfpick.perception.scene import Quat, Vec3, quat_to_matrix, xyzw_to_wxyz
+from shelfpick.planning.bullet_clients import Client
+from shelfpick.planning.geometry3 import dist, matvec, norm, rot_angle_deg
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.step_result import Frame, StepResult
 
 
 @runtime_checkable

@@ -20,12 +20,12 @@ from __future__ import annotations
 
 from typing import Callable
 
-from perception.scene import Scene, quat_to_matrix
-from planning.extract import Oracle, SearchResult
-from planning.geometry3 import lean_deg
-from planning.heuristic import height_key
-from planning.resolution import prefer, resolution
-from planning.shorten import Screen, alternative
+from shelfpick.perception.scene import Scene, quat_to_matrix
+from shelfpick.planning.extract import Oracle, SearchResult
+from shelfpick.planning.geometry3 import lean_deg
+from shelfpick.planning.heuristic import height_key
+from shelfpick.planning.resolution import prefer, resolution
+from shelfpick.planning.shorten import Screen, alternative
 
 LEAN_DEG = 5.0   # a box leaning more than this rests against something: its top is no stack's top
 

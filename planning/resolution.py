@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from planning.extract import SearchResult
+from shelfpick.planning.extract import SearchResult
 
 
 def resolution(success: float, worlds: int | None) -> float:

@@ -10,13 +10,13 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
-from perception.errors import SceneError
-from perception.scene import Scene
-from planning.bullet_clients import ClientPool
-from planning.physics import PhysicsConfig
-from planning.sim import ShelfSim
-from planning.step_result import StepResult
-from planning.uncertainty import (
+from shelfpick.perception.errors import SceneError
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.bullet_clients import ClientPool
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.sim import ShelfSim
+from shelfpick.planning.step_result import StepResult
+from shelfpick.planning.uncertainty import (
     Uncertainty,
     depth_ranges,
     draw_config,

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from typing import Callable
 
-from planning.extract import Oracle, SearchResult, success_prob
-from planning.plan import StepPrediction
+from shelfpick.planning.extract import Oracle, SearchResult, success_prob
+from shelfpick.planning.plan import StepPrediction
 
 
 Screen = Callable[[frozenset[str], str, float], StepPrediction]

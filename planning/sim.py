@@ -18,18 +18,18 @@ from contextlib import contextmanager
 from dataclasses import replace
 from typing import Iterator
 
-from perception.errors import SceneError
-from perception.scene import Box, Quat, Scene, Vec3, wxyz_to_xyzw, xyzw_to_wxyz
-from planning.bullet_clients import Client, ClientPool, connect, disconnect_quietly
-from planning.geometry3 import dist as _dist
-from planning.geometry3 import norm as _norm
-from planning.geometry3 import rot_angle_deg as _rot_angle_deg
-from planning.locality import neighbourhood as _neighbourhood
-from planning.overlap_repair import repair_overlaps
-from planning.physics import PhysicsConfig
-from planning.pull import pull
-from planning.step_result import StepResult
-from planning.unexplained import obstacles
+from shelfpick.perception.errors import SceneError
+from shelfpick.perception.scene import Box, Quat, Scene, Vec3, wxyz_to_xyzw, xyzw_to_wxyz
+from shelfpick.planning.bullet_clients import Client, ClientPool, connect, disconnect_quietly
+from shelfpick.planning.geometry3 import dist as _dist
+from shelfpick.planning.geometry3 import norm as _norm
+from shelfpick.planning.geometry3 import rot_angle_deg as _rot_angle_deg
+from shelfpick.planning.locality import neighbourhood as _neighbourhood
+from shelfpick.planning.overlap_repair import repair_overlaps
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.pull import pull
+from shelfpick.planning.step_result import StepResult
+from shelfpick.planning.unexplained import obstacles
 
 _PARK_X0 = 50.0      # parked boxes are put far from the shelf, out of the broadphase
 _PARK_DX = 3.0

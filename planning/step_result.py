@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from perception.scene import Quat, Vec3
+from shelfpick.perception.scene import Quat, Vec3
 
 Frame = tuple[float, dict[str, tuple[Vec3, Quat]]]   # (sim time, box -> pose) of a recorded pull
 

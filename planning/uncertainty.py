@@ -19,8 +19,8 @@ import random
 import zlib
 from dataclasses import dataclass, replace
 
-from perception.scene import BOX_TYPES, Box, Scene, quat_to_matrix
-from planning.physics import PhysicsConfig
+from shelfpick.perception.scene import BOX_TYPES, Box, Scene, quat_to_matrix
+from shelfpick.planning.physics import PhysicsConfig
 
 PULL_MODES = ("lift", "drag", "ride")
 

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Sequence
 
-from perception.scene import EXPLAIN_TOL, FRONT_REACH, Box, Scene, Unexplained
+from shelfpick.perception.scene import EXPLAIN_TOL, FRONT_REACH, Box, Scene, Unexplained
 
 if TYPE_CHECKING:  # pragma: no cover
-    from planning.plan import StepPrediction
+    from shelfpick.planning.plan import StepPrediction
 
 # a box within this much (m) of a region's seen surface, across the pull, touches it: perception
 # leaves EXPLAIN_TOL of unexplained matter next to a box unseen, and 1 cm more is contact

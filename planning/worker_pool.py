@@ -18,11 +18,11 @@ import threading
 from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
-from perception.scene import Scene
-from planning.bullet_clients import ClientPool
-from planning.physics import PhysicsConfig
-from planning.sample_worlds import DrawSummary, SampleWorlds
-from planning.uncertainty import Uncertainty
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.bullet_clients import ClientPool
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.sample_worlds import DrawSummary, SampleWorlds
+from shelfpick.planning.uncertainty import Uncertainty
 
 
 @dataclass(frozen=True)
@@ -167,7 +167,7 @@ def _context(method: str | None):
     ctx = mp.get_context(name)
     if name == "forkserver":
         # the fork server imports the planner once; every worker is then a cheap fork of it
-        ctx.set_forkserver_preload(["planning.worker_pool"])
+        ctx.set_forkserver_preload(["shelfpick.planning.worker_pool"])
     return ctx
 
 

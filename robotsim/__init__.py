@@ -4,7 +4,7 @@
   line-delimited JSON framing with its caps (`LineConn`) and its errors;
 - `robotsim.transform`: the shelf-to-robot-base transform the grasp travels in;
 - `robotsim.controller`: a reference robot-side server that acts on a
-  simulated shelf (`python -m robotsim --port 9000`); the console's tests
+  simulated shelf (`python -m shelfpick.robotsim --port 9000`); the console's tests
   run against it.
 
 The console's TCP driver (`console/robot_tcp.py`) imports `wire` and

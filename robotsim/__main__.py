@@ -1,6 +1,6 @@
-"""`python -m robotsim`: the reference robot-side controller (robotsim/controller.py)."""
+"""`python -m shelfpick.robotsim`: the reference robot-side controller (robotsim/controller.py)."""
 import sys
 
-from robotsim.controller import main
+from shelfpick.robotsim.controller import main
 
 sys.exit(main())

@@ -28,7 +28,7 @@ Fault injection for tests: refuse given steps, drop the connection after k
 completed steps or while step k is in flight, hang (go silent) on a step,
 take `ack_delay` seconds before an `ack` and `step_time` seconds per step.
 
-    python -m robotsim --port 9000 [--truth scene.json] [--transform t.json]
+    python -m shelfpick.robotsim --port 9000 [--truth scene.json] [--transform t.json]
 
 It imports nothing of the console: the wire it speaks is `robotsim.wire`.
 """
@@ -45,9 +45,9 @@ import time
 from dataclasses import replace
 from typing import Any, Iterable
 
-from perception.scene import Scene
-from robotsim.transform import Transform
-from robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
+from shelfpick.perception.scene import Scene
+from shelfpick.robotsim.transform import Transform
+from shelfpick.robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 
 log = logging.getLogger(__name__)
 
@@ -352,7 +352,7 @@ class RobotController:
         """Carry out one pull. Replace this with motion commands on a real robot."""
         if self.truth is None:
             return True, {"executed": "acknowledged (no truth scene)"}
-        from planning.sim import ShelfSim
+        from shelfpick.planning.sim import ShelfSim
 
         inv = self.transform.inverse()
         point = inv.point(msg["grasp"]["point"])
@@ -400,7 +400,7 @@ def _hard_close(conn: LineConn) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m robotsim", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m shelfpick.robotsim", description=__doc__.split("\n\n")[0])
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=9000)
     ap.add_argument("--truth", help="scene JSON the robot acts on in its own simulation")

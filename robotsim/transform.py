@@ -6,8 +6,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from perception.errors import FormatError
-from perception.scene import quat_to_matrix, read_json
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import quat_to_matrix, read_json
 
 Vec3 = tuple[float, float, float]
 

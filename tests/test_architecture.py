@@ -25,6 +25,11 @@ def _modules() -> dict[str, Path]:
     return out
 
 
+def _short(name: str) -> str:
+    """`shelfpick.planning.sim` -> `planning.sim`: the namespace every import goes through."""
+    return name[len("shelfpick."):] if name.startswith("shelfpick.") else name
+
+
 def _imports(path: Path) -> set[str]:
     """Every project module a file imports, at any level."""
     names: set[str] = set()
@@ -35,6 +40,7 @@ def _imports(path: Path) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             names.add(node.module)
             names |= {f"{node.module}.{a.name}" for a in node.names}
+    names = {_short(n) for n in names}
     return {n for n in names if n.split(".")[0] in PACKAGES}
 
 
@@ -76,9 +82,9 @@ def import_graph() -> dict[str, dict[str, str]]:
         edges: dict[str, str] = {}
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):
-                targets = [module(a.name) for a in node.names]
+                targets = [module(_short(a.name)) for a in node.names]
             elif isinstance(node, ast.ImportFrom):
-                base = node.module or ""
+                base = _short(node.module or "")
                 if node.level:
                     pkg = mod.split(".")[:-1]            # the package a module (or an __init__) is in
                     pkg = pkg[: len(pkg) - (node.level - 1)]
@@ -306,9 +312,24 @@ def test_the_module_map_names_every_module():
 
 @pytest.mark.parametrize("pkg", PACKAGES)
 def test_each_package_names_its_public_api(pkg):
-    module = importlib.import_module(pkg)
+    module = importlib.import_module(f"shelfpick.{pkg}")
     assert module.__doc__
     for name in getattr(module, "__all__", ()):
         assert getattr(module, name) is not None
     if pkg != "robotsim":
         assert module.__all__
+
+
+def test_every_import_goes_through_the_shelfpick_namespace():
+    """Installed, the packages exist only as `shelfpick.X`: a bare `import planning` would find another
+    project's package of that name (PyPI has `console`, `planning`, `perception`, `static`) or none."""
+    bare = []
+    for folder in (*PACKAGES, "tests", "benchmarks", "examples", "static"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                         [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+                         else [])
+                bare += [f"{path.relative_to(ROOT)}:{node.lineno} {n}" for n in names
+                         if n.split(".")[0] in (*PACKAGES, "static")]
+    assert not bare, "imports outside the shelfpick namespace: " + ", ".join(bare)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from console.cli import main
+from shelfpick.console.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = ROOT / "tests" / "fuzz_corpus"
@@ -75,7 +75,7 @@ def test_case_in_process(name: str, tmp_path: Path, capsys) -> None:
 def _subprocess(name: str, tmp_path: Path) -> None:
     argv, names = argv_for(name, tmp_path)
     t0 = time.monotonic()
-    p = subprocess.run([sys.executable, "-m", "console.cli", *argv], cwd=ROOT, capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", *argv], cwd=ROOT, capture_output=True, text=True,
                        timeout=SECONDS + 20)
     judge(name, p.returncode, p.stderr, time.monotonic() - t0, names)
 

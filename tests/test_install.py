@@ -56,8 +56,8 @@ def wheel(tmp_path_factory) -> Path:
 
 def test_the_wheel_carries_weights_demo_shelves_and_the_license(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    assert {"static/weights/shelfpick-seg.pt", "static/weights/shelfpick-learned.onnx"} <= names
-    assert {f"static/demo/{p.name}" for p in (ROOT / "static" / "demo").glob("*.json")} <= names
+    assert {"shelfpick/static/weights/shelfpick-seg.pt", "shelfpick/static/weights/shelfpick-learned.onnx"} <= names
+    assert {f"shelfpick/static/demo/{p.name}" for p in (ROOT / "static" / "demo").glob("*.json")} <= names
     assert any(n.endswith("licenses/LICENSE") for n in names)
     assert not any(n.startswith(("tests/", "benchmarks/")) for n in names)
 
@@ -72,7 +72,7 @@ def test_core_install_plans_and_simulates_from_a_clean_venv(wheel, tmp_path):
     assert "torch" not in freeze and "viser" not in freeze and "opencv" not in freeze
     exe = str(env_dir / "bin" / "shelfpick")
     site = run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path).stdout.strip()
-    demo = Path(site) / "static" / "demo" / "demo-small-6.json"   # the demo shelf from the wheel
+    demo = Path(site) / "shelfpick" / "static" / "demo" / "demo-small-6.json"   # the demo shelf from the wheel
     assert demo.is_file()
     # run outside the checkout, so nothing is imported from it
     plan = run([exe, "plan", str(demo), "--target", "b1", "--out", str(tmp_path / "plan.json")], tmp_path)
@@ -100,8 +100,8 @@ def test_the_yolo_segmenter_finds_its_weights_in_the_installed_wheel(wheel, tmp_
     where = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
     module, weights = where.stdout.split()
     assert module.startswith(str(site)) and weights.startswith(str(site)) and Path(weights).is_file()
-    cli = [sys.executable, "-c", "import sys; from console.cli import main; sys.exit(main())"]
-    demo = site / "static" / "demo" / "demo-small-6.json"
+    cli = [sys.executable, "-c", "import sys; from shelfpick.console.cli import main; sys.exit(main())"]
+    demo = site / "shelfpick" / "static" / "demo" / "demo-small-6.json"
     assert subprocess.run(cli + ["render", str(demo), "--out", "cap"], cwd=tmp_path, env=env).returncode == 0
     perceive = subprocess.run(cli + ["perceive", "--rgb", "cap/rgb.png", "--depth", "cap/depth.png", "--camera",
                                      "cap/camera.json", "--segmenter", "yolo", "--out", "scene.json"],
@@ -123,7 +123,7 @@ def test_perception_extra_renders_and_perceives_from_a_clean_venv(wheel, tmp_pat
     assert "torch" not in freeze and "onnxruntime" in freeze
     exe = str(env_dir / "bin" / "shelfpick")
     site = run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path).stdout.strip()
-    demo = str(Path(site) / "static" / "demo" / "demo-small-6.json")
+    demo = str(Path(site) / "shelfpick" / "static" / "demo" / "demo-small-6.json")
     render = run([exe, "render", demo, "--out", "cap"], tmp_path)
     assert render.returncode == 0 and render.stdout == "", render.stderr
     perceive = run([exe, "perceive", "--rgb", "cap/rgb.png", "--depth", "cap/depth.png", "--camera",
@@ -180,3 +180,24 @@ def test_make_run_installs_the_console_without_torch_and_starts_it(tmp_path):
         console.wait(timeout=60)
     assert "stopped by SIGTERM" in log.read_text()
 
+
+
+def test_the_wheel_installs_one_import_package_beside_pypis_console(wheel, tmp_path):
+    """Issue 34: the wheel put console/, planning/, perception/, static/ and robotsim/ at the top of
+    site-packages, and PyPI's `console` (an ANSI terminal library) overwrote ours or ours it. Now the
+    wheel holds one import package, `shelfpick`, and both install and import side by side."""
+    tops = {n.split("/", 1)[0] for n in zipfile.ZipFile(wheel).namelist()}
+    assert {t for t in tops if not t.endswith(".dist-info")} == {"shelfpick"}
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    py = str(env_dir / "bin" / "python")
+    proc = run([py, "-m", "pip", "install", "-q", str(wheel), "console"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    code = ("import console, shelfpick.console.cli, shelfpick.planning.planner as p; "
+            "print(console.__file__); print(p.__file__)")
+    out = run([py, "-c", code], tmp_path)
+    assert out.returncode == 0, out.stderr
+    theirs, ours = out.stdout.split()
+    assert "/shelfpick/" not in theirs and theirs.endswith("console/__init__.py")
+    assert ours.endswith("shelfpick/planning/planner.py")
+    assert run([str(env_dir / "bin" / "shelfpick"), "--version"], tmp_path).returncode == 0

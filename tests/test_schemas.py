@@ -11,9 +11,9 @@ import pytest
 jsonschema = pytest.importorskip("jsonschema")
 from referencing import Registry, Resource  # noqa: E402  (jsonschema >= 4.18 depends on it)
 
-from perception.errors import FormatError  # noqa: E402
-from perception.scene import Box, Camera, Scene, Shelf  # noqa: E402
-from planning.plan import Plan, StepPrediction  # noqa: E402
+from shelfpick.perception.errors import FormatError  # noqa: E402
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf  # noqa: E402
+from shelfpick.planning.plan import Plan, StepPrediction  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMAS = ROOT / "docs" / "schemas"
@@ -71,7 +71,7 @@ def test_documents_the_code_writes_validate(validators):
 
 
 def test_a_plan_from_make_plan_validates(validators):
-    from planning.planner import make_plan
+    from shelfpick.planning.planner import make_plan
 
     scene = tiny_scene()
     plan = make_plan(scene, "extract", "a", planner="heuristic").with_provenance(scene)

@@ -21,14 +21,14 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "RepairContext": "perception.repairs.measure", "FaceCache": "perception.repairs.measure",
-    "Measured": "perception.repairs.measure",
-    "join_pieces": "perception.repairs.joins", "split_faces": "perception.repairs.splits",
-    "cut_l_shapes": "perception.repairs.l_cuts",
-    "split_stepped_faces": "perception.repairs.stepped", "take_stepped_parts": "perception.repairs.stepped",
-    "take_bridging_parts": "perception.repairs.bands", "regroup_pieces": "perception.repairs.regroup",
-    "absorb_enclosed": "perception.repairs.enclosed",
-    "cut_directions": "perception.repairs.border_cut", "complete_cut_face": "perception.repairs.border_cut",
+    "RepairContext": "shelfpick.perception.repairs.measure", "FaceCache": "shelfpick.perception.repairs.measure",
+    "Measured": "shelfpick.perception.repairs.measure",
+    "join_pieces": "shelfpick.perception.repairs.joins", "split_faces": "shelfpick.perception.repairs.splits",
+    "cut_l_shapes": "shelfpick.perception.repairs.l_cuts",
+    "split_stepped_faces": "shelfpick.perception.repairs.stepped", "take_stepped_parts": "shelfpick.perception.repairs.stepped",
+    "take_bridging_parts": "shelfpick.perception.repairs.bands", "regroup_pieces": "shelfpick.perception.repairs.regroup",
+    "absorb_enclosed": "shelfpick.perception.repairs.enclosed",
+    "cut_directions": "shelfpick.perception.repairs.border_cut", "complete_cut_face": "shelfpick.perception.repairs.border_cut",
 }
 
 __all__ = sorted(_WHERE)
@@ -37,4 +37,4 @@ __all__ = sorted(_WHERE)
 def __getattr__(name: str) -> Any:
     if name in _WHERE:
         return getattr(importlib.import_module(_WHERE[name]), name)
-    raise AttributeError(f"module 'perception.repairs' has no attribute {name!r}")
+    raise AttributeError(f"module 'shelfpick.perception.repairs' has no attribute {name!r}")

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.repairs.measure import Measured, RepairContext, neighbour_pieces
-from perception.repairs.parts import Handover, give_parts, one_part, part_to_pieces
-from perception.repairs.planes import min_area_rect
+from shelfpick.perception.repairs.measure import Measured, RepairContext, neighbour_pieces
+from shelfpick.perception.repairs.parts import Handover, give_parts, one_part, part_to_pieces
+from shelfpick.perception.repairs.planes import min_area_rect
 
 
 def take_bridging_parts(masks: list[np.ndarray], ctx: RepairContext) -> tuple[list[np.ndarray], list[str]]:

@@ -7,13 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.faces import FrontFace, face_axes
-from perception.masks import border_pixels, border_sides
-from perception.repairs.planes import coords
-from perception.scene import Camera
+from shelfpick.perception.faces import FrontFace, face_axes
+from shelfpick.perception.masks import border_pixels, border_sides
+from shelfpick.perception.repairs.planes import coords
+from shelfpick.perception.scene import Camera
 
 if TYPE_CHECKING:
-    from perception.catalogue import Catalogue
+    from shelfpick.perception.catalogue import Catalogue
 
 
 def cut_directions(face: FrontFace, mask: np.ndarray, camera: Camera, sides: tuple[str, ...] | None = None,

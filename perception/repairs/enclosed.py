@@ -4,9 +4,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from perception.masks import border_sides
-from perception.repairs.measure import Measured, RepairContext
-from perception.repairs.planes import on_plane, plane_dist
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.repairs.measure import Measured, RepairContext
+from shelfpick.perception.repairs.planes import on_plane, plane_dist
 
 
 def absorb_enclosed(masks: list[np.ndarray], ctx: RepairContext, ring_px: int = 3, enclosed: float = 0.75,

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.masks import border_sides
-from perception.repairs.border_cut import cut_directions
-from perception.repairs.measure import Measured, RepairContext
-from perception.repairs.planes import band_trim, join_on_plane, plane_dist
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.repairs.border_cut import cut_directions
+from shelfpick.perception.repairs.measure import Measured, RepairContext
+from shelfpick.perception.repairs.planes import band_trim, join_on_plane, plane_dist
 
 
 @dataclass(frozen=True, eq=False)

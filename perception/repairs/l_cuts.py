@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.masks import border_sides
-from perception.repairs.measure import Measured, RepairContext
-from perception.repairs.planes import join_on_plane, plane_dist, rect_fill
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.repairs.measure import Measured, RepairContext
+from shelfpick.perception.repairs.planes import join_on_plane, plane_dist, rect_fill
 
 
 @dataclass(frozen=True, eq=False)

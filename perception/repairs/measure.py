@@ -12,13 +12,13 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from perception.faces import FrontFace, face_axes, measure_front
-from perception.geometry import backproject
-from perception.masks import border_sides
-from perception.scene import Camera
+from shelfpick.perception.faces import FrontFace, face_axes, measure_front
+from shelfpick.perception.geometry import backproject
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.scene import Camera
 
 if TYPE_CHECKING:
-    from perception.catalogue import Catalogue
+    from shelfpick.perception.catalogue import Catalogue
 
 
 @dataclass(frozen=True, eq=False)

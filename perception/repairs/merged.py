@@ -154,7 +154,7 @@ def off_plane_trimmed(mask: np.ndarray, centre, normal: np.ndarray, depth: np.nd
     """The mask without the pixels whose depth point lies off its front face's plane by more than
     `tol` (a box's top face of the same colour seen from above, a strip of the wall beside it); the
     mask itself when few pixels are off it. Pixels without depth stay; the largest part is kept."""
-    from perception.geometry import point_map
+    from shelfpick.perception.geometry import point_map
 
     mask = np.asarray(mask, bool)
     sy, sx = _crop(mask, 1)

@@ -7,10 +7,10 @@ from typing import Callable
 
 import numpy as np
 
-from perception.faces import FrontFace
-from perception.masks import border_sides
-from perception.repairs.measure import Measured, RepairContext
-from perception.repairs.planes import join_on_plane, largest_component, rect_fill
+from shelfpick.perception.faces import FrontFace
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.repairs.measure import Measured, RepairContext
+from shelfpick.perception.repairs.planes import join_on_plane, largest_component, rect_fill
 
 
 @dataclass(frozen=True, eq=False)

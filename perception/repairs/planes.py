@@ -5,12 +5,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from perception.faces import FrontFace, face_axes
-from perception.geometry import backproject, ray_plane
+from shelfpick.perception.faces import FrontFace, face_axes
+from shelfpick.perception.geometry import backproject, ray_plane
 # plane_dist lives with RepairContext (neighbour_pieces measures with it); named here too, beside
 # the other on-plane measures, for the steps that import it from here
-from perception.repairs.measure import RepairContext, plane_dist
-from perception.scene import Camera
+from shelfpick.perception.repairs.measure import RepairContext, plane_dist
+from shelfpick.perception.scene import Camera
 
 
 def coords(face: FrontFace, mask: np.ndarray,

@@ -6,10 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from perception.masks import border_sides
-from perception.repairs.measure import Measured, RepairContext, neighbour_pieces
-from perception.repairs.planes import join_on_plane
-from perception.repairs.splits import split_one
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.repairs.measure import Measured, RepairContext, neighbour_pieces
+from shelfpick.perception.repairs.planes import join_on_plane
+from shelfpick.perception.repairs.splits import split_one
 
 
 def regroup_pieces(masks: list[np.ndarray], ctx: RepairContext,

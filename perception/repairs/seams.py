@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.faces import FrontFace, face_axes
-from perception.geometry import backproject
+from shelfpick.perception.faces import FrontFace, face_axes
+from shelfpick.perception.geometry import backproject
 
 if TYPE_CHECKING:
-    from perception.catalogue import Catalogue
-    from perception.repairs.measure import RepairContext
+    from shelfpick.perception.catalogue import Catalogue
+    from shelfpick.perception.repairs.measure import RepairContext
 
 _LINE_R, _STEP_W = 3, 5       # bins: a line against the bands this far either side; a step over this many
 

@@ -6,9 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.repairs.measure import Measured, RepairContext
-from perception.repairs.planes import coords, extent, join_on_plane, plane_dist
-from perception.repairs.seams import line_evidence, peak_near
+from shelfpick.perception.repairs.measure import Measured, RepairContext
+from shelfpick.perception.repairs.planes import coords, extent, join_on_plane, plane_dist
+from shelfpick.perception.repairs.seams import line_evidence, peak_near
 
 
 @dataclass(frozen=True, eq=False)

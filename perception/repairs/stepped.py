@@ -7,11 +7,11 @@ from functools import partial
 import cv2
 import numpy as np
 
-from perception.masks import border_sides
-from perception.repairs.measure import Measured, RepairContext, neighbour_pieces
-from perception.repairs.parts import Handover, give_parts, one_part, part_to_pieces
-from perception.repairs.planes import coords, join_on_plane, on_plane, plane_dist, plane_res
-from perception.repairs.seams import line_evidence
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.repairs.measure import Measured, RepairContext, neighbour_pieces
+from shelfpick.perception.repairs.parts import Handover, give_parts, one_part, part_to_pieces
+from shelfpick.perception.repairs.planes import coords, join_on_plane, on_plane, plane_dist, plane_res
+from shelfpick.perception.repairs.seams import line_evidence
 
 
 def split_stepped_faces(masks: list[np.ndarray], ctx: RepairContext,

@@ -28,8 +28,8 @@ re-exported here for the tests).
 """
 from __future__ import annotations
 
-from perception.scene import BOX_TYPES
-from planning.shelves.build import (
+from shelfpick.perception.scene import BOX_TYPES
+from shelfpick.planning.shelves.build import (
     HARD_KINDS,
     KINDS,
     MASS_RANGE,
@@ -39,7 +39,7 @@ from planning.shelves.build import (
     generate,
     layout,
 )
-from planning.shelves.placement import (
+from shelfpick.planning.shelves.placement import (
     CELL,
     DENSE_FROM,
     FRONT_MAX,
@@ -51,14 +51,14 @@ from planning.shelves.placement import (
     Y_MIN_GRID,
     obb_overlap,
 )
-from planning.shelves.placement import _Placed as _Placed  # tests
-from planning.shelves.settle import (
+from shelfpick.planning.shelves.placement import _Placed as _Placed  # tests
+from shelfpick.planning.shelves.settle import (
     SETTLE_MOVE_LIMIT,
     SETTLE_TURN_LIMIT,
     STILL_LIMIT,
     STILL_TIME,
 )
-from planning.shelves.settle import _reload_problem as _reload_problem  # tests
+from shelfpick.planning.shelves.settle import _reload_problem as _reload_problem  # tests
 
 __all__ = ["BOX_TYPES", "CELL", "DENSE_FROM", "FRONT_MAX", "FRONT_MIN", "GAP", "HARD_KINDS", "KINDS", "MASS_RANGE",
            "MAX_ATTEMPTS", "MAX_BOXES", "PROUD_RANGE", "SETTLE_MOVE_LIMIT", "SETTLE_TURN_LIMIT", "SHELF",

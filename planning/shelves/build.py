@@ -6,13 +6,13 @@ from typing import Literal
 
 import numpy as np
 
-from perception.errors import SceneError, ShelfpickError
-from perception.scene import Box, Scene, Shelf
-from planning.shelves.columns import _columns
-from planning.shelves.hard import _hard
-from planning.shelves.piles import _scattered
-from planning.shelves.placement import DENSE_FROM, SHELF, _Placed
-from planning.shelves.settle import _reload_problem, _settle
+from shelfpick.perception.errors import SceneError, ShelfpickError
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.shelves.columns import _columns
+from shelfpick.planning.shelves.hard import _hard
+from shelfpick.planning.shelves.piles import _scattered
+from shelfpick.planning.shelves.placement import DENSE_FROM, SHELF, _Placed
+from shelfpick.planning.shelves.settle import _reload_problem, _settle
 
 Kind = Literal["structured", "unstructured", "proud", "bridge", "lean", "overhang"]
 # the last four are stacks where the highest-first baseline collapses often (docs/bench.md):

@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from perception.scene import BOX_TYPES, Shelf
-from planning.shelves.placement import (
+from shelfpick.perception.scene import BOX_TYPES, Shelf
+from shelfpick.planning.shelves.placement import (
     FRONT_MAX,
     FRONT_MIN,
     GAP,

@@ -7,16 +7,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from perception.scene import BOX_TYPES, Shelf
-from planning.shelves.columns import _columns
-from planning.shelves.piles import (
+from shelfpick.perception.scene import BOX_TYPES, Shelf
+from shelfpick.planning.shelves.columns import _columns
+from shelfpick.planning.shelves.piles import (
     _landing_spots,
     _lean,
     _lean_on_stack,
     _leaning_at,
     _scattered,
 )
-from planning.shelves.placement import GAP, STANDING_LONG, _Layout, _Placed
+from shelfpick.planning.shelves.placement import GAP, STANDING_LONG, _Layout, _Placed
 
 LEAN_ROOM = 0.42   # m of floor kept free beside the columns for a leaning box
 

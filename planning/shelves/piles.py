@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from perception.scene import BOX_TYPES, Shelf, quat_to_matrix
-from planning.shelves.placement import (
+from shelfpick.perception.scene import BOX_TYPES, Shelf, quat_to_matrix
+from shelfpick.planning.shelves.placement import (
     CELL,
     FRONT_MAX,
     FRONT_MIN,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.scene import Box, Shelf, quat_to_matrix
+from shelfpick.perception.scene import Box, Shelf, quat_to_matrix
 
 PROUD_RANGE = (0.01, 0.06)           # m a proud box's front face sticks out of the shelf front
 

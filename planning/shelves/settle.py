@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 import warnings
 
-from perception.errors import SceneError
-from perception.scene import Scene
-from planning.geometry3 import rot_angle_deg
-from planning.shelves.placement import GAP
-from planning.sim import ShelfSim
+from shelfpick.perception.errors import SceneError
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.geometry3 import rot_angle_deg
+from shelfpick.planning.shelves.placement import GAP
+from shelfpick.planning.sim import ShelfSim
 
 STILL_TIME = 1.0                     # a settled shelf left alone this long ...
 STILL_LIMIT = 0.01                   # ... moves no box more than this, or it is dropped

@@ -66,7 +66,7 @@ def test_stereo_depth_has_holes_the_flat_one_does_not() -> None:
 
 
 def test_written_files_load_as_a_capture(tmp_path) -> None:
-    from perception.capture import load_capture
+    from shelfpick.perception.capture import load_capture
 
     p = write_frame(SCENE, "printed", 3, tmp_path / "f", "t")
     cap = load_capture(p["rgb"], p["depth"], p["camera"])

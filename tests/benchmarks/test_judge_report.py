@@ -104,7 +104,7 @@ def test_a_clearance_and_a_plan_from_the_true_shelf_are_judged(tmp_path: Path) -
 def test_physics_overrides_reach_the_planner() -> None:
     """`--physics` (a lever to measure) changes the planner's worlds, and the plan says so."""
     from benchmarks.judge_rows import make_timed_plan
-    from perception.scene import Box, Scene, Shelf
+    from shelfpick.perception.scene import Box, Scene, Shelf
 
     obs = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.15, 0.1)),)).to_json()
     settings = {"samples": 1, "seed": 0, "risk": 0.0, "budget_s": None, "workers": 1}

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import numpy as np
 
-from console.store import SessionStore
-from perception.scene import Box, Scene, Shelf
-from planning.plan import Plan, StepPrediction
+from shelfpick.console.store import SessionStore
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.plan import Plan, StepPrediction
 
 
 def stack_scene() -> Scene:
@@ -19,8 +19,8 @@ def stack_scene() -> Scene:
 
 def make_session(db: Path) -> tuple[int, dict]:
     """One session: capture, two plans (one with a recorded collapse preview), decisions, robot outcome."""
-    from perception.render import render
-    from planning.sim import ShelfSim
+    from shelfpick.perception.render import render
+    from shelfpick.planning.sim import ShelfSim
 
     scene = stack_scene()
     cap = render(scene, seed=3)

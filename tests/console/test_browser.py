@@ -34,8 +34,8 @@ def browser():
 
 def small_shelf():
     """Two boxes stacked on the left (taking the bottom one needs the top one out first), one alone."""
-    from perception.render import default_camera
-    from perception.scene import Box, Scene, Shelf
+    from shelfpick.perception.render import default_camera
+    from shelfpick.perception.scene import Box, Scene, Shelf
 
     return Scene(Shelf(), (Box("b0", (0.31, 0.25, 0.23), (-0.25, 0.13, 0.115)),
                            Box("b1", (0.20, 0.20, 0.20), (-0.25, 0.11, 0.33)),
@@ -44,11 +44,11 @@ def small_shelf():
 
 @pytest.fixture
 def console(tmp_path):
-    from console.app import ConsoleApp
-    from console.robot import open_robot
-    from console.sources import DemoSource
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.app import ConsoleApp
+    from shelfpick.console.robot import open_robot
+    from shelfpick.console.sources import DemoSource
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
 
     store = SessionStore(tmp_path / "sessions.sqlite")
     wf = Workflow(DemoSource([("small", small_shelf())], seed=2), store,

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from console.cell import CellError, read_cell
-from console.cli import main
-from perception.scene import Camera
+from shelfpick.console.cell import CellError, read_cell
+from shelfpick.console.cli import main
+from shelfpick.perception.scene import Camera
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
@@ -68,7 +68,7 @@ def test_a_cell_file_is_read_with_paths_beside_it(tmp_path):
     assert "step_timeout=90.0" in cell.robot
     assert cell.safety == {"samples": 4, "seed": 7, "db": str(tmp_path / "cell.db"), "tolerance_displacement": 0.02}
     assert cell.tolerance().displacement == 0.02
-    from console.robot_tcp import TcpRobot
+    from shelfpick.console.robot_tcp import TcpRobot
 
     robot = TcpRobot.from_spec(cell.robot)          # the spec the console opens is one the driver takes
     assert robot.timeouts.step == 90.0
@@ -130,8 +130,8 @@ CHILD = textwrap.dedent("""
     import sys, threading, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
-    from console import cmd_console
-    from console.cli import build_parser, configure_logging
+    from shelfpick.console import cmd_console
+    from shelfpick.console.cli import build_parser, configure_logging
     args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", "sim?delay=30",
                                       "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
     configure_logging("console", 0)
@@ -156,7 +156,7 @@ CHILD = textwrap.dedent("""
 
 
 def test_sigterm_stops_the_robot_run_and_closes_the_database(tmp_path):
-    from console.store import SessionStore
+    from shelfpick.console.store import SessionStore
 
     db = tmp_path / "t.sqlite"
     code = CHILD.format(root=str(ROOT), here=str(HERE), db=str(db))
@@ -215,8 +215,8 @@ max_plan_risk = 0.02
 
 
 def test_the_planning_section_gives_the_sample_worlds_priors_and_the_plan_threshold(tmp_path):
-    from planning.calibration import DEFAULT_MAX_PLAN_RISK
-    from planning.uncertainty import Uncertainty
+    from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
+    from shelfpick.planning.uncertainty import Uncertainty
 
     priors = read_cell(write_cell(tmp_path, PLANNING)).priors()
     assert priors.max_plan_risk == 0.02
@@ -247,8 +247,8 @@ def test_the_console_plans_with_the_cells_priors_and_threshold(tmp_path):
     sys.path.insert(0, str(HERE))
     from test_workflow import PASS, CodeShelfSource, small_scene
 
-    from console import cmd_console
-    from console.cli import build_parser
+    from shelfpick.console import cmd_console
+    from shelfpick.console.cli import build_parser
 
     text = PLANNING.replace('url = "tcp://127.0.0.1:9000"', 'url = "sim"').replace(
         "position = [0.6, 0.0, -0.2]\norientation = [1.0, 0.0, 0.0, 0.0]\nstep_timeout = 90\n", "")

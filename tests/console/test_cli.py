@@ -4,7 +4,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from console.cli import COMMANDS, build_parser
+from shelfpick.console.cli import COMMANDS, build_parser
 
 
 def test_all_subcommands_registered():
@@ -14,7 +14,7 @@ def test_all_subcommands_registered():
 
 
 def test_help_is_fast_and_imports_nothing_heavy():
-    code = ("import sys; from console.cli import build_parser; build_parser(); "
+    code = ("import sys; from shelfpick.console.cli import build_parser; build_parser(); "
             "heavy = [m for m in ('torch', 'pybullet', 'viser', 'ultralytics', 'cv2') if m in sys.modules]; "
             "print(','.join(heavy))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -34,7 +34,7 @@ def test_every_option_of_every_command_has_help():
 def test_version_prints_the_distribution_version():
     from importlib.metadata import version
 
-    out = subprocess.run([sys.executable, "-m", "console.cli", "--version"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == f"shelfpick {version('shelfpick')}"
 
 
@@ -44,17 +44,17 @@ def test_render_writes_nothing_on_stdout_and_quiet_silences_stderr(tmp_path):
 
     root = Path(__file__).resolve().parents[2]
     scene = str(root / "static" / "demo" / "demo-small-6.json")
-    run = subprocess.run([sys.executable, "-m", "console.cli", "render", scene, "--out", str(tmp_path / "r")],
+    run = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", "render", scene, "--out", str(tmp_path / "r")],
                          capture_output=True, text=True, cwd=root, timeout=120)
     assert run.returncode == 0 and run.stdout == ""
     assert "shelfpick render: rendered 6 boxes" in run.stderr
-    quiet = subprocess.run([sys.executable, "-m", "console.cli", "-q", "render", scene, "--out",
+    quiet = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", "-q", "render", scene, "--out",
                             str(tmp_path / "q")], capture_output=True, text=True, cwd=root, timeout=120)
     assert quiet.returncode == 0 and quiet.stdout == "" and quiet.stderr == ""   # pybullet's banner too
 
 
 def test_bad_input_is_one_line_on_stderr_exit_2(tmp_path, capsys):
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     (tmp_path / "s.json").write_text('{"format": "shelfpick.scene/1", "shelf": {"width": -1}}')
     assert main(["plan", str(tmp_path / "s.json"), "--target", "b0"]) == 2
@@ -65,7 +65,7 @@ def test_bad_input_is_one_line_on_stderr_exit_2(tmp_path, capsys):
 def test_verbose_adds_debug_records_and_quiet_keeps_only_warnings(tmp_path, capsys):
     from pathlib import Path
 
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     demo = str(Path(__file__).resolve().parents[2] / "static" / "demo" / "demo-small-6.json")
     argv = ["plan", demo, "--target", "b1", "--samples", "2", "--workers", "1", "--out", str(tmp_path / "p.json")]
@@ -79,7 +79,7 @@ def test_verbose_adds_debug_records_and_quiet_keeps_only_warnings(tmp_path, caps
 def test_main_puts_the_loggers_back_as_they_were(tmp_path):
     import logging
 
-    from console.cli import LOGGERS, main
+    from shelfpick.console.cli import LOGGERS, main
 
     before = [(logging.getLogger(n).level, logging.getLogger(n).propagate, list(logging.getLogger(n).handlers))
               for n in LOGGERS]

@@ -31,7 +31,7 @@ class CameraOnRobotShelf:
     """A demo camera that, after a step, renders the robot's own world (the robot runs elsewhere)."""
 
     def __init__(self, scene, controller) -> None:
-        from console.sources import DemoSource
+        from shelfpick.console.sources import DemoSource
 
         self.demo = DemoSource([("lean", scene)], seed=2)
         self.name = "camera-on-robot-shelf"
@@ -56,13 +56,13 @@ class CameraThatDoesNotLookAgain:
 
 
 def make_console(tmp_path, camera, seed=None):
-    from console.app import ClientView, ConsoleApp
-    from console.robot import open_robot
-    from robotsim.controller import RobotController
-    from console.store import SessionStore
-    from console.workflow import Workflow
-    from perception.render import default_camera
-    from planning.shelves import generate
+    from shelfpick.console.app import ClientView, ConsoleApp
+    from shelfpick.console.robot import open_robot
+    from shelfpick.robotsim.controller import RobotController
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
+    from shelfpick.perception.render import default_camera
+    from shelfpick.planning.shelves import generate
 
     truth = generate("lean", LEAN_SEED if seed is None else seed, 8)
     truth = type(truth)(truth.shelf, truth.boxes, default_camera())

@@ -20,11 +20,11 @@ from typing import Callable
 
 import pytest
 
-from console.robot import RobotEvent
-from console.robot_tcp import LineConn, ProtocolError, Timeouts, TcpRobot
-from console.robot_types import StepHistory
-from perception.scene import Box, Scene, Shelf
-from planning.plan import Plan
+from shelfpick.console.robot import RobotEvent
+from shelfpick.console.robot_tcp import LineConn, ProtocolError, Timeouts, TcpRobot
+from shelfpick.console.robot_types import StepHistory
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.plan import Plan
 
 FAST = Timeouts(connect=2.0, ack=1.0, step=2.0, heartbeat_interval=0.1, heartbeat_timeout=0.6, abort=0.5)
 BOUND = 4.0  # s: the slowest fault (a stalled step) ends at step timeout + abort; nothing may take longer

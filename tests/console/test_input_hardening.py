@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from console.cell import CellError, check_robot_spec, read_cell
-from console.cli import main
+from shelfpick.console.cell import CellError, check_robot_spec, read_cell
+from shelfpick.console.cli import main
 
 from session_fixture import make_session
 
@@ -88,7 +88,7 @@ def test_replay_reads_no_file_outside_the_session_store(archive, tmp_path: Path,
     out = tmp_path / "r.html"
     assert main(["replay", str(archive[1]), "--html", str(out), "--db", str(db)]) == 0
     page = out.read_text()
-    from console.replay import png_data_uri
+    from shelfpick.console.replay import png_data_uri
 
     assert png_data_uri(cv2.cvtColor(marker, cv2.COLOR_BGR2RGB)) not in page
     assert "outside s.db.files/: not read" in page
@@ -171,7 +171,7 @@ def test_the_cell_file_refuses_what_the_url_refuses(tmp_path: Path) -> None:
 
 
 def test_the_robot_drivers_take_the_same_bounds() -> None:
-    from console.robot import RobotError, open_robot
+    from shelfpick.console.robot import RobotError, open_robot
 
     with pytest.raises(RobotError, match=r"delay: expected a number in \[0, 600\]"):
         open_robot("sim?delay=1e308")
@@ -187,7 +187,7 @@ def test_the_robot_drivers_take_the_same_bounds() -> None:
 ])
 def test_console_refuses_before_opening_anything(tmp_path: Path, argv: list[str], says: str) -> None:
     db = tmp_path / "c.db"
-    p = subprocess.run([sys.executable, "-m", "console.cli", "console", "--port", "0", "--no-capture",
+    p = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", "console", "--port", "0", "--no-capture",
                         "--db", str(db), *argv], cwd=ROOT, capture_output=True, text=True, timeout=60)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2 and len(lines) == 1 and says in lines[0], p.stderr
@@ -207,8 +207,8 @@ def test_a_cell_file_that_is_a_link_to_dev_zero_is_refused_before_reading(tmp_pa
 
 
 def test_console_settings_from_the_cell_keep_their_bounds(tmp_path: Path) -> None:
-    from console.cmd_console import build
-    from perception.errors import ShelfpickError
+    from shelfpick.console.cmd_console import build
+    from shelfpick.perception.errors import ShelfpickError
 
     args = argparse.Namespace(cell=None, source=None, host=None, port=0, db=str(tmp_path / "c.db"), robot=None,
                               supervisor_passphrase=None, samples=10**9, seed=None, workers=None, no_capture=True)
@@ -244,7 +244,7 @@ def test_plan_into_a_closed_pipe_exits_quietly(tmp_path: Path) -> None:
                      for i in range(3)]}
     (tmp_path / "s.json").write_text(json.dumps(doc))
     env = {**os.environ, "PYTHONUNBUFFERED": "0"}
-    argv = [sys.executable, "-m", "console.cli", "plan", str(tmp_path / "s.json"), "--task", "clear", "--samples",
+    argv = [sys.executable, "-m", "shelfpick.console.cli", "plan", str(tmp_path / "s.json"), "--task", "clear", "--samples",
             "1", "--planner", "heuristic"]
     # the reader gone before anything is written (`| head -c 0`): every write meets a closed pipe
     r, w = os.pipe()

@@ -30,13 +30,13 @@ pytestmark = pytest.mark.browser
 
 @pytest.fixture
 def lean_app(tmp_path):
-    from console.app import ConsoleApp
-    from console.robot import open_robot
-    from console.sources import DemoSource
-    from console.store import SessionStore
-    from console.workflow import Workflow
-    from perception.render import default_camera
-    from planning.shelves import generate
+    from shelfpick.console.app import ConsoleApp
+    from shelfpick.console.robot import open_robot
+    from shelfpick.console.sources import DemoSource
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
+    from shelfpick.perception.render import default_camera
+    from shelfpick.planning.shelves import generate
 
     truth = generate("lean", SEED, 8)
     truth = type(truth)(truth.shelf, truth.boxes, default_camera())

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from console.replay import export_html, keyframes, render_html
-from console.store import SessionStore
+from shelfpick.console.replay import export_html, keyframes, render_html
+from shelfpick.console.store import SessionStore
 
 from session_fixture import make_session, stack_scene
 
@@ -44,7 +44,7 @@ def test_replay_html_is_self_contained_and_holds_the_session(stored, tmp_path: P
 
 def test_keyframes_follow_the_recorded_collapse() -> None:
     scene = stack_scene()
-    from planning.sim import ShelfSim
+    from shelfpick.planning.sim import ShelfSim
 
     sim = ShelfSim(scene)
     try:
@@ -101,8 +101,8 @@ def test_replay_opens_and_animates_in_a_browser_without_network(stored, tmp_path
 def looked_session(db: Path) -> tuple[int, str]:
     """The fixture session plus two looks after its physics plan's steps: the first as predicted,
     the second with b2 6 cm left of where the plan put it (observed ids renumbered)."""
-    from console.verify import compare
-    from perception.scene import Box
+    from shelfpick.console.verify import compare
+    from shelfpick.perception.scene import Box
 
     sid, info = make_session(db)
     scene = stack_scene().without(["b1"])
@@ -138,8 +138,8 @@ def test_replay_html_shows_predicted_outlines_over_observed_boxes_per_step(tmp_p
 
 
 def test_console_replay_draws_a_look_with_predicted_outlines(tmp_path: Path) -> None:
-    from console.app import ClientView, ConsoleApp
-    from console.workflow import Workflow
+    from shelfpick.console.app import ClientView, ConsoleApp
+    from shelfpick.console.workflow import Workflow
 
     db = tmp_path / "looks.db"
     sid, _ = looked_session(db)

@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import pytest
 
-from console.robot import RobotError, RobotEvent, SimRobot, match_boxes, open_robot
-from perception.scene import Box, Scene, Shelf
-from planning.plan import Plan
+from shelfpick.console.robot import RobotError, RobotEvent, SimRobot, match_boxes, open_robot
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.plan import Plan
 
 
 def stack_scene() -> Scene:
@@ -144,8 +144,8 @@ class _FloatingTruthSource:
         self.n = 0
 
     def capture(self):
-        from console.sources import Frame
-        from perception.render import render
+        from shelfpick.console.sources import Frame
+        from shelfpick.perception.render import render
 
         self.n += 1
         return Frame(render(self.scene, seed=2), self.truth, f"floating-truth-{self.n}")
@@ -154,9 +154,9 @@ class _FloatingTruthSource:
 def test_the_console_stores_and_shows_the_robot_world_repairs_escaped(tmp_path) -> None:
     """Through the workflow and a real SQLite file: the note is a stored robot event of the run and
     reaches the page's robot panel as literal text (no tag)."""
-    from console.app import robot_markdown
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.app import robot_markdown
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
     from test_workflow import PASS, sim_factory
 
     store = SessionStore(tmp_path / "repairs.sqlite")

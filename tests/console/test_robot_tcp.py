@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from console.robot import RobotError, RobotEvent, open_robot
-from robotsim.controller import RobotController
-from console.robot_tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
-from console.robot_types import StepHistory
-from perception.errors import FormatError
-from perception.scene import Box, Scene, Shelf, yaw_quat
-from planning.plan import Plan
+from shelfpick.console.robot import RobotError, RobotEvent, open_robot
+from shelfpick.robotsim.controller import RobotController
+from shelfpick.console.robot_tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
+from shelfpick.console.robot_types import StepHistory
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Box, Scene, Shelf, yaw_quat
+from shelfpick.planning.plan import Plan
 
 FAST = Timeouts(connect=2.0, ack=2.0, step=10.0, heartbeat_interval=0.1, heartbeat_timeout=0.6, abort=1.0)
 
@@ -227,14 +227,14 @@ def test_controller_executes_on_a_truth_scene_through_the_transform() -> None:
 
 
 def test_controller_as_a_separate_process(tmp_path: Path) -> None:
-    """`python -m robotsim` in its own process, driven through open_robot's spec."""
+    """`python -m shelfpick.robotsim` in its own process, driven through open_robot's spec."""
     import subprocess
     import sys
 
     root = Path(__file__).resolve().parents[2]
     tf = tmp_path / "cell.json"
     tf.write_text(json.dumps({"position": [0.6, 0.0, -0.2], "orientation": [1, 0, 0, 0]}))
-    proc = subprocess.Popen([sys.executable, "-m", "robotsim", "--port", "0", "--step-time", "0.05",
+    proc = subprocess.Popen([sys.executable, "-m", "shelfpick.robotsim", "--port", "0", "--step-time", "0.05",
                              "--transform", str(tf), "--refuse", "3"],
                             cwd=root, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
@@ -354,8 +354,8 @@ def test_the_driver_refused_as_duplicate_when_it_resends_within_its_run() -> Non
 def test_the_console_records_the_run_id_it_sends_and_a_new_capture_runs_again(tmp_path: Path) -> None:
     """Through the workflow and a real SQLite file: each run's start event holds the run id the
     reference controller received; the second capture of the same shelf (same plan hash) executes."""
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
     from test_workflow import PASS, CodeShelfSource, small_scene
 
     store = SessionStore(tmp_path / "runs.sqlite")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from robotsim.controller import RobotController
+from shelfpick.robotsim.controller import RobotController
 from safety_kit import fault, judge_stop
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,8 +26,8 @@ CHILD = textwrap.dedent("""
     import sys, threading, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
-    from console import cmd_console
-    from console.cli import build_parser, configure_logging
+    from shelfpick.console import cmd_console
+    from shelfpick.console.cli import build_parser, configure_logging
     args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", {robot!r},
                                       "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
     configure_logging("console", 0)
@@ -83,7 +83,7 @@ def interrupt_a_run(tmp_path: Path, robot: str, sig: int) -> tuple[int, float, s
 
 
 def test_ctrl_c_during_a_run_records_the_stop_aborts_the_step_and_exits_130(tmp_path):
-    from console.store import SessionStore
+    from shelfpick.console.store import SessionStore
 
     with RobotController(step_time=30.0) as ctl:
         fault()
@@ -112,7 +112,7 @@ def test_ctrl_c_during_a_run_records_the_stop_aborts_the_step_and_exits_130(tmp_
 @pytest.mark.slow        # tests/console/test_cell.py covers SIGTERM in `make test`; this is the shared handler
 def test_sigterm_still_exits_143_with_the_same_handler(tmp_path):
     """The shared handler keeps SIGTERM's contract (the sim robot: the stop is recorded, 143)."""
-    from console.store import SessionStore
+    from shelfpick.console.store import SessionStore
 
     rc, took, err, sid = interrupt_a_run(tmp_path, "sim?delay=30", signal.SIGTERM)
     assert rc == 143 and took < 25 and "stopped by SIGTERM" in err, err
@@ -123,7 +123,7 @@ def test_sigterm_still_exits_143_with_the_same_handler(tmp_path):
 
 
 def shelfpick(*argv: str, timeout: float = 90) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "console.cli", *argv], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "shelfpick.console.cli", *argv], capture_output=True, text=True,
                           cwd=ROOT, timeout=timeout)
 
 
@@ -150,8 +150,8 @@ def test_a_server_thread_that_dies_at_start_ends_the_start_in_one_line(tmp_path)
         import sys
         sys.path[:0] = [{str(ROOT)!r}]
         import viser
-        from console.cmd_console import start_app
-        from perception.errors import ShelfpickError
+        from shelfpick.console.cmd_console import start_app
+        from shelfpick.perception.errors import ShelfpickError
         try:
             start_app(lambda: viser.ViserServer(port=70000, verbose=False), "--port 70000", timeout=30)
         except ShelfpickError as exc:

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import pytest
 
-from console.robot_tcp import TcpRobot, Timeouts
-from console.robot_types import StepHistory
-from planning.plan import Plan
-from robotsim.controller import RobotController
-from robotsim.wire import LineConn
+from shelfpick.console.robot_tcp import TcpRobot, Timeouts
+from shelfpick.console.robot_types import StepHistory
+from shelfpick.planning.plan import Plan
+from shelfpick.robotsim.controller import RobotController
+from shelfpick.robotsim.wire import LineConn
 from safety_kit import fault
 from test_robot_tcp import row_scene
 
@@ -34,8 +34,8 @@ FIRST = textwrap.dedent("""
     import sys, threading, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
-    from console import cmd_console
-    from console.cli import build_parser, configure_logging
+    from shelfpick.console import cmd_console
+    from shelfpick.console.cli import build_parser, configure_logging
     args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", {robot!r},
                                       "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
     configure_logging("console", 0)
@@ -62,9 +62,9 @@ SECOND = textwrap.dedent("""
     import sys, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
-    from console.store import SessionStore
-    from console.workflow import Workflow, WorkflowError
-    from console.robot import open_robot
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow, WorkflowError
+    from shelfpick.console.robot import open_robot
     store = SessionStore({db!r})
     url = {robot!r}
     wf = Workflow(CodeShelfSource(small_scene()), store,
@@ -224,7 +224,7 @@ def test_the_database_holds_one_open_run_of_a_live_console(tmp_path):
     """Two stores (two consoles: each holds its own owner lock) on one file: the second start is
     refused while the first console's run is open, allowed once it ended, and a dead console's
     open run (its store closed without an outcome: kill -9) does not block anyone."""
-    from console.store import RunConflict, SessionStore
+    from shelfpick.console.store import RunConflict, SessionStore
     from test_store import tiny_capture, tiny_scene
 
     db = tmp_path / "one.sqlite"
@@ -258,7 +258,7 @@ def test_consoles_opening_one_new_database_at_once_all_open_it(tmp_path):
     one had made the file and not yet committed its schema, so the other was refused as 'not a
     shelfpick session database', or 'locked' by SQLite's journal-mode switch (9 of 50 rounds of 4
     before). Each round: 4 stores open one new file at once; every one must open it."""
-    from console.store import SessionStore, StoreError
+    from shelfpick.console.store import SessionStore, StoreError
 
     refused: list[str] = []
     for r in range(30):

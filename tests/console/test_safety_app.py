@@ -26,10 +26,10 @@ def literal(md: str, text: str) -> bool:
 
 @pytest.fixture
 def app(tmp_path):
-    from console.app import ClientView, ConsoleApp
-    from console.robot import open_robot
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.app import ClientView, ConsoleApp
+    from shelfpick.console.robot import open_robot
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
 
     peer = HonestPeer(script=lambda conn, step: "refuse" if step == 1 else "ok")
     store = SessionStore(tmp_path / "app.sqlite")
@@ -97,9 +97,9 @@ def test_outside_text_is_literal_in_every_view_and_supervisors_race(app, monkeyp
 
 def test_robot_error_markup_is_literal_text(app):
     a, wf, views, peer = app
-    from console.app import robot_markdown, status_markdown
-    from console.robot import RobotEvent, RobotOutcome
-    from console.workflow import State
+    from shelfpick.console.app import robot_markdown, status_markdown
+    from shelfpick.console.robot import RobotEvent, RobotOutcome
+    from shelfpick.console.workflow import State
 
     st = State(robot="failed", robot_events=(RobotEvent("error", 1, "b<1>", {"message": MARKUP}),),
                outcome=RobotOutcome(("b0",), False, MARKUP, ()), error=f"robot: {MARKUP}", message=MARKUP,
@@ -143,9 +143,9 @@ class _Tags(HTMLParser):
 def test_replay_shows_outside_text_literally(tmp_path):
     """Supervisor names, reasons, robot error text and scene-check notes stored in a session come
     back in the HTML replay as text: no iframe, no extra script, no image from outside."""
-    from console.replay import render_html
-    from console.store import SessionStore
-    from planning.plan import Plan, StepPrediction
+    from shelfpick.console.replay import render_html
+    from shelfpick.console.store import SessionStore
+    from shelfpick.planning.plan import Plan, StepPrediction
 
     from test_store import tiny_capture, tiny_scene
 
@@ -166,7 +166,7 @@ def test_replay_shows_outside_text_literally(tmp_path):
     assert all(src.startswith("data:image/png") for src in p.img_src)  # only the capture images
     text = "".join(p.text)
     assert text.count(MARKUP) >= 5 and "The shelf does not stand as seen" in text
-    from console.app import record_view
+    from shelfpick.console.app import record_view
     view = record_view(store.load_session(sid))
     assert literal(view.summary_md, MARKUP) and literal(view.plans_md, MARKUP)
     store.close()
@@ -174,8 +174,8 @@ def test_replay_shows_outside_text_literally(tmp_path):
 
 def test_box_ids_from_a_scene_file_do_not_name_scene_nodes(app):
     """Ids are outside text: 'a/label' or '..' must not land on another box's node."""
-    from console.scene_view import draw_boxes
-    from perception.scene import Box, Scene, Shelf
+    from shelfpick.console.scene_view import draw_boxes
+    from shelfpick.perception.scene import Box, Scene, Shelf
 
     a, wf, views, peer = app
     scene = Scene(Shelf(), (Box("a", (0.2, 0.2, 0.2), (-0.3, 0.1, 0.1)),
@@ -189,7 +189,7 @@ def test_box_ids_from_a_scene_file_do_not_name_scene_nodes(app):
 
 # ------------------------------------------------- issue 30: the passphrase's source, allowed origins
 def console_args(tmp_path, *extra):
-    from console.cli import build_parser
+    from shelfpick.console.cli import build_parser
 
     return build_parser().parse_args(["console", "--port", "0", "--no-capture", "--db", str(tmp_path / "c.db"),
                                       *extra])
@@ -197,8 +197,8 @@ def console_args(tmp_path, *extra):
 
 def refused(args) -> str:
     """build() must refuse in one line (ShelfpickError) before anything is opened."""
-    from console import cmd_console
-    from perception.errors import ShelfpickError
+    from shelfpick.console import cmd_console
+    from shelfpick.perception.errors import ShelfpickError
 
     try:
         parts = cmd_console.build(args)
@@ -212,7 +212,7 @@ def refused(args) -> str:
 @pytest.mark.parametrize("pw", ["aaaaaaaaaaaa", "abcdefabcdef", "qwertyuiopas", "Password1234!", "abcdefghijkl"])
 @pytest.mark.parametrize("how", ["env", "file"])
 def test_a_trivial_passphrase_beyond_localhost_refuses_to_start(pw, how, tmp_path, monkeypatch):
-    from console.cmd_console import ENV_PASSPHRASE
+    from shelfpick.console.cmd_console import ENV_PASSPHRASE
 
     monkeypatch.delenv(ENV_PASSPHRASE, raising=False)
     extra = ["--host", "0.0.0.0"]
@@ -232,7 +232,7 @@ def test_a_trivial_passphrase_beyond_localhost_refuses_to_start(pw, how, tmp_pat
 def test_the_passphrase_comes_from_a_file_or_the_environment_not_only_argv(tmp_path, monkeypatch, caplog):
     import os
 
-    from console import cmd_console
+    from shelfpick.console import cmd_console
 
     monkeypatch.delenv(cmd_console.ENV_PASSPHRASE, raising=False)
     pw = tmp_path / "pw"
@@ -270,8 +270,8 @@ def test_the_passphrase_comes_from_a_file_or_the_environment_not_only_argv(tmp_p
 def test_allowed_origins_come_from_the_command_line_or_the_cell_file(tmp_path):
     from websockets.exceptions import InvalidStatus
 
-    from console import cmd_console
-    from console.cell import CellError
+    from shelfpick.console import cmd_console
+    from shelfpick.console.cell import CellError
     from test_origin import websocket
 
     fault(2)

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import console.sources as sources
-from console.sources import SourceError, builtin_scene, open_source
-from perception.capture import Capture
-from perception.errors import ShelfpickError
-from perception.scene import Box, Camera, Scene, Shelf
+import shelfpick.console.sources as sources
+from shelfpick.console.sources import SourceError, builtin_scene, open_source
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.errors import ShelfpickError
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 
 
 def test_demo_falls_back_to_the_builtin_shelf_and_cycles_looks(tmp_path: Path, monkeypatch) -> None:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from perception.scene import Box, Scene, Shelf, Unexplained
+from shelfpick.perception.scene import Box, Scene, Shelf, Unexplained
 
 
 @pytest.fixture()
@@ -22,8 +22,8 @@ def _scene(*regions: Unexplained) -> Scene:
 
 
 def test_regions_are_drawn_where_planning_puts_them_grey_and_labelled(server):
-    from console.scene_view import UNEXPLAINED_COLOR, draw_unexplained
-    from planning.unexplained import obstacles
+    from shelfpick.console.scene_view import UNEXPLAINED_COLOR, draw_unexplained
+    from shelfpick.planning.unexplained import obstacles
 
     u = Unexplained("u0", (0.12, 0.02, 0.02), (0.30, 0.05, 0.20), 4000, 0.03, ((0.12, 0.30, 0.02, 0.20, 0.02),))
     scene = _scene(u)
@@ -40,16 +40,16 @@ def test_regions_are_drawn_where_planning_puts_them_grey_and_labelled(server):
 
 
 def test_a_scene_without_regions_draws_nothing(server):
-    from console.scene_view import draw_unexplained
+    from shelfpick.console.scene_view import draw_unexplained
 
     assert draw_unexplained(server.scene, _scene()) == []
     assert draw_unexplained(server.scene, Scene(Shelf(), ())) == []
 
 
 def test_the_plan_table_says_what_touches_unexplained_matter():
-    from console.page_markdown import results_markdown
-    from console.workflow import PlanEntry, State
-    from planning.plan import Plan, StepPrediction
+    from shelfpick.console.page_markdown import results_markdown
+    from shelfpick.console.workflow import PlanEntry, State
+    from shelfpick.planning.plan import Plan, StepPrediction
 
     touched = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), False, {}, 0,
                    {"unexplained": {"regions": ["u0"], "touched": ["step 1: pulling b0 touches unexplained matter u0"]}})

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import math
 
-from console.verify import Tolerance, Verification, compare
-from perception.scene import Box, Scene, Shelf
+from shelfpick.console.verify import Tolerance, Verification, compare
+from shelfpick.perception.scene import Box, Scene, Shelf
 
 
 def shelf(*boxes: Box) -> Scene:
@@ -85,8 +85,8 @@ class TwoLooks:
         self.attempts: list[int] = []
 
     def look_again(self, world, step, attempt=0):
-        from console.sources import Frame
-        from perception.render import default_camera, render
+        from shelfpick.console.sources import Frame
+        from shelfpick.perception.render import default_camera, render
 
         self.attempts.append(attempt)
         scene = self.scenes[attempt]
@@ -96,9 +96,9 @@ class TwoLooks:
 
 
 def test_a_difference_is_looked_at_twice_before_it_holds() -> None:
-    from console.workflow import look_again
-    from perception.pipeline import perceive
-    from perception.render import default_camera, render
+    from shelfpick.console.workflow import look_again
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.render import default_camera, render
 
     shelf_now = shelf(A, C)                                      # B was taken out
     predicted = perceive(render(shelf_now, default_camera(), seed=3), shelf=shelf_now.shelf).scene

@@ -39,7 +39,7 @@ class GatedDemo:
     """The 6-box demo shelf; a capture waits while the gate is shut (a camera that is slow)."""
 
     def __init__(self) -> None:
-        from console.sources import DEMO_DIR, DemoSource
+        from shelfpick.console.sources import DEMO_DIR, DemoSource
 
         self.demo = DemoSource.from_dir(DEMO_DIR, "demo-small-6", seed=0)
         self.name = "demo"
@@ -56,10 +56,10 @@ class GatedDemo:
 
 @pytest.fixture
 def demo_console(tmp_path):
-    from console.app import ConsoleApp
-    from console.robot import open_robot
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.app import ConsoleApp
+    from shelfpick.console.robot import open_robot
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
 
     store = SessionStore(tmp_path / "views.sqlite")
     source = GatedDemo()
@@ -105,7 +105,7 @@ def project(view, page, point) -> tuple[float, float]:
 
 
 def label_in_shelf_frame(box, label_pos) -> np.ndarray:
-    from perception.scene import quat_to_matrix
+    from shelfpick.perception.scene import quat_to_matrix
 
     return np.asarray(box.position) + np.asarray(quat_to_matrix(box.orientation)) @ np.asarray(label_pos)
 
@@ -361,12 +361,12 @@ def test_the_page_shows_the_shelf_from_capture_to_replay(browser, demo_console, 
 def test_the_export_marks_the_approved_plan_when_two_planners_agree(browser, tmp_path):
     """Item 13: physics and heuristic gave one sequence (one hash); the heuristic plan was approved
     and ran: the exported page marks that card only and the decision names it."""
-    from console.replay import render_html
-    from console.replay_view import record_view
-    from console.store import SessionStore
-    from perception.render import default_camera, render
-    from perception.scene import Box, Scene, Shelf
-    from planning.plan import Plan, StepPrediction
+    from shelfpick.console.replay import render_html
+    from shelfpick.console.replay_view import record_view
+    from shelfpick.console.store import SessionStore
+    from shelfpick.perception.render import default_camera, render
+    from shelfpick.perception.scene import Box, Scene, Shelf
+    from shelfpick.planning.plan import Plan, StepPrediction
 
     scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),), default_camera())
     store = SessionStore(tmp_path / "s.sqlite")
@@ -396,8 +396,8 @@ def test_the_export_marks_the_approved_plan_when_two_planners_agree(browser, tmp
 
 def test_a_collapse_names_the_boxes_the_operator_knows():
     """Item 11: perceived ids, and a box the camera never saw said in words, not the simulator's id."""
-    from console.replay_view import _actual_text
-    from console.robot import seen_names
+    from shelfpick.console.replay_view import _actual_text
+    from shelfpick.console.robot import seen_names
 
     assert seen_names(["b2", None]) == "b2, a box the camera did not see"
     assert seen_names([None, None]) == "2 boxes the camera did not see"

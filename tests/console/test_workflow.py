@@ -8,15 +8,15 @@ import time
 
 import pytest
 
-from perception.errors import PerceptionError
-from perception.scene import Box, Scene, Shelf
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.scene import Box, Scene, Shelf
 
 PASS = "open sesame"
 
 
 def small_scene() -> Scene:
     """Three boxes standing apart on the floor: easy to perceive, three steps to clear."""
-    from perception.render import default_camera
+    from shelfpick.perception.render import default_camera
 
     return Scene(Shelf(), (Box("b0", (0.25, 0.25, 0.23), (-0.30, 0.13, 0.115)),
                            Box("b1", (0.20, 0.20, 0.20), (0.00, 0.11, 0.10)),
@@ -33,8 +33,8 @@ class CodeShelfSource:
         self.n = 0
 
     def capture(self):
-        from console.sources import Frame
-        from perception.render import render
+        from shelfpick.console.sources import Frame
+        from shelfpick.perception.render import render
 
         if self.fail:
             raise PerceptionError("camera: no device connected")
@@ -44,7 +44,7 @@ class CodeShelfSource:
 
 
 def sim_factory(delay: float = 0.0):
-    from console.robot import open_robot
+    from shelfpick.console.robot import open_robot
 
     def make(truth, seed):
         return open_robot(f"sim?delay={delay}" if delay else "sim", truth=truth, seed=seed)
@@ -53,8 +53,8 @@ def sim_factory(delay: float = 0.0):
 
 @pytest.fixture
 def make_wf(tmp_path):
-    from console.store import SessionStore
-    from console.workflow import Workflow
+    from shelfpick.console.store import SessionStore
+    from shelfpick.console.workflow import Workflow
 
     made = []
 
@@ -77,7 +77,7 @@ def bottom_left(scene: Scene) -> str:
 
 
 def planned(wf, task="extract"):
-    from console.workflow import WorkflowError  # noqa: F401
+    from shelfpick.console.workflow import WorkflowError  # noqa: F401
 
     st = wf.capture()
     assert st.error is None, st.error
@@ -90,7 +90,7 @@ def planned(wf, task="extract"):
 
 
 def test_full_cycle_records_everything(make_wf):
-    from console.workflow import WorkflowError
+    from shelfpick.console.workflow import WorkflowError
 
     wf = make_wf()
     seen: list = []
@@ -131,7 +131,7 @@ def test_full_cycle_records_everything(make_wf):
 def test_new_capture_invalidates_approval(make_wf):
     """An approval holds the run lock: a capture is refused until Stop withdraws it; after the
     new capture the old plan is not approvable."""
-    from console.workflow import WorkflowError
+    from shelfpick.console.workflow import WorkflowError
 
     wf = make_wf()
     st = planned(wf)
@@ -152,7 +152,7 @@ def test_new_capture_invalidates_approval(make_wf):
 
 
 def test_reject_needs_reason_and_is_recorded(make_wf):
-    from console.workflow import WorkflowError
+    from shelfpick.console.workflow import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "clear")
@@ -186,7 +186,7 @@ def test_stop_aborts_remaining_steps(make_wf):
 
 
 def test_unknown_target_and_concurrent_planning_refused(make_wf):
-    from console.workflow import WorkflowError
+    from shelfpick.console.workflow import WorkflowError
 
     wf = make_wf()
     st = wf.capture()
@@ -229,8 +229,8 @@ def test_locked_database_is_a_message_not_a_crash(make_wf, tmp_path):
 @pytest.mark.parametrize("fault", ["drop_after", "refuse_steps"])
 def test_tcp_robot_disconnect_or_refusal_is_recorded(make_wf, fault):
     """A real robot-side TCP server that drops the connection after one step / refuses step 2."""
-    from console.robot import open_robot
-    from robotsim.controller import RobotController
+    from shelfpick.console.robot import open_robot
+    from shelfpick.robotsim.controller import RobotController
 
     kw = {"drop_after": 1} if fault == "drop_after" else {"refuse_steps": [1]}
     with RobotController(**kw).start() as ctl:
@@ -255,15 +255,15 @@ def test_unsafe_plan_needs_explicit_risk_acceptance(make_wf, monkeypatch):
     accepts its predicted risk in so many words; the decision records that."""
     import dataclasses
 
-    import planning.planner
-    from console.workflow import WorkflowError
+    import shelfpick.planning.planner as planner_module
+    from shelfpick.console.workflow import WorkflowError
 
-    real = planning.planner.make_plan
+    real = planner_module.make_plan
 
     def unsafe(*args, **kwargs):
         return dataclasses.replace(real(*args, **kwargs), safe=False)
 
-    monkeypatch.setattr(planning.planner, "make_plan", unsafe)
+    monkeypatch.setattr(planner_module, "make_plan", unsafe)
     wf = make_wf()
     st = wf.capture()
     wf.select_target(bottom_left(st.scene))
@@ -316,7 +316,7 @@ def test_close_announces_the_last_change_and_ends_the_notifier(make_wf):
 
 def stack_scene() -> Scene:
     """A box on another and one beside them: the bottom one has a blocker."""
-    from perception.render import default_camera
+    from shelfpick.perception.render import default_camera
 
     return Scene(Shelf(), (Box("b0", (0.25, 0.25, 0.23), (-0.20, 0.13, 0.115)),
                            Box("b1", (0.20, 0.20, 0.20), (-0.20, 0.11, 0.33)),

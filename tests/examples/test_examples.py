@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from console.robot_tcp import TcpRobot
-from console.robot_types import StepHistory
-from perception.scene import Box, Scene, Shelf
-from planning.plan import Plan
+from shelfpick.console.robot_tcp import TcpRobot
+from shelfpick.console.robot_types import StepHistory
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.plan import Plan
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.capture import Capture
-from perception.geometry import pixel_rays, pose_matrix
-from perception.scene import Box, Camera, Scene, Shelf, quat_to_matrix
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.geometry import pixel_rays, pose_matrix
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf, quat_to_matrix
 
 SMALL_CAMERA = Camera(320, 240, 300.0, 300.0, 160.0, 120.0, 0.001, (0.0, -1.0, 0.35),
                       (0.7071067811865476, -0.7071067811865476, 0.0, 0.0))

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from console.cli import main
-from perception.scene import Camera, Scene, Shelf
+from shelfpick.console.cli import main
+from shelfpick.perception.scene import Camera, Scene, Shelf
 from synth_frames import SMALL_CAMERA, box, cast
 
 SCENE = Scene(Shelf(), (box("a", -0.25, 0, 0.30, 0.25), box("b", 0.15, 0, 0.25, 0.20, front=0.06)))
@@ -141,7 +141,7 @@ def test_a_whole_jpeg_with_data_after_its_end_marker_is_read(cap, capsys):
     assert ok
     tailed = cap.parent / "tailed.jpg"
     tailed.write_bytes(buf.tobytes() + b"\x00TRAILER" * 500)
-    from perception.capture import read_rgb
+    from shelfpick.perception.capture import read_rgb
 
     assert read_rgb(tailed).shape == cv2.imread(str(cap / "rgb.png")).shape
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.box_catalogue import Catalogue
-from perception.faces import measure_front
-from perception.masks import border_sides
-from perception.pipeline import perceive
-from perception.repairs.border_cut import complete_cut_face, cut_directions
-from perception.scene import Scene, Shelf
-from perception.segment_depth import DepthEdgeSegmenter
+from shelfpick.perception.box_catalogue import Catalogue
+from shelfpick.perception.faces import measure_front
+from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pipeline import perceive
+from shelfpick.perception.repairs.border_cut import complete_cut_face, cut_directions
+from shelfpick.perception.scene import Scene, Shelf
+from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 from synth_frames import box, cast
 
 # SMALL_CAMERA sees the front plane (y = 0.02) up to z ~ 0.758 m
@@ -103,8 +103,8 @@ def test_error_cut_counts_a_cut_side_only_where_too_long():
 
 
 def test_pieces_cut_by_the_same_border_join_but_a_border_strip_never_joins_a_face_below():
-    from perception.repairs.joins import join_pieces
-    from perception.repairs.measure import RepairContext
+    from shelfpick.perception.repairs.joins import join_pieces
+    from shelfpick.perception.repairs.measure import RepairContext
 
     scene = _stack(0.70)
     cap = cast(scene, noise=0.0)

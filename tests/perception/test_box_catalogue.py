@@ -4,14 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.box_catalogue import REFERENCE_TYPES, Catalogue, apply_catalogue
-from perception.repairs.enclosed import absorb_enclosed
-from perception.repairs.joins import join_pieces
-from perception.repairs.l_cuts import cut_l_shapes
-from perception.repairs.measure import RepairContext
-from perception.repairs.splits import split_faces
-from perception.bench import mask_iou
-from perception.scene import Scene, Shelf
+from shelfpick.perception.box_catalogue import REFERENCE_TYPES, Catalogue, apply_catalogue
+from shelfpick.perception.repairs.enclosed import absorb_enclosed
+from shelfpick.perception.repairs.joins import join_pieces
+from shelfpick.perception.repairs.l_cuts import cut_l_shapes
+from shelfpick.perception.repairs.measure import RepairContext
+from shelfpick.perception.repairs.splits import split_faces
+from shelfpick.perception.bench import mask_iou
+from shelfpick.perception.scene import Scene, Shelf
 from synth_frames import COLOURS, box, cast
 
 
@@ -263,7 +263,7 @@ def test_a_type_face_mask_across_a_depth_step_whose_parts_complete_two_pieces_is
 
 
 def _size(mask: np.ndarray, cap) -> tuple[float, float]:
-    from perception.faces import measure_front
+    from shelfpick.perception.faces import measure_front
 
     f = measure_front(mask, cap.depth, cap.camera)
     return f.width, f.height

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from perception.boxes import boxes_from_masks, distance_from_box_size, make_valid
-from perception.faces import _rect_long_edge, measure_front
-from perception.bench_truth import front_face_masks
-from perception.scene import Box, Scene, Shelf
+from shelfpick.perception.boxes import boxes_from_masks, distance_from_box_size, make_valid
+from shelfpick.perception.faces import _rect_long_edge, measure_front
+from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.scene import Box, Scene, Shelf
 from synth_frames import SMALL_CAMERA, box, cast
 
 
@@ -104,8 +104,8 @@ def test_distance_from_known_box_size():
 def test_box_measured_partly_inside_the_box_below_rests_on_it():
     """A face measured 3.5 cm too low overlaps the box under it by more than the snap
     distance: it is pushed up onto that box, never dropped through it to a lower one."""
-    from perception.boxes import make_valid
-    from perception.scene import Box, Shelf
+    from shelfpick.perception.boxes import make_valid
+    from shelfpick.perception.scene import Box, Shelf
 
     bottom = Box("b0", (0.5, 0.25, 0.17), (0.0, 0.125, 0.085), depth_known=False)
     middle = Box("b1", (0.5, 0.25, 0.12), (0.0, 0.125, 0.17 + 0.06), depth_known=False)
@@ -119,8 +119,8 @@ def test_box_measured_partly_inside_the_box_below_rests_on_it():
 def test_faces_that_cannot_be_on_the_shelf_are_dropped_with_the_reason():
     """A wall, the floor or a region near the horizon in a photo back-projects to faces metres
     wide or far away; kept, make_valid would stack every other box on top of them."""
-    from perception.boxes import not_a_front
-    from perception.faces import FrontFace
+    from shelfpick.perception.boxes import not_a_front
+    from shelfpick.perception.faces import FrontFace
 
     shelf = Shelf()
 
@@ -145,8 +145,8 @@ def test_faces_that_cannot_be_on_the_shelf_are_dropped_with_the_reason():
 def _turned(bid, x, z, yaw_deg=0.0, lean_deg=0.0, w=0.2, h=0.2, d=0.25, front=0.0):
     """An unknown-depth box whose front face centre is (x, front, z), turned about z (yaw) and
     about y (leaning sideways), as perception builds it from a measured face."""
-    from perception.faces import face_axes, FrontFace
-    from perception.geometry import matrix_to_quat
+    from shelfpick.perception.faces import face_axes, FrontFace
+    from shelfpick.perception.geometry import matrix_to_quat
 
     f = FrontFace(center=(x, front, z), width=w, height=h, angle=lean_deg, yaw=yaw_deg, distance=1.0,
                   pixels=100, rect_px=((0, 0), (1, 1), 0))
@@ -156,7 +156,7 @@ def _turned(bid, x, z, yaw_deg=0.0, lean_deg=0.0, w=0.2, h=0.2, d=0.25, front=0.
 
 
 def test_sweep_gives_the_shifts_at_which_boxes_meet():
-    from perception.contact import sweep
+    from shelfpick.perception.contact import sweep
 
     a, b = _b("a", 0.0, 0.2), _b("b", 0.0, 0.0)        # a on b, both 20 cm cubes
     lo, hi = sweep(a, b, (0.0, 0.0, 1.0))
@@ -170,7 +170,7 @@ def test_turned_neighbours_whose_unseen_backs_cross_are_not_stacked():
     the right one was pushed up 20 cm onto the left (judge shelf u13)."""
     left = _turned("l", 0.0, 0.1, yaw_deg=-16.0)
     right = _turned("r", 0.235, 0.104, yaw_deg=14.0)      # 4 mm above the floor: the gap closes
-    from perception.contact import sweep
+    from shelfpick.perception.contact import sweep
     assert sweep(left, right, (0.0, 0.0, 1.0)) is not None     # the premise: the boxes do overlap
     out, notes = make_valid([left, right], Shelf())
     by = {b.id: b for b in out}
@@ -183,7 +183,7 @@ def test_leaning_box_beside_a_taller_one_is_not_pushed_up_by_its_bounds():
     """A 31x25 face leaning 24 deg sideways rests on a 23 cm box, its raised end passing 7 mm
     over the corner of a 31 cm box beside it: its axis-aligned bounds reach 9 cm into that box
     and 8 cm below its top, so it was pushed up 8 cm (judge shelf u07); its shape does not."""
-    from perception.contact import sweep
+    from shelfpick.perception.contact import sweep
 
     low = _b("low", -0.2, 0.0, w=0.31, h=0.232)
     tall = _b("tall", 0.0, 0.0, w=0.2, h=0.31)

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.calibrate import BoardPlacement, BoardSpec, board_in_view, calibrate
-from perception.errors import PerceptionError
-from perception.geometry import matrix_to_quat
-from perception.render import default_camera
-from perception.scene import Camera, quat_to_matrix
+from shelfpick.perception.calibrate import BoardPlacement, BoardSpec, board_in_view, calibrate
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.geometry import matrix_to_quat
+from shelfpick.perception.render import default_camera
+from shelfpick.perception.scene import Camera, quat_to_matrix
 
 
 def _errors(got: Camera, true: Camera) -> tuple[float, float]:
@@ -48,7 +48,7 @@ def test_board_in_a_rendered_image_gives_the_camera_pose(camera, placement):
 
 
 def test_cli_writes_a_camera_file_and_refuses_a_blank_image(tmp_path, capsys):
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     cam = default_camera()
     placement = BoardPlacement("front", (-0.24, 0.0, 0.62))

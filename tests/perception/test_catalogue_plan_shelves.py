@@ -12,11 +12,11 @@ from benchmarks import perceive_plan as pp
 
 
 def _perceived_per_true_box(seed: int) -> tuple[dict[str, list[str]], list[str]]:
-    from perception.bench_truth import front_face_masks
-    from perception.pipeline import perceive
-    from perception.render import render
-    from perception.segment_depth import DepthEdgeSegmenter
-    from planning.shelves import generate
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.render import render
+    from shelfpick.perception.segment_depth import DepthEdgeSegmenter
+    from shelfpick.planning.shelves import generate
 
     truth = generate("unstructured", seed, 10)
     cap = render(truth, pp.framing_camera(truth), seed=seed)
@@ -43,9 +43,9 @@ def test_each_true_box_is_one_perceived_box(seed, rule):
 
 
 def test_band_trim_keeps_a_chance_face_within_the_pieces_band():
-    from perception.repairs.planes import band_trim
-    from perception.faces import measure_front
-    from perception.scene import Scene, Shelf
+    from shelfpick.perception.repairs.planes import band_trim
+    from shelfpick.perception.faces import measure_front
+    from shelfpick.perception.scene import Scene, Shelf
     from synth_frames import COLOURS, box, cast
 
     scene = Scene(Shelf(), (box("low", -0.08, 0.0, 0.50, 0.17), box("up", 0.04, 0.17, 0.50, 0.17)))

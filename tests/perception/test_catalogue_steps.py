@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.bench import mask_iou
-from perception.box_catalogue import Catalogue, apply_catalogue
-from perception.repairs.measure import RepairContext
-from perception.repairs.splits import split_faces
-from perception.scene import Scene, Shelf
+from shelfpick.perception.bench import mask_iou
+from shelfpick.perception.box_catalogue import Catalogue, apply_catalogue
+from shelfpick.perception.repairs.measure import RepairContext
+from shelfpick.perception.repairs.splits import split_faces
+from shelfpick.perception.scene import Scene, Shelf
 from synth_frames import COLOURS, box, cast
 
 

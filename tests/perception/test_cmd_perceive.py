@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from console.cli import main
-from perception.errors import PerceptionError
-from perception.scene import Scene, Shelf
+from shelfpick.console.cli import main
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.scene import Scene, Shelf
 from synth_frames import box, cast
 
 
@@ -103,7 +103,7 @@ def test_perceive_bench_on_two_rendered_scenes(tmp_path, capsys):
 
 
 def test_realsense_errors_are_clear_without_the_library_or_a_camera(tmp_path):
-    from perception import realsense
+    from shelfpick.perception import realsense
 
     try:
         import pyrealsense2  # noqa: F401

@@ -6,10 +6,10 @@ import dataclasses
 
 import numpy as np
 
-from perception.face_gate import GateConfig, dominant_plane, keep_faces
-from perception.geometry import pixel_rays, pose_matrix
-from perception.render import default_camera
-from perception.scene import Shelf
+from shelfpick.perception.face_gate import GateConfig, dominant_plane, keep_faces
+from shelfpick.perception.geometry import pixel_rays, pose_matrix
+from shelfpick.perception.render import default_camera
+from shelfpick.perception.scene import Shelf
 
 SHELF = Shelf(width=1.0, depth=0.30, height=1.60)
 
@@ -96,7 +96,7 @@ def test_the_dominant_plane_ignores_a_minority_of_other_points():
 
 
 def test_the_learned_segmenter_gates_rgbd_instances_but_not_photos(monkeypatch):
-    from perception.segment_learned import LearnedConfig, LearnedSegmenter
+    from shelfpick.perception.segment_learned import LearnedConfig, LearnedSegmenter
 
     cam = _camera()
     depth = _plane_depth(cam, (0, 1, 0), SHELF.depth + 0.4)    # beyond the back wall ...
@@ -123,7 +123,7 @@ def test_a_face_the_network_never_saw_is_added_from_the_depth(monkeypatch):
     """Issue 14: boxes leaning 40+ deg (never in the training renders) got no instance at all;
     a depth-and-edge mask lying where the network has no instance is added when the depth makes
     it a planar front face in the shelf. Fails with `add_unseen` 0 (the network's mask alone)."""
-    from perception.segment_learned import LearnedConfig, LearnedSegmenter
+    from shelfpick.perception.segment_learned import LearnedConfig, LearnedSegmenter
 
     cam = _camera()
     depth = _plane_depth(cam, (0, 1, 0), SHELF.depth)          # the back wall ...
@@ -155,7 +155,7 @@ def test_a_face_the_network_never_saw_is_added_from_the_depth(monkeypatch):
 
 
 def test_only_planar_facing_masks_in_the_shelf_are_plausible_faces():
-    from perception.face_gate import plausible_faces
+    from shelfpick.perception.face_gate import plausible_faces
 
     cam = _camera()
     depth = _plane_depth(cam, (0, 1, 0), SHELF.depth)

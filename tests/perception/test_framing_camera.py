@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.geometry import project
-from perception.render import default_camera
-from perception.scene import Scene, Shelf
+from shelfpick.perception.geometry import project
+from shelfpick.perception.render import default_camera
+from shelfpick.perception.scene import Scene, Shelf
 from synth_frames import box
 
 from benchmarks import perceive_plan as pp

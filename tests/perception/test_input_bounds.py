@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from console.cli import main
-from perception.capture import MAX_IMAGE_BYTES, read_depth, read_rgb
-from perception.errors import FormatError, PerceptionError
-from perception.scene import Camera, Scene, output_path, write_json
+from shelfpick.console.cli import main
+from shelfpick.perception.capture import MAX_IMAGE_BYTES, read_depth, read_rgb
+from shelfpick.perception.errors import FormatError, PerceptionError
+from shelfpick.perception.scene import Camera, Scene, output_path, write_json
 
 GOOD_SCENE = {"format": "shelfpick.scene/1", "shelf": {"width": 1.0, "depth": 0.3, "height": 1.6},
               "boxes": [{"id": "a", "size": [0.2, 0.2, 0.2], "position": [-0.2, 0.12, 0.1]}]}
@@ -110,8 +110,8 @@ def test_printable_unicode_and_markup_ids_still_load(tmp_path: Path) -> None:
 
 
 def test_plan_files_and_masks_json_take_the_same_rule(tmp_path: Path) -> None:
-    from perception.capture import read_labels
-    from planning.plan import Plan
+    from shelfpick.perception.capture import read_labels
+    from shelfpick.planning.plan import Plan
 
     plan = {"format": "shelfpick.plan/1", "task": "extract", "target": "a\x1b", "planner": "heuristic",
             "sequence": ["a\x1b"], "safe": True}

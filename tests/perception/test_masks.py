@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.masks import clean_mask, dedupe, fill_holes, refine, split_by_depth, to_label_image
+from shelfpick.perception.masks import clean_mask, dedupe, fill_holes, refine, split_by_depth, to_label_image
 
 
 def rect(shape, y0, y1, x0, x1):
@@ -71,7 +71,7 @@ def test_label_image_round_trip_and_refine():
 
 def _dedupe_full_frame(masks, max_iou=0.5, min_pixels=200):
     """dedupe as it was written first (every overlap counted over the whole frame)."""
-    from perception.masks import iou
+    from shelfpick.perception.masks import iou
 
     order = sorted(range(len(masks)), key=lambda i: -int(masks[i].sum()))
     kept, taken = [], None

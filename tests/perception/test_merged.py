@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.boxes import boxes_from_masks, planar_depth
-from perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
-from perception.scene import Camera, Shelf
+from shelfpick.perception.boxes import boxes_from_masks, planar_depth
+from shelfpick.perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
+from shelfpick.perception.scene import Camera, Shelf
 
 CAM = Camera(640, 480, 600.0, 600.0, 320.0, 240.0)     # 1.04 m before the shelf front, looking along +y
 MIN_PX = 150
@@ -84,7 +84,7 @@ def test_pixels_off_the_face_plane_are_trimmed() -> None:
 
 
 def test_a_top_edge_hidden_behind_a_box_in_front_is_seen() -> None:
-    from perception.repairs.merged import top_edge_hidden
+    from shelfpick.perception.repairs.merged import top_edge_hidden
 
     depth = planar_depth(CAM, 1.04).copy()
     mask = _rect(200, 320, 220, 420)
@@ -94,14 +94,14 @@ def test_a_top_edge_hidden_behind_a_box_in_front_is_seen() -> None:
 
 
 def _box(i: str, z0: float, h: float, hidden: bool = False):
-    from perception.scene import Box
+    from shelfpick.perception.scene import Box
 
     extra = {"perceived": {"top_hidden": True}} if hidden else {"perceived": {}}
     return Box(i, (0.2, 0.2, h), (0.0, 0.1, z0 + h / 2), (1.0, 0.0, 0.0, 0.0), None, False, 1, extra)
 
 
 def test_a_box_over_a_support_whose_top_was_hidden_grows_the_support_not_drops() -> None:
-    from perception.boxes import make_valid
+    from shelfpick.perception.boxes import make_valid
 
     shelf = Shelf()
     boxes, notes = make_valid([_box("b0", 0.0, 0.15, hidden=True), _box("b1", 0.2, 0.2)], shelf)

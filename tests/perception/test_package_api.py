@@ -7,7 +7,7 @@ import sys
 import pytest
 
 
-@pytest.mark.parametrize("package", ["perception", "perception.repairs"])
+@pytest.mark.parametrize("package", ["shelfpick.perception", "shelfpick.perception.repairs"])
 def test_every_public_name_is_the_object_of_its_module(package):
     import importlib
 
@@ -22,8 +22,8 @@ def test_every_public_name_is_the_object_of_its_module(package):
 
 
 def test_importing_the_package_or_a_command_loads_nothing_heavy():
-    code = ("import sys, perception, perception.cmd_perceive; "
-            "print(','.join(m for m in ('cv2', 'torch', 'pybullet', 'perception.pipeline') if m in sys.modules))")
+    code = ("import sys, shelfpick.perception, shelfpick.perception.cmd_perceive; "
+            "print(','.join(m for m in ('cv2', 'torch', 'pybullet', 'shelfpick.perception.pipeline') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
 

@@ -6,11 +6,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from perception.capture import Capture
-from perception.errors import PerceptionError
-from perception.pipeline import perceive
-from perception.scene import Scene, Shelf
-from perception.segment_depth import DepthEdgeSegmenter
+from shelfpick.perception.capture import Capture
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.pipeline import perceive
+from shelfpick.perception.scene import Scene, Shelf
+from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 from synth_frames import box, cast
 
 
@@ -70,8 +70,8 @@ def test_rendered_scenes_are_perceived_at_the_measured_accuracy():
     faces): the depth segmenter reached recall 0.97 and precision 0.93 on these at the time of
     writing; the asserts leave a margin of about two boxes."""
     pytest.importorskip("pybullet")
-    from perception.bench import bench_rendered
-    from perception.bench_scenes import sample_scene
+    from shelfpick.perception.bench import bench_rendered
+    from shelfpick.perception.bench_scenes import sample_scene
 
     scenes = [(f"{k}-{i}", sample_scene(i, k, 10)) for i, k in
               enumerate(("structured", "unstructured", "structured", "unstructured"))]
@@ -87,7 +87,7 @@ def test_rendered_scenes_are_perceived_at_the_measured_accuracy():
 def test_a_long_thin_strip_is_no_box_front_unless_an_image_border_cuts_it():
     """A 50x6 cm board (pallet wood, a shelf lip) is dropped with the reason; a box of the same
     scene stays; the same strip running into the left image border is kept (a face beyond the view)."""
-    from perception.boxes import not_a_face
+    from shelfpick.perception.boxes import not_a_face
 
     scene = Scene(Shelf(), (box("a", -0.20, 0, 0.30, 0.25), box("lip", 0.22, 0.0, 0.50, 0.06)))
     cap = cast(scene, noise=0.0005)
@@ -106,7 +106,7 @@ def test_a_long_thin_strip_is_no_box_front_unless_an_image_border_cuts_it():
 
 
 def test_a_ragged_region_that_fills_little_of_its_rectangle_is_no_box_front():
-    from perception.boxes import not_a_face
+    from shelfpick.perception.boxes import not_a_face
 
     face = perceive(cast(_scene()), DepthEdgeSegmenter(), Shelf()).faces[0]
     ragged = np.zeros((240, 320), bool)           # an L of two 12 px arms (fill ~0.2)

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception import bench
-from perception.bench_scenes import sample_scene
-from perception.box_catalogue import Catalogue
-from perception.errors import PerceptionError
-from perception.masks import REF_DEPTH, pixel_scale, scaled_px
-from perception.pipeline import _min_pixels
-from perception.render import default_camera
-from perception.segment_depth import DepthEdgeConfig, DepthEdgeSegmenter, _scaled
+from shelfpick.perception import bench
+from shelfpick.perception.bench_scenes import sample_scene
+from shelfpick.perception.box_catalogue import Catalogue
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.masks import REF_DEPTH, pixel_scale, scaled_px
+from shelfpick.perception.pipeline import _min_pixels
+from shelfpick.perception.render import default_camera
+from shelfpick.perception.segment_depth import DepthEdgeConfig, DepthEdgeSegmenter, _scaled
 
 
 def test_pixel_scale_is_one_up_to_the_tuning_distance_and_shrinks_beyond() -> None:

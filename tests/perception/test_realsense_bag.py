@@ -10,13 +10,13 @@ rs = pytest.importorskip("pyrealsense2")
 
 
 def test_recorded_render_plays_back_and_is_perceived(tmp_path):
-    from console.sources import open_source
-    from perception.bench import match
-    from perception.bench_scenes import sample_scene
-    from perception.bench_truth import front_face_masks
-    from perception.pipeline import perceive
-    from perception.realsense_record import record
-    from perception.render import default_camera, render
+    from shelfpick.console.sources import open_source
+    from shelfpick.perception.bench import match
+    from shelfpick.perception.bench_scenes import sample_scene
+    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.realsense_record import record
+    from shelfpick.perception.render import default_camera, render
 
     scene = sample_scene(1, "structured")
     cap = render(scene, default_camera(), seed=1)

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.capture import load_capture_dir
-from perception.render import default_camera, project, render
-from perception.scene import Box, Scene, Shelf
+from shelfpick.perception.capture import load_capture_dir
+from shelfpick.perception.render import default_camera, project, render
+from shelfpick.perception.scene import Box, Scene, Shelf
 
 
 def _scene(*boxes: Box) -> Scene:
@@ -30,7 +30,7 @@ def test_default_camera_is_a_d435_in_front_of_the_shelf():
     assert 590 < cam.fx < 620 and 590 < cam.fy < 620
     assert -1.1 <= cam.position[1] <= -1.0 and 0.7 <= cam.position[2] <= 0.9
     # optical axis (camera z, 3rd column of R) points into the shelf, a little down
-    from perception.scene import quat_to_matrix
+    from shelfpick.perception.scene import quat_to_matrix
     axis = np.asarray(quat_to_matrix(cam.orientation))[:, 2]
     assert axis[1] > 0.9 and axis[2] < 0
 
@@ -137,7 +137,7 @@ def test_save_and_load_round_trip(tmp_path, clean3):
 
 
 def test_render_command_writes_the_capture(tmp_path):
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     scene_path = tmp_path / "scene.json"
     SCENE3.save(scene_path)
@@ -157,7 +157,7 @@ def test_rendering_as_a_library_keeps_stdout_clean():
     import subprocess
     import sys
 
-    code = ("from perception.render import render; from perception.scene import Box, Scene, Shelf; "
+    code = ("from shelfpick.perception.render import render; from shelfpick.perception.scene import Box, Scene, Shelf; "
             "render(Scene(Shelf(), (Box('a', (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),)), seed=1)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout == "", out.stdout

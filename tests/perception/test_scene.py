@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from perception.errors import FormatError
-from perception.scene import Box, Camera, Scene, Shelf, yaw_quat
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Box, Camera, Scene, Shelf, yaw_quat
 
 
 def scene_doc(**box_overrides):

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.scene import Scene, Shelf
-from perception.segment_depth import DepthEdgeSegmenter
+from shelfpick.perception.scene import Scene, Shelf
+from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 from synth_frames import box, cast
 
 
@@ -54,7 +54,7 @@ def test_unbound_segmenter_still_finds_faces():
 
 
 def test_auto_picks_depth_segmenter_and_photo_settings(tmp_path):
-    from perception.segment import AutoSegmenter, for_capture, load_segmenter
+    from shelfpick.perception.segment import AutoSegmenter, for_capture, load_segmenter
 
     assert isinstance(load_segmenter(None, "auto"), AutoSegmenter)
     # RGB-D and photos: the learned segmenter where its weights are (test_segment_learned), else the rules

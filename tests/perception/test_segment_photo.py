@@ -5,8 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.bench import match
-from perception.segment_photo import PhotoConfig, PhotoSegmenter, edge_map
+from shelfpick.perception.bench import match
+from shelfpick.perception.segment_photo import PhotoConfig, PhotoSegmenter, edge_map
 
 
 def draw_stack(seed: int, rows: int = 3, cols: int = 3, similar: bool = False,
@@ -151,9 +151,9 @@ def test_config_round_trips_through_json():
 
 
 def test_auto_uses_the_photo_segmenter_for_photos_and_depth_edges_for_rgbd():
-    from perception.errors import PerceptionError
-    from perception.segment import AutoSegmenter, for_capture, load_segmenter
-    from perception.segment_depth import DepthEdgeSegmenter
+    from shelfpick.perception.errors import PerceptionError
+    from shelfpick.perception.segment import AutoSegmenter, for_capture, load_segmenter
+    from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
     seg = AutoSegmenter("photo", rgbd="depth")      # RGB-D: the rules asked for (default: learned)
     assert isinstance(for_capture(seg, has_depth=False), PhotoSegmenter)

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from perception.errors import PerceptionError
-from perception.render import render
-from perception.segment_yolo import YoloSegmenter, offline_env
-from perception.train_seg import sample_scene
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.render import render
+from shelfpick.perception.segment_yolo import YoloSegmenter, offline_env
+from shelfpick.perception.train_seg import sample_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "static" / "weights" / "shelfpick-seg.pt"
@@ -65,7 +65,7 @@ def test_shipped_weights_find_the_boxes_of_rendered_shelves(shipped):
 
 
 def test_empty_shelf_gives_few_or_no_masks(shipped):
-    from perception.scene import Scene, Shelf
+    from shelfpick.perception.scene import Scene, Shelf
 
     cap = render(Scene(Shelf(), ()), seed=4)
     assert len(shipped.segment(cap.rgb, cap.depth)) <= 1
@@ -103,7 +103,7 @@ def test_missing_or_broken_weights_are_one_line_errors(tmp_path):
 
 
 def test_load_segmenter_uses_the_yolo_path(tmp_path):
-    from perception.segment import load_segmenter
+    from shelfpick.perception.segment import load_segmenter
 
     seg = load_segmenter(str(SHIPPED))
     assert isinstance(seg, YoloSegmenter)

@@ -13,8 +13,8 @@ CHILD = textwrap.dedent("""
     import sys, threading
     sys.path.insert(0, {root!r})
     from contextlib import nullcontext
-    from perception.stdio import c_output_detached
-    from planning.bullet_clients import connect, disconnect_quietly
+    from shelfpick.perception.stdio import c_output_detached
+    from shelfpick.planning.bullet_clients import connect, disconnect_quietly
 
     def connects(n):
         for _ in range(n):

@@ -11,7 +11,7 @@ pytest.importorskip("pybullet")
 
 
 def test_wall_scene_is_flush_cartons_inside_the_shelf_sharing_prints():
-    from perception.train_scenes import wall_scene
+    from shelfpick.perception.train_scenes import wall_scene
 
     for seed in range(5):
         scene, groups = wall_scene(np.random.default_rng(seed))
@@ -33,7 +33,7 @@ def test_wall_scene_is_flush_cartons_inside_the_shelf_sharing_prints():
 
 
 def test_a_wall_frame_labels_each_carton_face_apart():
-    from perception.train_scenes import wall_example
+    from shelfpick.perception.train_scenes import wall_example
 
     rgb, labels = wall_example(30804)
     assert rgb.dtype == np.uint8 and rgb.shape[:2] == labels.shape
@@ -44,7 +44,7 @@ def test_a_wall_frame_labels_each_carton_face_apart():
 
 
 def test_training_refuses_wall_seeds_of_the_first_round():
-    from perception.train_learned import main
+    from shelfpick.perception.train_learned import main
 
     with pytest.raises(SystemExit) as e:
         main(["--walls", "1", "--wall-seed", "30500", "--frames", "1"])
@@ -56,7 +56,7 @@ def test_a_taped_face_is_cut_into_pieces_yet_labelled_whole():
     inside the face than the plain variant has) and leave the labels one face per carton."""
     import cv2
 
-    from perception.train_scenes import _group_texture, _variant, taped_variant, taped_wall_example, wall_example
+    from shelfpick.perception.train_scenes import _group_texture, _variant, taped_variant, taped_wall_example, wall_example
 
     rng = np.random.default_rng(5)
     tex = _group_texture(rng)
@@ -75,7 +75,7 @@ def test_a_taped_face_is_cut_into_pieces_yet_labelled_whole():
 def test_crops_are_drawn_from_each_frame_kind_by_its_share():
     from pathlib import Path
 
-    from perception.train_learned import TrainConfig, _pick
+    from shelfpick.perception.train_learned import TrainConfig, _pick
 
     f, w, t = [Path("f")], [Path("w")], [Path("t")]
     cfg = TrainConfig(wall_share=0.25, taped_share=0.5)
@@ -87,7 +87,7 @@ def test_crops_are_drawn_from_each_frame_kind_by_its_share():
 
 
 def test_training_refuses_taped_seeds_below_their_range_and_shares_over_one():
-    from perception.train_learned import main
+    from shelfpick.perception.train_learned import main
 
     for argv in (["--taped", "1", "--taped-seed", "31000", "--frames", "1"],
                  ["--wall-share", "0.6", "--taped-share", "0.6", "--frames", "1"]):

@@ -6,9 +6,9 @@ import itertools
 import numpy as np
 import pytest
 
-from perception.errors import PerceptionError
-from perception.render import render
-from perception.train_seg import build_dataset, jittered_camera, sample_scene, train, yolo_label_lines
+from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.render import render
+from shelfpick.perception.train_seg import build_dataset, jittered_camera, sample_scene, train, yolo_label_lines
 
 
 def _overlap(a, b, tol=0.004):
@@ -58,7 +58,7 @@ def test_dataset_is_reused_not_rerendered(tmp_path):
 
 
 def test_tiny_training_run_gives_loadable_weights(tmp_path):
-    from perception.segment_yolo import YoloSegmenter
+    from shelfpick.perception.segment_yolo import YoloSegmenter
 
     out = tmp_path / "tiny.pt"
     res = train(out, images=6, epochs=1, imgsz=128, batch=4, seed=0, progress=False)
@@ -78,7 +78,7 @@ def test_bad_arguments_are_user_errors(tmp_path):
         train(tmp_path / "weights.bin", images=2, epochs=1)
     with pytest.raises(PerceptionError, match="epochs"):
         train(tmp_path / "w.pt", images=2, epochs=0)
-    from console.cli import main
+    from shelfpick.console.cli import main
     assert main(["train-seg", "--out", str(tmp_path / "w.txt")]) == 2
 
 

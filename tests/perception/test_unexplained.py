@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.boxes import not_a_face
-from perception.pipeline import perceive
-from perception.scene import Box, Scene, Shelf
-from perception.segment_depth import DepthEdgeSegmenter
-from perception.unexplained import MIN_AREA_M2, describe, find_unexplained
+from shelfpick.perception.boxes import not_a_face
+from shelfpick.perception.pipeline import perceive
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.perception.segment_depth import DepthEdgeSegmenter
+from shelfpick.perception.unexplained import MIN_AREA_M2, describe, find_unexplained
 from synth_frames import box, cast
 
 SHELF = Shelf(1.0, 0.30, 1.60)
@@ -34,7 +34,7 @@ def test_a_clean_cast_of_a_known_shelf_reports_nothing():
 def test_a_clean_render_of_a_known_shelf_reports_nothing():
     """The training renderer with its depth-sensor noise (holes at edges, dropouts, specular
     blobs), its shelf boards, lip and top, seen from the default camera."""
-    from perception.render import default_camera, render
+    from shelfpick.perception.render import default_camera, render
 
     scene = _row()
     for seed in (0, 1):
@@ -67,7 +67,7 @@ def test_a_box_missing_from_the_scene_but_in_the_depth_is_one_region_where_it_st
 
 
 def test_a_box_missing_in_a_render_is_one_region_too():
-    from perception.render import default_camera, render
+    from shelfpick.perception.render import default_camera, render
 
     scene = _row()
     cap = render(scene, default_camera(), seed=2)
@@ -132,7 +132,7 @@ def test_a_mask_refused_as_no_box_front_becomes_unexplained_matter():
 
 
 def _face_of(mask, cap):
-    from perception.faces import measure_front
+    from shelfpick.perception.faces import measure_front
 
     return measure_front(mask, cap.depth, cap.camera)
 
@@ -148,7 +148,7 @@ def test_perceive_on_a_clean_shelf_says_it_looked_and_found_nothing():
 
 
 def test_without_a_depth_image_nobody_knows_where_matter_is():
-    from perception.capture import Capture
+    from shelfpick.perception.capture import Capture
 
     cap = cast(_row())
     res = perceive(Capture(cap.rgb, None, cap.camera), DepthEdgeSegmenter(), SHELF, front_distance=1.0)
@@ -182,7 +182,7 @@ def test_a_scaled_down_capture_keeps_its_regions_at_full_size(max_pixels):
 def test_shelfpick_perceive_warns_of_the_regions_and_writes_them(tmp_path, capsys):
     """A 6 x 40 cm board standing upright beside two cartons, 8 cm behind their fronts: real
     matter that is no box front; the CLI says where and how large, and the scene file carries it."""
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     scene = Scene(SHELF, (box("a", -0.25, 0.0, 0.23, 0.25), box("b", 0.0, 0.0, 0.23, 0.25),
                           box("board", 0.30, 0.0, 0.06, 0.40, front=0.10)))

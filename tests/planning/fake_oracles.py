@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Callable, Mapping, Sequence
 
-from planning.plan import StepPrediction
+from shelfpick.planning.plan import StepPrediction
 
 
 class SupportGraph:

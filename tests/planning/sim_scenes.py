@@ -1,7 +1,7 @@
 """Tiny scenes built in code for the simulation tests (shared by the sim/predict/execute tests)."""
 from __future__ import annotations
 
-from perception.scene import Box, Scene, Shelf
+from shelfpick.perception.scene import Box, Scene, Shelf
 
 CUBE = (0.2, 0.2, 0.2)
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from perception.scene import Box, Scene, Shelf
-from planning.bench import (BenchConfig, RecordLog, comparable, derive_seed, read_records, run_bench,
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.bench import (BenchConfig, RecordLog, comparable, derive_seed, read_records, run_bench,
                             summarize, to_markdown)
 
 SHELF = Shelf(1.0, 0.30, 1.60)
@@ -141,7 +141,7 @@ def test_resume_mid_scene_is_exact(scenes_dir: Path, tmp_path: Path) -> None:
 
 
 def test_resume_refuses_records_of_a_changed_scene(scenes_dir: Path, tmp_path: Path) -> None:
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
     out = tmp_path / "o"
     run_bench(scenes_dir, out, CFG, fn=fake_job, progress=False, limit=1)
     with open(out / "records.jsonl") as f:
@@ -152,7 +152,7 @@ def test_resume_refuses_records_of_a_changed_scene(scenes_dir: Path, tmp_path: P
 
 
 def test_rerun_with_other_settings_is_refused(scenes_dir: Path, tmp_path: Path) -> None:
-    from perception.errors import ShelfpickError
+    from shelfpick.perception.errors import ShelfpickError
     run_bench(scenes_dir, tmp_path / "o", CFG, fn=fake_job, progress=False, limit=1)
     with pytest.raises(ShelfpickError, match="another --out"):
         run_bench(scenes_dir, tmp_path / "o", BenchConfig(samples=5), fn=fake_job, progress=False)
@@ -208,7 +208,7 @@ def test_seeds_do_not_depend_on_order() -> None:
 
 
 def test_bench_cli_bad_input(tmp_path: Path, capsys) -> None:
-    from console.cli import main
+    from shelfpick.console.cli import main
     assert main(["bench", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
     assert "not a folder" in capsys.readouterr().err
     assert main(["bench", str(tmp_path), "--planners", "physics,magic"]) == 2
@@ -222,7 +222,7 @@ def test_bench_cli_bad_input(tmp_path: Path, capsys) -> None:
 # --------------------------------------------------------------------------
 # the perturbed truth (issue 9): what the planner sees, and the shelf it really meets
 def test_observe_gives_front_faces_only_with_seeded_error() -> None:
-    from planning.bench import observe
+    from shelfpick.planning.bench import observe
 
     truth = _tiny_scene("structured", True).with_boxes(
         [Box(b.id, b.size, b.position, b.orientation, 2.0) for b in _tiny_scene("structured", True).boxes])
@@ -238,7 +238,7 @@ def test_observe_gives_front_faces_only_with_seeded_error() -> None:
 
 
 def test_truth_draw_is_seeded_keeps_given_masses_and_drags() -> None:
-    from planning.bench import TruthModel, draw_truth
+    from shelfpick.planning.bench import TruthModel, draw_truth
 
     scene = _tiny_scene("structured", True)
     scene = scene.with_boxes([Box(b.id, b.size, b.position, b.orientation, 4.0 if b.id == "b0" else None)
@@ -255,8 +255,8 @@ def test_truth_draw_is_seeded_keeps_given_masses_and_drags() -> None:
 
 
 def test_true_world_refuses_a_shelf_that_cannot_stand() -> None:
-    from perception.errors import SceneError
-    from planning.bench import TruthModel, true_world
+    from shelfpick.perception.errors import SceneError
+    from shelfpick.planning.bench import TruthModel, true_world
 
     _, _, draw = true_world(_tiny_scene("structured", True), TruthModel(), 3)
     assert draw == 0

@@ -7,13 +7,13 @@ import random
 
 import pytest
 
-from perception.errors import FormatError
-from perception.scene import Scene, Shelf
-from planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration, fit, plan_failures, wilson
-from planning.gate import gate
-from planning.plan import Plan, StepPrediction
-from planning.planner import make_plan
-from planning.step_result import StepResult
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Scene, Shelf
+from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration, fit, plan_failures, wilson
+from shelfpick.planning.gate import gate
+from shelfpick.planning.plan import Plan, StepPrediction
+from shelfpick.planning.planner import make_plan
+from shelfpick.planning.step_result import StepResult
 from tests.planning.sim_scenes import cube, stacked
 
 
@@ -137,7 +137,7 @@ def test_a_plan_is_safe_when_the_upper_end_of_its_calibrated_risk_is_below_the_t
     assert not strict.safe and strict.extra["search"]["plan_risk"]["max_plan_risk"] == 1e-4
     assert Plan.from_json(strict.to_json()).extra["search"]["max_plan_risk"] == 1e-4
     # pulling the bottom of a stack drops the box on it in every world: decided at once, unsafe
-    from planning.predict import Predictor
+    from shelfpick.planning.predict import Predictor
 
     with Predictor(stacked().hide_depths(), samples=4) as pred:
         under = gate(pred, ("a",), True, Calibration(0.0, 1.0), 0.5, first=4, max_worlds=12)
@@ -152,8 +152,8 @@ def test_a_wrong_plan_threshold_is_refused_naming_it(bad):
 
 
 def test_the_map_follows_how_the_cells_gripper_pulls():
-    from planning.calibration import DRAG, LIFT, calibration_for
-    from planning.uncertainty import Uncertainty
+    from shelfpick.planning.calibration import DRAG, LIFT, calibration_for
+    from shelfpick.planning.uncertainty import Uncertainty
 
     assert calibration_for(Uncertainty().pull_modes) is LIFT          # lift or drag: it lifts where it can
     assert calibration_for(()) is LIFT                                # nothing drawn: the planner's own pull lifts

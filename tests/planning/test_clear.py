@@ -6,10 +6,10 @@ import time
 import pytest
 
 from fake_oracles import STILL, SupportGraph, risky, table_oracle
-from perception.scene import Box, Scene, Shelf
-from planning.clear import prefer_baseline, search_clear, visit_order
-from planning.extract import SearchResult
-from planning.plan import StepPrediction
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.clear import prefer_baseline, search_clear, visit_order
+from shelfpick.planning.extract import SearchResult
+from shelfpick.planning.plan import StepPrediction
 
 
 def test_skipped_boxes_are_revisited_until_the_shelf_is_empty():
@@ -85,7 +85,7 @@ def test_visit_order_is_top_down_then_front_first():
 
 
 def test_a_forced_pull_goes_to_a_higher_box_the_samples_cannot_tell_apart():
-    from planning.clear import sampling_error
+    from shelfpick.planning.clear import sampling_error
     assert abs(sampling_error(0.1, 10) - 0.19) < 0.01 and sampling_error(1.0, 10) == 0.0
 
     def oracle(risks):

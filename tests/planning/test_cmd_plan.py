@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from console.cli import main
-from perception.scene import Box, Scene, Shelf
-from planning.plan import Plan
+from shelfpick.console.cli import main
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.plan import Plan
 
 
 def _box(bid, x, z, h=0.2):
@@ -141,7 +141,7 @@ class _AlwaysCollapses:
         self.ids = scene.ids
 
     def trial(self, removed, box):
-        from planning.plan import StepPrediction
+        from shelfpick.planning.plan import StepPrediction
         others = [b for b in self.ids if b != box and b not in removed]
         return StepPrediction(box, 0.5 if others else 0.0, 0.0, tuple(others[:1]))
 
@@ -150,8 +150,8 @@ class _AlwaysCollapses:
 
 
 def test_no_safe_plan_warns_and_exits_zero(tmp_path, capsys, monkeypatch):
-    import planning.planner
-    monkeypatch.setattr(planning.planner, "Predictor", _AlwaysCollapses)
+    import shelfpick.planning.planner as planner_module
+    monkeypatch.setattr(planner_module, "Predictor", _AlwaysCollapses)
     assert main(["plan", str(_stack(tmp_path)), "--task", "clear"]) == 0
     out = capsys.readouterr()
     plan = Plan.from_json(json.loads(out.out))
@@ -233,8 +233,8 @@ def test_a_plan_the_worlds_cannot_yet_place_is_asked_of_more_unless_told_not_to(
     --max-plan-risk: a threshold inside a quiet plan's interval is never decided, so the gate asks
     all --verify more worlds (40 in all by default); with --verify 0 it stays on the search's 10.
     A threshold above the interval decides the plan safe on the search's 10 worlds."""
-    from planning.calibration import calibration_for
-    from planning.uncertainty import Uncertainty
+    from shelfpick.planning.calibration import calibration_for
+    from shelfpick.planning.uncertainty import Uncertainty
 
     cal = calibration_for(Uncertainty().pull_modes)
     lo, hi = cal.interval(0, 10)

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from console.cli import main
-from perception.scene import Scene
+from shelfpick.console.cli import main
+from shelfpick.perception.scene import Scene
 
 
 def test_scenes_cli_writes_seeded_files(tmp_path: Path) -> None:

@@ -6,8 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from console.cli import main
-from planning.plan import Plan
+from shelfpick.console.cli import main
+from shelfpick.planning.plan import Plan
 from tests.planning.sim_scenes import stacked
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -23,7 +23,7 @@ def write(tmp_path: Path, sequence, name="plan.json") -> tuple[str, str]:
 
 def test_simulate_prints_a_parseable_verdict(tmp_path):
     scene, plan = write(tmp_path, ["b", "a"])
-    proc = subprocess.run([sys.executable, "-m", "console.cli", "simulate", scene, plan, "--seed", "2"],
+    proc = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", "simulate", scene, plan, "--seed", "2"],
                           cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)  # nothing but JSON on stdout (pybullet's banner is kept off it)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from planning.execute import execute_plan
+from shelfpick.planning.execute import execute_plan
 from tests.planning.sim_scenes import grid, stacked
 
 

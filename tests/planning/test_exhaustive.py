@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from fake_oracles import SupportGraph, table_oracle
-from planning.exhaustive import min_removals
+from shelfpick.planning.exhaustive import min_removals
 
 
 def test_free_target():
@@ -45,7 +45,7 @@ def test_asks_each_state_at_most_once():
 
 
 def _stack_scene():
-    from perception.scene import Box, Scene, Shelf
+    from shelfpick.perception.scene import Box, Scene, Shelf
 
     def box(bid, x, z):
         return Box(bid, (0.2, 0.2, 0.2), (x, 0.15, z), (1.0, 0.0, 0.0, 0.0))
@@ -54,7 +54,7 @@ def _stack_scene():
 
 
 def test_true_scene_minimum_with_real_physics():
-    from planning.exhaustive import exhaustive_minimum
+    from shelfpick.planning.exhaustive import exhaustive_minimum
     scene = _stack_scene()
     assert exhaustive_minimum(scene, "bot") == ("top", "bot")
     assert exhaustive_minimum(scene, "free") == ("free",)
@@ -62,7 +62,7 @@ def test_true_scene_minimum_with_real_physics():
 
 
 def test_true_scene_oracle_replays_real_pulls():
-    from planning.exhaustive import true_scene_oracle
+    from shelfpick.planning.exhaustive import true_scene_oracle
     safe = true_scene_oracle(_stack_scene())
     try:
         assert not safe(frozenset(), "bot")          # pulling the bottom drops the top

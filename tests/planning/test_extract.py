@@ -7,8 +7,8 @@ import time
 import pytest
 
 from fake_oracles import STILL, SupportGraph, risky, table_oracle
-from planning.exhaustive import min_removals
-from planning.extract import CountingOracle, search_extract
+from shelfpick.planning.exhaustive import min_removals
+from shelfpick.planning.extract import CountingOracle, search_extract
 
 
 def test_free_target_is_pulled_alone_with_one_trial():

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from perception.scene import quat_to_matrix
-from planning.geometry3 import lean_deg
+from shelfpick.perception.scene import quat_to_matrix
+from shelfpick.planning.geometry3 import lean_deg
 
 
 def _about(axis: tuple[float, float, float], deg: float) -> tuple[float, float, float, float]:

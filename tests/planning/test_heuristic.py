@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from perception.errors import FormatError
-from perception.scene import Box, Scene, Shelf, yaw_quat
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Box, Scene, Shelf, yaw_quat
 
 
 def _box(bid, x, z, size, yaw=0.0):
@@ -25,7 +25,7 @@ SCENE = Scene(Shelf(), (
 
 
 def test_clear_order_matches_hand_computed():
-    from planning.heuristic import heuristic_order
+    from shelfpick.planning.heuristic import heuristic_order
     assert heuristic_order(SCENE, None) == ("b", "c", "a", "e", "d")
 
 
@@ -37,17 +37,17 @@ def test_clear_order_matches_hand_computed():
     ("d", ("b", "c", "a", "e", "d")),
 ])
 def test_extract_order_is_the_prefix_up_to_the_target(target, expected):
-    from planning.heuristic import heuristic_order
+    from shelfpick.planning.heuristic import heuristic_order
     assert heuristic_order(SCENE, target) == expected
 
 
 def test_millimetre_jitter_does_not_reorder_level_boxes():
-    from planning.heuristic import heuristic_order
+    from shelfpick.planning.heuristic import heuristic_order
     jittered = Scene(Shelf(), (_box("r", 0.2, 0.1002, (0.2, 0.2, 0.2)), _box("l", -0.2, 0.1, (0.2, 0.2, 0.2))))
     assert heuristic_order(jittered, None) == ("l", "r")
 
 
 def test_unknown_target_is_named():
-    from planning.heuristic import heuristic_order
+    from shelfpick.planning.heuristic import heuristic_order
     with pytest.raises(FormatError, match="unknown box id 'zz'"):
         heuristic_order(SCENE, "zz")

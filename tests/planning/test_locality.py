@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import warnings
 
-from perception.scene import Box, Scene, Shelf
-from planning.physics import PhysicsConfig
-from planning.predict import Predictor
-from planning.sim import ShelfSim
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.predict import Predictor
+from shelfpick.planning.sim import ShelfSim
 from tests.planning.sim_scenes import cube, grid
 
 
@@ -128,7 +128,7 @@ def test_a_box_in_front_of_the_pulled_one_is_in_its_way_whatever_the_gap():
 def test_a_leaning_box_on_a_leaning_support_moves_with_it():
     """Bounding boxes of tilted boxes interpenetrate in z: the box on top is still 'on' its support,
     so a trial never leaves it frozen on a box that moves (a static box there pins the pile)."""
-    from planning.locality import neighbourhood
+    from shelfpick.planning.locality import neighbourhood
     # p (pulled) props up `lean` (tilted: its AABB reaches down past p's top); `top` rests on `lean`
     # with its AABB bottom 5 cm below lean's AABB top (more than the 3 cm allowed for tilt)
     box = {

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from perception.errors import FormatError
-from planning.plan import Plan, StepPrediction
+from shelfpick.perception.errors import FormatError
+from shelfpick.planning.plan import Plan, StepPrediction
 
 
 def test_round_trip_and_hash(tmp_path):

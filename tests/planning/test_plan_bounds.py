@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from console.cli import main
+from shelfpick.console.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = {"format": "shelfpick.scene/1", "shelf": {"width": 1.0, "depth": 0.3, "height": 1.6},
@@ -50,7 +50,7 @@ def test_a_billion_samples_is_refused_in_a_small_memory(scene: Path) -> None:
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_DATA, (2 << 30, 2 << 30))
 
-    p = subprocess.run([sys.executable, "-m", "console.cli", "plan", str(scene), "--task", "clear",
+    p = subprocess.run([sys.executable, "-m", "shelfpick.console.cli", "plan", str(scene), "--task", "clear",
                         "--samples", "1000000000"], cwd=ROOT, capture_output=True, text=True, timeout=60,
                        preexec_fn=limit)
     assert p.returncode == 2 and "--samples" in p.stderr and "Traceback" not in p.stderr
@@ -65,7 +65,7 @@ def test_simulate_refuses_a_plan_that_says_safe_with_risk_one(scene: Path, tmp_p
     assert "plan.json: safe: true, but step 1 ('a') has predicted risk 1" in line
     plan["provenance"] = {"risk": 1.0}          # planned with a threshold of 1: it is what was asked
     (tmp_path / "plan.json").write_text(json.dumps(plan))
-    from planning.plan import Plan
+    from shelfpick.planning.plan import Plan
 
     assert Plan.load(tmp_path / "plan.json").safe
 

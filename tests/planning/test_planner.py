@@ -4,11 +4,11 @@ from __future__ import annotations
 import pytest
 
 from fake_oracles import SupportGraph
-from perception.errors import FormatError
-from perception.scene import Box, Scene, Shelf
-from planning.plan import Plan
-from planning.planner import make_plan
-from planning.uncertainty import Uncertainty
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.plan import Plan
+from shelfpick.planning.planner import make_plan
+from shelfpick.planning.uncertainty import Uncertainty
 
 
 class FakePredictor:
@@ -52,7 +52,7 @@ class DoubtingPredictor(FakePredictor):
     verified_worlds = 0
 
     def verify(self, sequence, extra):
-        from planning.plan import StepPrediction
+        from shelfpick.planning.plan import StepPrediction
         self.verified_worlds = 10 + extra
         out = [self.graph(frozenset(sequence[:k]), b) for k, b in enumerate(sequence)]
         out[-1] = StepPrediction(out[-1].box, 1 / self.verified_worlds, 0.0, ("free",))
@@ -172,8 +172,8 @@ def _grid_scene():
 
 
 def test_physics_plan_removes_far_fewer_boxes_than_the_baseline_and_holds():
-    from planning.execute import execute_plan
-    from planning.predict import Predictor
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.predict import Predictor
 
     scene = _grid_scene()
     with Predictor(scene) as pred:
@@ -187,8 +187,8 @@ def test_physics_plan_removes_far_fewer_boxes_than_the_baseline_and_holds():
 
 @pytest.mark.slow
 def test_physics_plan_meets_the_exhaustive_minimum_on_the_grid():
-    from planning.exhaustive import exhaustive_minimum
-    from planning.predict import Predictor
+    from shelfpick.planning.exhaustive import exhaustive_minimum
+    from shelfpick.planning.predict import Predictor
 
     scene = _grid_scene()
     with Predictor(scene) as pred:
@@ -210,10 +210,10 @@ def test_generated_shelf_physics_plans_hold_where_a_collapse_free_order_exists(k
     """
     import warnings
 
-    from planning.execute import execute_plan
-    from planning.exhaustive import min_removals, true_scene_oracle
-    from planning.predict import Predictor
-    from planning.shelves import generate
+    from shelfpick.planning.execute import execute_plan
+    from shelfpick.planning.exhaustive import min_removals, true_scene_oracle
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.shelves import generate
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -248,8 +248,8 @@ class _FullSampling:
 
 
 def test_fast_path_clear_is_the_same_plan_as_full_sampling_with_fewer_pulls():
-    from planning.clear import search_clear
-    from planning.predict import Predictor
+    from shelfpick.planning.clear import search_clear
+    from shelfpick.planning.predict import Predictor
 
     scene = Scene(Shelf(), STACK.boxes + (_box("lid", 0.3, 0.3),)).hide_depths()
     order = ["bot", "free", "top", "lid"]   # the worst order: boxes carrying others come first
@@ -266,7 +266,7 @@ def test_fast_path_clear_is_the_same_plan_as_full_sampling_with_fewer_pulls():
 
 
 def test_same_seed_same_plan_whichever_worker_count():
-    from planning.predict import Predictor
+    from shelfpick.planning.predict import Predictor
 
     scene = _bridge_scene()
     for task, target in (("extract", "left"), ("clear", None)):
@@ -279,7 +279,7 @@ def test_same_seed_same_plan_whichever_worker_count():
 
 def test_every_plan_records_what_made_it():
     """make_plan (the console's and the bench's way in, not only the CLI's) records its provenance."""
-    from planning.plan import scene_hash
+    from shelfpick.planning.plan import scene_hash
 
     scene = Scene(Shelf(), (Box("a", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)), Box("b", (0.2, 0.2, 0.2), (0.3, 0.1, 0.1))))
     plan = make_plan(scene, "extract", "a", "heuristic", samples=2, seed=3)

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import pytest
 
-from perception.scene import Box, Scene, Shelf, yaw_quat
-from planning.physics import PhysicsConfig
-from planning.predict import Predictor
-from planning.uncertainty import Uncertainty, depth_range, depth_ranges, sample_depths
+from shelfpick.perception.scene import Box, Scene, Shelf, yaw_quat
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.predict import Predictor
+from shelfpick.planning.uncertainty import Uncertainty, depth_range, depth_ranges, sample_depths
 from tests.planning.sim_scenes import column, stacked, twelve
 
 
@@ -172,7 +172,7 @@ def test_pool_screens_the_same_prefix_as_one_process():
 
 
 def test_pool_workers_outlive_a_predictor_and_serve_the_next_one():
-    from planning.worker_pool import WorkerPool
+    from shelfpick.planning.worker_pool import WorkerPool
 
     scene = stacked().hide_depths()
     with WorkerPool(2) as pool:
@@ -188,7 +188,7 @@ def test_pool_workers_outlive_a_predictor_and_serve_the_next_one():
 
 
 def test_a_predictor_without_a_pool_stops_its_workers():
-    from planning import worker_pool
+    from shelfpick.planning import worker_pool
 
     with Predictor(stacked().hide_depths(), samples=2, seed=1, workers=2) as pred:
         pids = pred._pool.pids()
@@ -218,8 +218,8 @@ def test_turned_box_whose_deep_samples_hit_a_neighbour_still_gets_samples():
     grows; redraws reach less deep instead of refusing the perceived scene."""
     from dataclasses import replace
 
-    from perception.scene import Box, Scene, Shelf, quat_to_matrix, yaw_quat
-    from planning.predict import Predictor
+    from shelfpick.perception.scene import Box, Scene, Shelf, quat_to_matrix, yaw_quat
+    from shelfpick.planning.predict import Predictor
 
     q = yaw_quat(-0.6)
     r = quat_to_matrix(q)

@@ -5,10 +5,10 @@ import math
 
 import pytest
 from fake_oracles import STILL, risky, table_oracle
-from perception.scene import Box, Scene, Shelf
-from planning.extract import SearchResult
-from planning.reorder import leaning, reorder_extraction, top_first
-from planning.resolution import prefer, resolution
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.extract import SearchResult
+from shelfpick.planning.reorder import leaning, reorder_extraction, top_first
+from shelfpick.planning.resolution import prefer, resolution
 
 # a column: t at the bottom, m on t, h on m (tops 0.2, 0.4, 0.6 m)
 COLUMN = Scene(Shelf(), tuple(Box(i, (0.2, 0.2, 0.2), (0.0, 0.15, z)) for i, z in

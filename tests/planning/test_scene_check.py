@@ -5,9 +5,9 @@ import json
 import re
 import math
 
-from console.cli import main
-from perception.scene import Box, Scene, Shelf
-from planning.planner import make_plan
+from shelfpick.console.cli import main
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.planner import make_plan
 from tests.planning.sim_scenes import cube, stacked
 
 

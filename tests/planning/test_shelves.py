@@ -5,9 +5,9 @@ import math
 
 import pytest
 
-from perception.errors import ShelfpickError
-from perception.scene import Scene
-from planning.shelves import BOX_TYPES, STANDING_LONG, _Placed, generate, layout, obb_overlap
+from shelfpick.perception.errors import ShelfpickError
+from shelfpick.perception.scene import Scene
+from shelfpick.planning.shelves import BOX_TYPES, STANDING_LONG, _Placed, generate, layout, obb_overlap
 
 
 def _check_geometry(scene: Scene) -> None:
@@ -115,7 +115,7 @@ def test_obb_overlap() -> None:
 def test_generated_shelves_are_at_rest() -> None:
     """A shelf that still slides after settling would make every later step look like a
     collapse; generated shelves barely move when left alone."""
-    from planning.sim import ShelfSim
+    from shelfpick.planning.sim import ShelfSim
 
     scene = generate("unstructured", 2, 11)
     with ShelfSim(scene) as sim:
@@ -176,7 +176,7 @@ def test_masses_are_opt_in_for_the_method_kinds() -> None:
 
 
 def test_hard_shelves_are_at_rest_with_their_masses() -> None:
-    from planning.sim import ShelfSim
+    from shelfpick.planning.sim import ShelfSim
 
     scene = generate("proud", 2, 10)
     with ShelfSim(scene) as sim:
@@ -198,7 +198,7 @@ def test_lean_kind_can_lean_on_a_long_box_overhanging_cubes() -> None:
 
 
 def test_written_shelves_stand_when_read_back() -> None:
-    from planning.shelves import _reload_problem
+    from shelfpick.planning.shelves import _reload_problem
 
     for kind in ("lean", "proud"):
         assert _reload_problem(generate(kind, 4, 10)) == ""

@@ -4,8 +4,8 @@ from __future__ import annotations
 import pytest
 
 from fake_oracles import STILL, SupportGraph, risky, table_oracle
-from planning.extract import SearchResult, search_extract
-from planning.shorten import shorten_extraction
+from shelfpick.planning.extract import SearchResult, search_extract
+from shelfpick.planning.shorten import shorten_extraction
 
 
 def _wasted_blocker(removed, box):

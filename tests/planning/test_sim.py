@@ -6,10 +6,10 @@ import warnings
 
 import pytest
 
-from perception.errors import SceneError
-from perception.scene import Box, Scene, Shelf
-from planning.physics import PhysicsConfig
-from planning.sim import ShelfSim
+from shelfpick.perception.errors import SceneError
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.sim import ShelfSim
 from tests.planning.sim_scenes import column, cube, grid, stacked, twelve
 
 
@@ -139,7 +139,7 @@ def test_unknown_box_and_removed_box():
 @pytest.mark.parametrize("kind, seed", [("structured", 1), ("unstructured", 2)])
 def test_synthetic_shelves_reload_still_and_unrepaired(kind, seed):
     """A settled synthetic 10-box shelf, loaded again, needs no repair and does not move."""
-    from planning.shelves import generate
+    from shelfpick.planning.shelves import generate
 
     scene = generate(kind, seed, 10)
     with warnings.catch_warnings():
@@ -185,7 +185,7 @@ def test_lift_is_capped_by_the_free_space_above():
 def test_a_recycled_bullet_client_gives_bit_identical_results():
     """A closed ShelfSim gives its client back to its pool, reset, for the next one
     (connect costs ~25 ms); nothing of the first world may leak into the next."""
-    from planning.bullet_clients import ClientPool
+    from shelfpick.planning.bullet_clients import ClientPool
 
     scene = grid(3, 3)
     with ClientPool() as clients:
@@ -206,7 +206,7 @@ def test_a_recycled_bullet_client_gives_bit_identical_results():
 
 
 def test_a_client_pool_disconnects_every_client_when_closed():
-    from planning.bullet_clients import ClientPool
+    from shelfpick.planning.bullet_clients import ClientPool
 
     clients = ClientPool()
     held = ShelfSim(grid(2, 2), clients=clients)    # never closed by its user
@@ -220,7 +220,7 @@ def test_a_client_pool_disconnects_every_client_when_closed():
 def test_a_shelf_sim_is_the_world_a_pull_needs():
     """planning.pull names what it needs of a world (`PullWorld`) instead of importing the
     simulation that calls it; a `ShelfSim` must still be one."""
-    from planning.pull import PullWorld
+    from shelfpick.planning.pull import PullWorld
 
     with quiet(stacked()) as sim:
         assert isinstance(sim, PullWorld)

@@ -6,10 +6,10 @@ from dataclasses import replace
 
 import pytest
 
-from perception.scene import Box, Scene, Shelf
-from planning.physics import PhysicsConfig
-from planning.uncertainty import depth_ranges, sample_depths
-from planning.uncertainty import Uncertainty, draw_config, draw_scene
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.physics import PhysicsConfig
+from shelfpick.planning.uncertainty import depth_ranges, sample_depths
+from shelfpick.planning.uncertainty import Uncertainty, draw_config, draw_scene
 from tests.planning.sim_scenes import twelve
 
 
@@ -79,7 +79,7 @@ def _face(w: float, h: float, y_front: float = 0.0) -> Box:
 
 
 def test_a_face_of_a_stock_type_has_that_types_depth():
-    from planning.uncertainty import type_depths
+    from shelfpick.planning.uncertainty import type_depths
 
     types = Uncertainty().catalogue
     assert type_depths(_face(0.23, 0.25), types, 0.025, 0.30) == (0.31,)

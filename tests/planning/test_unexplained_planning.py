@@ -6,12 +6,12 @@ from dataclasses import replace
 
 import pytest
 
-from perception.errors import FormatError
-from perception.scene import Scene, Shelf, Unexplained
-from planning.plan import StepPrediction
-from planning.planner import make_plan
-from planning.sim import ShelfSim
-from planning.unexplained import TOUCH_MARGIN, obstacles, touches
+from shelfpick.perception.errors import FormatError
+from shelfpick.perception.scene import Scene, Shelf, Unexplained
+from shelfpick.planning.plan import StepPrediction
+from shelfpick.planning.planner import make_plan
+from shelfpick.planning.sim import ShelfSim
+from shelfpick.planning.unexplained import TOUCH_MARGIN, obstacles, touches
 from sim_scenes import cube
 
 
@@ -146,7 +146,7 @@ def test_from_a_perceived_shelf_a_missed_box_blocks_its_neighbour_not_the_far_on
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "perception"))
-    from perception.pipeline import perceive
+    from shelfpick.perception.pipeline import perceive
     from synth_frames import box, cast
 
     truth = Scene(Shelf(), (box("l", -0.235, 0.0, 0.23, 0.25), box("m", 0.0, 0.0, 0.23, 0.25),
@@ -199,7 +199,7 @@ def test_the_scene_schema_takes_regions_and_refuses_what_the_loader_refuses():
 
 
 def test_shelfpick_plan_warns_what_touches_the_matter(tmp_path, capsys):
-    from console.cli import main
+    from shelfpick.console.cli import main
 
     path = tmp_path / "scene.json"
     pair(BESIDE_B).save(path)
