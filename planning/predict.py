@@ -293,15 +293,8 @@ class Predictor:
         """
         total = self._n + (max(0, int(extra)) if self._drawn else 0)
         self.verified_worlds = total
-        t0 = time.perf_counter()
-        self._extend(total)
-        self.stats["build_s"] += time.perf_counter() - t0
-        out = []
-        removed: frozenset[str] = frozenset()
-        for box in sequence:
-            out.append(self._aggregate(box, self._run((removed, box), total)[:total], total))
-            removed = removed | {box}
-        return tuple(out)
+        steps = self.plan_results(sequence, total)
+        return tuple(self._aggregate(box, results, total) for box, results in zip(sequence, steps))
 
     def plan_results(self, sequence: Sequence[str], total: int) -> list[list[StepResult]]:
         """Every step of `sequence` in the first `total` sample worlds (built as needed, kept: the
