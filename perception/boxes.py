@@ -14,7 +14,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from shelfpick.perception.contact import face_sweep, sweep
+from shelfpick.perception.contact import face_part, face_sweep, sweep
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.faces import FrontFace, face_axes, measure_front
 from shelfpick.perception.geometry import matrix_to_quat
@@ -68,12 +68,70 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
     out, said = _push_apart(out, snap, min_contact)
     notes += said
     out = [_clamp(b, shelf, notes) for b in out]
-    out, said = _rest_on_supports(out, snap, min_contact)
+    out, said = _rest_on_supports(out, snap, min_contact, shelf.height)
     notes += said
-    for b in out:
-        top = _aabb(b)[1, 2]
+    out, said = _under_the_top(out, shelf)
+    notes += said
+    notes += _overlaps_left(out, shelf)
+    return out, notes
+
+
+# words that mark a note as a contradiction the caller reports as a warning (perceived faces that
+# cannot all be right), not one more small move
+CONTRADICTION = "cannot all be right"
+# a deeper overlap than this between two boxes, or with the shelf, is reported (the planner's sample
+# worlds repair overlaps up to 2 cm, 5 cm when they predict; their draws move each face by <= 0.5 cm)
+LEFT_OVERLAP = 0.02
+def _depth(a: Box, b: Box) -> float:
+    """How deep two boxes overlap: the smallest move along x, y or z that parts them (0: apart)."""
+    best = np.inf
+    for d in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+        s = sweep(a, b, d)
+        if s is None or not s[0] < 0 < s[1]:
+            return 0.0
+        best = min(best, -s[0], s[1])
+    return float(best)
+
+
+def _face_depth(a: Box, b: Box) -> float:
+    """`_depth` of what was measured of the two (`face_part`: the front slab where the depth is a
+    placeholder): a placeholder reaching a face behind it is for the sample worlds' depth draws to
+    fit, not a contradiction."""
+    return _depth(face_part(a), face_part(b))
+
+
+def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
+    """A warning note for each pair of boxes still overlapping deeper than `LEFT_OVERLAP`, and each
+    box still above the shelf's top: what the sample worlds would refuse to build."""
+    notes = []
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            d = _face_depth(a, b)
+            if d > LEFT_OVERLAP and not (a.id.startswith("~") or b.id.startswith("~")):
+                notes.append(f"{a.id}/{b.id}: overlap by {d * 100:.1f} cm that make_valid could not part; "
+                             f"their perceived faces {CONTRADICTION}")
+        top = _aabb(a)[1, 2]
         if top > shelf.height + 1e-6:
-            notes.append(f"{b.id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m")
+            notes.append(f"{a.id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m; "
+                         f"the faces of its stack {CONTRADICTION}")
+    return notes
+
+
+def _under_the_top(boxes: list[Box], shelf: Shelf) -> tuple[list[Box], list[str]]:
+    """A box reaching above the shelf's top is cut down to fit, its bottom
+    where it rests: the stack under it measured taller than the shelf, so some face in it is wrong,
+    and the warning says so (a box pushed out of the top into the one under it is a world the
+    planner cannot build). A box that would keep less than half its height is left, and reported."""
+    out, notes = list(boxes), []
+    limit = shelf.height
+    for i, b in enumerate(out):
+        a = _aabb(b)
+        over = a[1, 2] - limit
+        if over <= 1e-6 or b.id.startswith("~") or b.size[2] - over < b.size[2] / 2:
+            continue
+        out[i] = _taller(b, -over)
+        notes.append(f"{b.id}: its stack reaches {a[1, 2]:.3f} m, above the shelf's top ({shelf.height:.3f} m); "
+                     f"cut {over * 100:.1f} cm shorter to fit: the perceived faces of its stack {CONTRADICTION}")
     return out, notes
 
 
@@ -96,12 +154,20 @@ def _push_apart(boxes: list[Box], snap: float, min_contact: float) -> tuple[list
                 continue
             left, right = (i, j) if a[0, 0] + a[1, 0] <= c[0, 0] + c[1, 0] else (j, i)
             s = face_sweep(out[left], out[right], (1.0, 0.0, 0.0))
-            if s is None or not s[0] < 0 < s[1] or -s[0] > snap:
+            if s is None or not s[0] < 0 < s[1]:
                 continue
+            why = ""
+            if -s[0] > snap:
+                # deeper: parted only where the two measured faces themselves overlap (not a
+                # placeholder depth reaching a face behind it); both cannot be right, and it is said
+                s = sweep(face_part(out[left]), face_part(out[right]), (1.0, 0.0, 0.0))
+                if s is None or not s[0] < 0 < s[1]:
+                    continue
+                why = f"; their perceived faces {CONTRADICTION}"
             half = -s[0] / 2 + 1e-4
             out[left] = _moved(out[left], np.array([-half, 0, 0]))
             out[right] = _moved(out[right], np.array([half, 0, 0]))
-            notes.append(f"{out[left].id}/{out[right].id}: pushed apart sideways by {-s[0] * 100:.1f} cm overlap")
+            notes.append(f"{out[left].id}/{out[right].id}: pushed apart sideways by {-s[0] * 100:.1f} cm overlap{why}")
     return out, notes
 
 
@@ -127,9 +193,12 @@ def _support(b: Box, other: Box, bottom: float, snap: float) -> tuple[float | No
     return None, f"{b.id}/{other.id}: overlap behind their measured faces only (depths unknown); not moved"
 
 
-def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tuple[list[Box], list[str]]:
+def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float,
+                      height: float = np.inf) -> tuple[list[Box], list[str]]:
     """Every box, lowest first, moved up or down onto the floor or the highest box under it;
-    and what was moved (more than 1 mm)."""
+    and what was moved (more than 1 mm). A support whose top edge was hidden grows up to the
+    box above only where growing overlaps no other box and that box fits under the shelf's
+    top (`height`); otherwise the box above drops, as onto any support (`_may_grow`)."""
     out = list(boxes)
     notes: list[str] = []
     order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 2])
@@ -152,9 +221,14 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float) -> tupl
             delta = 0.0         # its unseen back may rest on that box: the measured face stays
         if delta < -snap and k is not None and -delta <= MAX_HIDDEN_TOP and _top_hidden(out[k]):
             # the support's top edge was hidden behind a box in front: it is taller than it was seen
-            out[k] = _taller(out[k], -delta)
-            notes.append(f"{out[k].id}: top edge hidden, grown {-delta * 100:.1f} cm up to {out[i].id} above it")
-            delta = 0.0
+            why = _may_grow(out, k, i, -delta, height)
+            if why:
+                notes.append(f"{out[k].id}: top edge hidden, but growing it {-delta * 100:.1f} cm up to "
+                             f"{out[i].id} {why}: {out[i].id} drops instead")
+            else:
+                out[k] = _taller(out[k], -delta)
+                notes.append(f"{out[k].id}: top edge hidden, grown {-delta * 100:.1f} cm up to {out[i].id} above it")
+                delta = 0.0
         if abs(delta) > 1e-3:
             if delta > 0:
                 notes.append(f"{out[i].id}: pushed up {delta * 100:.1f} cm out of {under}")
@@ -175,11 +249,24 @@ def _top_hidden(b: Box) -> bool:
     return bool((b.extra.get("perceived") or {}).get("top_hidden"))
 
 
+def _may_grow(boxes: list[Box], k: int, i: int, dz: float, height: float) -> str:
+    """Why support `k` may not grow `dz` up to box `i` above it ('' when it may): the grown box
+    would overlap another box deeper than it did (that box was placed on it, or beside it), or
+    box `i` left where it was seen reaches above the shelf's top."""
+    if _aabb(boxes[i])[1, 2] > height + 1e-6:
+        return f"would leave {boxes[i].id} above the shelf's top"
+    grown = _taller(boxes[k], dz)
+    for j, b in enumerate(boxes):
+        if j not in (k, i) and _face_depth(grown, b) > _face_depth(boxes[k], b) + 1e-3:
+            return f"would overlap {b.id}"
+    return ""
+
+
 def _taller(b: Box, dz: float) -> Box:
     """The box `dz` taller along its own z axis, its bottom where it was."""
     ez = np.asarray(quat_to_matrix(b.orientation))[:, 2]
     pos = np.asarray(b.position) + ez * dz / 2
-    return replace(b, size=(b.size[0], b.size[1], b.size[2] + dz), position=tuple(float(p) for p in pos))
+    return replace(b, size=(b.size[0], b.size[1], float(b.size[2] + dz)), position=tuple(float(p) for p in pos))
 
 
 def _clamp(b: Box, shelf: Shelf, notes: list[str]) -> Box:

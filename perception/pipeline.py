@@ -16,7 +16,14 @@ import cv2
 import numpy as np
 
 from shelfpick.perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
-from shelfpick.perception.boxes import boxes_from_masks, default_front_distance, distance_from_box_size, make_valid, planar_depth
+from shelfpick.perception.boxes import (
+    CONTRADICTION,
+    boxes_from_masks,
+    default_front_distance,
+    distance_from_box_size,
+    make_valid,
+    planar_depth,
+)
 from shelfpick.perception.capture import Capture
 from shelfpick.perception.faces import FrontFace, measure_front
 from shelfpick.perception.geometry import check_intrinsics, point_map, pose_matrix
@@ -181,6 +188,7 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     labels = to_label_image(masks, capture.shape)
     boxes, found, valid_notes = _valid_and_explained(boxes, capture, shelf, labels, offered, masks, timing)
     notes = catalogue_notes + notes + valid_notes
+    warnings += [n for n in valid_notes if CONTRADICTION in n]   # faces that cannot all be right: said, not only moved
     if found is not None and found.regions:    # first: the console shows a capture's first three warnings
         warnings.insert(0, describe(found.regions))
     t = time.perf_counter()

@@ -198,3 +198,67 @@ def test_leaning_box_beside_a_taller_one_is_not_pushed_up_by_its_bounds():
     by = {b.id: b for b in out}
     assert min(c[2] for c in by["lean"].corners()) == pytest.approx(0.232, abs=3e-3)
     assert not any("lean: pushed up" in n for n in notes)
+
+
+# --- make_valid's output is a scene the planner's sample worlds can build (issue 31: two held-out
+# --- shelves refused with "no draw of sample can be built: box ... overlaps ...")
+
+def _upright(i: str, x: float, z0: float, w: float, h: float, hidden: bool = False) -> Box:
+    extra = {"perceived": {"top_hidden": True}} if hidden else {"perceived": {}}
+    return Box(i, (w, 0.25, h), (x, 0.125, z0 + h / 2), (1.0, 0.0, 0.0, 0.0), None, False, 1, extra)
+
+
+def _refusal(boxes: list[Box], shelf: Shelf) -> str:
+    """'' when the planner builds sample world 0 of the scene, else why it refuses."""
+    import warnings
+
+    from shelfpick.perception.errors import SceneError
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.sample_worlds import build_sample
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            build_sample(Scene(shelf, tuple(boxes)), 0, 0, PhysicsConfig().for_prediction()).sim.close()
+    except SceneError as exc:
+        return str(exc)
+    return ""
+
+
+def test_a_hidden_top_support_does_not_grow_into_the_box_resting_on_it_beside():
+    # b0's top edge was hidden; b2 rests on b0's seen top, b1 hangs 10 cm over b0 further left
+    shelf = Shelf()
+    seen = [_upright("b0", 0.0, 0.0, 0.2, 0.15, hidden=True), _upright("b2", 0.1, 0.15, 0.2, 0.2),
+            _upright("b1", -0.15, 0.25, 0.2, 0.2)]
+    grown = [Box("b0", (0.2, 0.25, 0.25), (0.0, 0.125, 0.125)), *seen[1:]]     # what growing b0 gave
+    assert "overlap by" in _refusal(grown, shelf)
+    boxes, notes = make_valid(seen, shelf)
+    assert boxes[0].size[2] == pytest.approx(0.15) and boxes[2].position[2] == pytest.approx(0.25)
+    assert any("would overlap b2" in n and "b1 drops instead" in n for n in notes)
+    assert _refusal(boxes, shelf) == ""
+
+
+def test_a_stack_taller_than_the_shelf_is_cut_to_fit_and_said():
+    shelf = Shelf()
+    seen = [_upright("b0", 0.0, 0.0, 0.2, 0.5), _upright("b1", 0.0, 0.5, 0.2, 0.5), _upright("b2", 0.0, 1.0, 0.2, 0.62)]
+    assert "overlaps the shelf" in _refusal(seen, shelf)
+    boxes, notes = make_valid(seen, shelf)
+    top = max(c[2] for c in boxes[2].corners())
+    assert top == pytest.approx(shelf.height) and boxes[2].size[2] == pytest.approx(0.60)
+    assert any(n.startswith("b2: its stack reaches 1.620 m") and "cannot all be right" in n for n in notes)
+    assert _refusal(boxes, shelf) == ""
+
+
+def test_side_by_side_faces_overlapping_past_snap_are_parted_and_said():
+    shelf = Shelf()
+    seen = [_upright("b0", 0.0, 0.0, 0.2, 0.2), _upright("b1", 0.13, 0.0, 0.2, 0.2)]     # 7 cm into each other
+    assert "overlap by" in _refusal(seen, shelf)
+    boxes, notes = make_valid(seen, shelf)
+    assert boxes[1].position[0] - boxes[0].position[0] == pytest.approx(0.2, abs=1e-3)
+    assert any("pushed apart sideways by 7.0 cm" in n and "cannot all be right" in n for n in notes)
+    assert _refusal(boxes, shelf) == ""
+    # a face in front of another box's placeholder depth is not parted (one box behind the other)
+    back = Box("b1", (0.2, 0.15, 0.2), (0.13, 0.2, 0.1), (1.0, 0.0, 0.0, 0.0), None, False, 1, {"perceived": {}})
+    boxes, notes = make_valid([_upright("b0", 0.0, 0.0, 0.2, 0.2), back], shelf)
+    assert boxes[1].position[0] == pytest.approx(0.13) and not any("cannot all be right" in n for n in notes)
+    assert _refusal(boxes, shelf) == ""
