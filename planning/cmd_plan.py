@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--face-error", type=float, default=None, metavar="M",
                         help="the perceived faces' error in this cell, as a half-range in m: each world "
                              "moves every face by up to M in its plane and along its normal and changes its "
-                             "width and height by up to M (default: 0.005 in its plane only; docs/bench.md)")
+                             "width and height by up to M (default: 0.005 in its plane only; docs/cli.md)")
     parser.add_argument("--out", default=None, help="write the plan here (default: stdout)")
 
 

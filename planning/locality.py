@@ -1,7 +1,7 @@
 """Which boxes a change at some boxes can move before a step is decided (local trials).
 
 A prediction trial simulates only the pulled box's neighbourhood; every other
-box stands in as a static copy of itself (docs/speed.md, "Local trials"). The
+box stands in as a static copy of itself (docs/physics.md, "Local trials"). The
 neighbourhood is a pure function of the boxes' axis-aligned bounding boxes.
 """
 from __future__ import annotations

@@ -10,7 +10,7 @@ target. It is kept unless the physics predicts it a lower chance that no step
 collapses by more than one standard error of that chance over the sample worlds:
 ten worlds cannot tell 0.7 from 0.6, and where they cannot, the order that does
 not pull a box from under a load is the better bet (on the independent judge it
-held where the search's order collapsed; docs/bench.md). That benefit of the
+held where the search's order collapsed; docs/planners.md). That benefit of the
 doubt is not given where a box of the plan leans more than `LEAN_DEG`: on a leaning
 pile the highest top is a box resting against the others, not the top of a stack
 (there top first is kept only when predicted better). A safe plan is left as
