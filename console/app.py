@@ -180,7 +180,7 @@ class ClientView:
         """(preview step results, plan) for the chosen planner, live or replayed."""
         if self.replay is not None:
             r = self.replay.plans.get(name)
-            return (r.preview, r.plan) if r else ((), None)
+            return (r.preview, r.plan, r.shown) if r else ((), None)
         e = self.wf.state.plans.get(name)
         return (e.preview, e.plan, e.collapse_steps) if e else ((), None)
 

@@ -106,7 +106,7 @@ class PlanningStage(WorkflowCore):
                         self._recorded.add((sid, e.hash))
             self._plans_ready(gen, entries, repairs)
             ok = True
-            self._show_collapse_worlds(gen, entries, predictor)
+            self._show_collapse_worlds(gen, entries, predictor, sid)
         except Exception as exc:  # noqa: BLE001 - shown in the page, the server keeps running
             traceback.print_exc()
             with self._lock:
@@ -148,7 +148,8 @@ class PlanningStage(WorkflowCore):
         plan = replace(plan, timing={**plan.timing, "wall_s": time.perf_counter() - t0})
         return PlanEntry(plan, plan.content_hash(), preview, shelves)
 
-    def _show_collapse_worlds(self, gen: int, entries: dict[str, PlanEntry], predictor: Predictor) -> None:
+    def _show_collapse_worlds(self, gen: int, entries: dict[str, PlanEntry], predictor: Predictor,
+                              sid: int | None = None) -> None:
         """After the plans are shown: each risky step recorded in a world where it collapses, for the
         preview. Done after the click's answer (it costs a pull sequence per risky step); the plans
         are the same (same hashes, recorded as they were), they only gain what the preview shows."""
@@ -159,6 +160,11 @@ class PlanningStage(WorkflowCore):
             return
         if not any(worlds.values()):
             return
+        for p, w in worlds.items():     # stored with the plan's preview: the replay and HTML show them too
+            if w and sid is not None and (sid, entries[p].hash) in self._recorded:
+                self._record(f"the {p} plan's collapse worlds", self.store.add_preview_worlds, sid,
+                             entries[p].hash, p, {k: {**d, "result": step_json(d["result"])
+                                                      if d["result"] is not None else None} for k, d in w.items()})
         with self._lock:
             now = self._state.plans
             if gen != self._generation or any(now.get(p) is not e for p, e in entries.items()):

@@ -149,6 +149,12 @@ def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> li
         for i, step in enumerate(preview or []):
             if not isinstance(step, Mapping):
                 continue
+            world = ""
+            alt = step.get("collapse_world")
+            if isinstance(alt, Mapping):          # the live page showed this step in a world where it collapses
+                world = world_words(alt)
+                if isinstance(alt.get("result"), Mapping) and _frames_of(alt["result"]):
+                    step = {**alt["result"], "box": step.get("box", alt["result"].get("box"))}
             frames = _frames_of(step)
             if len(frames) > MAX_FRAMES_PER_STEP:
                 idx = np.linspace(0, len(frames) - 1, MAX_FRAMES_PER_STEP).round().astype(int)
@@ -166,7 +172,8 @@ def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> li
                     if abs(pos[0]) > 10 or abs(pos[2]) > 10:  # parked off the shelf
                         continue
                     polys[bid] = front_polygon(boxes[bid], pos, quat)
-                keys.append(FrontKey(f"step {i + 1}: pull {box_id}, t={t:.2f} s", i, polys, box_id,
+                keys.append(FrontKey(f"step {i + 1}: pull {box_id}, " + (f"{world}, " if world else "")
+                                     + f"t={t:.2f} s", i, polys, box_id,
                                      tuple(step.get("collapsed") or ())))
             removed.add(str(box_id))
     else:
@@ -176,6 +183,23 @@ def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> li
             keys.append(FrontKey(f"step {i + 1}: {bid} removed (no recorded preview)", i,
                                  {k: v for k, v in still.items() if k not in gone}, bid))
     return keys
+
+
+def world_words(alt: Mapping[str, Any]) -> str:
+    """Which sample world a risky step is shown in, in the words of the live preview
+    (console.scene_view.timeline): "collapses in 1 world of 10: shown in world 4"."""
+    n, of = int(alt.get("collapsed_in", 0)), alt.get("of")
+    head = f"collapses in {n} world{'s' if n != 1 else ''} of {of}"
+    if alt.get("result") is not None and alt.get("world") is not None:
+        return f"{head}: shown in world {int(alt['world']) + 1}"
+    return f"{head} (not shown: this world holds)"
+
+
+def shown_worlds(preview: Sequence[Any] | None) -> dict[int, dict]:
+    """step -> the stored world a risky step is shown in (`collapse_world` of a stored preview step,
+    console.store.add_preview_worlds), in the shape the live preview takes (PlanEntry.collapse_steps)."""
+    return {i: dict(s["collapse_world"]) for i, s in enumerate(preview or ())
+            if isinstance(s, Mapping) and isinstance(s.get("collapse_world"), Mapping)}
 
 
 def _svg(scene: Scene, keys: list[FrontKey], anim_id: str, target: str | None,
@@ -218,7 +242,15 @@ def _animation(scene: Scene, plan: Plan, preview: list | None, anim_id: str) -> 
             f'<div class="controls"><button type="button" id="{anim_id}-play">Play</button>'
             f'<input type="range" id="{anim_id}-scrub" min="0" max="{len(keys) - 1}" value="0" step="1">'
             f'<span id="{anim_id}-label"></span></div>'
-            f'<script type="application/json" id="{anim_id}-data">{data}</script></div>')
+            f'<script type="application/json" id="{anim_id}-data">{data}</script>{_world_note(plan, preview)}</div>')
+
+
+def _world_note(plan: Plan, preview: list | None) -> str:
+    """Under the animation: each risky step and the sample world it is shown in (as the live preview)."""
+    worlds = shown_worlds(preview)
+    items = [f"step {k + 1} ({_e(plan.sequence[k] if k < len(plan.sequence) else '?')}): {_e(world_words(w))}"
+             for k, w in sorted(worlds.items())]
+    return f'<p class="small worlds">{"<br>".join(items)}</p>' if items else ""
 
 
 # --------------------------------------------------------------------------
@@ -310,7 +342,7 @@ def _outcome(rec: SessionRecord) -> str:
     for i, box in enumerate(seq):
         st = steps[i] if i < len(steps) and isinstance(steps[i], Mapping) else {}
         det = st.get("detail") or {}
-        actual_collapse = det.get("collapsed_ids", det.get("collapsed")) or []
+        actual_collapse = _seen(det.get("collapsed_ids", det.get("collapsed")) or [], set(rec.scene.ids))
         disp = det.get("displacement") or {}
         max_disp = max((float(v) for v in disp.values()), default=0.0) if isinstance(disp, Mapping) else 0.0
         p = pred.get(box)
@@ -319,7 +351,7 @@ def _outcome(rec: SessionRecord) -> str:
         rows.append(f'<tr class="{cls}"><td>{i + 1}</td><td>{_e(box)}</td>'
                     f'<td>{_pct(p.collapse_prob if p else None)}</td>'
                     f'<td>{_e(", ".join(p.moved)) if p and p.moved else ""}</td>'
-                    f'<td>{_e(status)}</td><td>{_e(", ".join(map(str, actual_collapse))) or "none"}</td>'
+                    f'<td>{_e(status)}</td><td>{_e(actual_collapse) or "none"}</td>'
                     f'<td>{max_disp * 100:.1f} cm</td><td>{_e(det.get("message", ""))}</td></tr>')
     head = ("success" if out.get("ok") else "interrupted: the console stopped during the run"
             if out.get("interrupted") else "stopped by Stop robot" if out.get("stopped") else "not completed")
@@ -329,6 +361,13 @@ def _outcome(rec: SessionRecord) -> str:
             '<table><tr><th>step</th><th>box</th><th>predicted collapse</th><th>predicted to move</th>'
             '<th>actual</th><th>actually collapsed</th><th>largest displacement</th><th>note</th></tr>'
             + "".join(rows) + "</table>")
+
+
+def _seen(ids: Iterable[Any], seen: set[str]) -> str:
+    """Collapsed boxes by the ids perception gave them; one the camera never saw is said so (issue 33)."""
+    from shelfpick.console.robot import seen_names
+
+    return seen_names([str(b) if str(b) in seen else None for b in ids])
 
 
 def _look_svg(shelf: Shelf, predicted: Scene | None, observed: Scene | None, differ_p: set[str],
@@ -518,4 +557,5 @@ def export_html(rec: SessionRecord, out: str | Path) -> Path:
     return write_text(out, render_html(rec), "--html")
 
 
-__all__ = ["render_html", "export_html", "keyframes", "FrontKey", "front_polygon", "png_data_uri"]
+__all__ = ["render_html", "export_html", "keyframes", "FrontKey", "front_polygon", "png_data_uri", "shown_worlds",
+           "world_words"]

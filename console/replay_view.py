@@ -7,12 +7,12 @@ outside text (md).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
 from shelfpick.console.page_markdown import results_markdown
 from shelfpick.console.panels import decisions_markdown, md, pct
-from shelfpick.console.replay import decided_planner
+from shelfpick.console.replay import decided_planner, shown_worlds
 from shelfpick.console.workflow import PlanEntry, State
 from shelfpick.perception.scene import Camera, Scene
 from shelfpick.planning.plan import Plan
@@ -30,6 +30,7 @@ class ReplayPlan:
     plan: Plan
     preview: tuple[Mapping[str, Any], ...] | list[Mapping[str, Any]]
     hash: str
+    shown: Mapping[int, Mapping[str, Any]] = field(default_factory=dict)   # step -> its collapse world
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,7 +69,7 @@ def record_view(rec: SessionRecord) -> ReplayView:
     plans: dict[str, ReplayPlan] = {}
     entries: dict[str, PlanEntry] = {}
     for pr in rec.plans:                       # later plans of a planner replace earlier ones
-        plans[pr.plan.planner] = ReplayPlan(pr.plan, pr.preview or (), pr.hash)
+        plans[pr.plan.planner] = ReplayPlan(pr.plan, pr.preview or (), pr.hash, shown_worlds(pr.preview))
         entries[pr.plan.planner] = PlanEntry(pr.plan, pr.hash, ())
     problems = next((PlanEntry(pr.plan, pr.hash).scene_problems for pr in reversed(rec.plans)
                      if pr.plan.planner == "physics"), ())

@@ -224,6 +224,24 @@ class SessionStore:
 
         return self._write(fn)
 
+    def add_preview_worlds(self, session_id: int, plan_hash: str, planner: str,
+                           worlds: dict[int, dict]) -> None:
+        """Add to a stored plan's preview the sample world each risky step is shown in (recorded after
+        the plan, off the click path), so the replay and the HTML show the collapse the live page did.
+        Only the preview changes (display data): the plan, its hash and the decisions stay as stored."""
+        def fn(cur: sqlite3.Cursor) -> None:
+            row = cur.execute("SELECT id, preview FROM plans WHERE session_id=? AND hash=? AND planner=? "
+                              "ORDER BY id DESC LIMIT 1", (session_id, plan_hash, planner)).fetchone()
+            if row is None or not row[1]:
+                return
+            steps = json.loads(row[1])
+            for k, doc in worlds.items():
+                if 0 <= int(k) < len(steps) and isinstance(steps[int(k)], dict):
+                    steps[int(k)]["collapse_world"] = doc
+            cur.execute("UPDATE plans SET preview=? WHERE id=?", (json.dumps(steps, default=jsonable), row[0]))
+
+        self._write(fn)
+
     def add_decision(self, session_id: int, plan_hash: str, decision: str, who: str,
                      reason: str | None = None) -> int:
         """Record a supervisor's approve/reject of one plan (by content hash)."""
