@@ -82,10 +82,10 @@ CONTRADICTION = "cannot all be right"
 # a deeper overlap than this between two boxes, or with the shelf, is reported (the planner's sample
 # worlds repair overlaps up to 2 cm, 5 cm when they predict; their draws move each face by <= 0.5 cm)
 LEFT_OVERLAP = 0.02
-def _depth(a: Box, b: Box) -> float:
-    """How deep two boxes overlap: the smallest move along x, y or z that parts them (0: apart)."""
+def _depth(a: Box, b: Box, along: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))) -> float:
+    """How deep two boxes overlap: the smallest move along one of `along` that parts them (0: apart)."""
     best = np.inf
-    for d in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+    for d in along:
         s = sweep(a, b, d)
         if s is None or not s[0] < 0 < s[1]:
             return 0.0
@@ -94,10 +94,11 @@ def _depth(a: Box, b: Box) -> float:
 
 
 def _face_depth(a: Box, b: Box) -> float:
-    """`_depth` of what was measured of the two (`face_part`: the front slab where the depth is a
-    placeholder): a placeholder reaching a face behind it is for the sample worlds' depth draws to
-    fit, not a contradiction."""
-    return _depth(face_part(a), face_part(b))
+    """How deep what was measured of the two (`face_part`: the front slab where the depth is a
+    placeholder) overlaps across the pull (x or z; 0 when apart in depth): a placeholder reaching a
+    face behind it is for the sample worlds' depth draws to fit, not a contradiction, and two
+    slabs side by side at one depth are one box's depth into each other, not a slab's."""
+    return _depth(face_part(a), face_part(b), ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
 
 
 def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
@@ -159,9 +160,11 @@ def _push_apart(boxes: list[Box], snap: float, min_contact: float) -> tuple[list
             why = ""
             if -s[0] > snap:
                 # deeper: parted only where the two measured faces themselves overlap (not a
-                # placeholder depth reaching a face behind it); both cannot be right, and it is said
+                # placeholder depth reaching a face behind it) and sideways is their shortest way
+                # apart (else they rest on each other, or stand one behind the other); both
+                # cannot be right, and it is said
                 s = sweep(face_part(out[left]), face_part(out[right]), (1.0, 0.0, 0.0))
-                if s is None or not s[0] < 0 < s[1]:
+                if s is None or not s[0] < 0 < s[1] or -s[0] > _face_depth(out[left], out[right]) + 1e-6:
                     continue
                 why = f"; their perceived faces {CONTRADICTION}"
             half = -s[0] / 2 + 1e-4

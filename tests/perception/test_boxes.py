@@ -262,3 +262,12 @@ def test_side_by_side_faces_overlapping_past_snap_are_parted_and_said():
     boxes, notes = make_valid([_upright("b0", 0.0, 0.0, 0.2, 0.2), back], shelf)
     assert boxes[1].position[0] == pytest.approx(0.13) and not any("cannot all be right" in n for n in notes)
     assert _refusal(boxes, shelf) == ""
+
+
+def test_a_box_sunk_into_a_long_box_below_is_lifted_not_pushed_sideways():
+    # b1 measured 2 cm into the long box under it, 12 cm into it sideways: up is the short way out
+    shelf = Shelf()
+    boxes, notes = make_valid([_upright("b0", 0.25, 0.0, 0.5, 0.17), _upright("b1", 0.02, 0.15, 0.2, 0.2)], shelf)
+    assert boxes[1].position[0] == pytest.approx(0.02) and boxes[0].position[0] == pytest.approx(0.25)
+    assert boxes[1].position[2] == pytest.approx(0.27, abs=2e-3)
+    assert not any("cannot all be right" in n for n in notes)
