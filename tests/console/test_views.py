@@ -10,8 +10,8 @@ and checks, on the page and on the scene nodes the server sent to it:
 - the preview at its real pace, a risky step shown in a world where it collapses (3);
 - overlay colours are the 3D colours, ids readable in the overlay (4);
 - the supervisor's `Plan` lists the plans there are, the 3D view follows it, a refusal for the
-  unticked risk box keeps the passphrase (8, 9; when a plan is predicted unsafe: the risk gate
-  decides; tests/console/test_operator_session.py checks it on `continue`, which always asks);
+  unticked risk box keeps the passphrase (8, 9: the cell's max_plan_risk is set so low that every
+  plan is predicted unsafe, so this is always checked);
 - during and after the run the 3D view is the observed shelf, the robot list one row a step in
   order (2, 10); Capture afterwards shows that shelf as it now stands (7);
 - replay: no live status, Capture and Plan disabled, the newest session first, its images,
@@ -33,6 +33,8 @@ from test_browser import (PASS, WATCHED, browser, canvas_box, hover_until_clicka
                           open_page, press, tick, until, wait_text)
 
 pytestmark = pytest.mark.browser
+
+STRICT = 1e-4     # the cell's max_plan_risk in the page session (the lowest a cell file may set)
 
 
 class GatedDemo:
@@ -61,10 +63,14 @@ def demo_console(tmp_path):
     from shelfpick.console.store import SessionStore
     from shelfpick.console.workflow import Workflow
 
+    from shelfpick.planning.priors import CellPriors
+
     store = SessionStore(tmp_path / "views.sqlite")
     source = GatedDemo()
+    # a cell that accepts next to no risk: every plan is predicted unsafe, so the refusal for an
+    # unticked risk box (item 9) is always checked, not only when the risk gate happens to refuse
     wf = Workflow(source, store, lambda truth, seed: open_robot("sim?delay=0.4", truth=truth, seed=seed), PASS,
-                  samples=10, seed=0)
+                  samples=10, seed=0, priors=CellPriors(max_plan_risk=STRICT))
     app = ConsoleApp(wf, port=0)
     WATCHED.append(wf)
     yield app, wf, store, source
@@ -270,20 +276,23 @@ def test_the_page_shows_the_shelf_from_capture_to_replay(browser, demo_console, 
                   f"3D view follows the choice {choice} (shows {view.preview.prev_plan.value})")
         fill = page.locator('xpath=//label[text()="Passphrase"]/ancestor::div[contains(@class,"mantine-Flex-root")]'
                             '[1]//input')
-        if not risky.plan.safe:   # (whether one is depends on the risk gate; the `continue` of
-            fill.fill(PASS)       # test_operator_session.py always needs the tick)
-            fill.evaluate("e => e.blur()")
-            until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
-            press(page, "Approve")
-            wait_text(page, "Approve: not done.")
-            wait_text(page, "Accept predicted risk")
-            assert view.passphrase.value == PASS and fill.input_value() == PASS
-            assert wf.state.approved is None and wf.state.robot == "idle"
+        assert not risky.plan.safe, f"risk {risky.plan.risk} is safe under max_plan_risk {STRICT}"
+        fill.fill(PASS)
+        fill.evaluate("e => e.blur()")
+        until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
+        assert not view.accept_risk.value
+        press(page, "Approve")
+        wait_text(page, "Approve: not done.")
+        wait_text(page, "Accept predicted risk")
+        assert view.passphrase.value == PASS and fill.input_value() == PASS
+        assert wf.state.approved is None and wf.state.robot == "idle"
         # the run: the physics plan (the heuristic one empties the shelf: nothing left to capture)
         run = st.plans["physics"]
         view.supervisor.approve_plan.value = "physics"
         until(lambda: view.preview.prev_plan.value == "physics", 10, "3D view follows the choice")
-        fill.fill(PASS)                   # another plan under review: typed again (h2's rule)
+        # another plan under review: the passphrase is cleared (h2's rule), then typed again
+        until(lambda: view.passphrase.value == "" and fill.input_value() == "", 10, "passphrase cleared")
+        fill.fill(PASS)
         fill.evaluate("e => e.blur()")
         until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
         if not run.plan.safe:
