@@ -159,6 +159,8 @@ def _push_apart(boxes: list[Box], snap: float, min_contact: float) -> tuple[list
                 continue
             why = ""
             if -s[0] > snap:
+                if out[left].id.startswith("~") or out[right].id.startswith("~"):
+                    continue    # unexplained matter's stand-ins ('~') are never pushed past snap
                 # deeper: parted only where the two measured faces themselves overlap (not a
                 # placeholder depth reaching a face behind it) and sideways is their shortest way
                 # apart (else they rest on each other, or stand one behind the other); both
