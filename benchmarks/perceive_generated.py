@@ -7,7 +7,9 @@ boxes matched to true ones by front-face position as `camera_to_plan.match_front
     .venv/bin/python benchmarks/perceive_generated.py --seeds 31004 --out /tmp/tune --keep   # one frame, overlay kept
 
 Prints a line per frame (true fronts, perceived, matched, missed true ids, unmatched perceived ids, warnings)
-and the totals. Held-out looks are refused: they are measured only by camera_to_plan.py.
+and the totals. Each perceived scene must also be one the planner can sample: its first `--samples` sample
+worlds are built as `planning.sample_worlds.build_sample` builds them (seed 0, the prediction config); a
+refusal is printed (REFUSED) and counted (SAMPLEABLE); seeds 31020-31059 are more of the tune role. Held-out looks are refused: they are measured only by camera_to_plan.py.
 """
 from __future__ import annotations
 
