@@ -82,6 +82,8 @@ CONTRADICTION = "cannot all be right"
 # a deeper overlap than this between two boxes, or with the shelf, is reported (the planner's sample
 # worlds repair overlaps up to 2 cm, 5 cm when they predict; their draws move each face by <= 0.5 cm)
 LEFT_OVERLAP = 0.02
+
+
 def _depth(a: Box, b: Box, along: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))) -> float:
     """How deep two boxes overlap: the smallest move along one of `along` that parts them (0: apart)."""
     best = np.inf
@@ -119,15 +121,14 @@ def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
 
 
 def _under_the_top(boxes: list[Box], shelf: Shelf) -> tuple[list[Box], list[str]]:
-    """A box reaching above the shelf's top is cut down to fit, its bottom
-    where it rests: the stack under it measured taller than the shelf, so some face in it is wrong,
-    and the warning says so (a box pushed out of the top into the one under it is a world the
-    planner cannot build). A box that would keep less than half its height is left, and reported."""
+    """A box reaching above the shelf's top is cut down to fit, its bottom where it rests: the
+    stack under it measured taller than the shelf, so some face in it is wrong, and the warning
+    says so (a box pushed out of the top into the one under it is a world the planner cannot
+    build). A box that would keep less than half its height is left, and reported."""
     out, notes = list(boxes), []
-    limit = shelf.height
     for i, b in enumerate(out):
         a = _aabb(b)
-        over = a[1, 2] - limit
+        over = a[1, 2] - shelf.height
         if over <= 1e-6 or b.id.startswith("~") or b.size[2] - over < b.size[2] / 2:
             continue
         out[i] = _taller(b, -over)
