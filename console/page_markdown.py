@@ -34,8 +34,11 @@ def results_markdown(state: State) -> str:
     row("boxes removed", lambda e: str(len(e.plan.sequence)))
     # one step a line, box and risk kept together: a long sequence never wraps inside an item
     row("collapse risk per step", lambda e: "<br>".join(
-        f"{i + 1}.{NBSP}{md(p.box)}{NBSP}{pct(p.collapse_prob)}" for i, p in enumerate(e.plan.predicted)) or "—")
-    row("max risk", lambda e: pct(e.plan.risk))
+        f"{i + 1}.{NBSP}{md(p.box)}{NBSP}{pct(p.collapse_prob)}" + _collision(p)
+        for i, p in enumerate(e.plan.predicted)) or "—")
+    # a plan's risk is its riskiest step's collapse OR collision chance: say so, and show the collisions
+    # per step above, or a plan of 0% steps reads "max risk 50%" with nothing to explain it
+    row("max risk (collapse or collision)", lambda e: pct(e.plan.risk))
     row("predicted safe", lambda e: "yes" if e.plan.safe else "**NO**")
     row("chance of a collapse (calibrated)", lambda e: _plan_risk(e.plan))
     row("sample worlds behind the risks", lambda e: _worlds(e.plan))
@@ -57,6 +60,11 @@ def results_markdown(state: State) -> str:
     if state.repairs:
         out += "\n\n_Perceived scene adjusted by the physics:_ " + "; ".join(md(r) for r in state.repairs)
     return out
+
+
+def _collision(p) -> str:
+    """A step's collision chance beside its collapse chance, where it has one."""
+    return f",{NBSP}collision{NBSP}{pct(p.collision_prob)}" if p.collision_prob > 0 else ""
 
 
 def _planning_seconds(plan: Plan) -> float:

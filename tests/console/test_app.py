@@ -115,3 +115,21 @@ def test_app_serves_and_replays_a_stored_session(tmp_path):
     finally:
         app.stop()
         store.close()
+
+
+def test_a_step_risk_that_is_a_collision_is_shown_beside_the_collapse():
+    """After a hold the `continue` plan showed every step at 0% and 'max risk 50%': the 50% was one
+    step's collision chance, which the table did not show. Now the step says so, and the row says
+    what the maximum is of."""
+    from dataclasses import replace
+
+    from shelfpick.console.app import results_markdown
+    from shelfpick.console.workflow import State
+    from shelfpick.planning.plan import StepPrediction
+
+    plans = two_plans()
+    e = plans["physics"]
+    plan = replace(e.plan, predicted=(StepPrediction("b1", 0.0, 0.5, ()), StepPrediction("b0", 0.0, 0.0, ())))
+    md = results_markdown(State(plans={"physics": replace(e, plan=plan)})).replace("\u00a0", " ")
+    assert "| collapse risk per step | 1. b1 0%, collision 50%<br>2. b0 0% |" in md
+    assert "| max risk (collapse or collision) | 50% |" in md
