@@ -3,6 +3,7 @@ camera, and a robot that counts how many runs move at once."""
 from __future__ import annotations
 
 import json
+import textwrap
 import socket
 import threading
 import time
@@ -162,3 +163,35 @@ class CountingRobots:
                     with outer.lock:
                         outer.active -= 1
         return Counting()
+
+
+# A real console process (`cmd_console.build` + `serve`) on a small shelf that captures, plans,
+# is approved and starts a run on ROBOT, printing READY once step 1 is acknowledged (or FAILED):
+# the run-integrity tests kill, interrupt or race it. Format with root, here, db, robot.
+CONSOLE_RUN = textwrap.dedent("""
+    import sys, threading, time
+    sys.path[:0] = [{root!r}, {here!r}]
+    from test_workflow import CodeShelfSource, small_scene, PASS
+    from shelfpick.console import cmd_console
+    from shelfpick.console.cli import build_parser, configure_logging
+    args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", {robot!r},
+                                      "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
+    configure_logging("console", 0)
+    parts = cmd_console.build(args)
+    wf = parts[1]
+    wf.source = CodeShelfSource(small_scene())
+    def drive():
+        try:
+            wf.capture()
+            wf.plan("clear", wait=True)
+            wf.approve(wf.state.plans["physics"].hash, PASS, "sue")
+            wf.execute()
+            while not any(e.kind == "ack" for e in wf.state.robot_events):
+                time.sleep(0.01)
+            print("READY", wf.state.session_id, flush=True)   # step 1 acknowledged; it takes 30 s
+        except BaseException as exc:
+            print("FAILED", repr(exc), flush=True)
+            raise
+    threading.Thread(target=drive, daemon=True).start()
+    sys.exit(cmd_console.serve(parts, args))
+""")

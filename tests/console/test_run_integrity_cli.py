@@ -17,45 +17,18 @@ from pathlib import Path
 import pytest
 
 from shelfpick.robotsim.controller import RobotController
-from safety_kit import fault, judge_stop
+from safety_kit import CONSOLE_RUN, fault, judge_stop
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 
-CHILD = textwrap.dedent("""
-    import sys, threading, time
-    sys.path[:0] = [{root!r}, {here!r}]
-    from test_workflow import CodeShelfSource, small_scene, PASS
-    from shelfpick.console import cmd_console
-    from shelfpick.console.cli import build_parser, configure_logging
-    args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", {robot!r},
-                                      "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
-    configure_logging("console", 0)
-    parts = cmd_console.build(args)
-    wf = parts[1]
-    wf.source = CodeShelfSource(small_scene())
-    def drive():
-        try:
-            wf.capture()
-            wf.plan("clear", wait=True)
-            wf.approve(wf.state.plans["physics"].hash, PASS, "sue")
-            wf.execute()
-            while not any(e.kind == "ack" for e in wf.state.robot_events):
-                time.sleep(0.01)
-            print("READY", wf.state.session_id, flush=True)   # step 1 acknowledged; it takes 30 s
-        except BaseException as exc:
-            print("FAILED", repr(exc), flush=True)
-            raise
-    threading.Thread(target=drive, daemon=True).start()
-    sys.exit(cmd_console.serve(parts, args))
-""")
 
 
 def interrupt_a_run(tmp_path: Path, robot: str, sig: int) -> tuple[int, float, str, int]:
     """A console process runs a plan whose first step takes 30 s; `sig` arrives once it is
     acknowledged. (exit code, seconds from the signal to the exit, stderr, session id)"""
     db = tmp_path / "c.sqlite"
-    code = CHILD.format(root=str(ROOT), here=str(HERE), db=str(db), robot=robot)
+    code = CONSOLE_RUN.format(root=str(ROOT), here=str(HERE), db=str(db), robot=robot)
     err_file = tmp_path / "stderr.txt"
     with err_file.open("w") as err_out:
         proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=err_out,

@@ -24,39 +24,12 @@ from shelfpick.console.robot_types import StepHistory
 from shelfpick.planning.plan import Plan
 from shelfpick.robotsim.controller import RobotController
 from shelfpick.robotsim.wire import LineConn
-from safety_kit import fault
+from safety_kit import CONSOLE_RUN, fault
 from test_robot_tcp import row_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 
-FIRST = textwrap.dedent("""
-    import sys, threading, time
-    sys.path[:0] = [{root!r}, {here!r}]
-    from test_workflow import CodeShelfSource, small_scene, PASS
-    from shelfpick.console import cmd_console
-    from shelfpick.console.cli import build_parser, configure_logging
-    args = build_parser().parse_args(["console", "--port", "0", "--db", {db!r}, "--robot", {robot!r},
-                                      "--samples", "2", "--no-capture", "--supervisor-passphrase", PASS])
-    configure_logging("console", 0)
-    parts = cmd_console.build(args)
-    wf = parts[1]
-    wf.source = CodeShelfSource(small_scene())
-    def drive():
-        try:
-            wf.capture()
-            wf.plan("clear", wait=True)
-            wf.approve(wf.state.plans["physics"].hash, PASS, "sue")
-            wf.execute()
-            while not any(e.kind == "ack" for e in wf.state.robot_events):
-                time.sleep(0.01)
-            print("READY", wf.state.session_id, flush=True)
-        except BaseException as exc:
-            print("FAILED", repr(exc), flush=True)
-            raise
-    threading.Thread(target=drive, daemon=True).start()
-    sys.exit(cmd_console.serve(parts, args))
-""")
 
 SECOND = textwrap.dedent("""
     import sys, time
@@ -131,7 +104,7 @@ def test_two_consoles_on_one_database_and_one_robot_never_run_at_once(tmp_path):
     db = tmp_path / "shared.sqlite"
     with RobotController(step_time=30.0) as ctl:
         robot = ctl.url + "?heartbeat=0.2&heartbeat_timeout=5"
-        a = Proc(FIRST.format(root=str(ROOT), here=str(HERE), db=str(db), robot=robot), tmp_path / "a.txt")
+        a = Proc(CONSOLE_RUN.format(root=str(ROOT), here=str(HERE), db=str(db), robot=robot), tmp_path / "a.txt")
         b = Proc(SECOND.format(root=str(ROOT), here=str(HERE), db=str(db), robot=robot), tmp_path / "b.txt",
                  stdin=True)
         try:
