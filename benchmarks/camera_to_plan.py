@@ -155,7 +155,7 @@ def visible_fronts(truth: dict, folder: Path) -> dict[str, int]:
     """True box id -> visible front-face pixels in the generated frame (its ground-truth masks)."""
     import cv2
 
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.capture import Capture
     from shelfpick.perception.scene import Camera, Scene
 

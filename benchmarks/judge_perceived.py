@@ -111,7 +111,7 @@ def _segmenter() -> Any:
 def perceived_shelf(judge_dir: str, scene: str) -> dict:
     """Render the judge's true shelf with a framing camera, perceive it, map perceived ids to true ids."""
     from benchmarks.perceive_plan import framing_camera, map_ids
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.pipeline import perceive
     from shelfpick.perception.render import render
     from shelfpick.perception.scene import Scene

@@ -36,8 +36,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def frame_scores(scene, cap, segmenter, least: int) -> dict:
     """One capture through `perceive` with `segmenter`: counts, IoUs and times."""
-    from shelfpick.perception.bench import match
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.bench import match
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.pipeline import perceive
 
     gt_ids = [k for k, m in front_face_masks(scene, cap).items() if m.sum() >= least]
@@ -71,8 +71,8 @@ def pool(frames: list[dict]) -> dict:
 
 def rendered_set(name: str, seeds: list[int], segmenters: dict, progress: bool = True) -> dict:
     """Both segmenters on each frame of a rendered set."""
-    from shelfpick.perception.bench import MIN_GT_PIXELS, min_gt_pixels
-    from shelfpick.perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
+    from shelfpick.perception.evaluation.bench import MIN_GT_PIXELS, min_gt_pixels
+    from shelfpick.perception.evaluation.scenes import sample_scene, sample_varied_scene, varied_camera
     from shelfpick.perception.render import render
 
     out: dict[str, list[dict]] = {k: [] for k in segmenters}
@@ -101,7 +101,7 @@ def rendered_set(name: str, seeds: list[int], segmenters: dict, progress: bool =
 
 def photo_set(root: Path, segmenters: dict, which: str) -> dict:
     """Photos without depth (RCAN held-out half, or telexistence) through `bench_photos`."""
-    from shelfpick.perception.bench import RCAN_HELD_OUT, bench_rcan, bench_telexistence
+    from shelfpick.perception.evaluation.bench import RCAN_HELD_OUT, bench_rcan, bench_telexistence
 
     out = {}
     for k, seg in segmenters.items():
@@ -118,8 +118,8 @@ def tune(segmenter, realdata: Path, widths: list[int], thresholds: list[float],
     only: varied renders 20000-20019 (through `perceive`) and the RCAN tune half (photos)."""
     import dataclasses
 
-    from shelfpick.perception.bench import RCAN_TUNE, bench_rcan, min_gt_pixels
-    from shelfpick.perception.bench_scenes import sample_varied_scene, varied_camera
+    from shelfpick.perception.evaluation.bench import RCAN_TUNE, bench_rcan, min_gt_pixels
+    from shelfpick.perception.evaluation.scenes import sample_varied_scene, varied_camera
     from shelfpick.perception.render import render
 
     frames = []

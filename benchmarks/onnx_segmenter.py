@@ -47,7 +47,7 @@ def installed_mib(*modules: str) -> float:
 def paired_ious(want: list[np.ndarray], got: list[np.ndarray]) -> list[float]:
     """For each mask of `want`, the IoU of the `got` mask paired with it: pairs taken greedily by
     IoU, highest first, one to one; a `want` mask left unpaired scores 0."""
-    from shelfpick.perception.bench import mask_iou
+    from shelfpick.perception.evaluation.bench import mask_iou
 
     cands = sorted(((mask_iou(a, b), i, j) for i, a in enumerate(want) for j, b in enumerate(got)), reverse=True)
     out, used_i, used_j = [0.0] * len(want), set(), set()
@@ -64,7 +64,7 @@ def frames(name: str, count: int, realdata: Path):
     if name == "rcan":
         import cv2
 
-        from shelfpick.perception.bench import RCAN_HELD_OUT
+        from shelfpick.perception.evaluation.bench import RCAN_HELD_OUT
         from shelfpick.perception.capture import read_rgb
 
         for n in RCAN_HELD_OUT[: count or None]:
@@ -74,7 +74,7 @@ def frames(name: str, count: int, realdata: Path):
                 rgb = cv2.resize(rgb, (int(rgb.shape[1] * s), int(rgb.shape[0] * s)), interpolation=cv2.INTER_AREA)
             yield n, rgb, None, None, None
         return
-    from shelfpick.perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
+    from shelfpick.perception.evaluation.scenes import sample_scene, sample_varied_scene, varied_camera
     from shelfpick.perception.render import render
 
     seeds = range(1000, 1050) if name == "renders" else range(22000, 22040)
@@ -151,7 +151,7 @@ def report(args: argparse.Namespace, rows: dict, versions: dict) -> str:
               f"(torch, torchvision, ultralytics) | {installed_mib('onnxruntime'):.0f} (onnxruntime) |", "",
               "Installed sizes are the packages' own folders; torch from PyPI also pulls its CUDA libraries "
               "(nvidia-*, triton): the venvs' totals are in [install-footprint.md](install-footprint.md). "
-              "The ONNX file is exported from the checkpoint by `python -m shelfpick.perception.onnx_export`."]
+              "The ONNX file is exported from the checkpoint by `python -m shelfpick.perception.training.onnx_export`."]
     return "\n".join(lines) + "\n"
 
 

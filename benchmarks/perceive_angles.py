@@ -1,6 +1,6 @@
 """Perception on the varied renders (issue 14): recall, precision, centre and face-orientation error.
 
-Each frame is `bench_scenes.sample_varied_scene(seed)` rendered from `varied_camera(seed)` with
+Each frame is `evaluation.scenes.sample_varied_scene(seed)` rendered from `varied_camera(seed)` with
 `looks="plain"` (even seeds) or `"mixed"` (odd seeds) and `varied_light=True`, perceived with the
 default segmenter, and matched to the true visible front faces (IoU >= 0.5, as perceive-bench).
 Per matched box: front-face centre error, and the face orientation error, the angle of the
@@ -43,9 +43,9 @@ def orientation_error(true_box, pred_box) -> tuple[float, float]:
 
 
 def run_frame(seed: int) -> dict:
-    from shelfpick.perception.bench import match, min_gt_pixels
-    from shelfpick.perception.bench_scenes import sample_varied_scene, varied_camera
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.bench import match, min_gt_pixels
+    from shelfpick.perception.evaluation.scenes import sample_varied_scene, varied_camera
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.pipeline import perceive
     from shelfpick.perception.render import render
 
@@ -119,7 +119,7 @@ def markdown(name: str, s: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from shelfpick.perception.bench_scenes import VARIED_SEEDS
+    from shelfpick.perception.evaluation.scenes import VARIED_SEEDS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--set", choices=sorted(VARIED_SEEDS), default="held_out")

@@ -32,7 +32,7 @@ def camera_files(neura: Path, out: Path) -> dict[str, tuple[Path, tuple[float, f
     """Write `level` and `floor` camera files; name -> (path, shelf width, depth, height)."""
     from dataclasses import replace
 
-    from shelfpick.perception.bench import WORLD_TO_SHELF_DOWN, _rotation_onto, fit_floor
+    from shelfpick.perception.evaluation.bench import WORLD_TO_SHELF_DOWN, _rotation_onto, fit_floor
     from shelfpick.perception.capture import read_depth
     from shelfpick.perception.geometry import camera_from_matrix, matrix_to_quat, point_map
     from shelfpick.perception.scene import quat_to_matrix
@@ -71,7 +71,7 @@ def perceive_through_cli(neura: Path, cam_file: Path, shelf, out: Path, tag: str
     import cv2
 
     from shelfpick.console.cli import main
-    from shelfpick.perception.bench import match
+    from shelfpick.perception.evaluation.bench import match
 
     d = neura / "data" / "small_box"
     masks = out / f"masks_{tag}.png"

@@ -142,7 +142,7 @@ def run_one(kind: str, seed: int, n_boxes: int, samples: int, task: str, segment
     The target is drawn among the faces visible to the DEFAULT camera (seeded), so both
     cameras extract the same box and the default rows stay what they were.
     """
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.render import default_camera, render
     from shelfpick.planning.execute import execute_plan
     from shelfpick.planning.planner import make_plan

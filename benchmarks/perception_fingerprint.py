@@ -6,7 +6,7 @@ masks it was given and of the masks and notes it returned (so a change upstream 
 catalogue, e.g. in the segmenter, shows as a different input hash, not as a catalogue change).
 Two runs are identical when their `frames` agree; timing is reported apart.
 
-Frames (`--quick`: the first 20 and 10 of the first two sets): `perception.bench_scenes.sample_scene`
+Frames (`--quick`: the first 20 and 10 of the first two sets): `perception.evaluation.scenes.sample_scene`
 seeds 1000-1049 rendered as `perceive-bench --count 50 --seed 1000` does; the varied renders
 20000-20019 and 21000-21019 (tuning and check roles, as benchmarks/perceive_angles.py renders
 them; never the held-out set); the planning shelves where the round-11 rules were found
@@ -87,7 +87,7 @@ def _cat_json(cat) -> dict:
 
 def _frames(quick: bool):
     """(name, capture, shelf, catalogue kwargs) for each frame, rendered lazily."""
-    from shelfpick.perception.bench_scenes import sample_scene, sample_varied_scene, varied_camera
+    from shelfpick.perception.evaluation.scenes import sample_scene, sample_varied_scene, varied_camera
     from shelfpick.perception.render import render
 
     for i in range(20 if quick else 50):
@@ -112,7 +112,7 @@ def _frames(quick: bool):
         yield f"plan-{seed}", (lambda t=truth, seed=seed: render(t, framing_camera(t), seed=seed)), truth.shelf, {}
     neura = REALDATA / "neura_smart_palletizer"
     if neura.is_dir():
-        from shelfpick.perception.bench import neura_capture
+        from shelfpick.perception.evaluation.bench import neura_capture
         from shelfpick.perception.pipeline import DEFAULT_CATALOGUE
 
         cap, shelf, _ = neura_capture(neura)

@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from shelfpick.perception import bench  # noqa: E402
+from shelfpick.perception.evaluation import bench  # noqa: E402
 from shelfpick.perception.segment_learned import LearnedSegmenter  # noqa: E402
 
 RCAN = Path(__file__).resolve().parent.parent.parent / "shared" / "realdata" / "RCAN_scd_samples" / "back"

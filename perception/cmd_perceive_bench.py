@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from shelfpick.perception import bench
+    from shelfpick.perception.evaluation import bench
     from shelfpick.perception.scene import write_json
     from shelfpick.perception.segment import load_segmenter, segmenter_name
 

@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from shelfpick.perception.scene import output_path
-    from shelfpick.perception.train_seg import train
+    from shelfpick.perception.training.yolo import train
 
     output_path(args.out, "--out")          # never onto a device, FIFO or folder
     t0 = time.perf_counter()

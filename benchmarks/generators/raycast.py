@@ -2,7 +2,7 @@
 
 Written for issue 31 so that perception can be judged on frames whose geometry, camera and
 shading share no code or assets with the training renderer (perception/render.py, cardboard.py,
-train_scenes.py): no PyBullet, no OpenGL, no texture files. Every solid is an oriented box
+training/scenes.py): no PyBullet, no OpenGL, no texture files. Every solid is an oriented box
 (the shelf's boards are boxes too); a pixel's ray direction is scaled so that its parameter at a
 hit IS the camera z-depth that depth images store.
 """

@@ -10,7 +10,7 @@ from shelfpick.perception.repairs.joins import join_pieces
 from shelfpick.perception.repairs.l_cuts import cut_l_shapes
 from shelfpick.perception.repairs.measure import RepairContext
 from shelfpick.perception.repairs.splits import split_faces
-from shelfpick.perception.bench import mask_iou
+from shelfpick.perception.evaluation.bench import mask_iou
 from shelfpick.perception.scene import Scene, Shelf
 from synth_frames import COLOURS, box, cast
 

@@ -8,7 +8,7 @@ import pytest
 
 from shelfpick.perception.boxes import boxes_from_masks, distance_from_box_size, make_valid
 from shelfpick.perception.faces import _rect_long_edge, measure_front
-from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.evaluation.truth import front_face_masks
 from shelfpick.perception.scene import Box, Scene, Shelf
 from synth_frames import SMALL_CAMERA, box, cast
 

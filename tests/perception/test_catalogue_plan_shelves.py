@@ -12,7 +12,7 @@ from benchmarks import perceive_plan as pp
 
 
 def _perceived_per_true_box(seed: int) -> tuple[dict[str, list[str]], list[str]]:
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.pipeline import perceive
     from shelfpick.perception.render import render
     from shelfpick.perception.segment_depth import DepthEdgeSegmenter

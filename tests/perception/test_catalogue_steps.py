@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from shelfpick.perception.bench import mask_iou
+from shelfpick.perception.evaluation.bench import mask_iou
 from shelfpick.perception.box_catalogue import Catalogue, apply_catalogue
 from shelfpick.perception.repairs.measure import RepairContext
 from shelfpick.perception.repairs.splits import split_faces

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.evaluation.truth import front_face_masks
 from shelfpick.perception.boxes import box_from_face
 from shelfpick.perception.faces import face_axes, measure_front
 from shelfpick.perception.geometry import matrix_to_quat
@@ -73,7 +73,7 @@ def test_upright_face_stays_vertical():
 
 
 def test_varied_scenes_are_seeded_and_carry_their_variants():
-    from shelfpick.perception.bench_scenes import VARIED_SEEDS, sample_varied_scene, varied_camera
+    from shelfpick.perception.evaluation.scenes import VARIED_SEEDS, sample_varied_scene, varied_camera
 
     a, b = sample_varied_scene(20003), sample_varied_scene(20003)
     assert a == b and varied_camera(7) == varied_camera(7)

@@ -70,8 +70,8 @@ def test_rendered_scenes_are_perceived_at_the_measured_accuracy():
     faces): the depth segmenter reached recall 0.97 and precision 0.93 on these at the time of
     writing; the asserts leave a margin of about two boxes."""
     pytest.importorskip("pybullet")
-    from shelfpick.perception.bench import bench_rendered
-    from shelfpick.perception.bench_scenes import sample_scene
+    from shelfpick.perception.evaluation.bench import bench_rendered
+    from shelfpick.perception.evaluation.scenes import sample_scene
 
     scenes = [(f"{k}-{i}", sample_scene(i, k, 10)) for i, k in
               enumerate(("structured", "unstructured", "structured", "unstructured"))]

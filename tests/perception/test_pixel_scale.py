@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shelfpick.perception import bench
-from shelfpick.perception.bench_scenes import sample_scene
+from shelfpick.perception.evaluation import bench
+from shelfpick.perception.evaluation.scenes import sample_scene
 from shelfpick.perception.box_catalogue import Catalogue
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.masks import REF_DEPTH, pixel_scale, scaled_px

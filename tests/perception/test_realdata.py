@@ -14,7 +14,7 @@ TELE = REALDATA / "telexistence_box_detection"
 
 @pytest.mark.skipif(not NEURA.is_dir(), reason=f"real data not found at {NEURA} (see shared/realdata/README.md)")
 def test_neura_pallet_rgbd_boxes_found_with_real_sizes():
-    from shelfpick.perception.bench import bench_neura
+    from shelfpick.perception.evaluation.bench import bench_neura
     from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
     r = bench_neura(NEURA, DepthEdgeSegmenter())
@@ -31,7 +31,7 @@ def test_neura_pallet_rgbd_boxes_found_with_real_sizes():
 
 @pytest.mark.skipif(not RCAN.is_dir(), reason=f"real data not found at {RCAN} (see shared/realdata/README.md)")
 def test_rcan_polygons_parse_into_carton_masks():
-    from shelfpick.perception.bench import labelme_masks
+    from shelfpick.perception.evaluation.bench import labelme_masks
 
     masks = labelme_masks(RCAN / "anno" / "418.json", (4000, 4000))
     assert len(masks) >= 3 and all(m.any() for m in masks)
@@ -45,7 +45,7 @@ def test_rcan_photo_cartons_found_without_depth():
     asserts leave two cartons of margin. A tune photo, not a held-out one: this test runs on
     every fast suite, and a held-out figure seen that often stops being held out (it used to
     run held-out photo 484)."""
-    from shelfpick.perception.bench import RCAN_TUNE, bench_rcan
+    from shelfpick.perception.evaluation.bench import RCAN_TUNE, bench_rcan
     from shelfpick.perception.segment import load_segmenter
 
     assert "455.jpg" in RCAN_TUNE
@@ -60,7 +60,7 @@ def test_photo_segmenter_finds_the_cartons_of_a_tune_photo():
     """455 (16 cartons, RCAN tune half): 9 found by the rules-only photo segmenter (mean IoU
     0.78) when this was written; the asserts leave two cartons of margin. It used to read
     held-out photo 484 on every fast suite (docs/perception.md, the leak note)."""
-    from shelfpick.perception.bench import RCAN_TUNE, bench_rcan
+    from shelfpick.perception.evaluation.bench import RCAN_TUNE, bench_rcan
     from shelfpick.perception.segment import load_segmenter
 
     assert "455.jpg" in RCAN_TUNE
@@ -72,7 +72,7 @@ def test_photo_segmenter_finds_the_cartons_of_a_tune_photo():
 
 @pytest.mark.skipif(not TELE.is_dir(), reason=f"real data not found at {TELE} (see shared/realdata/README.md)")
 def test_telexistence_upper_face_polygons_parse_into_masks():
-    from shelfpick.perception.bench import labelme_masks
+    from shelfpick.perception.evaluation.bench import labelme_masks
 
     masks = labelme_masks(TELE / "Data" / "1.json", (1536, 2048))
     assert len(masks) == 15 and all(m.any() for m in masks)
@@ -84,7 +84,7 @@ def test_photo_segmenter_recall_over_rcan_and_telexistence():
     """Measured when this was written (docs/perception-photos.md): RCAN tune 39/74 = 0.53,
     held out 26/77 = 0.34, pooled 65/151 = 0.43 (mean IoU 0.74); telexistence (held out) 2/40.
     The asserts sit just under those (a few cartons of margin)."""
-    from shelfpick.perception.bench import bench_rcan, bench_telexistence
+    from shelfpick.perception.evaluation.bench import bench_rcan, bench_telexistence
     from shelfpick.perception.segment import load_segmenter
 
     seg = load_segmenter(None, "photo")
@@ -110,7 +110,7 @@ def test_rcan_recall_over_all_photos():
     depth-and-edge segmenter before it: 56/151 = 0.37, 31/77, 0.72; the asserts were 0.33 / 0.65);
     with the photo inference settings (docs/perception.md "Photo inference settings") 91/151 =
     0.603, held-out half 43/77 = 0.558, mean IoU 0.761."""
-    from shelfpick.perception.bench import bench_rcan
+    from shelfpick.perception.evaluation.bench import bench_rcan
     from shelfpick.perception.segment import load_segmenter
 
     r = bench_rcan(RCAN, load_segmenter(None, "auto"), progress=False)
@@ -123,7 +123,7 @@ def test_rcan_recall_over_all_photos():
 def test_fit_floor_finds_a_tilted_floor_under_boxes():
     """The neura bench's floor fit (no real data needed): a floor tilted 10 deg about z, with
     two box tops above it and 5% outliers; the fitted normal is within 1 deg, its point on it."""
-    from shelfpick.perception.bench import fit_floor
+    from shelfpick.perception.evaluation.bench import fit_floor
 
     rng = np.random.default_rng(3)
     a = np.radians(10.0)
@@ -144,7 +144,7 @@ def test_perceive_no_catalogue_on_other_stock(tmp_path, capsys):
     joined and cut toward the reference types (the share test passes by chance once the floor is
     the back wall); `--no-catalogue` leaves them as measured and finds more of the true boxes."""
     from shelfpick.console.cli import main
-    from shelfpick.perception.bench import match, neura_capture
+    from shelfpick.perception.evaluation.bench import match, neura_capture
 
     cap, shelf, sizes = neura_capture(NEURA)
     cap.save(tmp_path / "cap")

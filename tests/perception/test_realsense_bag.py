@@ -11,9 +11,9 @@ rs = pytest.importorskip("pyrealsense2")
 
 def test_recorded_render_plays_back_and_is_perceived(tmp_path):
     from shelfpick.console.sources import open_source
-    from shelfpick.perception.bench import match
-    from shelfpick.perception.bench_scenes import sample_scene
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.bench import match
+    from shelfpick.perception.evaluation.scenes import sample_scene
+    from shelfpick.perception.evaluation.truth import front_face_masks
     from shelfpick.perception.pipeline import perceive
     from shelfpick.perception.realsense_record import record
     from shelfpick.perception.render import default_camera, render

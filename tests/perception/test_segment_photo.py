@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from shelfpick.perception.bench import match
+from shelfpick.perception.evaluation.bench import match
 from shelfpick.perception.segment_photo import PhotoConfig, PhotoSegmenter, edge_map
 
 

@@ -11,7 +11,7 @@ import pytest
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.render import render
 from shelfpick.perception.segment_yolo import YoloSegmenter, offline_env
-from shelfpick.perception.train_seg import sample_scene
+from shelfpick.perception.training.yolo import sample_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "static" / "weights" / "shelfpick-seg.pt"

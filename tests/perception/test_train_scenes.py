@@ -1,5 +1,5 @@
 """Photo-like wall frames for the learned segmenter's second training round
-(`perception/train_scenes.py`): flush walls of one print, labelled one face per carton."""
+(`perception/training/scenes.py`): flush walls of one print, labelled one face per carton."""
 from __future__ import annotations
 
 from itertools import pairwise
@@ -11,7 +11,7 @@ pytest.importorskip("pybullet")
 
 
 def test_wall_scene_is_flush_cartons_inside_the_shelf_sharing_prints():
-    from shelfpick.perception.train_scenes import wall_scene
+    from shelfpick.perception.training.scenes import wall_scene
 
     for seed in range(5):
         scene, groups = wall_scene(np.random.default_rng(seed))
@@ -33,7 +33,7 @@ def test_wall_scene_is_flush_cartons_inside_the_shelf_sharing_prints():
 
 
 def test_a_wall_frame_labels_each_carton_face_apart():
-    from shelfpick.perception.train_scenes import wall_example
+    from shelfpick.perception.training.scenes import wall_example
 
     rgb, labels = wall_example(30804)
     assert rgb.dtype == np.uint8 and rgb.shape[:2] == labels.shape
@@ -44,7 +44,7 @@ def test_a_wall_frame_labels_each_carton_face_apart():
 
 
 def test_training_refuses_wall_seeds_of_the_first_round():
-    from shelfpick.perception.train_learned import main
+    from shelfpick.perception.training.learned import main
 
     with pytest.raises(SystemExit) as e:
         main(["--walls", "1", "--wall-seed", "30500", "--frames", "1"])
@@ -56,7 +56,7 @@ def test_a_taped_face_is_cut_into_pieces_yet_labelled_whole():
     inside the face than the plain variant has) and leave the labels one face per carton."""
     import cv2
 
-    from shelfpick.perception.train_scenes import _group_texture, _variant, taped_variant, taped_wall_example, wall_example
+    from shelfpick.perception.training.scenes import _group_texture, _variant, taped_variant, taped_wall_example, wall_example
 
     rng = np.random.default_rng(5)
     tex = _group_texture(rng)
@@ -75,7 +75,7 @@ def test_a_taped_face_is_cut_into_pieces_yet_labelled_whole():
 def test_crops_are_drawn_from_each_frame_kind_by_its_share():
     from pathlib import Path
 
-    from shelfpick.perception.train_learned import TrainConfig, _pick
+    from shelfpick.perception.training.learned import TrainConfig, _pick
 
     f, w, t = [Path("f")], [Path("w")], [Path("t")]
     cfg = TrainConfig(wall_share=0.25, taped_share=0.5)
@@ -87,7 +87,7 @@ def test_crops_are_drawn_from_each_frame_kind_by_its_share():
 
 
 def test_training_refuses_taped_seeds_below_their_range_and_shares_over_one():
-    from shelfpick.perception.train_learned import main
+    from shelfpick.perception.training.learned import main
 
     for argv in (["--taped", "1", "--taped-seed", "31000", "--frames", "1"],
                  ["--wall-share", "0.6", "--taped-share", "0.6", "--frames", "1"]):

@@ -8,7 +8,7 @@ import pytest
 
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.render import render
-from shelfpick.perception.train_seg import build_dataset, jittered_camera, sample_scene, train, yolo_label_lines
+from shelfpick.perception.training.yolo import build_dataset, jittered_camera, sample_scene, train, yolo_label_lines
 
 
 def _overlap(a, b, tol=0.004):

@@ -21,7 +21,7 @@ import math
 import cv2
 import numpy as np
 
-from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.evaluation.truth import front_face_masks
 from shelfpick.perception.cardboard import INK_RGB, TAPE_RGB, box_texture, plain_box_texture
 from shelfpick.perception.geometry import matrix_to_quat
 from shelfpick.perception.render import default_camera, render

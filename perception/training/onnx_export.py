@@ -5,8 +5,8 @@ Why: the learned segmenter's network is the only part of the default console tha
 ~80 MB install. Training stays on torch (`train_learned.py`, the `train` extra); after a new
 checkpoint, export it once:
 
-    python -m shelfpick.perception.onnx_export                       # static/weights/shelfpick-learned.pt -> .onnx
-    python -m shelfpick.perception.onnx_export --weights /tmp/w.pt --out /tmp/w.onnx
+    python -m shelfpick.perception.training.onnx_export                       # static/weights/shelfpick-learned.pt -> .onnx
+    python -m shelfpick.perception.training.onnx_export --weights /tmp/w.pt --out /tmp/w.onnx
 
 Needs torch and onnx (the `train` extra). It uses torch's TorchScript exporter (`dynamo=False`):
 the dynamo exporter (torch 2.14's default, which needs onnxscript) had not finished after 17 min

@@ -27,8 +27,8 @@ from typing import Iterable
 
 import numpy as np
 
-from shelfpick.perception.bench_scenes import sample_scene
-from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.evaluation.scenes import sample_scene
+from shelfpick.perception.evaluation.truth import front_face_masks
 from shelfpick.perception.capture import Capture, read_depth, read_rgb
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.geometry import camera_from_matrix, matrix_to_quat, point_map

@@ -12,17 +12,17 @@ Seeds: training renders use seeds 30000 and up (wall frames 30800 and up), outsi
 tuning 20000-20019, check 21000-21019, held out 22000-22039; the older sets 0-1049 and the
 RCAN photos are never rendered or read here).
 
-    python -m shelfpick.perception.train_learned --frames 600 --minutes 45 --out static/weights/shelfpick-learned.pt
+    python -m shelfpick.perception.training.learned --frames 600 --minutes 45 --out static/weights/shelfpick-learned.pt
 
 Second round (issue 14, photos): `--init` fine-tunes a shipped checkpoint; `--walls N` adds N
-photo-like frames (`perception/train_scenes.py`: walls of flush cartons sharing a print, far
+photo-like frames (`perception/training/scenes.py`: walls of flush cartons sharing a print, far
 and low/high cameras) at seeds from 30800, drawn for `--wall-share` of the crops:
 
-    python -m shelfpick.perception.train_learned --frames 800 --walls 500 --init static/weights/shelfpick-learned.pt \
+    python -m shelfpick.perception.training.learned --frames 800 --walls 500 --init static/weights/shelfpick-learned.pt \
         --lr 4e-4 --minutes 45 --cache /tmp/rcan2/cache --out /tmp/rcan2/shelfpick-learned.pt
 
 Fourth round: `--taped N` adds N walls whose faces are cut by tape, stickers and shadow edges
-(`train_scenes.taped_wall_example`, seeds from 32000), drawn for `--taped-share` of the crops.
+(`training.scenes.taped_wall_example`, seeds from 32000), drawn for `--taped-share` of the crops.
 """
 from __future__ import annotations
 
@@ -36,14 +36,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from shelfpick.perception import bench_scenes
-from shelfpick.perception.bench_scenes import sample_scene
-from shelfpick.perception.bench_truth import front_face_masks
+from shelfpick.perception.evaluation import scenes as bench_scenes
+from shelfpick.perception.evaluation.scenes import sample_scene
+from shelfpick.perception.evaluation.truth import front_face_masks
 from shelfpick.perception.geometry import matrix_to_quat
 from shelfpick.perception.render import default_camera, render
 from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 from shelfpick.perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
-from shelfpick.perception.train_scenes import TAPED_SEED0, WALL_SEED0, taped_wall_example, wall_example
+from shelfpick.perception.training.scenes import TAPED_SEED0, WALL_SEED0, taped_wall_example, wall_example
 
 TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
 FROZEN_BLOCKS = 5          # stem and blocks 0-4 (strides 2-8) keep their ImageNet weights
@@ -62,7 +62,7 @@ class TrainConfig:
     lr: float = 1e-3
     threads: int = 1
     boundary_px: int = 4                   # boundary band on each side of a face edge (full res)
-    walls: int = 0                         # extra photo-like wall frames (`train_scenes.wall_example`)
+    walls: int = 0                         # extra photo-like wall frames (`training.scenes.wall_example`)
     wall_seed: int = WALL_SEED0            # their first seed (after the first round's 30000-30799)
     wall_share: float = 0.5                # share of crops drawn from the wall frames
     init: str | None = None                # fine-tune from this shelfpick-learned checkpoint
@@ -404,11 +404,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lr", type=float, default=1e-3, help="decoder learning rate (backbone 0.3 x)")
     p.add_argument("--init", default=None, help="fine-tune from this shelfpick-learned checkpoint")
     p.add_argument("--walls", type=int, default=0,
-                   help="extra photo-like wall frames (`train_scenes.wall_example`, seeds from --wall-seed)")
+                   help="extra photo-like wall frames (`training.scenes.wall_example`, seeds from --wall-seed)")
     p.add_argument("--wall-seed", type=int, default=WALL_SEED0, help=f"first wall seed (>= {WALL_SEED0})")
     p.add_argument("--wall-share", type=float, default=0.5, help="share of crops from the wall frames")
     p.add_argument("--taped", type=int, default=0,
-                   help="walls with faces cut by tape and stickers (`train_scenes.taped_wall_example`)")
+                   help="walls with faces cut by tape and stickers (`training.scenes.taped_wall_example`)")
     p.add_argument("--taped-seed", type=int, default=TAPED_SEED0, help=f"first taped wall seed (>= {TAPED_SEED0})")
     p.add_argument("--taped-share", type=float, default=0.0, help="share of crops from the taped walls")
     a = p.parse_args(argv)
