@@ -39,8 +39,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.judge_rows import (UsageError, cli_plan_settings, init_worker, judged,  # noqa: E402
-                                   kept_rows, make_timed_plan, run_unit)
+from benchmarks.judge_rows import (UsageError, cli_plan_settings, collect_rows, init_worker, judged,  # noqa: E402
+                                   kept_rows, make_timed_plan, print_report, run_unit)
 from benchmarks.judge_summary import engine_summary, percentile  # noqa: E402
 
 HELD_OUT = ("printed", "stereo")          # docs/perception.md, "Roles": never tuned on
@@ -355,24 +355,13 @@ def run(a: argparse.Namespace) -> dict:
     print(f"camera_to_plan: {len(units)} units ({len(rows)} kept, {len(todo)} to run); looks {looks}; "
           f"{len(shelves)} shelves, planning on {len(plan_shelves(shelves, a.plan_shelves))}", file=sys.stderr)
     t0 = time.perf_counter()
-    f = None
-    if out and not a.summary_only:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        f = open(out, "w", encoding="utf-8")
-        for r in rows:
-            f.write(json.dumps(r) + "\n")
-        f.flush()
-    try:
-        for i, u in enumerate(todo, 1):
-            row = run_item(u)
-            rows.append(row)
-            if f:
-                f.write(json.dumps(row) + "\n")
-                f.flush()
-            print(f"[{i}/{len(todo)}] {u['key']} {time.perf_counter() - t0:.0f}s", file=sys.stderr, flush=True)
-    finally:
-        if f:
-            f.close()
+
+    def line(row: dict) -> None:
+        print(f"[{len(rows) - kept}/{len(todo)}] {row['key']} {time.perf_counter() - t0:.0f}s",
+              file=sys.stderr, flush=True)
+    kept = len(rows)
+    if not a.summary_only:
+        collect_rows(rows, todo, 1, out, work=run_item, on_row=line)
     summary = summarize(rows, a.engine)
     summary["run"] = {"wall_s": round(time.perf_counter() - t0, 1), "settings": json.loads(sid),
                       "shelves": shelves, "planned": plan_shelves(shelves, a.plan_shelves)}
@@ -382,20 +371,14 @@ def run(a: argparse.Namespace) -> dict:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run, print and write the summary (<out>.md); 2 on a bad argument."""
     a = parse_args(argv)
-    try:
-        summary = run(a)
-    except UsageError as exc:
-        print(f"camera_to_plan: {exc}", file=sys.stderr)
-        return 2
-    r = summary["run"]
-    header = (f"camera_to_plan: `shelfpick perceive` (default segmenter) -> plan (`shelfpick plan` defaults) -> "
-              f"{a.engine} judge on the true shelf; segmentation on {len(r['shelves'])} shelves, plans on "
-              f"{', '.join(r['planned']) or 'none'}; {r['wall_s']} s")
-    text = to_markdown(summary, header)
-    print(text, end="")
-    if a.out and not a.summary_only:
-        Path(a.out).with_suffix(".md").write_text(text, encoding="utf-8")
-    return 0
+
+    def header(summary: dict) -> str:
+        r = summary["run"]
+        return (f"camera_to_plan: `shelfpick perceive` (default segmenter) -> plan (`shelfpick plan` defaults) -> "
+                f"{a.engine} judge on the true shelf; segmentation on {len(r['shelves'])} shelves, plans on "
+                f"{', '.join(r['planned']) or 'none'}; {r['wall_s']} s")
+    md_out = Path(a.out).with_suffix(".md") if a.out and not a.summary_only else None
+    return 0 if print_report("camera_to_plan", run, a, header, to_markdown, md_out) is not None else 2
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ if str(ROOT) not in sys.path:
 
 from benchmarks.judge_rows import (TASK_FILTERS, UsageError, cli_plan_settings,  # noqa: E402
                                    collect_rows, judged, kept_rows, load_tasks, make_timed_plan,
-                                   observe_seed, run_unit)
+                                   observe_seed, print_report, run_unit)
 from benchmarks.judge_summary import ENGINES, engine_summary, percentile  # noqa: E402
 
 SEGMENTER = "auto"
@@ -312,19 +312,13 @@ def run(a: argparse.Namespace) -> dict:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run, print and write the summary (<out>.md); 2 on a bad argument."""
     a = parse_args(argv)
-    try:
-        summary = run(a)
-    except UsageError as exc:
-        print(f"judge_perceived: {exc}", file=sys.stderr)
-        return 2
-    r = summary["run"]
-    header = (f"judge_perceived: plan settings {json.dumps(r['settings']['plan'])}, segmenter {SEGMENTER}, "
-              f"framing camera; {r['wall_s']} s on {r['jobs']} process(es)")
-    text = to_markdown(summary, header)
-    print(text, end="")
-    if a.out:
-        Path(a.out).with_suffix(".md").write_text(text, encoding="utf-8")
-    return 0
+
+    def header(summary: dict) -> str:
+        r = summary["run"]
+        return (f"judge_perceived: plan settings {json.dumps(r['settings']['plan'])}, segmenter {SEGMENTER}, "
+                f"framing camera; {r['wall_s']} s on {r['jobs']} process(es)")
+    md_out = Path(a.out).with_suffix(".md") if a.out else None
+    return 0 if print_report("judge_perceived", run, a, header, to_markdown, md_out) is not None else 2
 
 
 if __name__ == "__main__":

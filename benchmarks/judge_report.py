@@ -44,7 +44,7 @@ if str(ROOT) not in sys.path:
 from benchmarks.judge_markdown import to_markdown  # noqa: E402
 from benchmarks.judge_plot import plot  # noqa: E402
 from benchmarks.judge_rows import (TASK_FILTERS, UsageError, cli_plan_settings, collect_rows,  # noqa: E402
-                                   clear_tasks, kept_rows, load_tasks, read_rows, row_key, run_unit)
+                                   clear_tasks, kept_rows, load_tasks, print_report, read_rows, row_key, run_unit)
 from benchmarks.judge_summary import (ENGINES, RISK_BINS, engine_agreement, engine_summary,  # noqa: E402
                                       evaluate_line, percentile, reliability, risk_bin, summarize)
 
@@ -161,18 +161,15 @@ def run(a: argparse.Namespace) -> dict:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run, print and write the report (<out>.md, <out>.summary.json) and the plot; 2 on a bad argument."""
     a = parse_args(argv)
-    try:
-        summary = run(a)
-    except UsageError as exc:
-        print(f"judge_report: {exc}", file=sys.stderr)
+
+    def header(summary: dict) -> str:
+        r = summary["run"]
+        return (f"judge_report: {r['rows']} rows, plan settings {json.dumps(r['settings']['plan'])}, "
+                f"{r['wall_s']} s on {r['jobs']} process(es)")
+    summary = print_report("judge_report", run, a, header, to_markdown, Path(a.out).with_suffix(".md") if a.out else None)
+    if summary is None:
         return 2
-    run_info = summary["run"]
-    header = (f"judge_report: {run_info['rows']} rows, plan settings {json.dumps(run_info['settings']['plan'])}, "
-              f"{run_info['wall_s']} s on {run_info['jobs']} process(es)")
-    text = to_markdown(summary, header)
-    print(text, end="")
     if a.out:
-        Path(a.out).with_suffix(".md").write_text(text, encoding="utf-8")
         Path(a.out).with_suffix(".summary.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
     plot_path = a.plot or (str(Path(a.out).with_suffix(".png")) if a.out else None)
     if plot_path:

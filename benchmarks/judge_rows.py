@@ -221,6 +221,22 @@ def _write(f: TextIO | None, row: dict) -> None:
         f.flush()
 
 
+def print_report(prog: str, run: Callable[[Any], dict], a: Any, header: Callable[[dict], str],
+                 to_markdown: Callable[[dict, str], str], md_out: Path | None) -> dict | None:
+    """Run a judge benchmark (`run(a)`), print its markdown report and write it to `md_out`; on a
+    bad argument, one line naming it and None (the caller exits 2)."""
+    try:
+        summary = run(a)
+    except UsageError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+    text = to_markdown(summary, header(summary))
+    print(text, end="")
+    if md_out:
+        md_out.write_text(text, encoding="utf-8")
+    return summary
+
+
 def collect_rows(rows: list[dict], todo: Sequence[dict], jobs: int, out: Path | None,
                  work: Callable[[dict], dict] | None = None,
                  on_row: Callable[[dict], None] | None = None) -> None:
