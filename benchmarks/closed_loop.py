@@ -3,7 +3,7 @@
 For each generated shelf (planning.shelves.generate, kinds round-robin over
 --kinds) with a surprising truth (the demo's sim robot: one seeded
 `planning.uncertainty.Uncertainty` draw of masses 0.3-5 kg, friction and its
-pull, `console.robot.SimRobot(surprise=...)`):
+pull, `console.robot.drivers.SimRobot(surprise=...)`):
 
 1. the demo source renders the shelf with a camera that frames every front
    face (benchmarks/perceive_plan.framing_camera), perception reads it;
@@ -11,9 +11,9 @@ pull, `console.robot.SimRobot(surprise=...)`):
    is recorded and `planning.predicted.predicted_shelves` gives the shelf
    predicted after each step, as the console's workflow does;
 3. each plan runs on its own SimRobot (the true, surprising world); after each
-   `done` the robot calls the console's verifier: `console.workflow.look_again`
+   `done` the robot calls the console's verifier: `console.workflow.look.look_again`
    (the demo source renders the robot's world as it now stands, perception,
-   `console.verify.compare`), the very function the console calls.
+   `console.workflow.verify.compare`), the very function the console calls.
 
 Ground truth of "what moved" is the robot's world: each true box's pose after
 the step against its pose at the capture carried along by the motion the
@@ -88,7 +88,7 @@ def predicted_truth(truth: Any, perceived: Any, sequence: Any, preview: Any, ste
     The true box at the capture carried by the motion its perceived twin made
     in the recorded preview; a true box perception did not see is predicted to stay.
     """
-    from shelfpick.console.robot import match_boxes
+    from shelfpick.console.robot.drivers import match_boxes
     from shelfpick.planning.predicted import moved_box, on_shelf as sim_on_shelf, sim_poses_after, start_poses
 
     twin = {t: p for p, t in match_boxes(perceived, truth).items()}
@@ -109,7 +109,7 @@ def predicted_truth(truth: Any, perceived: Any, sequence: Any, preview: Any, ste
 
 def truth_boxes(truth: Any, world: Any, predicted: dict[str, Any], seen: dict[str, int]) -> list[dict]:
     """Per true box: how far it is from its predicted pose (m, deg), fell, visible."""
-    from shelfpick.console.verify import rotation_deg
+    from shelfpick.console.workflow.verify import rotation_deg
 
     now = {b.id: b for b in world.boxes}
     rows = []
@@ -153,8 +153,8 @@ def plan_entries(perceived: Any, task: str, samples: int, seed: int, clients: An
 def run_plan(truth: Any, perceived: Any, source: Any, seen0: dict[str, int], plan: Any, preview: Any,
              shelves: Any, seed: int, tol: Any, mode: str) -> list[dict]:
     """Execute one plan on a surprising sim robot, the console's look after each step; one row per step."""
-    from shelfpick.console.robot import SimRobot
-    from shelfpick.console.workflow import look_again
+    from shelfpick.console.robot.drivers import SimRobot
+    from shelfpick.console.workflow.machine import look_again
     from shelfpick.planning.uncertainty import Uncertainty
 
     robot = SimRobot(truth, seed=seed, surprise=Uncertainty())
@@ -231,9 +231,9 @@ def run_shelf(kind: str, seed: int, args: argparse.Namespace, tol: Any, clients:
 
 # --------------------------------------------------------------------------- scoring
 def verdict_within(row: dict, disp: float, rot: float) -> bool:
-    """The step's recorded look compared again at another tolerance (console.verify.compare)."""
-    from shelfpick.console.store import stored_scene
-    from shelfpick.console.verify import Tolerance, compare
+    """The step's recorded look compared again at another tolerance (console.workflow.verify.compare)."""
+    from shelfpick.console.store.sessions import stored_scene
+    from shelfpick.console.workflow.verify import Tolerance, compare
     from shelfpick.perception.scene import Box
 
     if row["verdict"].get("unavailable") or row.get("predicted") is None or row.get("observed") is None:
@@ -337,13 +337,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--task", choices=("clear", "extract"), default="extract")
     ap.add_argument("--samples", type=int, default=4)
     ap.add_argument("--mode", choices=("open", "closed"), default="closed")
-    ap.add_argument("--tolerance-cm", type=float, default=None, help="default: console.verify.Tolerance")
+    ap.add_argument("--tolerance-cm", type=float, default=None, help="default: console.workflow.verify.Tolerance")
     ap.add_argument("--tolerance-deg", type=float, default=None)
     ap.add_argument("--out", default="closed-loop")
     ap.add_argument("--score", default=None, help="score an existing steps.jsonl instead of running")
     ap.add_argument("--sweep", action="store_true", help="with --score: every tolerance of a grid")
     args = ap.parse_args(argv)
-    from shelfpick.console.verify import Tolerance
+    from shelfpick.console.workflow.verify import Tolerance
 
     tol = Tolerance()
     tol = Tolerance(args.tolerance_cm / 100 if args.tolerance_cm is not None else tol.displacement,

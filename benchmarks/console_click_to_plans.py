@@ -26,10 +26,10 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--shelf", default="demo-small-6", help="demo shelf (static/demo/NAME.json)")
     args = ap.parse_args()
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import open_source
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     rows: dict[str, list[float]] = {"extract (cold)": [], "clear (worlds kept)": []}
     worlds: dict[str, list[float]] = {k: [] for k in rows}

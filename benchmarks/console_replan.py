@@ -2,7 +2,7 @@
 
 A `Workflow` (the console's, real SQLite file, demo source) captures once and plans extraction of
 `--targets` boxes one after the other: the first builds the sample worlds, the later ones reuse
-them (console/planning_stage.py). Each target is also planned by a fresh workflow from the same
+them (console/workflow/planning_stage.py). Each target is also planned by a fresh workflow from the same
 capture (what every plan cost before worlds were kept: worlds built, worker processes started).
 The sequences must agree; the times are `Workflow.plan` wall times.
 
@@ -21,10 +21,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 
 def _workflow(db: Path, workers: int, seed: int):
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import open_source
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     store = SessionStore(db)
     wf = Workflow(open_source("demo", seed=seed), store, lambda t, s: open_robot("sim", truth=t, seed=s),

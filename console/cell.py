@@ -76,8 +76,8 @@ class Cell:
         return self.source
 
     def tolerance(self) -> Any:
-        """console.verify.Tolerance from the safety section (defaults where not given)."""
-        from shelfpick.console.verify import Tolerance
+        """console.workflow.verify.Tolerance from the safety section (defaults where not given)."""
+        from shelfpick.console.workflow.verify import Tolerance
 
         d = Tolerance()
         s = self.safety
@@ -145,7 +145,7 @@ def robot_number(key: str, text: Any, origin: str, fld: str) -> float:
 
 
 def check_robot_spec(spec: str, origin: str = "--robot") -> str:
-    """A robot spec as `console.robot.open_robot` takes it (`sim[?delay=S&seed=N&surprise=0|1]` or
+    """A robot spec as `console.robot.drivers.open_robot` takes it (`sim[?delay=S&seed=N&surprise=0|1]` or
     `tcp://HOST:PORT[?options]`), checked completely before anything is opened: its shape (an IPv6
     host in brackets), known options only, every number within ROBOT_NUMBERS (the cell file's
     bounds). CellError, one line naming `origin` and the option; returns the spec stripped."""
@@ -273,7 +273,7 @@ def _vector(sec: Mapping[str, Any], key: str, n: int, origin: str) -> list[float
 
 
 def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
-    """The robot section as the spec `console.robot.open_robot` takes (checked here, named by field)."""
+    """The robot section as the spec `console.robot.drivers.open_robot` takes (checked here, named by field)."""
     url = _string(sec, "robot", "url", origin) if "url" in sec else None
     if url is None:
         raise CellError(origin, "robot.url", "missing required key (sim or tcp://HOST:PORT)")
@@ -297,7 +297,7 @@ def _robot(sec: Mapping[str, Any], origin: str, base: Path) -> str:
         if "position" in sec or "orientation" in sec:
             raise CellError(origin, "robot.transform", "give a transform file or position/orientation, not both")
         tfile = _file(sec, "robot", "transform", origin, base)
-        from shelfpick.robotsim.transform import Transform   # where it lives (via console.robot_tcp: a cycle)
+        from shelfpick.robotsim.transform import Transform   # where it lives (via console.robot.tcp: a cycle)
 
         Transform.load(tfile)                 # its own one-line error names the transform file
         opts.append(("transform", tfile))
@@ -339,8 +339,8 @@ def _safety(sec: Mapping[str, Any], origin: str, base: Path) -> dict[str, Any]:
 
 
 def _origins(value: Any, origin: str) -> tuple[str, ...]:
-    """safety.allow_origins: browser origins besides the console's own (console/origin_guard.py)."""
-    from shelfpick.console.origin_guard import normalize_origin
+    """safety.allow_origins: browser origins besides the console's own (console/web/origin_guard.py)."""
+    from shelfpick.console.web.origin_guard import normalize_origin
 
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise CellError(origin, "safety.allow_origins", f"expected a list of origins like "

@@ -122,17 +122,17 @@ def build(args: argparse.Namespace):
     if not 0 <= args.port <= 65535:    # the server thread would die on it and leave the start waiting
         raise ShelfpickError(f"--port: expected 1-65535, or 0 for any free port, got {args.port}")
     check_libraries(args, cell)
-    from shelfpick.console.app import ConsoleApp, check_host
+    from shelfpick.console.web.app import ConsoleApp, check_host
 
     given, where = supervisor_passphrase(args)
     check_host(args.host, given or None, where)
     if not (args.robot == "sim" or args.robot.startswith("sim?") or args.robot.startswith("tcp://")):
         raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {args.robot!r}")
 
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import open_source
-    from shelfpick.console.store import DEFAULT_DB, SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import DEFAULT_DB, SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     segmenter, options, tolerance = None, {}, None
     if cell is not None:
@@ -152,7 +152,7 @@ def build(args: argparse.Namespace):
     spec = args.robot
     open_robot(spec, truth=None, seed=args.seed) if spec.startswith("sim") else None  # validates options
     if spec.startswith("tcp://"):
-        from shelfpick.console.robot_tcp import TcpRobot
+        from shelfpick.console.robot.tcp import TcpRobot
 
         TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens
     check_listen(args.host)           # an address not of this machine: one line, not a start that hangs

@@ -17,8 +17,8 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from shelfpick.console.cmd_sessions import stored
-    from shelfpick.console.replay import export_html
-    from shelfpick.console.store import DEFAULT_DB, SessionStore, StoreError
+    from shelfpick.console.web.replay import export_html
+    from shelfpick.console.store.sessions import DEFAULT_DB, SessionStore, StoreError
     from shelfpick.perception.scene import output_path
 
     if not 1 <= args.id <= MAX_ID:

@@ -1,5 +1,5 @@
 """`shelfpick sessions`: list the console's stored sessions as a table; `--stats`: predicted risk
-against what happened (console/session_stats.py)."""
+against what happened (console/store/stats.py)."""
 from __future__ import annotations
 
 import argparse
@@ -24,7 +24,7 @@ def stored(read: Callable[[], T], db: Path, what: str) -> T:
     """`read()`, with a record in the database that is not JSON, is nested too deep or does not
     have the shape a record has (a damaged or hand-edited archive) made one line naming the
     database: StoreError, exit 2, instead of a traceback."""
-    from shelfpick.console.store import StoreError
+    from shelfpick.console.store.sessions import StoreError
     from shelfpick.perception.errors import ShelfpickError
 
     try:
@@ -47,7 +47,7 @@ def format_table(rows: list[dict]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from shelfpick.console.store import DEFAULT_DB, SessionStore, StoreError
+    from shelfpick.console.store.sessions import DEFAULT_DB, SessionStore, StoreError
 
     db = Path(args.db) if args.db else DEFAULT_DB
     if not db.is_file():
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         rows = stored(store.list_sessions, db, "sessions")
         steps = stored(store.step_stats, db, "robot events") if args.stats else []
     if args.stats:
-        from shelfpick.console.session_stats import format_stats, risk_table, session_counts
+        from shelfpick.console.store.stats import format_stats, risk_table, session_counts
 
         table, counts = risk_table(steps), session_counts(rows)
         print(json.dumps({"by_risk": table, "sessions": counts}, indent=2) if args.json

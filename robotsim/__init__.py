@@ -7,7 +7,7 @@
   simulated shelf (`python -m shelfpick.robotsim --port 9000`); the console's tests
   run against it.
 
-The console's TCP driver (`console/robot_tcp.py`) imports `wire` and
+The console's TCP driver (`console/robot/tcp.py`) imports `wire` and
 `transform` from here; nothing here imports `console`, so the robot side can
 be read, run and ported on its own.
 """

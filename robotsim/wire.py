@@ -1,6 +1,6 @@
 """The wire of `shelfpick.robot/1`: one JSON object per line, both ways, with caps a peer cannot pass.
 
-Shared by both ends: the console's driver (console/robot_tcp.py) and the
+Shared by both ends: the console's driver (console/robot/tcp.py) and the
 reference controller (robotsim/controller.py).
 """
 from __future__ import annotations

@@ -394,3 +394,54 @@ def test_every_package_folder_is_in_the_wheel():
     folders = {"shelfpick." + ".".join(f.parent.relative_to(ROOT).parts)
                for pkg in PACKAGES for f in (ROOT / pkg).rglob("__init__.py")}
     assert folders <= listed, f"not in pyproject.toml's packages: {sorted(folders - listed)}"
+
+
+# The console's rooms (issue 34) and which other rooms each may import. The console's top holds only the
+# command line (cli, cmd_*) and what every room reads (cell, sources).
+CONSOLE_ROOMS = {"store": set(), "robot": set(), "workflow": {"store", "robot"},
+                 "web": {"store", "robot", "workflow"}}
+CONSOLE_TOP = {"__init__", "cli", "cell", "sources"}
+
+
+def console_layout(console: Path) -> list[str]:
+    """What puts the console folder `console` out of its rooms: a room that is no package, a module at
+    the top that is neither the command line nor a shared piece, a module named by a room's prefix."""
+    out = [f"console/{room}/ is not a package" for room in CONSOLE_ROOMS if not (console / room / "__init__.py").exists()]
+    for f in sorted(console.rglob("*.py")):
+        rel = f.relative_to(console)
+        if len(rel.parts) == 1 and f.stem not in CONSOLE_TOP and not f.stem.startswith("cmd_"):
+            out.append(f"console/{rel}: at the top, in no room")
+        if any(f.stem.startswith(room + "_") for room in CONSOLE_ROOMS):
+            out.append(f"console/{rel}: named by a room's prefix")
+    return out
+
+
+def test_the_console_is_in_rooms():
+    found = console_layout(ROOT / "console")
+    assert not found, "\n".join(found)
+
+
+def test_the_console_rooms_import_one_way():
+    """web -> workflow -> robot, store: a room imports only the rooms below it (and the top's cell and
+    sources), counting every import as the cycle check does."""
+    def room(mod: str) -> str | None:
+        parts = mod.split(".")
+        return parts[1] if parts[0] == "console" and len(parts) > 2 and parts[1] in CONSOLE_ROOMS else None
+    wrong = [f"{a} -> {b}: {where}" for a, edges in import_graph().items() if room(a)
+             for b, where in edges.items() if room(b) not in (None, room(a)) and room(b) not in CONSOLE_ROOMS[room(a)]]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_layout_finder_finds_a_flat_console(tmp_path):
+    """The finder itself, on a flat console of the old kind: the missing rooms, the stray top modules and
+    the prefixed names are all found; the command line and the shared pieces are not."""
+    for name in ("__init__", "cli", "cmd_console", "cell", "sources", "app", "robot_tcp", "store_schema"):
+        (tmp_path / f"{name}.py").write_text("")
+    (tmp_path / "workflow").mkdir()
+    (tmp_path / "workflow" / "__init__.py").write_text("")
+    (tmp_path / "workflow" / "workflow_core.py").write_text("")
+    assert console_layout(tmp_path) == [
+        "console/store/ is not a package", "console/robot/ is not a package", "console/web/ is not a package",
+        "console/app.py: at the top, in no room", "console/robot_tcp.py: at the top, in no room",
+        "console/robot_tcp.py: named by a room's prefix", "console/store_schema.py: at the top, in no room",
+        "console/store_schema.py: named by a room's prefix", "console/workflow/workflow_core.py: named by a room's prefix"]

@@ -1,7 +1,7 @@
 """What every robot driver shares: events, outcomes, the step history, spec options.
 
-Kept apart from the drivers so that `console/robot.py` (the sim driver and
-`open_robot`) and `console/robot_tcp.py` (the TCP driver) both import it and
+Kept apart from the drivers so that `console/robot/drivers.py` (the sim driver and
+`open_robot`) and `console/robot/tcp.py` (the TCP driver) both import it and
 neither imports the other at module level.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from shelfpick.perception.errors import ShelfpickError
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.plan import Plan
 
-log = logging.getLogger("shelfpick.console.robot")
+log = logging.getLogger("shelfpick.console.robot.drivers")
 
 EVENT_KINDS = ("ack", "done", "error", "aborted", "disconnected", "note")  # note: no step, no fault
 REPLAN = "a new capture and plan are needed"

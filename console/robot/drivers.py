@@ -8,7 +8,7 @@ Two drivers meet the `RobotDriver` protocol:
   only saw front faces and guessed the depths). Box ids of the perceived
   scene are matched to the true boxes by their front-face centres, as a real
   robot would find a box by where its grasp point is.
-- `TcpRobot` ("tcp://HOST:PORT", console/robot_tcp.py): line-delimited JSON
+- `TcpRobot` ("tcp://HOST:PORT", console/robot/tcp.py): line-delimited JSON
   to a robot-side controller (docs/robot-protocol.md).
 
 The physics adjusts a world that does not stand as given (a floating box
@@ -34,8 +34,8 @@ from shelfpick.perception.errors import ShelfpickError
 from shelfpick.perception.scene import Box, Scene
 from shelfpick.planning.plan import Plan
 
-from shelfpick.console.robot_types import (EVENT_KINDS, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
-                                 RobotOutcome, StepHistory, emit, finish, query_float, record_before_sending)
+from shelfpick.console.robot.base import (EVENT_KINDS, REPLAN, RobotDriver, RobotError, RobotEvent,  # noqa: F401
+                                          RobotOutcome, StepHistory, emit, finish, query_float, record_before_sending)
 
 
 # --------------------------------------------------------------------------
@@ -116,7 +116,7 @@ class SimRobot:
         # the console's look after each step: verify(step, box, world) -> None (go on) or why to hold;
         # called after `done`, before the next step is taken (docs/robot-protocol.md, "Verification")
         self.verify: Callable[..., str | None] | None = None
-        # the console's record that a step goes out, committed before the robot takes it (robot_tcp.py)
+        # the console's record that a step goes out, committed before the robot takes it (console/robot/tcp.py)
         self.record_sent: Callable[[int, str], None] | None = None
 
     def set_truth(self, truth: Scene | None) -> None:
@@ -296,7 +296,7 @@ def open_robot(spec: str, truth: Scene | None = None, seed: int = 0) -> RobotDri
         return SimRobot(truth, seed=s, step_delay=query_float(q, "delay", spec, 0.0),
                         surprise=Uncertainty() if surprise == "1" else None)
     if parts.scheme == "tcp":
-        from shelfpick.console.robot_tcp import TcpRobot
+        from shelfpick.console.robot.tcp import TcpRobot
 
         return TcpRobot.from_spec(spec)
     raise RobotError(f"robot spec {spec!r}: expected 'sim' or 'tcp://HOST:PORT'")

@@ -35,8 +35,8 @@ from shelfpick.planning.plan import Plan
 from shelfpick.robotsim.transform import Transform
 from shelfpick.robotsim.wire import PROTOCOL, FloodError, LineConn, ProtocolError
 
-from shelfpick.console.robot_types import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
-                                 new_run_id, query_float, record_before_sending)
+from shelfpick.console.robot.base import (RobotError, RobotEvent, RobotOutcome, StepHistory, emit, finish,
+                                          new_run_id, query_float, record_before_sending)
 
 MAX_TEXT = 500          # characters of a peer's code/message kept in events and errors
 STEP_REPLIES = frozenset({"ack", "done", "error", "aborted"})

@@ -22,7 +22,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable
 
-log = logging.getLogger("shelfpick.console.store")
+log = logging.getLogger("shelfpick.console.store.sessions")
 
 FIRST_WAIT = 0.1     # s before the first retry; doubled after each failure ...
 MAX_WAIT = 2.0       # ... up to this (each try may also wait the store's busy timeout)

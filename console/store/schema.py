@@ -95,7 +95,7 @@ CREATE TABLE IF NOT EXISTS verifications (
     step INTEGER NOT NULL,
     box TEXT,
     within INTEGER NOT NULL,         -- 1: the next step may go, 0: the robot was held
-    verdict TEXT NOT NULL,           -- console.verify.Verification JSON (matches, distances, timing)
+    verdict TEXT NOT NULL,           -- console.workflow.verify.Verification JSON (matches, distances, timing)
     predicted TEXT,                  -- shelfpick.scene/1: the shelf the plan predicted after the step
     observed TEXT                    -- shelfpick.scene/1: the shelf perceived after the step
 );

@@ -15,12 +15,12 @@ cause; the workflow then refuses what needed the record (audit first).
 `readonly=True` (`shelfpick sessions`, `shelfpick replay`) never writes: a
 read-only archive lists and replays. A SQLite file that is not a shelfpick
 session log is refused in either mode before anything is written to it
-(console/store_schema.py: schema, migrations, opening).
+(console/store/schema.py: schema, migrations, opening).
 The `runs` table says which console runs which plan: after a console died
 mid-run (kill -9), `recover_interrupted` marks the run interrupted and the
 acknowledged step unknown (whether a run's console is alive: an OS lock per
-open store, console/store_owner.py); `step_states` is "never re-send a step",
-keyed by session (one capture) and plan hash (console/store_steps.py).
+open store, console/store/owner.py); `step_states` is "never re-send a step",
+keyed by session (one capture) and plan hash (console/store/steps.py).
 """
 from __future__ import annotations
 
@@ -34,9 +34,9 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from shelfpick.console import store_steps
-from shelfpick.console.store_owner import OwnerLock, owner_alive, sweep
-from shelfpick.console.store_records import (
+from shelfpick.console.store import steps as store_steps
+from shelfpick.console.store.owner import OwnerLock, owner_alive, sweep
+from shelfpick.console.store.records import (
     PlanRecord,
     SessionRecord,
     SessionRows,
@@ -45,7 +45,7 @@ from shelfpick.console.store_records import (
     stored_scene,  # noqa: F401  (re-exported: benchmarks/closed_loop.py)
     utc_now,
 )
-from shelfpick.console.store_schema import (
+from shelfpick.console.store.schema import (
     OUR_TABLES,  # noqa: F401  (re-exported)
     SCHEMA_VERSION,
     RunConflict,

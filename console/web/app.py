@@ -1,4 +1,4 @@
-"""The operator console: a viser web app over `console.workflow.Workflow`.
+"""The operator console: a viser web app over `console.workflow.machine.Workflow`.
 
 Thin on purpose: every rule (which plan may run, who may approve) lives in
 the workflow; this module draws its state. Each browser gets its own view
@@ -15,11 +15,12 @@ import threading
 import traceback
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
-from shelfpick.console.page_markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
-from shelfpick.console.panels import OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel, quoted
-from shelfpick.console.look import as_planned
-from shelfpick.console.replay_view import LookView, ReplayView, record_view, replay_status
-from shelfpick.console.workflow import PlanEntry, State, Workflow, WorkflowError
+from shelfpick.console.web.markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
+from shelfpick.console.web.panels import (OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel,
+                                          quoted)
+from shelfpick.console.web.replay_view import LookView, ReplayView, record_view, replay_status
+from shelfpick.console.workflow.look import as_planned
+from shelfpick.console.workflow.machine import PlanEntry, State, Workflow, WorkflowError
 from shelfpick.perception.errors import ShelfpickError
 from shelfpick.perception.scene import Camera, Scene
 
@@ -311,9 +312,9 @@ class ConsoleApp:
     def __init__(self, workflow: Workflow, host: str = "127.0.0.1", port: int = 8080,
                  passphrase_set: bool = True, verbose: bool = False, allow_origins: Sequence[str] = ()) -> None:
         """passphrase_set: a person chose the workflow's passphrase (a generated one is for localhost);
-        allow_origins: browser origins besides the console's own that may drive it (console.origin_guard)."""
+        allow_origins: browser origins besides the console's own that may drive it (console.web.origin_guard)."""
         check_host(host, workflow._passphrase if passphrase_set else None)
-        from shelfpick.console.origin_guard import guarded_viser_server, policy_for
+        from shelfpick.console.web.origin_guard import guarded_viser_server, policy_for
 
         try:
             policy = policy_for(host, allow_origins)
@@ -373,7 +374,7 @@ class ConsoleApp:
             v.render(state)
 
     def load_replay(self, session_id: int) -> ReplayView:
-        """A stored session in the shape the view draws (see console.store.SessionRecord)."""
+        """A stored session in the shape the view draws (see console.store.sessions.SessionRecord)."""
         return record_view(self.workflow.store.load_session(session_id))
 
     def stop(self) -> None:

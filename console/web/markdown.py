@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from shelfpick.console.panels import md, ours, pct
-from shelfpick.console.workflow import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
+from shelfpick.console.web.panels import md, ours, pct
+from shelfpick.console.workflow.machine import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
 from shelfpick.planning.plan import Plan
 
 

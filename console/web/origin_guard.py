@@ -180,7 +180,7 @@ def guarded_viser_server(host: str, port: int, policy: OriginPolicy, verbose: bo
         server.stop()
         raise OriginGuardError(f"viser {viser.__version__} did not open its server through "
                                "websockets.asyncio.server.serve: the origin guard is not in place, so the "
-                               "console does not start (see console/origin_guard.py)")
+                               "console does not start (see console/web/origin_guard.py)")
     return server
 
 

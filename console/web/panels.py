@@ -1,6 +1,6 @@
 """The parts of one browser's console page, each owning its own GUI handles.
 
-`console.app.ClientView` composes them: the operator panel (capture, plan,
+`console.web.app.ClientView` composes them: the operator panel (capture, plan,
 stop, camera images), the preview player inside it, the supervisor panel
 (approve / reject), the sessions panel (stored sessions, replay, looks after
 each step) and the 3D shelf they all draw on. What crosses panels (replay
@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from shelfpick.console import scene_view as sv
-from shelfpick.console.workflow import PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError, problem_text
+from shelfpick.console.web import scene_view as sv
+from shelfpick.console.workflow.machine import (PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError,
+                                               problem_text)
 from shelfpick.perception.scene import Camera, Scene
 from shelfpick.planning.plan import Plan
 
@@ -553,7 +554,7 @@ class SessionsPanel:
 
     def export(self, client: Any) -> str:
         """The chosen session as a self-contained HTML page, sent to this browser as a download."""
-        from shelfpick.console.replay import render_html
+        from shelfpick.console.web.replay import render_html
 
         v = self.session_pick.value
         if v == "—":

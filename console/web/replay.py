@@ -22,8 +22,8 @@ import numpy as np
 from shelfpick.perception.scene import Box, Scene, Shelf, quat_to_matrix
 from shelfpick.planning.plan import Plan
 
-from shelfpick.console.store import PlanRecord, SessionRecord
-from shelfpick.console.workflow import SECONDS_PER_BOX   # the estimate the console shows, defined once
+from shelfpick.console.store.sessions import PlanRecord, SessionRecord
+from shelfpick.console.workflow.machine import SECONDS_PER_BOX   # the estimate the console shows, defined once
 
 MAX_FRAMES_PER_STEP = 30
 
@@ -187,7 +187,7 @@ def keyframes(scene: Scene, sequence: Sequence[str], preview: list | None) -> li
 
 def world_words(alt: Mapping[str, Any]) -> str:
     """Which sample world a risky step is shown in, in the words of the live preview
-    (console.scene_view.timeline): "collapses in 1 world of 10: shown in world 4"."""
+    (console.web.scene_view.timeline): "collapses in 1 world of 10: shown in world 4"."""
     n, of = int(alt.get("collapsed_in", 0)), alt.get("of")
     head = f"collapses in {n} world{'s' if n != 1 else ''} of {of}"
     if alt.get("result") is not None and alt.get("world") is not None:
@@ -197,7 +197,7 @@ def world_words(alt: Mapping[str, Any]) -> str:
 
 def shown_worlds(preview: Sequence[Any] | None) -> dict[int, dict]:
     """step -> the stored world a risky step is shown in (`collapse_world` of a stored preview step,
-    console.store.add_preview_worlds), in the shape the live preview takes (PlanEntry.collapse_steps)."""
+    console.store.sessions.add_preview_worlds), in the shape the live preview takes (PlanEntry.collapse_steps)."""
     return {i: dict(s["collapse_world"]) for i, s in enumerate(preview or ())
             if isinstance(s, Mapping) and isinstance(s.get("collapse_world"), Mapping)}
 
@@ -365,7 +365,7 @@ def _outcome(rec: SessionRecord) -> str:
 
 def _seen(ids: Iterable[Any], seen: set[str]) -> str:
     """Collapsed boxes by the ids perception gave them; one the camera never saw is said so (issue 33)."""
-    from shelfpick.console.robot import seen_names
+    from shelfpick.console.robot.drivers import seen_names
 
     return seen_names([str(b) if str(b) in seen else None for b in ids])
 

@@ -10,17 +10,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
-from shelfpick.console.page_markdown import results_markdown
-from shelfpick.console.panels import decisions_markdown, md, pct
-from shelfpick.console.replay import decided_planner, shown_worlds
-from shelfpick.console.workflow import PlanEntry, State
+from shelfpick.console.web.markdown import results_markdown
+from shelfpick.console.web.panels import decisions_markdown, md, pct
+from shelfpick.console.web.replay import decided_planner, shown_worlds
+from shelfpick.console.workflow.machine import PlanEntry, State
 from shelfpick.perception.scene import Camera, Scene
 from shelfpick.planning.plan import Plan
 
 if TYPE_CHECKING:
     import numpy as np
 
-    from shelfpick.console.store import SessionRecord
+    from shelfpick.console.store.sessions import SessionRecord
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,8 +124,8 @@ class _StoredLook:
 
 def stored_robot_markdown(rec: SessionRecord) -> str:
     """The replayed session's robot: its events step by step with the looks, as the live page shows them."""
-    from shelfpick.console.page_markdown import robot_markdown
-    from shelfpick.console.robot_types import RobotEvent
+    from shelfpick.console.web.markdown import robot_markdown
+    from shelfpick.console.robot.base import RobotEvent
 
     events = tuple(RobotEvent(e["kind"], e.get("step"), e.get("box"), e.get("detail") or {})
                    for e in rec.robot_events if e["kind"] not in ("auth_refused", "start", "stop", "sent"))
@@ -199,7 +199,7 @@ def _actual_text(step: Any, seen: set[str] | None = None) -> str:
     detail = step.get("detail") if isinstance(step.get("detail"), dict) else {}
     fell = step.get("collapsed") or detail.get("collapsed_ids") or []
     if fell:
-        from shelfpick.console.robot import seen_names
+        from shelfpick.console.robot.drivers import seen_names
 
         bits.append("collapsed: " + seen_names([str(b) if seen is None or str(b) in seen else None
                                                 for b in fell]))

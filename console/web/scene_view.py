@@ -172,7 +172,7 @@ def timeline(preview: Iterable[Any], max_frames_per_step: int = 90,
     """Flatten recorded step results (objects or their JSON) into keyframes at their recorded times.
 
     `shown`: step -> a recording of that step in a sample world where it collapses
-    (console.planning_stage.collapse_worlds), played instead of the first world's; each
+    (console.workflow.planning_stage.collapse_worlds), played instead of the first world's; each
     keyframe says which world it shows. Frames are thinned only beyond
     `max_frames_per_step` (the recording is ~30 fps), so a pull plays at its real pace.
     """

@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING, Any, Mapping
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.plan import Plan
 
-from shelfpick.console.run_json import step_json
-from shelfpick.console.workflow_state import PlanEntry
+from shelfpick.console.workflow.run_json import step_json
+from shelfpick.console.workflow.state import PlanEntry
 
 if TYPE_CHECKING:
-    from shelfpick.console.verify import Verification
-    from shelfpick.console.workflow_state import PreviewStep
+    from shelfpick.console.workflow.verify import Verification
+    from shelfpick.console.workflow.state import PreviewStep
 
 
 def mapped_target(plan: Plan, v: Verification, scene: Scene) -> str | None:

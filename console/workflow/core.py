@@ -4,8 +4,8 @@ viser runs callbacks on a thread pool, so two browsers can press buttons at
 the same moment: every state change happens under `_lock`, and the slow
 parts (capture, planning, the robot) run outside it, guarded by flags taken
 under it. Listeners hear of each change on one notifier thread, never under
-the lock. The stages (`console.planning_stage`, `console.supervision`,
-`console.robot_run`) and `console.workflow.Workflow` build on this class and
+the lock. The stages (`console.workflow.planning_stage`, `console.workflow.supervision`,
+`console.workflow.run`) and `console.workflow.machine.Workflow` build on this class and
 share exactly the attributes its `__init__` sets.
 """
 from __future__ import annotations
@@ -15,13 +15,13 @@ import traceback
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
-from shelfpick.console.throttle import Throttle
-from shelfpick.console.workflow_state import Listener, RobotFactory, RunLock, State, WorkflowError
+from shelfpick.console.workflow.state import Listener, RobotFactory, RunLock, State, WorkflowError
+from shelfpick.console.workflow.throttle import Throttle
 
 if TYPE_CHECKING:
     from shelfpick.console.sources import Source
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.verify import Tolerance
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.verify import Tolerance
     from shelfpick.perception.segment import Segmenter
     from shelfpick.planning.bullet_clients import ClientPool
     from shelfpick.planning.predict import Predictor
@@ -35,7 +35,7 @@ class WorkflowCore:
                  segmenter: Segmenter | None = None, workers: int = 1, throttle: Throttle | None = None,
                  tolerance: Tolerance | None = None, perceive_options: Mapping[str, Any] | None = None,
                  priors: Any = None) -> None:
-        """`tolerance` (console.verify.Tolerance): how far a box may be from its predicted pose
+        """`tolerance` (console.workflow.verify.Tolerance): how far a box may be from its predicted pose
         after a step before the robot is held; the look after each step needs a source with
         `look_again` (demo, files, RealSense). `perceive_options`: a cell file's `shelf` (used
         when the source knows no truth) and `catalogue` (console/cell.py). `priors`
@@ -55,7 +55,7 @@ class WorkflowCore:
 
         self.priors = priors if priors is not None else CellPriors()   # the cell's [planning] section
         self.throttle = throttle or Throttle()
-        from shelfpick.console.verify import Tolerance
+        from shelfpick.console.workflow.verify import Tolerance
 
         self.tolerance = tolerance or Tolerance()
         self._lock = threading.RLock()

@@ -9,7 +9,7 @@ from shelfpick.perception.scene import Box, Scene, Shelf
 
 if TYPE_CHECKING:
     from shelfpick.console.sources import Frame, Source
-    from shelfpick.console.verify import Tolerance, Verification
+    from shelfpick.console.workflow.verify import Tolerance, Verification
     from shelfpick.perception.pipeline import Perception
     from shelfpick.perception.segment import Segmenter
 
@@ -61,7 +61,7 @@ def _look_once(source: Source, world: Scene | None, step: int, box: str, predict
                shelf: Shelf | None, segmenter: Segmenter | None, tolerance: Tolerance | None,
                perceive_options: Mapping[str, Any] | None, removed: Box | None, attempt: int) -> Look:
     """One frame, perceived and compared."""
-    from shelfpick.console.verify import Tolerance, compare, unavailable
+    from shelfpick.console.workflow.verify import Tolerance, compare, unavailable
     from shelfpick.perception.pipeline import perceive
 
     tol = tolerance or Tolerance()

@@ -28,14 +28,14 @@ from typing import TYPE_CHECKING
 
 from shelfpick.planning.plan import PLANNERS  # noqa: F401 - the planners the console runs side by side (re-exported)
 
-from shelfpick.console.look import Look, look_again  # noqa: F401 - re-exported: benchmarks/closed_loop.py uses it
-from shelfpick.console.planning_stage import PlanningStage
-from shelfpick.console.robot_run import RobotRun
-from shelfpick.console.run_json import perception_summary
-from shelfpick.console.supervision import Supervision
-from shelfpick.console.throttle import Throttle  # noqa: F401 - re-exported
-from shelfpick.console.workflow_state import (AUTH_REFUSED, SECONDS_PER_BOX, Deviation, PlanEntry, State,  # noqa: F401
-                                    WorkflowError, problem_text, scene_problems)
+from shelfpick.console.workflow.look import Look, look_again  # noqa: F401 - re-exported (benchmarks/closed_loop.py)
+from shelfpick.console.workflow.planning_stage import PlanningStage
+from shelfpick.console.workflow.run import RobotRun
+from shelfpick.console.workflow.run_json import perception_summary
+from shelfpick.console.workflow.state import (AUTH_REFUSED, SECONDS_PER_BOX, Deviation, PlanEntry, State,  # noqa: F401
+                                              WorkflowError, problem_text, scene_problems)
+from shelfpick.console.workflow.supervision import Supervision
+from shelfpick.console.workflow.throttle import Throttle  # noqa: F401 - re-exported
 
 if TYPE_CHECKING:
     from shelfpick.console.sources import Frame

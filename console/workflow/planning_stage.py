@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.plan import PLANNERS, Plan
 
-from shelfpick.console.run_json import step_json
-from shelfpick.console.workflow_core import WorkflowCore, close_quietly
-from shelfpick.console.workflow_state import PlanEntry, State, problem_text, scene_problems
+from shelfpick.console.workflow.core import WorkflowCore, close_quietly
+from shelfpick.console.workflow.run_json import step_json
+from shelfpick.console.workflow.state import PlanEntry, State, problem_text, scene_problems
 
 if TYPE_CHECKING:
     from shelfpick.planning.predict import Predictor

@@ -3,7 +3,7 @@
 Audit first: the robot starts once its run is committed, each step goes out
 once its `sent` record is committed, a robot event that cannot be committed
 stops the run at once (and is retried, in order, until it is: the journal,
-console/store_journal.py; no run starts while anything waits there), and a
+console/store/journal.py; no run starts while anything waits there), and a
 look after a step that cannot be recorded holds the robot. A held step's look
 becomes the current capture (plan again from it, or continue as planned).
 One run at a time per database, across consoles: `store.start_run` refuses
@@ -17,16 +17,16 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from shelfpick.perception.scene import Scene
 
-from shelfpick.console.continuation import continuation, mapped_target
-from shelfpick.console.look import Look, look_again
-from shelfpick.console.run_json import outcome_json, perception_summary, step_json
-from shelfpick.console.store_journal import JournalStatus, RecordJournal
-from shelfpick.console.store_schema import RunConflict
-from shelfpick.console.workflow_core import WorkflowCore
-from shelfpick.console.workflow_state import Deviation, RunLock, State, WorkflowError
+from shelfpick.console.store.journal import JournalStatus, RecordJournal
+from shelfpick.console.store.schema import RunConflict
+from shelfpick.console.workflow.continuation import continuation, mapped_target
+from shelfpick.console.workflow.core import WorkflowCore
+from shelfpick.console.workflow.look import Look, look_again
+from shelfpick.console.workflow.run_json import outcome_json, perception_summary, step_json
+from shelfpick.console.workflow.state import Deviation, RunLock, State, WorkflowError
 
 if TYPE_CHECKING:
-    from shelfpick.console.robot_types import RobotDriver, RobotEvent, RobotOutcome
+    from shelfpick.console.robot.base import RobotDriver, RobotEvent, RobotOutcome
 
 
 JOURNAL_CLOSE_WAIT = 2.0   # s close() waits for records still waiting in the journal
@@ -108,7 +108,7 @@ class RobotRun(WorkflowCore):
             self._set(approved=None, robot="running", robot_events=(), outcome=None, error=None,
                       message=f"robot: starting the {run.entry.plan.planner} plan {run.plan_hash}")
         try:
-            from shelfpick.console.robot_types import new_run_id
+            from shelfpick.console.robot.base import new_run_id
 
             done = self._steps_before(run)
             run.robot_run = new_run_id(f"s{run.session_id}-")
@@ -201,7 +201,7 @@ class RobotRun(WorkflowCore):
         that cannot be recorded, or cannot be made, holds the robot too.
         """
         def verify(step: int, box: str, world: Scene | None = None) -> str | None:
-            from shelfpick.console.verify import unavailable
+            from shelfpick.console.workflow.verify import unavailable
 
             look = self._look(run, step, box, world)
             v, perception, predicted = look.verification, look.perception, look.predicted
@@ -358,7 +358,7 @@ def seed_history(robot: RobotDriver, plan_hash: str, done: dict[int, str]) -> No
     """
     if not hasattr(robot, "history"):
         return
-    from shelfpick.console.robot_types import StepHistory
+    from shelfpick.console.robot.base import StepHistory
 
     hist = StepHistory()
     for i, box in done.items():

@@ -3,11 +3,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from shelfpick.console.workflow_state import PlanEntry
+from shelfpick.console.workflow.state import PlanEntry
 
 if TYPE_CHECKING:
-    from shelfpick.console.robot_types import RobotOutcome
-    from shelfpick.console.workflow_state import PreviewStep
+    from shelfpick.console.robot.base import RobotOutcome
+    from shelfpick.console.workflow.state import PreviewStep
     from shelfpick.perception.pipeline import Perception
 
 

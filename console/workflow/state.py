@@ -16,9 +16,9 @@ from shelfpick.planning.plan import Plan
 if TYPE_CHECKING:   # for annotations only: importing these costs numpy, cv2 or the planner
     import numpy as np
 
-    from shelfpick.console.look import Look
-    from shelfpick.console.robot_types import RobotDriver, RobotEvent, RobotOutcome
-    from shelfpick.console.verify import Verification
+    from shelfpick.console.workflow.look import Look
+    from shelfpick.console.robot.base import RobotDriver, RobotEvent, RobotOutcome
+    from shelfpick.console.workflow.verify import Verification
     from shelfpick.perception.capture import Capture
     from shelfpick.planning.step_result import StepResult
 

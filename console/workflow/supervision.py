@@ -9,8 +9,8 @@ import hmac
 import time
 from typing import Mapping
 
-from shelfpick.console.workflow_core import WorkflowCore
-from shelfpick.console.workflow_state import AUTH_REFUSED, PlanEntry, RunLock, State, problem_text
+from shelfpick.console.workflow.core import WorkflowCore
+from shelfpick.console.workflow.state import AUTH_REFUSED, PlanEntry, RunLock, State, problem_text
 
 
 class Supervision(WorkflowCore):
@@ -92,7 +92,7 @@ class Supervision(WorkflowCore):
             if self._state.needs_recapture:
                 self._refuse("approval refused: the shelf has changed, capture and plan again")
             self._held("approval")
-            self._run_elsewhere("approval")   # one run at a time per database (console/robot_run.py)
+            self._run_elsewhere("approval")   # one run at a time per database (console/workflow/run.py)
             risk_note = self._risk_note(entry, accept_risk)
         self._authenticate(plan_hash, passphrase, who, "approval", client)
         with self._lock:   # the state may have moved while the passphrase was checked

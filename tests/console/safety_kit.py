@@ -137,7 +137,7 @@ class CountingRobots:
         self.lock = threading.Lock()
 
     def __call__(self, truth: Any, seed: int) -> Any:
-        from shelfpick.console.robot import open_robot
+        from shelfpick.console.robot.drivers import open_robot
 
         inner = open_robot(f"sim?delay={self.delay}", truth=truth, seed=seed)
         outer = self

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shelfpick.console.store import SessionStore
+from shelfpick.console.store.sessions import SessionStore
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.planning.plan import Plan, StepPrediction
 

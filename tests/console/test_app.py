@@ -12,7 +12,7 @@ from shelfpick.planning.plan import Plan, StepPrediction
 
 
 def two_plans():
-    from shelfpick.console.workflow import PlanEntry
+    from shelfpick.console.workflow.machine import PlanEntry
 
     phys = Plan("extract", "b0", "physics", ("b1", "b0"),
                 (StepPrediction("b1", 0.0), StepPrediction("b0", 0.0)), True,
@@ -25,7 +25,7 @@ def two_plans():
 
 
 def test_non_local_host_needs_a_passphrase():
-    from shelfpick.console.app import ConsoleError, check_host
+    from shelfpick.console.web.app import ConsoleError, check_host
     from shelfpick.console.cli import main
 
     check_host("127.0.0.1", None)
@@ -40,8 +40,8 @@ def test_non_local_host_needs_a_passphrase():
 
 
 def test_results_table_side_by_side():
-    from shelfpick.console.app import results_markdown
-    from shelfpick.console.workflow import State
+    from shelfpick.console.web.app import results_markdown
+    from shelfpick.console.workflow.machine import State
 
     md = results_markdown(State(plans=two_plans()))
     lines = md.splitlines()
@@ -62,7 +62,7 @@ def test_results_table_side_by_side():
 
 
 def test_preview_timeline_from_results_and_json_hides_parked_boxes():
-    from shelfpick.console.scene_view import timeline, visible_pose
+    from shelfpick.console.web.scene_view import timeline, visible_pose
 
     shelf = Shelf()
     frames = [(0.0, {"a": ((0, 0.1, 0.1), (1, 0, 0, 0)), "b": ((0.3, 0.1, 0.1), (1, 0, 0, 0))}),
@@ -80,9 +80,9 @@ def test_preview_timeline_from_results_and_json_hides_parked_boxes():
 
 
 def test_app_serves_and_replays_a_stored_session(tmp_path):
-    from shelfpick.console.app import ConsoleApp, record_view
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp, record_view
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
     from shelfpick.perception.render import default_camera, render
 
     scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),), default_camera())
@@ -123,8 +123,8 @@ def test_a_step_risk_that_is_a_collision_is_shown_beside_the_collapse():
     what the maximum is of."""
     from dataclasses import replace
 
-    from shelfpick.console.app import results_markdown
-    from shelfpick.console.workflow import State
+    from shelfpick.console.web.app import results_markdown
+    from shelfpick.console.workflow.machine import State
     from shelfpick.planning.plan import StepPrediction
 
     plans = two_plans()

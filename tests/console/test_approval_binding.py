@@ -17,7 +17,7 @@ def decisions(wf, sid) -> list:
 
 
 def test_a_changed_plan_is_refused_and_the_approval_names_its_planner(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "extract")                     # the supervisor reviews the extraction plans
@@ -48,10 +48,10 @@ def test_a_changed_plan_is_refused_and_the_approval_names_its_planner(make_wf):
 
 @pytest.fixture
 def app(tmp_path):
-    from shelfpick.console.app import ClientView, ConsoleApp
-    from shelfpick.console.robot import open_robot
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ClientView, ConsoleApp
+    from shelfpick.console.robot.drivers import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     store = SessionStore(tmp_path / "bind.sqlite")
     wf = Workflow(CodeShelfSource(small_scene()), store,
@@ -79,7 +79,7 @@ def drawn(wf, view, timeout=20.0) -> None:
 
 
 def test_acknowledgements_reset_when_the_plan_under_review_changes_and_a_stale_click_is_refused(app):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     a, wf, view = app
     told: list[str] = []

@@ -44,11 +44,11 @@ def small_shelf():
 
 @pytest.fixture
 def console(tmp_path):
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import DemoSource
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     store = SessionStore(tmp_path / "sessions.sqlite")
     wf = Workflow(DemoSource([("small", small_shelf())], seed=2), store,

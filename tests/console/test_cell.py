@@ -68,7 +68,7 @@ def test_a_cell_file_is_read_with_paths_beside_it(tmp_path):
     assert "step_timeout=90.0" in cell.robot
     assert cell.safety == {"samples": 4, "seed": 7, "db": str(tmp_path / "cell.db"), "tolerance_displacement": 0.02}
     assert cell.tolerance().displacement == 0.02
-    from shelfpick.console.robot_tcp import TcpRobot
+    from shelfpick.console.robot.tcp import TcpRobot
 
     robot = TcpRobot.from_spec(cell.robot)          # the spec the console opens is one the driver takes
     assert robot.timeouts.step == 90.0
@@ -156,7 +156,7 @@ CHILD = textwrap.dedent("""
 
 
 def test_sigterm_stops_the_robot_run_and_closes_the_database(tmp_path):
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.store.sessions import SessionStore
 
     db = tmp_path / "t.sqlite"
     code = CHILD.format(root=str(ROOT), here=str(HERE), db=str(db))

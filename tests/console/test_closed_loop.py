@@ -56,11 +56,11 @@ class CameraThatDoesNotLookAgain:
 
 
 def make_console(tmp_path, camera, seed=None):
-    from shelfpick.console.app import ClientView, ConsoleApp
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.web.app import ClientView, ConsoleApp
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.robotsim.controller import RobotController
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
     from shelfpick.perception.render import default_camera
     from shelfpick.planning.shelves import generate
 

@@ -54,8 +54,8 @@ def test_sessions_stats_predicted_risk_against_what_happened(tmp_path: Path, cap
     after each step: its safe step stood, its risky step collapsed b1 and the look saw it."""
     import json
 
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.verify import compare
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.verify import compare
 
     from session_fixture import stack_scene
 

@@ -20,9 +20,9 @@ from typing import Callable
 
 import pytest
 
-from shelfpick.console.robot import RobotEvent
-from shelfpick.console.robot_tcp import LineConn, ProtocolError, Timeouts, TcpRobot
-from shelfpick.console.robot_types import StepHistory
+from shelfpick.console.robot.drivers import RobotEvent
+from shelfpick.console.robot.tcp import LineConn, ProtocolError, Timeouts, TcpRobot
+from shelfpick.console.robot.base import StepHistory
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.planning.plan import Plan
 

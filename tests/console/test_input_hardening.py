@@ -88,7 +88,7 @@ def test_replay_reads_no_file_outside_the_session_store(archive, tmp_path: Path,
     out = tmp_path / "r.html"
     assert main(["replay", str(archive[1]), "--html", str(out), "--db", str(db)]) == 0
     page = out.read_text()
-    from shelfpick.console.replay import png_data_uri
+    from shelfpick.console.web.replay import png_data_uri
 
     assert png_data_uri(cv2.cvtColor(marker, cv2.COLOR_BGR2RGB)) not in page
     assert "outside s.db.files/: not read" in page
@@ -171,7 +171,7 @@ def test_the_cell_file_refuses_what_the_url_refuses(tmp_path: Path) -> None:
 
 
 def test_the_robot_drivers_take_the_same_bounds() -> None:
-    from shelfpick.console.robot import RobotError, open_robot
+    from shelfpick.console.robot.drivers import RobotError, open_robot
 
     with pytest.raises(RobotError, match=r"delay: expected a number in \[0, 600\]"):
         open_robot("sim?delay=1e308")

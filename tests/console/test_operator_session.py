@@ -30,11 +30,11 @@ pytestmark = pytest.mark.browser
 
 @pytest.fixture
 def lean_app(tmp_path):
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import DemoSource
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
     from shelfpick.perception.render import default_camera
     from shelfpick.planning.shelves import generate
 

@@ -1,4 +1,4 @@
-"""The console's websocket refuses foreign origins and its pages forbid framing (console/origin_guard.py),
+"""The console's websocket refuses foreign origins and its pages forbid framing (console/web/origin_guard.py),
 on a real viser server over real sockets. The guard hooks viser's server start: if a viser upgrade
 stops starting its server the way the guard expects, the console refuses to start and these fail."""
 from __future__ import annotations
@@ -12,9 +12,9 @@ from safety_kit import fault
 
 @pytest.fixture
 def console(tmp_path):
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     store = SessionStore(tmp_path / "o.sqlite")
     wf = Workflow(None, store, lambda t, s: None, "pw")
@@ -60,7 +60,7 @@ def test_every_page_forbids_framing(console):
 
 
 def test_same_origin_needs_a_host_name_of_ours_dns_rebinding_is_foreign():
-    from shelfpick.console.origin_guard import normalize_origin, policy_for
+    from shelfpick.console.web.origin_guard import normalize_origin, policy_for
 
     local = policy_for("127.0.0.1")
     assert local.admits(["http://127.0.0.1:8080"], ["127.0.0.1:8080"])[0]
@@ -85,9 +85,9 @@ def test_same_origin_needs_a_host_name_of_ours_dns_rebinding_is_foreign():
 
 
 def test_a_bad_allowed_origin_is_one_line_before_anything_starts(tmp_path):
-    from shelfpick.console.app import ConsoleApp, ConsoleError
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp, ConsoleError
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     store = SessionStore(tmp_path / "o.sqlite")
     wf = Workflow(None, store, lambda t, s: None, "pw")
@@ -102,7 +102,7 @@ def test_a_viser_that_no_longer_starts_its_server_through_websockets_serve_is_re
     and the console must not start unguarded."""
     import viser
 
-    from shelfpick.console.origin_guard import OriginGuardError, guarded_viser_server, policy_for
+    from shelfpick.console.web.origin_guard import OriginGuardError, guarded_viser_server, policy_for
 
     stopped = []
 

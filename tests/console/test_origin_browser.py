@@ -39,9 +39,9 @@ def sites(tmp_path):
     """The console on one port, another site (the attacker's pages) on another."""
     import viser
 
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     if not Path(CHROMIUM).exists():
         pytest.skip(f"{CHROMIUM} missing (make test installs it)")

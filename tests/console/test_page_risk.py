@@ -11,8 +11,8 @@ def _rows(md: str) -> dict[str, list[str]]:
 
 
 def test_the_table_shows_the_calibrated_risk_and_the_threshold():
-    from shelfpick.console.page_markdown import results_markdown
-    from shelfpick.console.workflow import PlanEntry, State
+    from shelfpick.console.web.markdown import results_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
 
     gated = Plan("extract", "b0", "physics", ("b1", "b0"), (StepPrediction("b1"), StepPrediction("b0")), True,
                  {"planning_s": 1.0}, 0, {"search": {"worlds": 10, "verified_worlds": 20, "max_plan_risk": 0.05,

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from shelfpick.console.replay import export_html, keyframes, render_html
-from shelfpick.console.store import SessionStore
+from shelfpick.console.web.replay import export_html, keyframes, render_html
+from shelfpick.console.store.sessions import SessionStore
 
 from session_fixture import make_session, stack_scene
 
@@ -101,7 +101,7 @@ def test_replay_opens_and_animates_in_a_browser_without_network(stored, tmp_path
 def looked_session(db: Path) -> tuple[int, str]:
     """The fixture session plus two looks after its physics plan's steps: the first as predicted,
     the second with b2 6 cm left of where the plan put it (observed ids renumbered)."""
-    from shelfpick.console.verify import compare
+    from shelfpick.console.workflow.verify import compare
     from shelfpick.perception.scene import Box
 
     sid, info = make_session(db)
@@ -138,8 +138,8 @@ def test_replay_html_shows_predicted_outlines_over_observed_boxes_per_step(tmp_p
 
 
 def test_console_replay_draws_a_look_with_predicted_outlines(tmp_path: Path) -> None:
-    from shelfpick.console.app import ClientView, ConsoleApp
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ClientView, ConsoleApp
+    from shelfpick.console.workflow.machine import Workflow
 
     db = tmp_path / "looks.db"
     sid, _ = looked_session(db)

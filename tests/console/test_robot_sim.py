@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import pytest
 
-from shelfpick.console.robot import RobotError, RobotEvent, SimRobot, match_boxes, open_robot
+from shelfpick.console.robot.drivers import RobotError, RobotEvent, SimRobot, match_boxes, open_robot
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.planning.plan import Plan
 
@@ -154,9 +154,9 @@ class _FloatingTruthSource:
 def test_the_console_stores_and_shows_the_robot_world_repairs_escaped(tmp_path) -> None:
     """Through the workflow and a real SQLite file: the note is a stored robot event of the run and
     reaches the page's robot panel as literal text (no tag)."""
-    from shelfpick.console.app import robot_markdown
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import robot_markdown
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
     from test_workflow import PASS, sim_factory
 
     store = SessionStore(tmp_path / "repairs.sqlite")

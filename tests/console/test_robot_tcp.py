@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from shelfpick.console.robot import RobotError, RobotEvent, open_robot
+from shelfpick.console.robot.drivers import RobotError, RobotEvent, open_robot
 from shelfpick.robotsim.controller import RobotController
-from shelfpick.console.robot_tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
-from shelfpick.console.robot_types import StepHistory
+from shelfpick.console.robot.tcp import LineConn, Timeouts, TcpRobot, Transform, grasp_for
+from shelfpick.console.robot.base import StepHistory
 from shelfpick.perception.errors import FormatError
 from shelfpick.perception.scene import Box, Scene, Shelf, yaw_quat
 from shelfpick.planning.plan import Plan
@@ -354,8 +354,8 @@ def test_the_driver_refused_as_duplicate_when_it_resends_within_its_run() -> Non
 def test_the_console_records_the_run_id_it_sends_and_a_new_capture_runs_again(tmp_path: Path) -> None:
     """Through the workflow and a real SQLite file: each run's start event holds the run id the
     reference controller received; the second capture of the same shelf (same plan hash) executes."""
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
     from test_workflow import PASS, CodeShelfSource, small_scene
 
     store = SessionStore(tmp_path / "runs.sqlite")

@@ -32,9 +32,9 @@ CHILD = textwrap.dedent("""
     def say(*words):                 # the listener's thread and this one print: whole lines only
         with said:
             print(*words, flush=True)
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
+    from shelfpick.console.robot.drivers import open_robot
     store = SessionStore({db!r}, timeout={timeout!r})
     url = {url!r}
     wf = Workflow(CodeShelfSource(small_scene()), store,
@@ -155,7 +155,7 @@ def test_an_ack_that_meets_a_locked_database_is_committed_once_it_is_free(tmp_pa
     """The lock outlasts the store's timeout as the `ack` arrives: the run stops (no further step goes
     out), the page says the records wait, and once the lock is gone the `ack`, the `done` and the
     outcome are committed in order: the session ends `stopped`, not `executing` for ever."""
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.store.sessions import SessionStore
 
     db = tmp_path / "run.sqlite"
     with SpyController(db, ack_delay=0.6, step_time=0.05) as ctl:
@@ -198,8 +198,8 @@ def test_an_ack_that_meets_a_locked_database_is_committed_once_it_is_free(tmp_pa
 def test_a_console_that_dies_with_its_ack_unrecorded_leaves_the_step_unknown(tmp_path):
     """kill -9 while the `ack` still waits for the locked database: the restart calls the sent step's
     outcome unknown and tells the operator to look at the shelf, never `not_sent`."""
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     db = tmp_path / "dead.sqlite"
     with RobotController(ack_delay=0.6, step_time=0.05) as ctl:
@@ -241,9 +241,9 @@ def test_a_step_whose_sent_record_cannot_be_committed_is_not_sent():
     step (and every later one) off the robot."""
     import threading
 
-    from shelfpick.console.robot import SimRobot
-    from shelfpick.console.robot_tcp import TcpRobot, Timeouts
-    from shelfpick.console.robot_types import StepHistory
+    from shelfpick.console.robot.drivers import SimRobot
+    from shelfpick.console.robot.tcp import TcpRobot, Timeouts
+    from shelfpick.console.robot.base import StepHistory
     from shelfpick.planning.plan import Plan
     from test_robot_tcp import row_scene
 

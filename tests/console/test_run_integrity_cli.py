@@ -56,7 +56,7 @@ def interrupt_a_run(tmp_path: Path, robot: str, sig: int) -> tuple[int, float, s
 
 
 def test_ctrl_c_during_a_run_records_the_stop_aborts_the_step_and_exits_130(tmp_path):
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.store.sessions import SessionStore
 
     with RobotController(step_time=30.0) as ctl:
         fault()
@@ -85,7 +85,7 @@ def test_ctrl_c_during_a_run_records_the_stop_aborts_the_step_and_exits_130(tmp_
 @pytest.mark.slow        # tests/console/test_cell.py covers SIGTERM in `make test`; this is the shared handler
 def test_sigterm_still_exits_143_with_the_same_handler(tmp_path):
     """The shared handler keeps SIGTERM's contract (the sim robot: the stop is recorded, 143)."""
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.store.sessions import SessionStore
 
     rc, took, err, sid = interrupt_a_run(tmp_path, "sim?delay=30", signal.SIGTERM)
     assert rc == 143 and took < 25 and "stopped by SIGTERM" in err, err

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from shelfpick.console.robot_tcp import TcpRobot, Timeouts
-from shelfpick.console.robot_types import StepHistory
+from shelfpick.console.robot.tcp import TcpRobot, Timeouts
+from shelfpick.console.robot.base import StepHistory
 from shelfpick.planning.plan import Plan
 from shelfpick.robotsim.controller import RobotController
 from shelfpick.robotsim.wire import LineConn
@@ -35,9 +35,9 @@ SECOND = textwrap.dedent("""
     import sys, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow, WorkflowError
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow, WorkflowError
+    from shelfpick.console.robot.drivers import open_robot
     store = SessionStore({db!r})
     url = {robot!r}
     wf = Workflow(CodeShelfSource(small_scene()), store,
@@ -197,7 +197,7 @@ def test_the_database_holds_one_open_run_of_a_live_console(tmp_path):
     """Two stores (two consoles: each holds its own owner lock) on one file: the second start is
     refused while the first console's run is open, allowed once it ended, and a dead console's
     open run (its store closed without an outcome: kill -9) does not block anyone."""
-    from shelfpick.console.store import RunConflict, SessionStore
+    from shelfpick.console.store.sessions import RunConflict, SessionStore
     from test_store import tiny_capture, tiny_scene
 
     db = tmp_path / "one.sqlite"
@@ -231,7 +231,7 @@ def test_consoles_opening_one_new_database_at_once_all_open_it(tmp_path):
     one had made the file and not yet committed its schema, so the other was refused as 'not a
     shelfpick session database', or 'locked' by SQLite's journal-mode switch (9 of 50 rounds of 4
     before). Each round: 4 stores open one new file at once; every one must open it."""
-    from shelfpick.console.store import SessionStore, StoreError
+    from shelfpick.console.store.sessions import SessionStore, StoreError
 
     refused: list[str] = []
     for r in range(30):

@@ -26,10 +26,10 @@ def literal(md: str, text: str) -> bool:
 
 @pytest.fixture
 def app(tmp_path):
-    from shelfpick.console.app import ClientView, ConsoleApp
-    from shelfpick.console.robot import open_robot
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ClientView, ConsoleApp
+    from shelfpick.console.robot.drivers import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     peer = HonestPeer(script=lambda conn, step: "refuse" if step == 1 else "ok")
     store = SessionStore(tmp_path / "app.sqlite")
@@ -97,9 +97,9 @@ def test_outside_text_is_literal_in_every_view_and_supervisors_race(app, monkeyp
 
 def test_robot_error_markup_is_literal_text(app):
     a, wf, views, peer = app
-    from shelfpick.console.app import robot_markdown, status_markdown
-    from shelfpick.console.robot import RobotEvent, RobotOutcome
-    from shelfpick.console.workflow import State
+    from shelfpick.console.web.app import robot_markdown, status_markdown
+    from shelfpick.console.robot.drivers import RobotEvent, RobotOutcome
+    from shelfpick.console.workflow.machine import State
 
     st = State(robot="failed", robot_events=(RobotEvent("error", 1, "b<1>", {"message": MARKUP}),),
                outcome=RobotOutcome(("b0",), False, MARKUP, ()), error=f"robot: {MARKUP}", message=MARKUP,
@@ -143,8 +143,8 @@ class _Tags(HTMLParser):
 def test_replay_shows_outside_text_literally(tmp_path):
     """Supervisor names, reasons, robot error text and scene-check notes stored in a session come
     back in the HTML replay as text: no iframe, no extra script, no image from outside."""
-    from shelfpick.console.replay import render_html
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.web.replay import render_html
+    from shelfpick.console.store.sessions import SessionStore
     from shelfpick.planning.plan import Plan, StepPrediction
 
     from test_store import tiny_capture, tiny_scene
@@ -166,7 +166,7 @@ def test_replay_shows_outside_text_literally(tmp_path):
     assert all(src.startswith("data:image/png") for src in p.img_src)  # only the capture images
     text = "".join(p.text)
     assert text.count(MARKUP) >= 5 and "The shelf does not stand as seen" in text
-    from shelfpick.console.app import record_view
+    from shelfpick.console.web.app import record_view
     view = record_view(store.load_session(sid))
     assert literal(view.summary_md, MARKUP) and literal(view.plans_md, MARKUP)
     store.close()
@@ -174,7 +174,7 @@ def test_replay_shows_outside_text_literally(tmp_path):
 
 def test_box_ids_from_a_scene_file_do_not_name_scene_nodes(app):
     """Ids are outside text: 'a/label' or '..' must not land on another box's node."""
-    from shelfpick.console.scene_view import draw_boxes
+    from shelfpick.console.web.scene_view import draw_boxes
     from shelfpick.perception.scene import Box, Scene, Shelf
 
     a, wf, views, peer = app

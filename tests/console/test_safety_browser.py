@@ -20,10 +20,10 @@ EVIL = ('<iframe id="pwn1" src="javascript:parent.__pwned=1"></iframe><img id="p
 def test_markup_in_robot_text_names_and_notes_is_literal_in_two_browsers(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.robot import RobotEvent, RobotOutcome
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.robot.drivers import RobotEvent, RobotOutcome
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     if not Path(CHROMIUM).exists():
         pytest.skip(f"{CHROMIUM} missing (make test installs it)")

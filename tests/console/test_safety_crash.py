@@ -22,9 +22,9 @@ CHILD = textwrap.dedent("""
     import sys, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
+    from shelfpick.console.robot.drivers import open_robot
     stage = {stage!r}
     store = SessionStore({db!r})
     wf = Workflow(CodeShelfSource(small_scene()), store,
@@ -70,8 +70,8 @@ def kill_at(stage: str, db: Path) -> int:
 @pytest.mark.parametrize("stage, status", [("captured", "captured"), ("planned", "planned"),
                                            ("approved", "approved"), ("executing", "interrupted")])
 def test_kill_9_at_each_stage_then_restart(tmp_path, stage, status):
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     db = tmp_path / "k.sqlite"
     sid = kill_at(stage, db)
@@ -99,7 +99,7 @@ def test_kill_9_at_each_stage_then_restart(tmp_path, stage, status):
 
 def test_a_live_console_run_is_not_taken_for_a_crash(tmp_path):
     """Two consoles on one database: the second one must not mark the first one's run interrupted."""
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.store.sessions import SessionStore
 
     from test_store import tiny_capture, tiny_scene
 

@@ -20,7 +20,7 @@ def approvals(wf, sid) -> list:
 
 # ------------------------------------------------------------------ item 1: one run, one stop
 def test_approve_and_execute_refused_while_a_capture_runs(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "clear")
@@ -49,7 +49,7 @@ def test_approve_and_execute_refused_while_a_capture_runs(make_wf):
 
 
 def test_an_approval_holds_the_run_lock_until_stop_withdraws_it(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "clear")
@@ -93,7 +93,7 @@ def test_stop_reaches_the_run_and_is_stored_as_stopped(make_wf):
 @pytest.mark.parametrize("round_", range(3))
 def test_racing_approve_capture_execute_stop_never_runs_two(make_wf, round_):
     """Two supervisors approve, an operator captures, two execute loops and a Stop, all at once."""
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     robots = CountingRobots(delay=0.2)
     wf = make_wf(robot=robots)
@@ -144,7 +144,7 @@ def test_racing_approve_capture_execute_stop_never_runs_two(make_wf, round_):
 
 
 def test_two_supervisors_approving_at_once_store_exactly_one(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "clear")
@@ -171,7 +171,7 @@ def test_two_supervisors_approving_at_once_store_exactly_one(make_wf):
 
 # ------------------------------------------------------------------ item 5: passphrase
 def test_wrong_passphrases_are_throttled_and_every_refusal_reads_the_same(make_wf):
-    from shelfpick.console.workflow import AUTH_REFUSED, Throttle, WorkflowError
+    from shelfpick.console.workflow.machine import AUTH_REFUSED, Throttle, WorkflowError
 
     now = [1000.0]
     wf = make_wf()
@@ -213,7 +213,7 @@ def test_wrong_passphrases_are_throttled_and_every_refusal_reads_the_same(make_w
 
 def test_a_right_passphrase_is_not_told_apart_by_a_different_refusal(make_wf):
     """Refusals that do not depend on the passphrase come first, so they read the same either way."""
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "clear")
@@ -227,7 +227,7 @@ def test_a_right_passphrase_is_not_told_apart_by_a_different_refusal(make_wf):
 
 # ------------------------------------------------------------------ item 8: target after planning
 def test_changing_the_target_drops_the_plans(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "extract")
@@ -245,7 +245,7 @@ def test_scene_check_problems_are_shown_stored_and_need_risk_acceptance(make_wf,
     import dataclasses
 
     import shelfpick.planning.planner as planner_module
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     real = planner_module.make_plan
     what = 'floats 0.30 m above <b>what holds it</b> [x](http://evil.example/)'
@@ -280,7 +280,7 @@ def lock_db(path):
 
 
 def test_locked_database_refuses_the_approval_and_the_page_keeps_saying_so(make_wf, tmp_path):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     robots = CountingRobots()
     wf = make_wf(robot=robots, db=tmp_path / "a.sqlite", timeout=0.3)
@@ -301,7 +301,7 @@ def test_locked_database_refuses_the_approval_and_the_page_keeps_saying_so(make_
 
 
 def test_locked_database_at_start_refuses_to_start_the_robot(make_wf, tmp_path):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     robots = CountingRobots()
     wf = make_wf(robot=robots, db=tmp_path / "b.sqlite", timeout=0.3)
@@ -323,7 +323,7 @@ def test_locked_database_at_start_refuses_to_start_the_robot(make_wf, tmp_path):
 def test_full_database_means_nothing_can_be_approved(make_wf, tmp_path):
     """The disk fills up (SQLite's max_page_count): the capture or the plans cannot be recorded,
     so nothing can be approved and the robot never moves; the page says so."""
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     robots = CountingRobots()
     wf = make_wf(robot=robots, db=tmp_path / "c.sqlite")
@@ -380,7 +380,7 @@ def test_a_robot_event_that_cannot_be_committed_stops_the_run(make_wf, tmp_path,
 
 # ------------------------------------------------------------------ item 2: never re-send, by capture
 def tcp_wf(make_wf, peer):
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
     return make_wf(robot=lambda truth, seed: open_robot(peer.url, truth=truth, seed=seed))
 
 
@@ -406,9 +406,9 @@ def _check_new_run(peer):
     import tempfile
     from pathlib import Path
 
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
+    from shelfpick.console.robot.drivers import open_robot
 
     with tempfile.TemporaryDirectory() as d:
         store = SessionStore(Path(d) / "n.sqlite")
@@ -427,9 +427,9 @@ def _check_new_run(peer):
 
 @pytest.mark.parametrize("fault_kind", ["refuse", "drop_after_ack"])
 def test_after_an_error_or_unknown_step_a_new_capture_sends_again(tmp_path, fault_kind):
-    from shelfpick.console.robot import open_robot
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.robot.drivers import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     # first connection: step 0 done, then step 1 refused / acknowledged and the link drops
     peer = HonestPeer(script=lambda conn, step: fault_kind if conn == 0 and step == 1 else "ok")
@@ -454,9 +454,9 @@ def test_after_an_error_or_unknown_step_a_new_capture_sends_again(tmp_path, faul
 
 def test_step_states_survive_a_restart_and_an_unknown_step_refuses_only_that_capture(tmp_path):
     """Keyed by session (capture) and plan, from the database: a fresh store sees the same."""
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow, WorkflowError, PlanEntry
-    from shelfpick.console.workflow_state import RunLock
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow, WorkflowError, PlanEntry
+    from shelfpick.console.workflow.state import RunLock
     from shelfpick.planning.plan import Plan
 
     from test_store import tiny_capture, tiny_scene
@@ -487,7 +487,7 @@ def test_a_flood_of_wrong_passphrases_does_not_lock_out_the_supervisor_at_their_
     """Issue 30: an attacker kept the overall brake engaged and the supervisor was refused 6 of 6.
     Now the supervisor's browser, connected before the flood and without wrong tries of its own,
     is judged by its own record; the attacker's browsers, old or new, stay braked."""
-    from shelfpick.console.workflow import AUTH_REFUSED, Throttle, WorkflowError
+    from shelfpick.console.workflow.machine import AUTH_REFUSED, Throttle, WorkflowError
 
     now = [1000.0]
     wf = make_wf()

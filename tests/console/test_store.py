@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shelfpick.console.store import SessionStore, StoreError
+from shelfpick.console.store.sessions import SessionStore, StoreError
 from shelfpick.perception.capture import Capture
 from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 from shelfpick.planning.plan import Plan, StepPrediction
@@ -105,7 +105,7 @@ def test_committed_record_survives_kill_9(tmp_path: Path) -> None:
         import sys, time
         sys.path.insert(0, {str(ROOT)!r}); sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_store import tiny_capture, tiny_scene, a_plan
-        from shelfpick.console.store import SessionStore
+        from shelfpick.console.store.sessions import SessionStore
         s = SessionStore({str(db)!r})
         sid = s.new_session("demo", tiny_capture(), tiny_scene(), None, None)
         h = s.add_plan(sid, a_plan())
@@ -194,7 +194,7 @@ def test_concurrent_writers_from_threads(tmp_path: Path) -> None:
 def test_owner_lock_says_which_console_is_alive(tmp_path: Path) -> None:
     """An open writable store holds `<db>.owners/<pid>-<token>.lock` (flock); close drops it, and a
     lock file a crash left unlocked is taken for a dead console and swept by recover_interrupted."""
-    from shelfpick.console.store_owner import owner_alive, owners_dir
+    from shelfpick.console.store.owner import owner_alive, owners_dir
 
     db = tmp_path / "o.db"
     a = SessionStore(db)

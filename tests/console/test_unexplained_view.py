@@ -22,7 +22,7 @@ def _scene(*regions: Unexplained) -> Scene:
 
 
 def test_regions_are_drawn_where_planning_puts_them_grey_and_labelled(server):
-    from shelfpick.console.scene_view import UNEXPLAINED_COLOR, draw_unexplained
+    from shelfpick.console.web.scene_view import UNEXPLAINED_COLOR, draw_unexplained
     from shelfpick.planning.unexplained import obstacles
 
     u = Unexplained("u0", (0.12, 0.02, 0.02), (0.30, 0.05, 0.20), 4000, 0.03, ((0.12, 0.30, 0.02, 0.20, 0.02),))
@@ -40,15 +40,15 @@ def test_regions_are_drawn_where_planning_puts_them_grey_and_labelled(server):
 
 
 def test_a_scene_without_regions_draws_nothing(server):
-    from shelfpick.console.scene_view import draw_unexplained
+    from shelfpick.console.web.scene_view import draw_unexplained
 
     assert draw_unexplained(server.scene, _scene()) == []
     assert draw_unexplained(server.scene, Scene(Shelf(), ())) == []
 
 
 def test_the_plan_table_says_what_touches_unexplained_matter():
-    from shelfpick.console.page_markdown import results_markdown
-    from shelfpick.console.workflow import PlanEntry, State
+    from shelfpick.console.web.markdown import results_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
     from shelfpick.planning.plan import Plan, StepPrediction
 
     touched = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), False, {}, 0,

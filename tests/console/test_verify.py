@@ -1,9 +1,9 @@
-"""console.verify: the predicted shelf after a step against the observed one (pure scenes built here)."""
+"""console.workflow.verify: the predicted shelf after a step against the observed one (pure scenes built here)."""
 from __future__ import annotations
 
 import math
 
-from shelfpick.console.verify import Tolerance, Verification, compare
+from shelfpick.console.workflow.verify import Tolerance, Verification, compare
 from shelfpick.perception.scene import Box, Scene, Shelf
 
 
@@ -96,7 +96,7 @@ class TwoLooks:
 
 
 def test_a_difference_is_looked_at_twice_before_it_holds() -> None:
-    from shelfpick.console.workflow import look_again
+    from shelfpick.console.workflow.machine import look_again
     from shelfpick.perception.pipeline import perceive
     from shelfpick.perception.render import default_camera, render
 

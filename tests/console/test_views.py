@@ -58,10 +58,10 @@ class GatedDemo:
 
 @pytest.fixture
 def demo_console(tmp_path):
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.robot import open_robot
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.robot.drivers import open_robot
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     from shelfpick.planning.priors import CellPriors
 
@@ -370,9 +370,9 @@ def test_the_page_shows_the_shelf_from_capture_to_replay(browser, demo_console, 
 def test_the_export_marks_the_approved_plan_when_two_planners_agree(browser, tmp_path):
     """Item 13: physics and heuristic gave one sequence (one hash); the heuristic plan was approved
     and ran: the exported page marks that card only and the decision names it."""
-    from shelfpick.console.replay import render_html
-    from shelfpick.console.replay_view import record_view
-    from shelfpick.console.store import SessionStore
+    from shelfpick.console.web.replay import render_html
+    from shelfpick.console.web.replay_view import record_view
+    from shelfpick.console.store.sessions import SessionStore
     from shelfpick.perception.render import default_camera, render
     from shelfpick.perception.scene import Box, Scene, Shelf
     from shelfpick.planning.plan import Plan, StepPrediction
@@ -405,8 +405,8 @@ def test_the_export_marks_the_approved_plan_when_two_planners_agree(browser, tmp
 
 def test_a_collapse_names_the_boxes_the_operator_knows():
     """Item 11: perceived ids, and a box the camera never saw said in words, not the simulator's id."""
-    from shelfpick.console.replay_view import _actual_text
-    from shelfpick.console.robot import seen_names
+    from shelfpick.console.web.replay_view import _actual_text
+    from shelfpick.console.robot.drivers import seen_names
 
     assert seen_names(["b2", None]) == "b2, a box the camera did not see"
     assert seen_names([None, None]) == "2 boxes the camera did not see"

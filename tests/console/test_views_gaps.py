@@ -55,9 +55,9 @@ def world_words(shown: dict) -> str:
 
 def planned_demo_session(store):
     """The demo shelf planned for clearance, with the worlds its risky steps are shown in (as live)."""
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import DEMO_DIR, DemoSource
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.workflow.machine import Workflow
 
     wf = Workflow(DemoSource.from_dir(DEMO_DIR, "demo-small-6", seed=0), store,
                   lambda truth, seed: open_robot("sim", truth=truth, seed=seed), PASS, samples=10, seed=0)
@@ -77,7 +77,7 @@ def planned_demo_session(store):
 def check_export_worlds(page, store, sid, name, entry, k, shown) -> None:
     """Item 3 in the HTML export: the card of that plan says the world under its animation, and the
     animation's frames of that step are the collapsing world's (the box that falls moves)."""
-    from shelfpick.console.replay import keyframes, render_html
+    from shelfpick.console.web.replay import keyframes, render_html
 
     rec = store.load_session(sid)
     pr = next(p for p in reversed(rec.plans) if p.plan.planner == name)
@@ -93,10 +93,10 @@ def check_export_worlds(page, store, sid, name, entry, k, shown) -> None:
 
 
 def test_the_page_names_what_the_camera_saw_and_shows_the_collapse_world(browser, tmp_path):
-    from shelfpick.console.app import ConsoleApp
-    from shelfpick.console.replay import render_html
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.web.app import ConsoleApp
+    from shelfpick.console.web.replay import render_html
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
     from test_workflow import sim_factory
 
     store = SessionStore(tmp_path / "gaps.sqlite")

@@ -44,7 +44,7 @@ class CodeShelfSource:
 
 
 def sim_factory(delay: float = 0.0):
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
 
     def make(truth, seed):
         return open_robot(f"sim?delay={delay}" if delay else "sim", truth=truth, seed=seed)
@@ -53,8 +53,8 @@ def sim_factory(delay: float = 0.0):
 
 @pytest.fixture
 def make_wf(tmp_path):
-    from shelfpick.console.store import SessionStore
-    from shelfpick.console.workflow import Workflow
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
 
     made = []
 
@@ -77,7 +77,7 @@ def bottom_left(scene: Scene) -> str:
 
 
 def planned(wf, task="extract"):
-    from shelfpick.console.workflow import WorkflowError  # noqa: F401
+    from shelfpick.console.workflow.machine import WorkflowError  # noqa: F401
 
     st = wf.capture()
     assert st.error is None, st.error
@@ -90,7 +90,7 @@ def planned(wf, task="extract"):
 
 
 def test_full_cycle_records_everything(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     seen: list = []
@@ -131,7 +131,7 @@ def test_full_cycle_records_everything(make_wf):
 def test_new_capture_invalidates_approval(make_wf):
     """An approval holds the run lock: a capture is refused until Stop withdraws it; after the
     new capture the old plan is not approvable."""
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf)
@@ -152,7 +152,7 @@ def test_new_capture_invalidates_approval(make_wf):
 
 
 def test_reject_needs_reason_and_is_recorded(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = planned(wf, "clear")
@@ -186,7 +186,7 @@ def test_stop_aborts_remaining_steps(make_wf):
 
 
 def test_unknown_target_and_concurrent_planning_refused(make_wf):
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     wf = make_wf()
     st = wf.capture()
@@ -229,7 +229,7 @@ def test_locked_database_is_a_message_not_a_crash(make_wf, tmp_path):
 @pytest.mark.parametrize("fault", ["drop_after", "refuse_steps"])
 def test_tcp_robot_disconnect_or_refusal_is_recorded(make_wf, fault):
     """A real robot-side TCP server that drops the connection after one step / refuses step 2."""
-    from shelfpick.console.robot import open_robot
+    from shelfpick.console.robot.drivers import open_robot
     from shelfpick.robotsim.controller import RobotController
 
     kw = {"drop_after": 1} if fault == "drop_after" else {"refuse_steps": [1]}
@@ -256,7 +256,7 @@ def test_unsafe_plan_needs_explicit_risk_acceptance(make_wf, monkeypatch):
     import dataclasses
 
     import shelfpick.planning.planner as planner_module
-    from shelfpick.console.workflow import WorkflowError
+    from shelfpick.console.workflow.machine import WorkflowError
 
     real = planner_module.make_plan
 

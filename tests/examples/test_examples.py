@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from shelfpick.console.robot_tcp import TcpRobot
-from shelfpick.console.robot_types import StepHistory
+from shelfpick.console.robot.tcp import TcpRobot
+from shelfpick.console.robot.base import StepHistory
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.planning.plan import Plan
 
