@@ -52,8 +52,8 @@ def results_markdown(state: State) -> str:
     row("plan hash", lambda e: f"`{md(e.hash)}`")
     out = "\n".join(rows)
     out += ("\n\n_Risks are counted over sample worlds: shelves the camera cannot tell apart (box "
-            "depths, masses, friction). A plan the search finds safe is asked again of more worlds "
-            "before it is called safe._")
+            "depths, masses, friction). A plan whose risk is too near the threshold to call it safe "
+            "or not is asked of more worlds before the gate decides._")
     if state.scene_problems:
         out += "\n\n**⚠ The shelf does not stand as seen** (no plan on it is safe):\n" + "\n".join(
             f"- {md(problem_text(p))}" for p in state.scene_problems)
@@ -100,13 +100,13 @@ def _plan_risk(plan: Plan) -> str:
 
 
 def _worlds(plan: Plan) -> str:
-    """How many sample worlds the plan's risks are over, and why a plan found safe has more."""
+    """How many sample worlds the plan's risks are over, and why the gate asked more."""
     search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
     n, v = search.get("worlds"), search.get("verified_worlds")
     if not (isinstance(n, int) and not isinstance(n, bool)):
         return "—"
     if isinstance(v, int) and not isinstance(v, bool) and v > n:
-        return f"{v} ({n} searched; {v - n} more asked, as the search found it safe)"
+        return f"{v} ({n} searched; {v - n} more asked to decide whether it is safe)"
     return f"{n} (searched)"
 
 

@@ -56,7 +56,7 @@ def test_results_table_side_by_side():
     assert row["est. execution (12.5 s/box)"] == ["25.0 s", "37.5 s"]
     assert row["planning time"] == ["2.25 s", "0.01 s"]
     assert row["predicted safe"] == ["yes", "**NO**"]
-    assert row["sample worlds behind the risks"] == ["20 (10 searched; 10 more asked, as the search found it safe)", "—"]
+    assert row["sample worlds behind the risks"] == ["20 (10 searched; 10 more asked to decide whether it is safe)", "—"]
     assert "sample worlds: shelves the camera cannot tell apart" in md
     assert "Planning" in results_markdown(State(planning=True, progress_text="physics"))
 
