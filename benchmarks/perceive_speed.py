@@ -1,0 +1,413 @@
+"""How long `perceive` takes on a 640x480 RGB-D frame (issue 31: p50 <= 0.5 s on 2 cores, held-out frames).
+
+Frames: the generator looks of `benchmarks/generators` (docs/perception.md, "Roles"), 640x480 at frame
+seed 0, written once to `--frames` and reused (generation time is not counted):
+`--set held_out` (default): looks `printed` and `stereo` on the judge's 40 shelves (../shared/judge/scenes,
+read at run time, never copied); `--set tune`: look `flat` on the tuning shelves 31000-31059
+(`planning.shelves.generate`, as benchmarks/perceive_generated.py makes them). Held-out frames are only
+timed here: nothing in their output is read.
+
+Two ways a user meets `perceive`:
+
+- `--mode cli`: `shelfpick perceive` end to end, one process per frame (start-up, imports, model
+  load, perceive, writing the scene, overlay, masks and report), as camera_to_plan.py runs it; wall
+  time and the child's CPU time (user + sys, `resource.RUSAGE_CHILDREN`);
+- `--mode inproc`: `perception.pipeline.perceive` in this process with the segmenter loaded once and
+  one warm-up frame first (the console's case), then the same four files written; per stage wall and
+  CPU time (`time.process_time`, less sensitive to the other jobs on a shared machine). Stages are
+  the functions tapped in `STAGES`, each timed exclusive of the tapped stages it calls, so the stages
+  and `other` add up to the frame.
+
+`uptime`'s load is printed before and after: the machine is shared, wall times move with it.
+
+    .venv/bin/python benchmarks/perceive_speed.py --mode inproc --frames /tmp/ps/frames
+    .venv/bin/python benchmarks/perceive_speed.py --mode cli --frames /tmp/ps/frames
+    .venv/bin/python benchmarks/perceive_speed.py --set tune --fingerprint /tmp/ps/fp-before.json --frames /tmp/ps/frames
+    .venv/bin/python benchmarks/perceive_speed.py --compare /tmp/ps/fp-before.json /tmp/ps/fp-after.json
+
+`--fingerprint OUT` writes, per tuning frame, everything `perceive` outputs (the scene JSON with
+its boxes, faces, warnings, adjustments and unexplained regions, hashes of the label images) so that
+a change meant only for speed can be shown to change nothing (`--compare A B`: byte-equal, else
+every number within 1e-9, else the frames that differ). `--rows OUT.jsonl` keeps the per-frame rows.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+HELD_OUT = ("printed", "stereo")      # docs/perception.md, "Roles": timed only, never tuned on
+TUNE_SEEDS = range(31000, 31060)
+FRAME_SEED = 0
+TARGET_S = 0.5
+
+# (stage, module, attribute): the functions timed in --mode inproc; a stage's time excludes the
+# tapped stages it calls. Class methods are named "Class.method".
+STAGES = (
+    ("forward", "shelfpick.perception.onnx_net", "OnnxNet.__call__"),
+    ("seg_post", "shelfpick.perception.segment_learned", "LearnedSegmenter.segment"),
+    ("depth_rules", "shelfpick.perception.segment_depth", "DepthEdgeSegmenter.segment"),
+    ("face_gate", "shelfpick.perception.segment_learned", "keep_faces"),
+    ("face_gate", "shelfpick.perception.segment_learned", "plausible_faces"),
+    ("refine", "shelfpick.perception.pipeline", "refine"),
+    ("grow_on_plane", "shelfpick.perception.pipeline", "grow_on_plane"),
+    ("catalogue", "shelfpick.perception.pipeline", "apply_catalogue"),
+    ("measure_faces", "shelfpick.perception.pipeline", "measure_front"),
+    ("boxes", "shelfpick.perception.pipeline", "boxes_from_masks"),
+    ("make_valid", "shelfpick.perception.pipeline", "make_valid"),
+    ("unexplained", "shelfpick.perception.pipeline", "candidates"),
+    ("unexplained", "shelfpick.perception.pipeline", "find_unexplained"),
+    ("overlay", "shelfpick.perception.pipeline", "draw_overlay"),
+    ("overlay", "shelfpick.perception.pipeline", "draw_unexplained"),
+)
+STAGE_NAMES = tuple(dict.fromkeys(s for s, _, _ in STAGES)) + ("other", "perceive", "writing", "frame")
+
+
+# --------------------------------------------------------------------------
+# frames
+def load_avg() -> str:
+    """`uptime`'s load averages (1, 5, 15 min)."""
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def frame_list(which: str, judge_dir: Path, shelves: str) -> list[tuple[str, str, dict]]:
+    """(look, shelf name, true scene dict) of every frame of the set."""
+    if which == "tune":
+        from benchmarks.perceive_generated import tune_scene
+
+        cache = Path(os.environ.get("TMPDIR", "/tmp")) / "perceive_speed_shelves"
+        names = [str(s) for s in TUNE_SEEDS] if shelves == "all" else shelves.split(",")
+        return [("flat", n, tune_scene(int(n), cache)) for n in names]
+    scenes = judge_dir / "scenes"
+    names = sorted(p.stem for p in scenes.glob("*.json")) if shelves == "all" else shelves.split(",")
+    docs = {n: json.loads((scenes / f"{n}.json").read_text(encoding="utf-8")) for n in names}
+    return [(look, n, docs[n]) for look in HELD_OUT for n in names]
+
+
+def frame_folder(frames: Path, look: str, name: str, truth: dict) -> Path:
+    """The capture folder of a frame, written by the generator unless it is there already."""
+    from benchmarks.generators import write_frame
+
+    folder = frames / look / name
+    meta = folder / "meta.json"
+    if not meta.exists() or json.loads(meta.read_text()).get("seed") != FRAME_SEED:
+        scene_name = f"tune{name}" if look == "flat" else name   # as perceive_generated / camera_to_plan name them
+        write_frame(truth, look, FRAME_SEED, folder, scene_name)
+    return folder
+
+
+def inputs(folder: Path) -> dict[str, Path]:
+    return {"rgb": folder / "rgb.png", "depth": folder / "depth.png", "camera": folder / "camera.json"}
+
+
+# --------------------------------------------------------------------------
+# stage timing in process
+class Taps:
+    """Wraps the functions of `STAGES` to add up wall and CPU time per stage, each exclusive of the
+    tapped stages it calls (a stack of open calls)."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self.stack: list[list[float]] = []        # per open call: [child wall, child cpu]
+        self.undo: list[Callable[[], None]] = []
+        for stage, mod, attr in STAGES:
+            self._wrap(stage, importlib.import_module(mod), attr)
+
+    def _wrap(self, stage: str, module: Any, attr: str) -> None:
+        owner, name = module, attr
+        if "." in attr:
+            cls, name = attr.split(".")
+            owner = getattr(module, cls)
+        inner = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
+        taps = self
+
+        def tapped(*a, **k):
+            taps.stack.append([0.0, 0.0])
+            w, c = time.perf_counter(), time.process_time()
+            try:
+                return inner(*a, **k)
+            finally:
+                dw, dc = time.perf_counter() - w, time.process_time() - c
+                kw, kc = taps.stack.pop()
+                taps.wall[stage] = taps.wall.get(stage, 0.0) + dw - kw
+                taps.cpu[stage] = taps.cpu.get(stage, 0.0) + dc - kc
+                if taps.stack:
+                    taps.stack[-1][0] += dw
+                    taps.stack[-1][1] += dc
+
+        setattr(owner, name, tapped)
+        self.undo.append(lambda: setattr(owner, name, inner))
+
+    def reset(self) -> None:
+        self.wall, self.cpu = {}, {}
+
+    def close(self) -> None:
+        for u in reversed(self.undo):
+            u()
+
+
+def write_outputs(result: Any, out: Path) -> None:
+    """What `shelfpick perceive --out --overlay --masks --report` writes (perception/cmd_perceive.py)."""
+    import cv2
+
+    from shelfpick.perception.scene import write_json
+
+    result.scene.save(out / "perceived.json")
+    cv2.imwrite(str(out / "overlay.png"), cv2.cvtColor(result.overlay, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(out / "perceived_masks.png"), result.masks)
+    write_json(out / "report.json", result.summary())
+
+
+def inproc_frame(folder: Path, seg: Any, taps: Taps, out: Path) -> tuple[dict, Any]:
+    """One frame perceived in this process: (row of per-stage wall/CPU seconds, the Perception)."""
+    from shelfpick.perception.capture import load_capture
+    from shelfpick.perception.pipeline import perceive
+
+    cap = load_capture(**inputs(folder))
+    taps.reset()
+    w, c = time.perf_counter(), time.process_time()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = perceive(cap, seg)
+    pw, pc = time.perf_counter() - w, time.process_time() - c
+    out.mkdir(parents=True, exist_ok=True)
+    write_outputs(res, out)
+    fw, fc = time.perf_counter() - w, time.process_time() - c
+    wall, cpu = dict(taps.wall), dict(taps.cpu)
+    wall["other"], cpu["other"] = pw - sum(wall.values()), pc - sum(cpu.values())
+    wall.update(perceive=pw, writing=fw - pw, frame=fw)
+    cpu.update(perceive=pc, writing=fc - pc, frame=fc)
+    return {"wall": wall, "cpu": cpu, "boxes": len(res.scene.boxes)}, res
+
+
+def run_inproc(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
+    """Every frame in this process after one warm-up frame (not counted)."""
+    from shelfpick.perception.segment import load_segmenter
+
+    w, c = time.perf_counter(), time.process_time()
+    seg = load_segmenter(None, "auto")
+    seg.choose(True)          # the learned network loaded once, as the console holds it
+    print(f"segmenter loaded in {time.perf_counter() - w:.2f} s wall, {time.process_time() - c:.2f} s CPU",
+          file=sys.stderr)
+    taps = Taps()
+    rows = []
+    try:
+        inproc_frame(frames[0][2], seg, taps, out / "warmup")
+        for i, (look, name, folder) in enumerate(frames):
+            row, _ = inproc_frame(folder, seg, taps, out / look / name)
+            rows.append(dict(row, look=look, shelf=name))
+            print(f"[{i + 1}/{len(frames)}] {look} {name}: {row['wall']['perceive']:.2f} s wall, "
+                  f"{row['cpu']['perceive']:.2f} s CPU perceive, {row['boxes']} boxes (load {load_avg()})",
+                  file=sys.stderr, flush=True)
+    finally:
+        taps.close()
+    return rows
+
+
+# --------------------------------------------------------------------------
+# the CLI, a process per frame
+def run_cli(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
+    """`shelfpick perceive` on each frame, one process each: wall, the child's CPU, perceive's own total."""
+    exe = Path(sys.executable).with_name("shelfpick")
+    cmd = [str(exe)] if exe.exists() else ["shelfpick"]
+    rows = []
+    for i, (look, name, folder) in enumerate(frames):
+        d = out / look / name
+        d.mkdir(parents=True, exist_ok=True)
+        src = inputs(folder)
+        argv = cmd + ["perceive", "--rgb", str(src["rgb"]), "--depth", str(src["depth"]), "--camera",
+                      str(src["camera"]), "--out", str(d / "perceived.json"), "--report", str(d / "report.json"),
+                      "--masks", str(d / "perceived_masks.png"), "--overlay", str(d / "overlay.png")]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        w = time.perf_counter()
+        p = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+        wall = time.perf_counter() - w
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        if p.returncode != 0:
+            lines = (p.stderr or p.stdout).strip().splitlines()
+            raise SystemExit(f"perceive_speed: {look} {name}: shelfpick perceive exit {p.returncode}: "
+                             f"{lines[-1] if lines else ''}")
+        total = json.loads((d / "report.json").read_text())["timing"]["total"]
+        rows.append({"look": look, "shelf": name, "wall": {"frame": wall, "perceive": total},
+                     "cpu": {"frame": cpu}})
+        print(f"[{i + 1}/{len(frames)}] {look} {name}: {wall:.2f} s wall ({total:.2f} s in perceive), "
+              f"{cpu:.2f} s CPU (load {load_avg()})", file=sys.stderr, flush=True)
+    return rows
+
+
+# --------------------------------------------------------------------------
+# figures
+def pct(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else float("nan")
+
+
+def summary(rows: list[dict], mode: str) -> str:
+    """A markdown table per look: p50/p90 of the frame; for inproc, p50 and mean per stage."""
+    lines = []
+    looks = list(dict.fromkeys(r["look"] for r in rows))
+    key = "perceive" if mode == "inproc" else "frame"
+    lines.append(f"| look | frames | wall p50 | wall p90 | CPU p50 | CPU p90 | frames <= {TARGET_S} s wall |")
+    lines.append("|---|---|---|---|---|---|---|")
+    for look in looks + ["all"]:
+        rs = [r for r in rows if look in ("all", r["look"])]
+        wl = [r["wall"][key] for r in rs]
+        cp = [r["cpu"][key] for r in rs]
+        lines.append(f"| {look} | {len(rs)} | {pct(wl, 50):.3f} | {pct(wl, 90):.3f} | {pct(cp, 50):.3f} | "
+                     f"{pct(cp, 90):.3f} | {sum(v <= TARGET_S for v in wl)} |")
+    if mode == "cli":
+        pw = [r["wall"]["perceive"] for r in rows]
+        lines.append(f"\n(`{key}` is the process's whole run; of it, `perceive` itself: wall p50 "
+                     f"{pct(pw, 50):.3f}, p90 {pct(pw, 90):.3f} s.)")
+        return "\n".join(lines)
+    lines.append("\nStages (seconds a frame, all looks; each exclusive of the stages it calls):\n")
+    lines.append("| stage | wall p50 | wall mean | CPU p50 | CPU mean | CPU share of perceive |")
+    lines.append("|---|---|---|---|---|---|")
+    total_cpu = sum(r["cpu"]["perceive"] for r in rows)
+    for s in STAGE_NAMES:
+        wl = [r["wall"].get(s, 0.0) for r in rows]
+        cp = [r["cpu"].get(s, 0.0) for r in rows]
+        share = "" if s in ("perceive", "writing", "frame") else f"{100 * sum(cp) / total_cpu:.0f}%"
+        lines.append(f"| {s} | {pct(wl, 50):.3f} | {np.mean(wl):.3f} | {pct(cp, 50):.3f} | {np.mean(cp):.3f} | {share} |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------
+# fingerprint: outputs unchanged by a speed-up
+def _h(a: np.ndarray | None) -> str:
+    if a is None:
+        return "none"
+    a = np.ascontiguousarray(a)
+    return hashlib.sha256(str(a.shape).encode() + str(a.dtype).encode() + a.tobytes()).hexdigest()[:16]
+
+
+def fingerprint(frames: list[tuple[str, str, Path]]) -> dict:
+    """Per frame: the scene JSON, faces, warnings, adjustments and hashes of the label images."""
+    from shelfpick.perception.capture import load_capture
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.segment import load_segmenter
+
+    seg = load_segmenter(None, "auto")
+    out = {}
+    for i, (look, name, folder) in enumerate(frames):
+        cap = load_capture(**inputs(folder))
+        t = time.process_time()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = perceive(cap, seg)
+        cpu = time.process_time() - t
+        out[f"{look}/{name}"] = {
+            "scene": res.scene.to_json(), "faces": [f.to_json() for f in res.faces],
+            "warnings": list(res.warnings), "adjustments": list(res.adjustments),
+            "masks": _h(res.masks), "unexplained_labels": _h(res.unexplained_labels), "overlay": _h(res.overlay),
+            "cpu_s": cpu}
+        print(f"[{i + 1}/{len(frames)}] {look} {name}: {len(res.scene.boxes)} boxes, {cpu:.2f} s CPU",
+              file=sys.stderr, flush=True)
+    return out
+
+
+def _close(a: Any, b: Any, tol: float) -> bool:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k], tol) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_close(x, y, tol) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, (int, float)) or isinstance(b, float) and isinstance(a, (int, float)):
+        return abs(a - b) <= tol
+    return a == b
+
+
+def compare(a: dict, b: dict, tol: float = 1e-9) -> tuple[int, list[str], list[str]]:
+    """(frames byte-equal, frames equal within tol only, frames different); cpu_s is not compared."""
+    same, close, diff = 0, [], []
+    for k in sorted(set(a) | set(b)):
+        fa = {x: v for x, v in a.get(k, {}).items() if x != "cpu_s"}
+        fb = {x: v for x, v in b.get(k, {}).items() if x != "cpu_s"}
+        if json.dumps(fa, sort_keys=True) == json.dumps(fb, sort_keys=True) and k in a and k in b:
+            same += 1
+        elif k in a and k in b and _close(fa, fb, tol):
+            close.append(k)
+        else:
+            diff.append(k)
+    return same, close, diff
+
+
+# --------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--set", choices=("held_out", "tune"), default="held_out")
+    ap.add_argument("--mode", choices=("inproc", "cli"), default="inproc")
+    ap.add_argument("--shelves", default="all", help="all, or a comma list (judge shelves s00,u03 or tune seeds)")
+    ap.add_argument("--judge-dir", default=str(ROOT.parent / "shared" / "judge"))
+    ap.add_argument("--frames", default=str(Path(os.environ.get("TMPDIR", "/tmp")) / "perceive_speed_frames"),
+                    help="capture folders (written once, reused)")
+    ap.add_argument("--out", default=None, help="folder for the perceived outputs (default <frames>.out)")
+    ap.add_argument("--rows", default=None, help="write the per-frame rows here (JSONL)")
+    ap.add_argument("--fingerprint", metavar="OUT", help="write the outputs' fingerprint of the frames (JSON)")
+    ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two fingerprints")
+    ap.add_argument("--profile", metavar="OUT", help="--mode inproc under cProfile (stats to OUT; --set tune only)")
+    a = ap.parse_args(argv)
+    if a.compare:
+        fa, fb = (json.loads(Path(p).read_text()) for p in a.compare)
+        same, close, diff = compare(fa, fb)
+        print(f"{same} frames byte-equal, {len(close)} equal within 1e-9 {close}, {len(diff)} different {diff}")
+        ca, cb = ([v["cpu_s"] for v in f.values()] for f in (fa, fb))
+        print(f"perceive CPU p50 {pct(ca, 50):.3f} -> {pct(cb, 50):.3f} s")
+        return 1 if diff else 0
+    if a.set == "held_out" and not (Path(a.judge_dir) / "scenes").is_dir():
+        print(f"perceive_speed: --judge-dir: {a.judge_dir} has no scenes/ (the judge's shelves)", file=sys.stderr)
+        return 2
+    if a.set == "held_out" and a.fingerprint:
+        print("perceive_speed: --fingerprint: only on --set tune (held-out outputs are never looked at)",
+              file=sys.stderr)
+        return 2
+    if a.set == "held_out" and a.profile:
+        print("perceive_speed: --profile: only on --set tune (a profile chooses what to change)", file=sys.stderr)
+        return 2
+    frames_dir = Path(a.frames)
+    t = time.perf_counter()
+    frames = [(look, n, frame_folder(frames_dir, look, n, truth))
+              for look, n, truth in frame_list(a.set, Path(a.judge_dir), a.shelves)]
+    print(f"{len(frames)} frames ready in {time.perf_counter() - t:.1f} s (not counted)", file=sys.stderr)
+    if a.profile:
+        import cProfile
+        import pstats
+
+        prof = cProfile.Profile()
+        prof.runcall(run_inproc, frames, Path(a.out) if a.out else frames_dir.with_suffix(".out"))
+        prof.dump_stats(a.profile)
+        pstats.Stats(a.profile).sort_stats("tottime").print_stats(40)
+        return 0
+    if a.fingerprint:
+        doc = fingerprint(frames)
+        Path(a.fingerprint).write_text(json.dumps(doc, sort_keys=True))
+        print(f"fingerprint of {len(doc)} frames -> {a.fingerprint}")
+        return 0
+    out = Path(a.out) if a.out else frames_dir.with_suffix(".out")
+    start = load_avg()
+    rows = run_inproc(frames, out) if a.mode == "inproc" else run_cli(frames, out)
+    if a.rows:
+        Path(a.rows).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    print(f"perceive speed, --set {a.set} --mode {a.mode}, {len(rows)} frames 640x480; "
+          f"load (1/5/15 min) {start} at the start, {load_avg()} at the end; {os.cpu_count()} cores")
+    print(summary(rows, a.mode))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
