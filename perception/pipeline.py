@@ -15,6 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from shelfpick.perception.blas_threads import one_blas_thread
 from shelfpick.perception.box_catalogue import Catalogue, apply_catalogue, catalogue_applies
 from shelfpick.perception.boxes import (
     CONTRADICTION,
@@ -147,7 +148,16 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     """The scene seen in `capture` (see module docstring). `catalogue`: the box types a face
     may be (joins pieces and splits merged faces only where it explains them); None: no types.
     An image over `max_pixels` is perceived scaled down; its masks and overlay are full size
-    (the faces' `rect_px` stay in the scaled image)."""
+    (the faces' `rect_px` stay in the scaled image). Runs with one BLAS thread (`blas_threads`)."""
+    with one_blas_thread():
+        return _perceive(capture, segmenter, shelf, front_distance=front_distance, box_size=box_size,
+                         placeholder=placeholder, origin=origin, catalogue=catalogue, max_pixels=max_pixels)
+
+
+def _perceive(capture: Capture, segmenter: Segmenter | None, shelf: Shelf | None, *,
+              front_distance: float | None, box_size: tuple[float, float] | None, placeholder: float,
+              origin: str, catalogue: Catalogue | None, max_pixels: int) -> Perception:
+    """`perceive`'s work (see there)."""
     t0 = time.perf_counter()
     shelf = shelf or Shelf()
     check_intrinsics(capture.camera, capture.shape, origin)
