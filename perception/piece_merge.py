@@ -28,7 +28,7 @@ def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab:
         return assigned
     idx = np.arange(1, n + 1)
     src = np.where(core, assigned, 0)
-    cnt = np.maximum(ndimage.sum(np.ones_like(src), src, idx), 1)
+    cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)   # ndimage.sum of ones, 6x faster
     mean = np.stack([ndimage.sum(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
     # neighbouring pieces (one pixel apart after growing)
     pairs = set()
@@ -105,7 +105,7 @@ def merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.nd
     idx = np.arange(1, n + 1)
     thick = _thickness(labels, mpp, idx)
     src = np.where(core, labels, 0)
-    cnt = np.maximum(np.asarray(ndimage.sum(np.ones(labels.shape), src, idx)), 1)
+    cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)
     mean = np.stack([np.asarray(ndimage.sum(lab[..., c], src, idx)) / cnt for c in range(3)], axis=1)
     touch = contacts(labels)
     nbrs: dict[int, set[int]] = {i: set() for i in idx}

@@ -227,7 +227,7 @@ def _big_pieces(core: np.ndarray, piece: np.ndarray, npiece: int, mpp: np.ndarra
     dist = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 3)
     idx = np.arange(1, npiece)
     area_m2 = ndimage.sum(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
-    thick_m = 2 * ndimage.maximum(dist * mpp, piece, idx) if npiece > 1 else np.zeros(0)
+    thick_m = 2 * label_max(dist * mpp, piece, npiece) if npiece > 1 else np.zeros(0)
     big = (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.min_side_m)
     if npiece > 1 and cfg.border_px > 0:
         # a face cut by the image border is at least this big: a thin strip along the
@@ -241,6 +241,15 @@ def _big_pieces(core: np.ndarray, piece: np.ndarray, npiece: int, mpp: np.ndarra
     keep = np.zeros(npiece, bool)
     keep[1:] = big
     return keep
+
+
+def label_max(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """The largest value of each label 1..n-1 (labels 0..n-1, each present): what
+    `ndimage.maximum(values, labels, range(1, n))` gives, without its sort of the whole image
+    (57 ms of a frame's CPU)."""
+    out = np.full(n, -np.inf, values.dtype)
+    np.maximum.at(out, labels.ravel(), values.ravel())
+    return out[1:]
 
 
 def _scaled(cfg: DepthEdgeConfig, depth: np.ndarray, fg: np.ndarray) -> DepthEdgeConfig:
