@@ -14,7 +14,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from shelfpick.perception.contact import face_part, face_sweep, sweep
+from shelfpick.perception.contact import box_corners, face_part, face_sweep, sweep
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.faces import FrontFace, face_axes, measure_front
 from shelfpick.perception.geometry import matrix_to_quat
@@ -42,7 +42,8 @@ UP = (0.0, 0.0, 1.0)
 
 
 def _aabb(b: Box) -> np.ndarray:
-    c = np.asarray(b.corners())
+    """2x3: the lowest and highest corner coordinates of the box (its corners memoised by pose)."""
+    c = box_corners(b)
     return np.stack([c.min(axis=0), c.max(axis=0)])
 
 

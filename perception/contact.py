@@ -18,12 +18,42 @@ from shelfpick.perception.scene import Box, quat_to_matrix
 FACE_SLAB = 0.02
 
 
-def _corners(b: Box) -> np.ndarray:
-    return np.asarray(b.corners(), float)
+# memos of what a box's pose gives (make_valid asks for the same boxes' corners and axes
+# thousands of times a frame: 30-50 ms of it); values are computed as before and read-only
+_MEMO_MAX = 4096
+_CORNERS: dict[tuple, np.ndarray] = {}
+_AXES: dict[tuple, tuple[np.ndarray, ...]] = {}
 
 
-def _axes(a: Box, b: Box) -> list[np.ndarray]:
-    """The 15 candidate separating axes of two boxes (face normals and edge crosses)."""
+def _pose_key(b: Box) -> tuple:
+    return tuple(b.position), tuple(b.size), tuple(b.orientation)
+
+
+def _remember(memo: dict, key: tuple, value):
+    if len(memo) >= _MEMO_MAX:
+        memo.clear()
+    memo[key] = value
+    return value
+
+
+def box_corners(b: Box) -> np.ndarray:
+    """`b.corners()` as an 8x3 array (read-only, memoised by pose)."""
+    key = _pose_key(b)
+    hit = _CORNERS.get(key)
+    if hit is None:
+        hit = np.asarray(b.corners(), float)
+        hit.flags.writeable = False
+        _remember(_CORNERS, key, hit)
+    return hit
+
+
+def _axes(a: Box, b: Box) -> tuple[np.ndarray, ...]:
+    """The 15 candidate separating axes of two boxes (face normals and edge crosses; memoised
+    by the two orientations)."""
+    key = (tuple(a.orientation), tuple(b.orientation))
+    hit = _AXES.get(key)
+    if hit is not None:
+        return hit
     ra, rb = np.asarray(quat_to_matrix(a.orientation)), np.asarray(quat_to_matrix(b.orientation))
     out = [ra[:, i] for i in range(3)] + [rb[:, i] for i in range(3)]
     for i in range(3):
@@ -32,14 +62,16 @@ def _axes(a: Box, b: Box) -> list[np.ndarray]:
             n = float(np.linalg.norm(c))
             if n > 1e-9:
                 out.append(c / n)
-    return out
+    for v in out:
+        v.flags.writeable = False
+    return _remember(_AXES, key, tuple(out))
 
 
 def sweep(a: Box, b: Box, direction: tuple[float, float, float]) -> tuple[float, float] | None:
     """(lo, hi): `a` moved by t * direction overlaps `b` exactly for lo < t < hi; None when no
     such shift exists (they pass each other). t = 0 inside the interval: they overlap now."""
     d = np.asarray(direction, float)
-    ca, cb = _corners(a), _corners(b)
+    ca, cb = box_corners(a), box_corners(b)
     lo, hi = -np.inf, np.inf
     for n in _axes(a, b):
         pa, pb = ca @ n, cb @ n
