@@ -1,0 +1,41 @@
+"""benchmarks/perceive_speed.py (issue 31's speed figure): the fingerprint comparison that shows a
+speed-up changed no output, and the held-out frames' outputs are never fingerprinted or profiled."""
+from __future__ import annotations
+
+import copy
+
+from bench_scripts import load
+
+
+def _fp() -> dict:
+    scene = {"boxes": [{"id": "b0", "position": [0.1, 0.2, 0.3], "size": [0.2, 0.25, 0.2]}], "unexplained": []}
+    return {"flat/31000": {"scene": scene, "faces": [], "warnings": ["w"], "adjustments": [], "masks": "ab",
+                           "unexplained_labels": "none", "overlay": "cd", "cpu_s": 0.5}}
+
+
+def test_compare_tells_byte_equal_close_and_different_frames_apart():
+    ps = load("perceive_speed")
+    a = _fp()
+    b = copy.deepcopy(a)
+    b["flat/31000"]["cpu_s"] = 0.2                       # time is not an output
+    assert ps.compare(a, b) == (1, [], [])
+    b["flat/31000"]["scene"]["boxes"][0]["position"][0] += 1e-12
+    assert ps.compare(a, b) == (0, ["flat/31000"], [])
+    b["flat/31000"]["scene"]["boxes"][0]["position"][0] += 1e-6
+    assert ps.compare(a, b) == (0, [], ["flat/31000"])
+    c = copy.deepcopy(a)
+    c["flat/31000"]["warnings"] = ["other"]
+    assert ps.compare(a, c) == (0, [], ["flat/31000"])
+    assert ps.compare(a, {}) == (0, [], ["flat/31000"])    # a frame missing from one side
+
+
+def test_held_out_frames_are_never_fingerprinted_or_profiled(capsys, tmp_path):
+    ps = load("perceive_speed")
+    judge = tmp_path / "judge"
+    (judge / "scenes").mkdir(parents=True)
+    assert ps.main(["--judge-dir", str(judge), "--fingerprint", str(tmp_path / "fp.json")]) == 2
+    assert ps.main(["--judge-dir", str(judge), "--profile", str(tmp_path / "p.prof")]) == 2
+    assert ps.main(["--judge-dir", str(tmp_path / "none")]) == 2
+    err = capsys.readouterr().err
+    assert "held-out" in err and "only on --set tune" in err and "has no scenes/" in err
+    assert not (tmp_path / "fp.json").exists()
