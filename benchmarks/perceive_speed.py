@@ -25,6 +25,12 @@ Two ways a user meets `perceive`:
     .venv/bin/python benchmarks/perceive_speed.py --set tune --fingerprint /tmp/ps/fp-before.json --frames /tmp/ps/frames
     .venv/bin/python benchmarks/perceive_speed.py --compare /tmp/ps/fp-before.json /tmp/ps/fp-after.json
 
+`--perception-from DIR` times another commit's perception (the "before" of a change) in place of
+the working tree's, in process or, with `--mode cli`, as `shelfpick` run by this script:
+
+    git archive b8f5da2 perception | tar -x -C /tmp/old && ln -s $PWD/static /tmp/old/static
+    .venv/bin/python benchmarks/perceive_speed.py --mode inproc --perception-from /tmp/old/perception
+
 `--fingerprint OUT` writes, per tuning frame, everything `perceive` outputs (the scene JSON with
 its boxes, faces, warnings, adjustments and unexplained regions, hashes of the label images) so that
 a change meant only for speed can be shown to change nothing (`--compare A B`: byte-equal, else
@@ -76,6 +82,28 @@ STAGES = (
     ("overlay", "shelfpick.perception.pipeline", "draw_unexplained"),
 )
 STAGE_NAMES = tuple(dict.fromkeys(s for s, _, _ in STAGES)) + ("other", "perceive", "writing", "frame")
+
+
+# --------------------------------------------------------------------------
+# another version of perception, for the "before" of a change
+def use_perception_from(folder: str) -> None:
+    """Import `shelfpick.perception` from `folder` (a perception/ tree, e.g. `git archive COMMIT
+    perception | tar -x -C DIR` then DIR/perception, with DIR/static linked to the repo's static/)
+    instead of the working tree's; before anything imports it."""
+    import importlib.util
+
+    import shelfpick
+
+    if "shelfpick.perception" in sys.modules:
+        raise SystemExit("perceive_speed: --perception-from: shelfpick.perception is imported already")
+    init = Path(folder) / "__init__.py"
+    if not init.is_file():
+        raise SystemExit(f"perceive_speed: --perception-from: {folder} has no __init__.py (a perception/ folder)")
+    spec = importlib.util.spec_from_file_location("shelfpick.perception", init, submodule_search_locations=[folder])
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["shelfpick.perception"] = mod
+    spec.loader.exec_module(mod)   # type: ignore[union-attr]
+    assert shelfpick is not None
 
 
 # --------------------------------------------------------------------------
@@ -211,9 +239,11 @@ def run_inproc(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
         inproc_frame(frames[0][2], seg, taps, out / "warmup")
         for i, (look, name, folder) in enumerate(frames):
             row, _ = inproc_frame(folder, seg, taps, out / look / name)
-            rows.append(dict(row, look=look, shelf=name))
+            rows.append(dict(row, look=look, shelf=name) if look not in HELD_OUT else
+                        {k: v for k, v in dict(row, look=look, shelf=name).items() if k != "boxes"})
+            said = f", {row['boxes']} boxes" if look not in HELD_OUT else ""    # held out: time only
             print(f"[{i + 1}/{len(frames)}] {look} {name}: {row['wall']['perceive']:.2f} s wall, "
-                  f"{row['cpu']['perceive']:.2f} s CPU perceive, {row['boxes']} boxes (load {load_avg()})",
+                  f"{row['cpu']['perceive']:.2f} s CPU perceive{said} (load {load_avg()})",
                   file=sys.stderr, flush=True)
     finally:
         taps.close()
@@ -222,10 +252,14 @@ def run_inproc(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
 
 # --------------------------------------------------------------------------
 # the CLI, a process per frame
-def run_cli(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
-    """`shelfpick perceive` on each frame, one process each: wall, the child's CPU, perceive's own total."""
+def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = None,
+            perception_from: str | None = None) -> list[dict]:
+    """`shelfpick perceive` on each frame, one process each: wall, the child's CPU, perceive's own total.
+    `given`: the command to run instead of `shelfpick` beside this Python (split at spaces)."""
     exe = Path(sys.executable).with_name("shelfpick")
-    cmd = [str(exe)] if exe.exists() else ["shelfpick"]
+    cmd = given.split() if given else [str(exe)] if exe.exists() else ["shelfpick"]
+    if perception_from:          # `shelfpick` run by this script with that perception imported
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--perception-from", perception_from, "--as-cli"]
     rows = []
     for i, (look, name, folder) in enumerate(frames):
         d = out / look / name
@@ -240,10 +274,8 @@ def run_cli(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
         wall = time.perf_counter() - w
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-        if p.returncode != 0:
-            lines = (p.stderr or p.stdout).strip().splitlines()
-            raise SystemExit(f"perceive_speed: {look} {name}: shelfpick perceive exit {p.returncode}: "
-                             f"{lines[-1] if lines else ''}")
+        if p.returncode != 0:       # the exit status only: a held-out frame's output is not read
+            raise SystemExit(f"perceive_speed: {look} {name}: shelfpick perceive exit {p.returncode}")
         total = json.loads((d / "report.json").read_text())["timing"]["total"]
         rows.append({"look": look, "shelf": name, "wall": {"frame": wall, "perceive": total},
                      "cpu": {"frame": cpu}})
@@ -349,6 +381,15 @@ def compare(a: dict, b: dict, tol: float = 1e-9) -> tuple[int, list[str], list[s
 
 # --------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--as-cli" in argv:       # `shelfpick ARGS` with --perception-from's perception (the CLI's "before")
+        k = argv.index("--as-cli")
+        folder = argv[argv.index("--perception-from") + 1]
+        use_perception_from(folder)
+        from shelfpick.console.cli import main as cli_main
+
+        sys.argv = ["shelfpick"] + argv[k + 1:]
+        return cli_main()
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--set", choices=("held_out", "tune"), default="held_out")
     ap.add_argument("--mode", choices=("inproc", "cli"), default="inproc")
@@ -358,8 +399,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="capture folders (written once, reused)")
     ap.add_argument("--out", default=None, help="folder for the perceived outputs (default <frames>.out)")
     ap.add_argument("--rows", default=None, help="write the per-frame rows here (JSONL)")
+    ap.add_argument("--shelfpick", default=None, help="--mode cli: the command to run (default: shelfpick beside this Python)")
     ap.add_argument("--fingerprint", metavar="OUT", help="write the outputs' fingerprint of the frames (JSON)")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two fingerprints")
+    ap.add_argument("--perception-from", metavar="DIR",
+                    help="time shelfpick.perception from DIR (a perception/ folder of another commit) instead of the tree's")
     ap.add_argument("--profile", metavar="OUT", help="--mode inproc under cProfile (stats to OUT; --set tune only)")
     a = ap.parse_args(argv)
     if a.compare:
@@ -379,6 +423,8 @@ def main(argv: list[str] | None = None) -> int:
     if a.set == "held_out" and a.profile:
         print("perceive_speed: --profile: only on --set tune (a profile chooses what to change)", file=sys.stderr)
         return 2
+    if a.perception_from:
+        use_perception_from(a.perception_from)
     frames_dir = Path(a.frames)
     t = time.perf_counter()
     frames = [(look, n, frame_folder(frames_dir, look, n, truth))
@@ -400,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     out = Path(a.out) if a.out else frames_dir.with_suffix(".out")
     start = load_avg()
-    rows = run_inproc(frames, out) if a.mode == "inproc" else run_cli(frames, out)
+    rows = run_inproc(frames, out) if a.mode == "inproc" else run_cli(frames, out, a.shelfpick, a.perception_from)
     if a.rows:
         Path(a.rows).write_text("".join(json.dumps(r) + "\n" for r in rows))
     print(f"perceive speed, --set {a.set} --mode {a.mode}, {len(rows)} frames 640x480; "
