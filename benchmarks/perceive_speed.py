@@ -404,6 +404,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two fingerprints")
     ap.add_argument("--perception-from", metavar="DIR",
                     help="time shelfpick.perception from DIR (a perception/ folder of another commit) instead of the tree's")
+    ap.add_argument("--blas-threads-as-is", action="store_true",
+                    help="in process: perceive without its one-BLAS-thread limit (to time that change alone)")
     ap.add_argument("--profile", metavar="OUT", help="--mode inproc under cProfile (stats to OUT; --set tune only)")
     a = ap.parse_args(argv)
     if a.compare:
@@ -425,6 +427,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if a.perception_from:
         use_perception_from(a.perception_from)
+    if a.blas_threads_as_is:
+        import contextlib
+
+        import shelfpick.perception.pipeline as pipeline
+
+        pipeline.one_blas_thread = contextlib.nullcontext   # type: ignore[attr-defined]
     frames_dir = Path(a.frames)
     t = time.perf_counter()
     frames = [(look, n, frame_folder(frames_dir, look, n, truth))

@@ -3,7 +3,8 @@
 Why: numpy's OpenBLAS starts a thread per core for every matrix product, and perception's
 products are tiny (an image's points times a 3x3 rotation, RANSAC's 2000 points times 100
 normals). On 2 shared cores the threads only wait for each other: with them a 640x480 frame took
-0.74 s of CPU, with one thread 0.56 s (benchmarks/perceive_speed.py, docs/results/perceive-speed.md).
+0.74 s of CPU, with one thread 0.56 s (p50 of 10 tuning frames; benchmarks/perceive_speed.py,
+docs/results/perceive-speed.md).
 A product's result does not depend on the thread count here (the same frames' outputs are
 byte-equal either way). The OpenBLAS libraries already loaded (numpy's, scipy's) are found in
 /proc/self/maps and set through their own `*_set_num_threads` call, restored after; where
@@ -53,7 +54,8 @@ def _openblas_libs() -> list[tuple[ctypes.CDLL, str]]:
 
 @contextlib.contextmanager
 def one_blas_thread() -> Iterator[None]:
-    """Run the body with one OpenBLAS thread, the previous counts restored after."""
+    """Run the body with one OpenBLAS thread, the previous counts restored after. The count is the
+    process's: another thread's products meanwhile run on one thread too (their results are the same)."""
     libs = _openblas_libs()
     before = [getattr(lib, name.format("_get_num_threads"))() for lib, name in libs]
     for (lib, name), n in zip(libs, before):
