@@ -19,7 +19,6 @@ from pathlib import Path
 
 _SUFFIXES = ("", "64_", "_64")
 _PREFIXES = ("scipy_openblas", "openblas")
-_FOUND: dict[str, tuple[ctypes.CDLL, str] | None] = {}    # library path -> (library, symbol pattern) or None
 
 
 def _symbols(path: str) -> tuple[ctypes.CDLL, str] | None:
@@ -47,9 +46,8 @@ def _openblas_libs() -> list[tuple[ctypes.CDLL, str]]:
         return []
     paths = {p for p in (line.rsplit(" ", 1)[-1] for line in maps.splitlines() if "openblas" in line.lower())
              if p.startswith("/") and ".so" in p}
-    for p in paths - _FOUND.keys():
-        _FOUND[p] = _symbols(p)
-    return [_FOUND[p] for p in sorted(paths) if _FOUND[p] is not None]   # type: ignore[misc]
+    found = [_symbols(p) for p in sorted(paths)]     # dlopen of a loaded library: its handle, no load
+    return [f for f in found if f is not None]
 
 
 @contextlib.contextmanager

@@ -14,7 +14,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from shelfpick.perception.contact import box_corners, face_part, face_sweep, sweep
+from shelfpick.perception.contact import box_corners, face_part, face_sweep, pose_memo, sweep
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.faces import FrontFace, face_axes, measure_front
 from shelfpick.perception.geometry import matrix_to_quat
@@ -62,18 +62,20 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
     Geometric, no physics: small gaps (<= `snap`) under a box are closed, small
     overlaps pushed apart (up, or sideways for neighbours), a box with nothing
     under it is dropped onto the nearest support below, and boxes are clamped
-    into the shelf. Placeholder depths shrink to fit before the back wall.
+    into the shelf. Placeholder depths shrink to fit before the back wall. The boxes' corners
+    and separating axes are remembered for the call (`contact.pose_memo`).
     """
     notes: list[str] = []
-    out = [_clamp(b, shelf, notes) for b in boxes]
-    out, said = _push_apart(out, snap, min_contact)
-    notes += said
-    out = [_clamp(b, shelf, notes) for b in out]
-    out, said = _rest_on_supports(out, snap, min_contact, shelf.height)
-    notes += said
-    out, said = _under_the_top(out, shelf)
-    notes += said
-    notes += _overlaps_left(out, shelf)
+    with pose_memo():
+        out = [_clamp(b, shelf, notes) for b in boxes]
+        out, said = _push_apart(out, snap, min_contact)
+        notes += said
+        out = [_clamp(b, shelf, notes) for b in out]
+        out, said = _rest_on_supports(out, snap, min_contact, shelf.height)
+        notes += said
+        out, said = _under_the_top(out, shelf)
+        notes += said
+        notes += _overlaps_left(out, shelf)
     return out, notes
 
 

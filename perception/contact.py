@@ -9,6 +9,10 @@ open interval, the intersection over the 15 separating axes of each axis's inter
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
+from collections.abc import Iterator
+
 import numpy as np
 
 from shelfpick.perception.scene import Box, quat_to_matrix
@@ -18,40 +22,51 @@ from shelfpick.perception.scene import Box, quat_to_matrix
 FACE_SLAB = 0.02
 
 
-# memos of what a box's pose gives (make_valid asks for the same boxes' corners and axes
-# thousands of times a frame: 30-50 ms of it); values are computed as before and read-only
-_MEMO_MAX = 4096
-_CORNERS: dict[tuple, np.ndarray] = {}
-_AXES: dict[tuple, tuple[np.ndarray, ...]] = {}
+class PoseMemo:
+    """What a box's pose gives (its corners, two boxes' separating axes), remembered while one
+    `make_valid` runs (`pose_memo`): it asks for the same boxes' corners and axes thousands of
+    times a frame (30-50 ms of it). Values are computed as without it, and read-only."""
+
+    def __init__(self) -> None:
+        self.corners: dict[tuple, np.ndarray] = {}
+        self.axes: dict[tuple, tuple[np.ndarray, ...]] = {}
 
 
-def _pose_key(b: Box) -> tuple:
-    return tuple(b.position), tuple(b.size), tuple(b.orientation)
+# the memo of the `make_valid` running in this context (None outside one): a context variable, so
+# concurrent calls (a console's threads) never share one
+_MEMO: contextvars.ContextVar[PoseMemo | None] = contextvars.ContextVar("shelfpick_pose_memo", default=None)
 
 
-def _remember(memo: dict, key: tuple, value):
-    if len(memo) >= _MEMO_MAX:
-        memo.clear()
-    memo[key] = value
-    return value
+@contextlib.contextmanager
+def pose_memo() -> Iterator[PoseMemo]:
+    """Within the body, corners and axes come from one new `PoseMemo`, dropped at the end."""
+    memo = PoseMemo()
+    token = _MEMO.set(memo)
+    try:
+        yield memo
+    finally:
+        _MEMO.reset(token)
 
 
 def box_corners(b: Box) -> np.ndarray:
-    """`b.corners()` as an 8x3 array (read-only, memoised by pose)."""
-    key = _pose_key(b)
-    hit = _CORNERS.get(key)
+    """`b.corners()` as an 8x3 array (read-only; remembered by pose inside `pose_memo`)."""
+    memo = _MEMO.get()
+    key = (tuple(b.position), tuple(b.size), tuple(b.orientation))
+    hit = memo.corners.get(key) if memo is not None else None
     if hit is None:
         hit = np.asarray(b.corners(), float)
         hit.flags.writeable = False
-        _remember(_CORNERS, key, hit)
+        if memo is not None:
+            memo.corners[key] = hit
     return hit
 
 
 def _axes(a: Box, b: Box) -> tuple[np.ndarray, ...]:
-    """The 15 candidate separating axes of two boxes (face normals and edge crosses; memoised
-    by the two orientations)."""
+    """The 15 candidate separating axes of two boxes (face normals and edge crosses; remembered
+    by the two orientations inside `pose_memo`)."""
+    memo = _MEMO.get()
     key = (tuple(a.orientation), tuple(b.orientation))
-    hit = _AXES.get(key)
+    hit = memo.axes.get(key) if memo is not None else None
     if hit is not None:
         return hit
     ra, rb = np.asarray(quat_to_matrix(a.orientation)), np.asarray(quat_to_matrix(b.orientation))
@@ -64,7 +79,9 @@ def _axes(a: Box, b: Box) -> tuple[np.ndarray, ...]:
                 out.append(c / n)
     for v in out:
         v.flags.writeable = False
-    return _remember(_AXES, key, tuple(out))
+    if memo is not None:
+        memo.axes[key] = tuple(out)
+    return tuple(out)
 
 
 def sweep(a: Box, b: Box, direction: tuple[float, float, float]) -> tuple[float, float] | None:

@@ -6,7 +6,10 @@ costs a few milliseconds.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -50,35 +53,65 @@ def backproject(camera: Camera, us: np.ndarray, vs: np.ndarray, z: np.ndarray) -
     return pc @ rot.T + t
 
 
-# the last full frame's points: (camera, a copy of its depth, the points); see `point_map`
-_LAST_FRAME: tuple | None = None
+class PointCache:
+    """The last full frame's shelf-frame points, owned by one `perceive` call (`points_cached`).
+
+    Why: one `perceive` asks for the same frame's points three or four times (the segmenter's face
+    gate, the shelf-volume test, the unexplained matter), 12 ms each. A hit needs an equal camera
+    and a depth image equal in type and every value, so it returns what computing would; the
+    points handed out are read-only."""
+
+    def __init__(self) -> None:
+        self._last: tuple | None = None      # (camera, a copy of its depth, the points)
+
+    def points(self, camera: Camera, depth: np.ndarray) -> np.ndarray:
+        """`point_map` of this frame, computed once while the frame stays the same."""
+        last = self._last
+        if last is not None and last[0] == camera and last[1].dtype == depth.dtype \
+                and np.array_equal(last[1], depth, equal_nan=depth.dtype.kind in "fc"):
+            return last[2]
+        out = _points(camera, depth)
+        out.flags.writeable = False
+        self._last = (camera, np.array(depth, copy=True), out)
+        return out
+
+
+# the cache of the `perceive` call running in this context (None outside one): a context variable,
+# so two threads' (or a console's concurrent) perceive calls never share one
+_CACHE: contextvars.ContextVar[PointCache | None] = contextvars.ContextVar("shelfpick_point_cache", default=None)
+
+
+@contextlib.contextmanager
+def points_cached() -> Iterator[PointCache]:
+    """Within the body (one `perceive`), full frames' `point_map`s come from one new `PointCache`,
+    dropped at the end."""
+    cache = PointCache()
+    token = _CACHE.set(cache)
+    try:
+        yield cache
+    finally:
+        _CACHE.reset(token)
 
 
 def point_map(camera: Camera, depth: np.ndarray) -> np.ndarray:
-    """HxWx3 shelf-frame points for every pixel (garbage where depth is 0).
+    """HxWx3 shelf-frame points for every pixel (garbage where depth is 0); a full frame's inside
+    `points_cached` come from its cache (read-only)."""
+    cache = _CACHE.get()
+    if cache is not None and depth.shape == (camera.height, camera.width):
+        return cache.points(camera, depth)
+    return _points(camera, depth)
 
-    A full frame's points are remembered, read-only, until another frame's are asked for: one
-    `perceive` asks for the same frame's points three times (the segmenter's face gate, the
-    shelf-volume test, the unexplained matter), 12 ms each. A hit needs an equal camera and a
-    depth image equal in type and every value, so it returns what computing would."""
-    global _LAST_FRAME
+
+def _points(camera: Camera, depth: np.ndarray) -> np.ndarray:
+    """`point_map` computed."""
     h, w = depth.shape
-    full = (h, w) == (camera.height, camera.width)
-    last = _LAST_FRAME
-    if full and last is not None and last[0] == camera and last[1].dtype == depth.dtype \
-            and np.array_equal(last[1], depth, equal_nan=depth.dtype.kind in "fc"):
-        return last[2]
     vs, us = np.arange(h)[:, None], np.arange(w)[None, :]    # as np.mgrid's, broadcast
     rot, t = pose_matrix(camera)
     rot = rot.astype(np.float32)
     x = ((us - camera.cx) / camera.fx).astype(np.float32) * depth
     y = ((vs - camera.cy) / camera.fy).astype(np.float32) * depth
     pc = np.stack([x, y, depth.astype(np.float32)], axis=-1)
-    out = pc @ rot.T + t.astype(np.float32)
-    if full:
-        out.flags.writeable = False
-        _LAST_FRAME = (camera, np.array(depth, copy=True), out)
-    return out
+    return pc @ rot.T + t.astype(np.float32)
 
 
 def project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
