@@ -49,7 +49,7 @@ def _truth_step(st, cfg) -> dict:
 
 
 def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int, base_seed: int,
-                  truth_pull: str = "drag") -> list[dict]:
+                  truth_pull: str = "drag", pull_modes: tuple[str, ...] | None = None) -> list[dict]:
     """Every row of one shelf at one noise level."""
     from shelfpick.perception.errors import SceneError
     from shelfpick.planning.bench import derive_seed, observe, true_world, TruthModel
@@ -58,6 +58,7 @@ def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int,
     from shelfpick.planning.planner import make_plan
     from shelfpick.planning.predict import Predictor
     from shelfpick.planning.shelves import generate
+    from shelfpick.planning.uncertainty import Uncertainty
 
     name = f"{kind}-{seed}"
     scene = generate(kind, seed, None)
@@ -68,18 +69,20 @@ def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int,
         return []
     seen = observe(truth, noise, derive_seed(base_seed, name, noise, "observe"))
     plan_seed = derive_seed(base_seed, name, "plan")
+    # the worlds' pull modes: the cell's prior (None: the default, lift or drag)
+    model = Uncertainty() if pull_modes is None else Uncertainty(pull_modes=tuple(pull_modes))
     rows: list[dict] = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            counter = Predictor(seen, samples=worlds, seed=plan_seed)
+            counter = Predictor(seen, samples=worlds, seed=plan_seed, model=model)
         except SceneError:
             return []
-        planner = Predictor(seen, samples=10, seed=plan_seed)
+        planner = Predictor(seen, samples=10, seed=plan_seed, model=model)
     stands = bool(counter.scene_check.get("stands_as_seen", True))
     stands10 = bool(planner.scene_check.get("stands_as_seen", True))
     common = {"scene": name, "kind": kind, "noise": noise, "n_boxes": len(scene.boxes), "truth_pull": truth_pull,
-              "truth_lift": physics.pull_lift,
+              "truth_lift": physics.pull_lift, "pull_modes": list(model.pull_modes),
               "stands": stands, "stands10": stands10, "worlds": counter.worlds}
     cfg = PhysicsConfig()
     try:
@@ -123,9 +126,10 @@ def _job(args: tuple) -> list[dict]:
 
 
 def collect(out: str, scenes: int, seed: int, worlds: int, targets: int, noises: tuple[float, ...],
-            jobs: int, truth_pull: str = "drag") -> None:
+            jobs: int, truth_pull: str = "drag", pull_modes: tuple[str, ...] | None = None,
+            kinds: tuple[str, ...] = KINDS) -> None:
     """Every kind x `scenes` shelves x each noise level, appended to `out` as JSON lines."""
-    todo = [(k, seed + i, nz, worlds, targets, seed, truth_pull) for k in KINDS for i in range(scenes)
+    todo = [(k, seed + i, nz, worlds, targets, seed, truth_pull, pull_modes) for k in kinds for i in range(scenes)
             for nz in noises]
     done = set()
     p = Path(out)
@@ -165,6 +169,9 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--jobs", type=int, default=1)
     c.add_argument("--truth-pull", choices=("drag", "lift"), default="drag",
                    help="how the truth's gripper pulls: drag (no lift, the bench's) or lift (3-8 mm first)")
+    c.add_argument("--pull-modes", default=None,
+                   help="the sample worlds' pull modes, comma-separated (default: the planner's, lift,drag)")
+    c.add_argument("--kinds", default=",".join(KINDS), help="shelf kinds, comma-separated")
     f = sub.add_parser("fit")
     f.add_argument("rows")
     f.add_argument("--json")
@@ -173,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.cmd == "collect":
         collect(a.out, a.scenes, a.seed, a.worlds, a.targets, tuple(float(v) for v in a.noise.split(",")), a.jobs,
-                a.truth_pull)
+                a.truth_pull, tuple(a.pull_modes.split(",")) if a.pull_modes else None, tuple(a.kinds.split(",")))
         return 0
     from benchmarks.risk_fit import run_fit
 

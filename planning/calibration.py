@@ -104,12 +104,16 @@ def plan_failures(per_step: Sequence[Sequence[bool]]) -> tuple[int, int]:
 
 
 def fit(rows: Sequence[tuple[int, int, bool, bool]], floor: float = 0.01, z: float = 1.2816,
-        fitted_on: str = "", iters: int = 200, shrink: float = 1.0) -> Calibration:
+        fitted_on: str = "", iters: int = 200, shrink: float = 1.0,
+        safe_below: float = DEFAULT_MAX_PLAN_RISK) -> Calibration:
     """Logistic fit of (k, n, stands, collapsed on the truth) rows (Newton's method on three
     parameters), shrunk towards the share itself (intercept 0, slope 1) by a ridge of `shrink`: a
     bench whose quiet plans never fail would otherwise drive the slope without bound. `minimum`
-    and `minimum_high` come from the rows with no failing world: the Jeffreys mean and the Wilson
-    upper end of their failure rate on the truth (what this bench's size can tell)."""
+    and `minimum_high` say what this bench's size can tell: the Jeffreys mean and the Wilson upper
+    end of the truth's failure rate over the rows the fitted map puts below `safe_below` (the rows
+    a gate at that threshold could call safe), or, when there are none, over the rows with no
+    failing world. (Rows with no failing world alone grow rare as the worlds get sharper: with 30
+    of them the floor's upper end could not fall below 0.05.)"""
     import numpy as np
 
     if not rows:
@@ -132,7 +136,8 @@ def fit(rows: Sequence[tuple[int, int, bool, bool]], floor: float = 0.01, z: flo
         w = w - step
         if float(np.abs(step).max()) < 1e-9:
             break
-    quiet = [c for k, _, _, c in rows if k == 0]
+    p = 1.0 / (1.0 + np.exp(-(x @ w)))
+    quiet = [c for (_, _, _, c), pi in zip(rows, p) if pi < safe_below] or [c for k, _, _, c in rows if k == 0]
     f, m = sum(1 for c in quiet if c), len(quiet)
     minimum = (f + 0.5) / (m + 1.0) if m else 0.0
     minimum_high = wilson(f, m, z)[1] if m else 0.0

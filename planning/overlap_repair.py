@@ -5,7 +5,9 @@ overlap by a few millimetres, and a box may reach into a wall. Overlaps up to
 `repair_tolerance` are pushed apart (a stacked pair lifts the upper box, a
 side-by-side pair moves each box by half, a box in a wall is pushed out);
 deeper ones raise `SceneError` naming both. Overlaps under `repair_min_overlap`
-are left to the contact solver (docs/physics.md, "Repair and refusal").
+are left to the contact solver (docs/physics.md, "Repair and refusal"). A box resting on a
+strip of another's top edge narrower than `edge_perch` is first moved off that edge
+(`clear_perches`).
 """
 from __future__ import annotations
 
@@ -91,6 +93,51 @@ class _Shifts:
                     msgs.append(f"box {bid!r} moved {norm(off):.3f} m by ({off[0]:+.3f}, {off[1]:+.3f}, "
                                 f"{off[2]:+.3f}) to undo its overlap with {', '.join(others)}")
         return msgs
+
+
+def _level(p: Client, body: int, tol: float = 0.02) -> bool:
+    """Whether a box stands square (its axes within ~1 deg of the world's): its AABB is its shape."""
+    q = p.getBasePositionAndOrientation(body)[1]
+    m = p.getMatrixFromQuaternion(q)
+    return all(max(abs(m[3 * i + j]) for j in range(3)) > 1 - tol for i in range(3))
+
+
+def _perch(a: tuple, b: tuple, edge: float) -> tuple[int, float] | None:
+    """(axis, overlap) when box `a` (AABB) rests on the top of `b` by a strip narrower than `edge`
+    along one horizontal axis, its centre beyond b's side; None otherwise."""
+    if abs(a[0][2] - b[1][2]) > edge:
+        return None
+    ov = [min(a[1][k], b[1][k]) - max(a[0][k], b[0][k]) for k in range(2)]
+    for k in range(2):
+        centre = (a[0][k] + a[1][k]) / 2
+        if 0 < ov[k] <= edge and ov[1 - k] > edge and not b[0][k] <= centre <= b[1][k]:
+            return k, ov[k]
+    return None
+
+
+def clear_perches(p: Client, ids: tuple[str, ...], body: dict[str, int], config: PhysicsConfig) -> list[str]:
+    """Move a box that rests on a strip of another's top edge narrower than `edge_perch` sideways
+    off that edge (what moved, one line a box). A carton's edge is rounded and crushes over a few
+    mm, so such a strip carries nothing on a real shelf; it comes from face error, and in Bullet
+    it made a lifted neighbour throw the box off the shelf (1.1 m, docs/physics.md)."""
+    edge = config.edge_perch
+    if edge <= 0:
+        return []
+    shifts = _Shifts(p, body, config.repair_push)
+    level = {bid: _level(p, body[bid]) for bid in ids}
+    for a in ids:
+        for b in ids:
+            if a == b or not (level[a] and level[b]):
+                continue
+            found = _perch(p.getAABB(body[a]), p.getAABB(body[b]), edge)
+            if found is None:
+                continue
+            k, ov = found
+            ca = p.getBasePositionAndOrientation(body[a])[0][k]
+            cb = p.getBasePositionAndOrientation(body[b])[0][k]
+            n = tuple((1.0 if ca > cb else -1.0) if i == k else 0.0 for i in range(3))
+            shifts.shift(a, n, ov, b)
+    return [m.replace("to undo its overlap with", "off the edge of") for m in shifts.messages(ids)]
 
 
 def repair_overlaps(p: Client, ids: tuple[str, ...], body: dict[str, int], static: dict[int, str],

@@ -2,7 +2,10 @@
 
 The gripper grasps the front face, lifts the box a few mm when there is free
 space above it (else drags it on its support), and pulls it straight out along
--y at the configured speed, with a seeded vibration. A `CollapseMonitor`
+-y at the configured speed, with a seeded vibration. The drive holds the face's
+place across the shelf, its place along the pull and the box's orientation; a
+held height is rigid or (`hold_spring`) a spring with a bounded force (`_Height`),
+as a compliant suction cup's is. A `CollapseMonitor`
 watches every other box from the settled start of the step: when it started
 moving, and when a collapse became certain. What the box and the gripper
 touched on the way is a collision when that neighbour then moved.
@@ -53,6 +56,8 @@ class CollapseMonitor:
         self.others = others
         self.bodies = [sim.body(b) for b in others]
         self.start = [self.p.getBasePositionAndOrientation(ob) for ob in self.bodies]
+        self.tip = [max(self.cfg.collapse_peak_rotation, _tipping_angle(sim.half_extents(b), orn))
+                    for b, (_, orn) in zip(others, self.start)]
         self.onset: dict[str, int] = {}
         self.collapse_at: dict[str, int] = {}
 
@@ -73,17 +78,27 @@ class CollapseMonitor:
             d = dist(pos, self.start[k][0])
             if bid not in self.onset and (d > cfg.onset_displacement or v > cfg.onset_velocity):
                 self.onset[bid] = step
-            # certain collapses only: a tall column may rock a couple of cm and come back, so
-            # the end-of-step displacement is judged after the step; a velocity spike counts
-            # once the box has also really moved (a jolt that leaves the box where it was is not
-            # a collapse)
-            a = rot_angle_deg(orn, self.start[k][1])
-            fast = v > cfg.collapse_velocity or w > cfg.collapse_angular_velocity
-            if (d > cfg.collapse_peak_displacement or a > cfg.collapse_peak_rotation
-                    or (fast and (d > cfg.collapse_displacement / 2 or a > cfg.collapse_rotation / 2))):
+            if self._certain(k, d, rot_angle_deg(orn, self.start[k][1]), v, w):
                 self.collapse_at[bid] = step
                 self.onset.setdefault(bid, step)
         return moving
+
+    def _certain(self, k: int, d: float, a: float, v: float, w: float) -> bool:
+        """Whether box `k`, moved `d` m and turned `a` deg at speeds `v`, `w`, has surely collapsed;
+        the rest is judged at the end of the step."""
+        cfg = self.cfg
+        fast = v > cfg.collapse_velocity or w > cfg.collapse_angular_velocity
+        if not cfg.peak_tipping:
+            # a tall column may rock a couple of cm and come back; a velocity spike counts once
+            # the box has also really moved (a jolt that leaves the box where it was is not one)
+            return (d > cfg.collapse_peak_displacement or a > cfg.collapse_peak_rotation
+                    or (fast and (d > cfg.collapse_displacement / 2 or a > cfg.collapse_rotation / 2)))
+        # a box that tips and falls back (lifted 25 deg by a drag off it: its centre 5-11 cm away,
+        # back to within mm) is a wobble: certain only past its tipping angle, or slid level
+        # (turned < half the end threshold) past the peak, or fast while it slid past the end's
+        level = a < cfg.collapse_rotation / 2
+        return (a > self.tip[k] or (level and d > cfg.collapse_peak_displacement)
+                or (level and fast and d > cfg.collapse_displacement))
 
     def judge_end(self, step: int) -> tuple[dict[str, float], dict[str, float]]:
         """Displacement and rotation of every other box from the step's start to now; a box past
@@ -98,6 +113,16 @@ class CollapseMonitor:
                 self.collapse_at[b] = step
                 self.onset.setdefault(b, step)
         return disp, rot
+
+
+def _tipping_angle(half: tuple[float, float, float], orn: Quat) -> float:
+    """Degrees a box must turn about a bottom edge before its centre passes over that edge (it
+    falls on, it cannot come back): atan(half width / half height), the smaller of its two ways
+    over, with the box's up axis the one closest to the world's."""
+    r = quat_to_matrix(xyzw_to_wxyz(orn))
+    up = max(range(3), key=lambda j: abs(r[2][j]))
+    side = min(half[j] for j in range(3) if j != up)
+    return math.degrees(math.atan2(side, half[up]))
 
 
 class _SetPoint:
@@ -130,6 +155,24 @@ class _SetPoint:
         self.jx += (self.tx - self.jx) * cfg.disturbance_smoothing
         self.jz += (self.tz - self.jz) * cfg.disturbance_smoothing
         return [self.front0[0] + self.jx, self.front0[1] - self.dist, z]
+
+
+class _Height:
+    """The vertical force of a drive that holds the box's height (lift, or `pull_hold`): a damped
+    spring towards the set point, plus the box's weight once it is lifted, bounded by what a
+    compliant suction cup on a vertical face can do: carry the box, but press it down at most
+    `hold_down_weights` (a rigid hold pressed a top box into the one below with 5-17 weights)."""
+
+    def __init__(self, cfg: PhysicsConfig, mass: float, carry: bool) -> None:
+        self.k, self.c = cfg.hold_stiffness * mass, cfg.hold_damping * mass
+        weight = mass * cfg.gravity
+        self.carry = weight if carry else 0.0
+        self.low, self.high = -cfg.hold_down_weights * weight, cfg.hold_up_weights * weight
+
+    def force(self, error: float, vz: float, extra: float) -> float:
+        """Upward force for a height `error` (set point minus height, m) and vertical speed `vz`."""
+        f = self.carry + self.k * error - self.c * vz + extra
+        return max(self.low, min(self.high, f))
 
 
 class PullTrial:
@@ -171,7 +214,9 @@ class PullTrial:
         self.travel_needed = (pos0[1] + self.ext_y) + cfg.pull_margin
         gh = cfg.gripper_size[1] / 2
         self.grip_local = (0.0, -hy - gh - cfg.gripper_gap, 0.0)
-        self.weight = p.getDynamicsInfo(self.body, -1)[0] * cfg.gravity
+        self.mass = p.getDynamicsInfo(self.body, -1)[0]
+        self.weight = self.mass * cfg.gravity
+        self.up_local = (r0[2][0], r0[2][1], r0[2][2])   # world up in the box's frame: the free axis
         self.force_eps = cfg.engage_force_weights * self.weight
         # a drive far stronger than the boxes' weights turns Bullet's edge contacts into
         # catapults (a 50 N drive on an 8 g box flings the box below it); a suction
@@ -180,9 +225,9 @@ class PullTrial:
         self.clear_need = max(1, int(round(cfg.clear_time / dt)))
         # a box with free space above it is lifted off its support (then held at that height), so
         # it no longer drags the box below it along by friction; a box something rests on gets no
-        # lift and is dragged. Without lift the drive holds x, y and the orientation (a stiff arm)
-        # and, unless `pull_hold`, leaves z free: the box rides on its support with its own weight
-        # (a drive that also held z would press it into the box below at every vertical jitter)
+        # lift and is dragged. The drive holds x, y and the orientation (a stiff arm); the height,
+        # when lifted or `pull_hold`, is held rigidly by the joint or, with `hold_spring`, by a
+        # bounded spring (`_Height`); else it is free: the box rides on its support
         self.lift = sim.free_lift(self.box_id) if cfg.pull_lift > 0 else 0.0
         self.lift_steps = int(math.ceil(cfg.lift_time / dt)) if self.lift > 0 else 0
 
@@ -224,8 +269,12 @@ class PullTrial:
     def drive(self, stop_on_collapse: bool) -> bool:
         """Pull until the box is out (True), stuck, or (with `stop_on_collapse`) something collapsed."""
         p, cfg = self.p, self.cfg
-        joint = p.JOINT_FIXED if (self.lift > 0 or cfg.pull_hold) else p.JOINT_PRISMATIC
-        cid = p.createConstraint(self.body, -1, -1, -1, joint, [0, 0, 1], list(self.front_local),
+        held = self.lift > 0 or cfg.pull_hold
+        # the held height as a bounded spring (`hold_spring`), or as the joint itself (rigid)
+        spring = held and cfg.hold_spring
+        joint = p.JOINT_FIXED if held and not spring else p.JOINT_PRISMATIC
+        axis = list(self.up_local) if spring else [0, 0, 1]
+        cid = p.createConstraint(self.body, -1, -1, -1, joint, axis, list(self.front_local),
                                  list(self.front0), [0, 0, 0, 1], list(self.orn0))
         p.changeConstraint(cid, list(self.front0), jointChildFrameOrientation=list(self.orn0),
                            maxForce=self.max_force)
@@ -236,6 +285,8 @@ class PullTrial:
             self._place_gripper()
             set_point = _SetPoint(self.front0, self.lift, self.lift_steps, self.travel_needed, cfg,
                                   self.rng, self.weight)
+            height = _Height(cfg, self.mass, self.lift > 0) if spring else None
+            dz = self.front0[2] - self.pos0[2]   # the face's height above the centre (orientation held)
             free_steps = 0
             pos = self.pos0
             max_steps = int(math.ceil(cfg.pull_timeout / cfg.time_step))
@@ -243,8 +294,11 @@ class PullTrial:
                 target = set_point.at(self.step)
                 p.changeConstraint(cid, target, jointChildFrameOrientation=list(self.orn0),
                                    maxForce=self.max_force)
-                if set_point.jz:
-                    p.applyExternalForce(self.body, -1, [0.0, 0.0, set_point.jz], list(pos), p.WORLD_FRAME)
+                fz = set_point.jz
+                if height is not None:
+                    fz = height.force(target[2] - pos[2] - dz, p.getBaseVelocity(self.body)[0][2], fz)
+                if fz:
+                    p.applyExternalForce(self.body, -1, [0.0, 0.0, fz], list(pos), p.WORLD_FRAME)
                 pos, engaged = self._one_step()
                 if stop_on_collapse and self.monitor.collapse_at:
                     self.note = "stopped at the first collapse"

@@ -25,7 +25,7 @@ from shelfpick.planning.geometry3 import dist as _dist
 from shelfpick.planning.geometry3 import norm as _norm
 from shelfpick.planning.geometry3 import rot_angle_deg as _rot_angle_deg
 from shelfpick.planning.locality import neighbourhood as _neighbourhood
-from shelfpick.planning.overlap_repair import repair_overlaps
+from shelfpick.planning.overlap_repair import clear_perches, repair_overlaps
 from shelfpick.planning.physics import PhysicsConfig
 from shelfpick.planning.pull import pull
 from shelfpick.planning.step_result import StepResult
@@ -92,6 +92,9 @@ class ShelfSim:
         cfg = self.config
         try:
             repairs = repair_overlaps(self._p, self._ids, self._body, self._static, cfg)
+            perches = clear_perches(self._p, self._ids, self._body, cfg)
+            if perches:   # moving a box off an edge may push it into a side neighbour
+                repairs += perches + repair_overlaps(self._p, self._ids, self._body, self._static, cfg)
         except SceneError:
             self.close()
             raise

@@ -61,6 +61,21 @@ def test_the_fit_recovers_a_known_map_from_seeded_draws():
         fit([])
 
 
+def test_the_fits_floor_counts_every_plan_it_would_call_safe_not_only_those_no_world_failed():
+    # a bench like ours with a lifting truth: 12 plans no world failed, 150 that failed in 1-4 of 30
+    # worlds, none of them failed on the truth; the rest failed in most worlds and on the truth.
+    # Counted over the 12 alone, the floor's upper end (0.12) shut the gate on every plan
+    rows = [(0, 30, True, False)] * 12 + [(k, 30, True, False) for k in (1, 2, 3, 4) for _ in range(38)]
+    rows += [(k, 30, True, True) for k in range(20, 31) for _ in range(10)]
+    got = fit(rows)
+    assert got.minimum_high < DEFAULT_MAX_PLAN_RISK
+    assert got.interval(1, 30)[1] < DEFAULT_MAX_PLAN_RISK
+    # a bench whose low-share plans do fail keeps a floor that says so
+    risky = fit([(k, 30, True, k % 4 == 0) for k in range(0, 5) for _ in range(40)]
+                + [(k, 30, True, True) for k in range(20, 31) for _ in range(10)])
+    assert risky.minimum_high > DEFAULT_MAX_PLAN_RISK
+
+
 def test_a_plan_fails_in_a_world_when_any_of_its_steps_does():
     assert plan_failures([[True, False, False], [False, False, True]]) == (2, 3)
     assert plan_failures([[False] * 5]) == (0, 5)
