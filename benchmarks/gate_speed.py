@@ -1,0 +1,102 @@
+"""make_plan's wall time on 10-14 box shelves with the gate (issue 32), and what its adaptive worlds save.
+
+    .venv/bin/python benchmarks/gate_speed.py [--scenes 6] [--targets 3] [--workers 2] [--out gate-speed]
+
+The shelves and targets are `benchmarks/plan_speed.py`'s group extract-10-14 (structured and
+unstructured, seed 0), planned with depths hidden as `shelfpick plan` plans them (10 worlds, the
+cell's default threshold and map, up to 30 more worlds). Each plan is made twice on one pool of
+`--workers` processes: with the gate as shipped (10 worlds, then 10 more while the calibrated
+interval straddles the threshold), and with a gate that never decides early (always the 40 worlds).
+Per mode: wall p50/p90 and the worlds the gate asked; the machine's load average with the table.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.plan_speed import build_work, true_scene  # noqa: E402
+from shelfpick.planning.bench_report import percentile  # noqa: E402
+from shelfpick.planning.calibration import Calibration, calibration_for  # noqa: E402
+from shelfpick.planning.uncertainty import Uncertainty  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Undecided(Calibration):
+    """The shipped map, but never decided before the last world: the gate asks all it may."""
+
+    def decided(self, k: int, n: int, threshold: float, stands: bool = True) -> bool:
+        return False
+
+
+def main(argv: list[str] | None = None) -> int:
+    import numpy as np
+
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.worker_pool import WorkerPool
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", type=int, default=6, help="scenes per kind (default 6)")
+    ap.add_argument("--targets", type=int, default=3)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default="gate-speed")
+    a = ap.parse_args(argv)
+    out = Path(a.out)
+    (out / "scenes").mkdir(parents=True, exist_ok=True)
+    shipped = calibration_for(Uncertainty().pull_modes)
+    modes = {"adaptive (shipped)": shipped, "always 40 worlds": Undecided(**shipped.to_json())}
+    args = argparse.Namespace(groups="extract-10-14", scenes=a.scenes, seed=a.seed)
+    rows = []
+    load0 = os.getloadavg()
+    pool = WorkerPool(a.workers) if a.workers > 1 else None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for g, task, kind, s, n in build_work(args):
+                truth = true_scene(out / "scenes" / f"{g}-{kind}-{s}.json", kind, s, n)
+                hidden = truth.hide_depths()
+                rng = np.random.default_rng([s, 1])
+                for i in rng.choice(len(truth.ids), min(a.targets, len(truth.ids)), replace=False):
+                    for name, cal in modes.items():
+                        t0 = time.perf_counter()
+                        plan = make_plan(hidden, "extract", truth.ids[int(i)], "physics", 10, s,
+                                         workers=a.workers, pool=pool, calibration=cal)
+                        search = plan.extra.get("search", {})
+                        rows.append({"mode": name, "kind": kind, "seed": s, "n_boxes": n, "target": truth.ids[int(i)],
+                                     "plan_s": time.perf_counter() - t0, "worlds": search.get("verified_worlds"),
+                                     "safe": plan.safe})
+                        print(json.dumps(rows[-1]), flush=True)
+    finally:
+        if pool is not None:
+            pool.close()
+    load1 = os.getloadavg()
+    lines = [f"make_plan, extract on 10-14 box shelves, {a.workers} workers, {len(rows) // len(modes)} plans; "
+             f"load average (1/5/15 min) {'/'.join(f'{x:.1f}' for x in load0)} at the start, "
+             f"{'/'.join(f'{x:.1f}' for x in load1)} at the end", "",
+             "| gate | p50 wall (s) | p90 wall (s) | mean worlds asked | plans decided on 10 worlds | safe |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for name in modes:
+        r = [x for x in rows if x["mode"] == name]
+        t = [x["plan_s"] for x in r]
+        w = [x["worlds"] or 0 for x in r]
+        lines.append(f"| {name} | {percentile(t, 0.5):.2f} | {percentile(t, 0.9):.2f} | {sum(w) / len(w):.1f} | "
+                     f"{sum(1 for x in w if x <= 10)}/{len(w)} | {sum(x['safe'] for x in r)}/{len(r)} |")
+    text = "\n".join(lines) + "\n"
+    (out / "rows.jsonl").write_text("".join(json.dumps(x) + "\n" for x in rows))
+    (out / "gate_speed.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
