@@ -8,7 +8,11 @@ Rules, checked on the files as committed:
   (`![...](...)`) also holds a line naming the command that made it: a line inside a fenced
   (```) or 4-space-indented code block, a line starting with "Made with", or a line with an
   inline code span that starts with a command (`python`, `.venv/bin/`, `OMP_NUM_THREADS=`,
-  `shelfpick `, `make `, `benchmarks/`, `/work/main/.venv/`).
+  `shelfpick `, `make `, `benchmarks/`, `/work/main/.venv/`); and that line stands in the same
+  section (the text under one `## ` heading, its `###` subsections included; the text before the
+  first `## ` is a section too), so a reader finds each figure's command beside it;
+- no results file says a command was "not recorded": a figure nobody can remake is history, and
+  history lives in git.
 """
 from __future__ import annotations
 
@@ -43,6 +47,20 @@ def names_command(text: str) -> bool:
     return False
 
 
+def sections(text: str) -> list[str]:
+    """The text under each `## ` heading (subsections included), the text before the first one first."""
+    return re.split(r"(?m)^(?=## )", text)
+
+
+def unmade_figures(text: str) -> list[str]:
+    """The headings of the sections that hold a figure but name no command, or say none was recorded."""
+    bad = []
+    for section in sections(text):
+        if has_figure(section) and not names_command(section) or "not recorded" in section:
+            bad.append((section.splitlines() or ["(empty)"])[0][:80])
+    return bad
+
+
 @pytest.mark.parametrize("path", sorted(DOCS.glob("*.md")), ids=lambda p: p.name)
 def test_user_doc_is_short(path: Path) -> None:
     lines = len(path.read_text(encoding="utf-8").splitlines())
@@ -52,7 +70,7 @@ def test_user_doc_is_short(path: Path) -> None:
 @pytest.mark.parametrize("path", sorted((DOCS / "results").glob("*.md")), ids=lambda p: p.name)
 def test_results_name_their_command(path: Path) -> None:
     text = path.read_text(encoding="utf-8")
-    assert not has_figure(text) or names_command(text), f"{path.name}: a table or figure with no line naming the command"
+    assert not unmade_figures(text), f"{path.name}: figures whose section names no command: {unmade_figures(text)}"
 
 
 def test_rules_catch_what_they_should() -> None:
@@ -65,3 +83,8 @@ def test_rules_catch_what_they_should() -> None:
     assert names_command(table + "\nCommand: `OMP_NUM_THREADS=1 python x.py`\n")
     assert not names_command(table + "\nsee `docs/x.md`\n")
     assert has_figure("![plot](a.png)\n") and not has_figure("plain text\n")
+    made = "intro\n\n    .venv/bin/python benchmarks/x.py\n\n" + table
+    assert unmade_figures(made) == []
+    assert unmade_figures(made + "\n## Later\n\n" + table) == ["## Later"]
+    assert unmade_figures(made + "\n## Later\n\nThe command was not recorded.\n") == ["## Later"]
+    assert unmade_figures(made + "\n## Later\n\n### Sub\n\n" + table + "\nMade with `x`.\n") == []
