@@ -84,17 +84,23 @@ def reliability(cal: Calibration, ex: Sequence[tuple[int, int, bool, bool]]) -> 
     return {"table": table, "ece": round(ece, 4), "n": total}
 
 
+def gate_safe(cal: Calibration, p: dict, threshold: float, max_worlds: int = 30) -> bool:
+    """Whether the gate calls a stored plan safe, asking its worlds as `planning.gate` does (10, then
+    10 more while the calibrated interval is undecided, up to `max_worlds`)."""
+    n = 10
+    while True:
+        k = sum(p["fails"][:n])
+        if n >= max_worlds or cal.decided(k, n, threshold, p["stands"]):
+            break
+        n += 10
+    return cal.interval(k, n, p["stands"])[1] < threshold
+
+
 def gate_figures(cal: Calibration, ps: Sequence[dict], threshold: float, max_worlds: int = 30) -> dict[str, Any]:
     """The gate on these plans as `planning.gate` runs it (10 worlds, +10 while undecided)."""
     said_safe = held = held_safe = safe_failed = 0
     for p in ps:
-        n = 10
-        while True:
-            k = sum(p["fails"][:n])
-            if n >= max_worlds or cal.decided(k, n, threshold, p["stands"]):
-                break
-            n += 10
-        safe = cal.interval(k, n, p["stands"])[1] < threshold
+        safe = gate_safe(cal, p, threshold, max_worlds)
         said_safe += safe
         held += not p["failed"]
         held_safe += safe and not p["failed"]

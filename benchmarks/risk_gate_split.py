@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.risk_fit import BINS  # noqa: E402
+from benchmarks.risk_fit import BINS, gate_safe  # noqa: E402
 from shelfpick.planning.calibration import Calibration, fit  # noqa: E402
 
 
@@ -88,13 +88,7 @@ def ece(probs: Sequence[float], labels: Sequence[bool]) -> float:
 def gate_side(cal: Calibration, ps: Sequence[dict], threshold: float = 0.05, max_worlds: int = 30) -> dict[str, Any]:
     safe_held = safe_failed = safe_n = held = 0
     for p in ps:
-        n = 10
-        while True:
-            k = sum(p["fails"][:n])
-            if n >= max_worlds or cal.decided(k, n, threshold, p["stands"]):
-                break
-            n += 10
-        safe = cal.interval(k, n, p["stands"])[1] < threshold and p["stands10"]
+        safe = gate_safe(cal, p, threshold, max_worlds) and p["stands10"]
         held += not p["failed"]
         safe_n += safe
         safe_held += safe and not p["failed"]
