@@ -129,14 +129,14 @@ def fit(rows: Sequence[tuple[int, int, bool, bool]], floor: float = 0.01, z: flo
     w = prior.copy()
     ridge = max(shrink, 1e-6) * np.eye(3)
     for _ in range(iters):
-        p = 1.0 / (1.0 + np.exp(-(x @ w)))
+        p = np.exp(-np.logaddexp(0.0, -(x @ w)))     # the logistic, without overflow at large |x @ w|
         g = x.T @ (p - y) + ridge @ (w - prior)
         h = (x * (p * (1 - p))[:, None]).T @ x + ridge
         step = np.linalg.solve(h, g)
         w = w - step
         if float(np.abs(step).max()) < 1e-9:
             break
-    p = 1.0 / (1.0 + np.exp(-(x @ w)))
+    p = np.exp(-np.logaddexp(0.0, -(x @ w)))     # the logistic, without overflow at large |x @ w|
     quiet = [c for (_, _, _, c), pi in zip(rows, p) if pi < safe_below] or [c for k, _, _, c in rows if k == 0]
     f, m = sum(1 for c in quiet if c), len(quiet)
     minimum = (f + 0.5) / (m + 1.0) if m else 0.0
