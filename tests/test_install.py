@@ -96,7 +96,7 @@ def test_the_yolo_segmenter_finds_its_weights_in_the_installed_wheel(wheel, tmp_
     proc = run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(wheel)], tmp_path)
     assert proc.returncode == 0, proc.stderr
     env = {**os.environ, "PYTHONPATH": str(site)}
-    code = "import perception.segment as s; print(s.__file__); print(s.DEFAULT_WEIGHTS)"
+    code = "import shelfpick.perception.segment as s; print(s.__file__); print(s.DEFAULT_WEIGHTS)"
     where = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
     module, weights = where.stdout.split()
     assert module.startswith(str(site)) and weights.startswith(str(site)) and Path(weights).is_file()
