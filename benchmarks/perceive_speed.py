@@ -57,6 +57,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from benchmarks.judge_summary import percentile  # noqa: E402
+
 HELD_OUT = ("printed", "stereo")      # docs/perception.md, "Roles": timed only, never tuned on
 TUNE_SEEDS = range(31000, 31060)
 FRAME_SEED = 0
@@ -286,10 +288,6 @@ def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = 
 
 # --------------------------------------------------------------------------
 # figures
-def pct(values: list[float], q: float) -> float:
-    return float(np.percentile(values, q)) if values else float("nan")
-
-
 def summary(rows: list[dict], mode: str) -> str:
     """A markdown table per look: p50/p90 of the frame; for inproc, p50 and mean per stage."""
     lines = []
@@ -301,12 +299,12 @@ def summary(rows: list[dict], mode: str) -> str:
         rs = [r for r in rows if look in ("all", r["look"])]
         wl = [r["wall"][key] for r in rs]
         cp = [r["cpu"][key] for r in rs]
-        lines.append(f"| {look} | {len(rs)} | {pct(wl, 50):.3f} | {pct(wl, 90):.3f} | {pct(cp, 50):.3f} | "
-                     f"{pct(cp, 90):.3f} | {sum(v <= TARGET_S for v in wl)} |")
+        lines.append(f"| {look} | {len(rs)} | {percentile(wl, 0.5):.3f} | {percentile(wl, 0.9):.3f} | {percentile(cp, 0.5):.3f} | "
+                     f"{percentile(cp, 0.9):.3f} | {sum(v <= TARGET_S for v in wl)} |")
     if mode == "cli":
         pw = [r["wall"]["perceive"] for r in rows]
         lines.append(f"\n(`{key}` is the process's whole run; of it, `perceive` itself: wall p50 "
-                     f"{pct(pw, 50):.3f}, p90 {pct(pw, 90):.3f} s.)")
+                     f"{percentile(pw, 0.5):.3f}, p90 {percentile(pw, 0.9):.3f} s.)")
         return "\n".join(lines)
     lines.append("\nStages (seconds a frame, all looks; each exclusive of the stages it calls):\n")
     lines.append("| stage | wall p50 | wall mean | CPU p50 | CPU mean | CPU share of perceive |")
@@ -316,7 +314,7 @@ def summary(rows: list[dict], mode: str) -> str:
         wl = [r["wall"].get(s, 0.0) for r in rows]
         cp = [r["cpu"].get(s, 0.0) for r in rows]
         share = "" if s in ("perceive", "writing", "frame") else f"{100 * sum(cp) / total_cpu:.0f}%"
-        lines.append(f"| {s} | {pct(wl, 50):.3f} | {np.mean(wl):.3f} | {pct(cp, 50):.3f} | {np.mean(cp):.3f} | {share} |")
+        lines.append(f"| {s} | {percentile(wl, 0.5):.3f} | {np.mean(wl):.3f} | {percentile(cp, 0.5):.3f} | {np.mean(cp):.3f} | {share} |")
     return "\n".join(lines)
 
 
@@ -413,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
         same, close, diff = compare(fa, fb)
         print(f"{same} frames byte-equal, {len(close)} equal within 1e-9 {close}, {len(diff)} different {diff}")
         ca, cb = ([v["cpu_s"] for v in f.values()] for f in (fa, fb))
-        print(f"perceive CPU p50 {pct(ca, 50):.3f} -> {pct(cb, 50):.3f} s")
+        print(f"perceive CPU p50 {percentile(ca, 0.5):.3f} -> {percentile(cb, 0.5):.3f} s")
         return 1 if diff else 0
     if a.set == "held_out" and not (Path(a.judge_dir) / "scenes").is_dir():
         print(f"perceive_speed: --judge-dir: {a.judge_dir} has no scenes/ (the judge's shelves)", file=sys.stderr)

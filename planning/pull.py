@@ -56,8 +56,9 @@ class CollapseMonitor:
         self.others = others
         self.bodies = [sim.body(b) for b in others]
         self.start = [self.p.getBasePositionAndOrientation(ob) for ob in self.bodies]
-        self.tip = [max(self.cfg.collapse_peak_rotation, _tipping_angle(sim.half_extents(b), orn))
-                    for b, (_, orn) in zip(others, self.start)]
+        # each box's tipping angle, read only by `peak_tipping` verdicts (off by default: not computed)
+        self.tip = ([max(self.cfg.collapse_peak_rotation, _tipping_angle(sim.half_extents(b), orn))
+                     for b, (_, orn) in zip(others, self.start)] if self.cfg.peak_tipping else [])
         self.onset: dict[str, int] = {}
         self.collapse_at: dict[str, int] = {}
 
