@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 from shelfpick.console.web.markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
 from shelfpick.console.web.panels import (OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel,
-                                          quoted)
+                                          executed_markdown, quoted)
 from shelfpick.console.web.replay_view import LookView, ReplayView, record_view, replay_status
 from shelfpick.console.workflow.look import as_planned
 from shelfpick.console.workflow.machine import PlanEntry, State, Workflow, WorkflowError
@@ -225,11 +225,12 @@ class ClientView:
         op.target.disabled = not live
         op.robot_md.content = robot_markdown(state) if live else self.replay.robot_md
         op.deviation_md.content = deviation_markdown(state) if self.replay is None else ""
+        op.answers.show(state)
         self.supervisor.render(state)
         self.sessions.render(state)
         if not live:
             return
-        op.results.content = results_markdown(state)
+        op.results.content = plans_markdown(state)
         if state.capture is not self.shown_capture:
             self.shown_capture = state.capture
             op.show_images(state.capture.rgb if state.capture is not None else None, state.overlay)
@@ -304,6 +305,20 @@ class ClientView:
             self.sessions.end_replay()
             self.shown_scene = None       # draw the live shelf again
             self.render(self.wf.state)
+
+
+def plans_markdown(state: State) -> str:
+    """The operator's plan panel: the plans up for review and, once a run ended, the plan it
+    executed and how it ended, in place of that plan (the run used its approval up, so it is no
+    longer up for review: the supervisor's `Plan` offers nothing until a new capture and plan, or
+    after a hold only `continue`, which is shown below it)."""
+    end = state.run_end
+    if end is None:
+        return results_markdown(state)
+    if state.needs_recapture:
+        return (executed_markdown(end) + "\n\n_Nothing to review: the shelf has changed. Capture and plan "
+                "again before the next run._")
+    return executed_markdown(end) + "\n\n" + results_markdown(state)
 
 
 class ConsoleApp:
@@ -387,4 +402,5 @@ class ConsoleApp:
         self.workflow.close()
 
 
-__all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "trivial_passphrase", "MIN_PASSPHRASE"]
+__all__ = ["ConsoleApp", "ClientView", "ConsoleError", "check_host", "plans_markdown", "trivial_passphrase",
+           "MIN_PASSPHRASE"]

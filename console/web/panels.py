@@ -20,6 +20,7 @@ import numpy as np
 from shelfpick.console.web import scene_view as sv
 from shelfpick.console.workflow.machine import (PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError,
                                                problem_text)
+from shelfpick.console.workflow.state import RunEnd
 from shelfpick.perception.scene import Camera, Scene
 from shelfpick.planning.plan import Plan
 
@@ -265,7 +266,8 @@ class OperatorPanel:
         self.target = g.add_dropdown("Target", ("—",), initial_value="—")
         self.btn_extract = g.add_button("Plan extraction", color="blue")
         self.btn_clear = g.add_button("Plan clearance")
-        self.answer = g.add_markdown("")      # what became of the last click here (stays until the next)
+        self.answers = AnswerLine(g, wf)      # what became of the last click here, or of a run since
+        self.answer = self.answers.handle
         self.progress = g.add_progress_bar(0.0, visible=False, animated=True)
         self.results = g.add_markdown("")
         with g.add_folder("Preview"):
@@ -277,10 +279,13 @@ class OperatorPanel:
             self.img_rgb = g.add_image(PLACEHOLDER, label="RGB")
             self.img_overlay = g.add_image(PLACEHOLDER, label="Segmentation")
 
-        self.btn_capture.on_click(lambda e: do(e, answered(self.answer, "Capture", wf.capture)))
-        self.btn_extract.on_click(lambda e: do(e, answered(self.answer, "Plan extraction", wf.plan, "extract")))
-        self.btn_clear.on_click(lambda e: do(e, answered(self.answer, "Plan clearance", wf.plan, "clear")))
-        self.btn_stop.on_click(lambda e: do(e, answered(self.answer, "Stop robot", wf.stop, "operator")))
+        self.do = do
+        self.actions: dict[str, tuple[Callable[..., Any], tuple]] = {
+            "Capture": (wf.capture, ()), "Plan extraction": (wf.plan, ("extract",)),
+            "Plan clearance": (wf.plan, ("clear",)), "Stop robot": (wf.stop, ("operator",))}
+        for btn, what in ((self.btn_capture, "Capture"), (self.btn_extract, "Plan extraction"),
+                          (self.btn_clear, "Plan clearance"), (self.btn_stop, "Stop robot")):
+            btn.on_click(lambda e, what=what: self.press(e, what))
 
         @self.target.on_update
         def _(event: Any) -> None:
@@ -289,6 +294,11 @@ class OperatorPanel:
             v = self.target.value
             if v != "—" and v != wf.state.target:
                 do(event, wf.select_target, v)
+
+    def press(self, event: Any, what: str) -> None:
+        """What a click on the button named `what` does (its answer in the answer line)."""
+        fn, args = self.actions[what]
+        self.do(event, self.answers.clicked(what, fn, *args))
 
     def show_images(self, rgb: np.ndarray | None, overlay: np.ndarray | None) -> None:
         """The camera folder; rgb None keeps the image shown, overlay None shows the placeholder."""
@@ -305,21 +315,79 @@ class OperatorPanel:
             self.target.value = want
 
 
-def answered(where: Any, what: str, fn: Callable[..., Any], *args: Any) -> Callable[[], None]:
-    """`fn(*args)` with its answer in the panel's `where` markdown: a click is never silent.
+class AnswerLine:
+    """A panel's answer line: what became of its last click, or of a run that ended since.
 
-    A refusal (a capture still running, nothing approved...) is said there and stays
-    until the next click, whatever the status line says meanwhile; the error still
-    goes on to the browser's notification."""
-    def go() -> None:
-        where.content = f"_{what}: …_"
-        try:
-            fn(*args)
-        except Exception as exc:
-            where.content = f"**{what}: not done.** {ours(exc)}"
-            raise
-        where.content = f"_{what}: done._" if what in ("Capture", "Stop robot") else f"_{what}: started._"
-    return go
+    A click is never silent: its answer (`…`, done, started, not done: a refusal says why) stays
+    until the next click, whatever the status line says meanwhile; the error still goes on to the
+    browser's notification. A run that ends after the click began takes its place ("Run: held
+    at b3 after step 3 of 5."), so an answer like "Plan clearance: started." never outlives a
+    later run's end, and stays the line's answer until the next click or run end."""
+
+    def __init__(self, gui: viser.GuiApi, wf: Workflow) -> None:
+        self.handle = gui.add_markdown("")
+        self.wf = wf
+        self.lock = threading.Lock()
+        self.text = ""
+        self.since: RunEnd | None = None     # the run end the answer already accounts for
+
+    def clicked(self, what: str, fn: Callable[..., Any], *args: Any) -> Callable[[], None]:
+        """`fn(*args)` with its answer in this line."""
+        def go() -> None:
+            self._say(f"_{what}: …_", fresh=True)
+            try:
+                fn(*args)
+            except Exception as exc:
+                self._say(f"**{what}: not done.** {ours(exc)}")
+                raise
+            self._say(f"_{what}: done._" if what in ("Capture", "Stop robot") else f"_{what}: started._")
+        return go
+
+    def _say(self, text: str, fresh: bool = False) -> None:
+        with self.lock:
+            if fresh:                        # a run that ended before this click is not its answer
+                self.since = self.wf.state.run_end
+            self.text = text
+        self.show(self.wf.state)
+
+    def show(self, state: State) -> None:
+        """The answer as of `state`: a run end the click did not know of replaces it."""
+        with self.lock:
+            end = state.run_end
+            if end is not None and end is not self.since:
+                self.since, self.text = end, run_end_answer(end)
+            if self.handle.content != self.text:
+                self.handle.content = self.text
+
+
+def run_end_words(end: RunEnd) -> str:
+    """How a run ended, in a few words (markdown, outside text escaped): "done, 5 of 5 steps",
+    "held at b3 after step 3 of 5", "failed at step 2 of 5 (b4), 1 of 5 steps done"."""
+    n, k = len(end.sequence), len(end.completed)
+    at = f" at step {end.step + 1} of {n} ({md(end.box)})" if end.step is not None else ""
+    if end.status == "done":
+        return f"done, {k} of {n} steps"
+    if end.status == "held":
+        return (f"held at {md(end.box)} after step {end.step + 1} of {n}" if end.step is not None
+                else f"held, {k} of {n} steps done")
+    if end.status == "stopped":
+        by = f" by {md(end.stopped_by)}" if end.stopped_by else ""
+        return f"stopped{by}{at}, {k} of {n} steps done"
+    return f"{md(end.status)}{at}, {k} of {n} steps done"
+
+
+def run_end_answer(end: RunEnd) -> str:
+    """The answer line once a run has ended."""
+    words = f"Run: {run_end_words(end)}."
+    return f"_{words}_" if end.status == "done" else f"**{words}**"
+
+
+def executed_markdown(end: RunEnd) -> str:
+    """The plan a run executed and how it ended: said in place of the plan, which is no longer up
+    for review (its approval was used up by the run)."""
+    seq = " → ".join(md(b) for b in end.sequence) or "—"
+    return (f"**Executed:** the **{md(end.planner)}** plan `{md(end.plan)}` ({seq}): "
+            f"**{run_end_words(end)}**.")
 
 
 class SupervisorPanel:
@@ -339,7 +407,8 @@ class SupervisorPanel:
         self.btn_approve = g.add_button("Approve", color="green")
         self.reason = g.add_text("Reject reason", "")
         self.btn_reject = g.add_button("Reject", color="orange")
-        self.answer = g.add_markdown("")      # what became of the last Approve / Reject
+        self.answers = AnswerLine(g, wf)      # what became of the last Approve / Reject, or its run
+        self.answer = self.answers.handle
         self.decisions_md = g.add_markdown("")
         self.btn_approve.on_click(self.approve)
         self.btn_reject.on_click(self.reject)
@@ -352,7 +421,8 @@ class SupervisorPanel:
     def render(self, state: State) -> None:
         self.show_plans(state)
         self.review(state)
-        self.decisions_md.content = decisions_markdown(state.decisions) or "_No decisions for this capture._"
+        self.answers.show(state)
+        self.decisions_md.content = decisions_table(state.decisions) or "_No decisions for this capture._"
 
     def review(self, state: State) -> None:
         """Show the plan under review (the `Plan` choice: planner, hash, sequence) and remember it.
@@ -431,7 +501,7 @@ class SupervisorPanel:
                             accept_risk=accept, client=self.client_key(), planner=name)
             self.accept_risk.value = False
             self.wf.execute()
-        self.do(event, answered(self.answer, "Approve", go))
+        self.do(event, self.answers.clicked("Approve", go))
 
     def reject(self, event: Any) -> None:
         def go() -> None:
@@ -442,14 +512,20 @@ class SupervisorPanel:
             self.wf.reject(plan_hash, given, self.who.value.strip() or "supervisor",
                            self.reason.value, client=self.client_key(), planner=name)
             self.reason.value = ""
-        self.do(event, answered(self.answer, "Reject", go))
+        self.do(event, self.answers.clicked("Reject", go))
 
 
 def supervisor_markdown(state: State) -> str:
-    """The pending plans of the current capture, as the supervisor decides on them."""
+    """The pending plans of the current capture, as the supervisor decides on them; after a run, the
+    plan it ran is not pending: the run used its approval up."""
+    end = state.run_end
+    if state.needs_recapture:
+        ran = f"{executed_markdown(end)}\n\n" if end is not None else ""
+        return ran + "_Nothing to decide: the robot ran; capture and plan again before the next run._"
     if not state.plans:
         return "_Nothing to decide: no plans for the current capture._"
-    lines = ["Pending plans for this capture:"]
+    lines = [executed_markdown(end) + "\n"] if end is not None else []
+    lines.append("Pending plans for this capture:")
     for name, e in state.plans.items():
         mark = " ✅ approved" if state.approved == e.hash else ""
         lines.append(f"- **{md(name)}** `{md(e.hash)}`: {' → '.join(md(b) for b in e.plan.sequence)} "
@@ -469,6 +545,17 @@ def review_markdown(name: str, entry: PlanEntry | None) -> str:
     return (f"\n\n**Deciding on:** the **{md(name)}** plan `{md(entry.hash)}`: "
             f"{' → '.join(md(b) for b in entry.plan.sequence)} (max risk {pct(entry.plan.risk)}"
             f"{'' if entry.plan.safe else ', predicted UNSAFE'})")
+
+
+def decisions_table(decisions: Iterable[Mapping[str, Any]]) -> str:
+    """The supervisors' decisions on this capture, one row each, naming the planner whose plan it
+    was (two planners can find one sequence, one hash); names and reasons are outside text."""
+    rows = [f"| {md(d.get('decision'))} | {md(d.get('planner') or '—')} | `{md(d.get('plan'))}` | "
+            f"{md(d.get('who'))} | {md(_fmt_clock(d.get('at')))} | {md(d.get('reason') or '')} |"
+            for d in decisions]
+    if not rows:
+        return ""
+    return "\n".join(["| decision | planner | plan | by | at | reason |", "|---|---|---|---|---|---|", *rows])
 
 
 def decisions_markdown(decisions: Iterable[Mapping[str, Any]], key: str = "plan") -> str:
@@ -575,6 +662,13 @@ class SessionsPanel:
         if predicted is not None:
             self.look_nodes = sv.draw_outlines(scene_api, predicted.boxes, prefix="/look")
         self.look_md.content = table_md
+
+
+def _fmt_clock(t: float | str | None) -> str:
+    """A decision's time of day (the decisions are of the current capture)."""
+    if isinstance(t, (int, float)) and not isinstance(t, bool):
+        return time.strftime("%H:%M:%S", time.localtime(t))
+    return str(t or "")
 
 
 def _fmt_time(t: float | str | None) -> str:

@@ -60,7 +60,7 @@ class Workflow(PlanningStage, Supervision, RobotRun):
             self._generation += 1
             gen = self._generation
             self._set(capturing=True, plans={}, approved=None, approval=None, planning=False,
-                      message="capturing...", error=None)
+                      run_end=None, message="capturing...", error=None)
         try:
             return self._capture(gen)
         finally:
@@ -109,7 +109,7 @@ class Workflow(PlanningStage, Supervision, RobotRun):
                              plans={}, capturing=False, planning=False, progress=0.0, progress_text="",
                              approved=None, approval=None, decisions=(), robot="idle", robot_events=(),
                              outcome=None, needs_recapture=False, scene_problems=(), repairs=(),
-                             verifications=(), deviation=None, audit=audit, error=err,
+                             verifications=(), deviation=None, run_end=None, audit=audit, error=err,
                              message=f"captured {frame.name}: {len(scene.boxes)} boxes"
                                      + (f" (session {sid})" if sid is not None else ""))
 
@@ -118,7 +118,7 @@ class Workflow(PlanningStage, Supervision, RobotRun):
                          truth=None, plans={}, approved=None, approval=None, decisions=(), target=None,
                          robot="idle", robot_events=(), outcome=None, planning=False, capturing=False,
                          scene_problems=(), repairs=(), session_id=None, verifications=(), deviation=None,
-                         message="", error=msg)
+                         run_end=None, message="", error=msg)
 
     # ----------------------------------------------------------------- target
     def select_target(self, box_id: str) -> State:

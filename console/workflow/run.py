@@ -23,7 +23,7 @@ from shelfpick.console.workflow.continuation import continuation, mapped_target
 from shelfpick.console.workflow.core import WorkflowCore
 from shelfpick.console.workflow.look import Look, look_again
 from shelfpick.console.workflow.run_json import outcome_json, perception_summary, step_json
-from shelfpick.console.workflow.state import Deviation, RunLock, State, WorkflowError
+from shelfpick.console.workflow.state import Deviation, RunEnd, RunLock, State, WorkflowError
 
 if TYPE_CHECKING:
     from shelfpick.console.robot.base import RobotDriver, RobotEvent, RobotOutcome
@@ -105,7 +105,7 @@ class RobotRun(WorkflowCore):
                 self._refuse("the approved plan is not for the current capture")
             run.started = True       # the approval is used up: re-running would re-send steps
             run.scene, run.truth = st.scene, st.truth
-            self._set(approved=None, robot="running", robot_events=(), outcome=None, error=None,
+            self._set(approved=None, robot="running", robot_events=(), outcome=None, error=None, run_end=None,
                       message=f"robot: starting the {run.entry.plan.planner} plan {run.plan_hash}")
         try:
             from shelfpick.console.robot.base import new_run_id
@@ -300,6 +300,7 @@ class RobotRun(WorkflowCore):
         with self._lock:
             self._release(run)
             self._set(robot=status, outcome=outcome, needs_recapture=True, approval=None, message=msg,
+                      run_end=run_end(run, status, outcome),
                       error=err if status not in ("stopped", "held") or run.audit_failed else None)
 
     def _held_capture(self, run: RunLock, status: str, outcome: RobotOutcome | None, msg: str,
@@ -343,8 +344,25 @@ class RobotRun(WorkflowCore):
                       plans={"continue": cont} if recorded else {}, planning=False, progress=0.0,
                       progress_text="", approved=None, approval=None, decisions=(), robot=status,
                       outcome=outcome, needs_recapture=False, scene_problems=(), repairs=(),
-                      deviation=dev, message=msg, error=v.summary() if status == "held" else err)
+                      deviation=dev, run_end=run_end(run, status, outcome), message=msg, error=v.summary() if status == "held" else err)
         return True
+
+
+def run_end(run: RunLock, status: str, outcome: RobotOutcome | None) -> RunEnd:
+    """What the page says of an ended run: its plan, end state, and where it stopped (held: the step
+    whose look held it; else the first step not done)."""
+    plan = run.entry.plan
+    step = box = None
+    if status == "held" and (run.held is not None or run.verifications):
+        v = run.held.verification if run.held is not None else run.verifications[-1]
+        step, box = v.step, v.box
+    elif status != "done" and outcome is not None:
+        first = next((s for s in outcome.steps if s.get("status") not in ("done", "skipped")), None)
+        if first is not None and isinstance(first.get("step"), int):
+            step, box = first["step"], first.get("box")
+    return RunEnd(run.planner or plan.planner, run.plan_hash, tuple(plan.sequence), status,
+                  tuple(outcome.completed) if outcome is not None else (), step, box,
+                  run.stopped_by if status == "stopped" else None)
 
 
 def seed_history(robot: RobotDriver, plan_hash: str, done: dict[int, str]) -> None:
@@ -367,4 +385,4 @@ def seed_history(robot: RobotDriver, plan_hash: str, done: dict[int, str]) -> No
 
 
 
-__all__ = ["RobotRun", "seed_history"]
+__all__ = ["RobotRun", "run_end", "seed_history"]

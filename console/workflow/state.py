@@ -76,7 +76,7 @@ class State:
     approved: str | None = None    # hash of the approved plan for this capture
     approval: Mapping[str, Any] | None = None   # plan, session, capture, who, decision id
     decisions: tuple[dict, ...] = ()
-    robot: str = "idle"            # idle | running | stopping | done | stopped | failed
+    robot: str = "idle"            # idle | running | stopping | done | stopped | failed | held
     robot_events: tuple[RobotEvent, ...] = ()
     outcome: RobotOutcome | None = None
     needs_recapture: bool = False
@@ -87,6 +87,7 @@ class State:
     verifications: tuple[Verification, ...] = ()  # the look after each step of the current run
     observed: Scene | None = None  # the shelf the last of those looks perceived (the 3D view draws it)
     deviation: Deviation | None = None  # why the last run was held (shown until the next capture)
+    run_end: RunEnd | None = None  # how the last run ended (until the next capture or run)
     message: str = ""
     error: str | None = None
 
@@ -138,6 +139,21 @@ class Deviation:
     session: int | None            # the verification capture's session (plan again from it)
 
 
+@dataclass(frozen=True, eq=False)
+class RunEnd:
+    """How a run ended, for the page: the plan it ran is no longer up for review, this says what
+    became of it. One object per ended run (the page tells runs apart by identity)."""
+
+    planner: str
+    plan: str                      # content hash of the plan that ran
+    sequence: tuple[str, ...]
+    status: str                    # done | held | stopped | failed (State.robot at the end)
+    completed: tuple[str, ...] = ()
+    step: int | None = None        # held: the step whose look held it; else the first step not done
+    box: str | None = None         # that step's box
+    stopped_by: str | None = None
+
+
 @dataclass(eq=False)
 class RunLock:
     """The run lock: one approval of one plan for one capture, until its run ends."""
@@ -175,5 +191,5 @@ def problem_text(p: Mapping[str, Any]) -> str:
 
 
 
-__all__ = ["SECONDS_PER_BOX", "AUTH_REFUSED", "WorkflowError", "PlanEntry", "State", "Deviation", "RunLock",
+__all__ = ["SECONDS_PER_BOX", "AUTH_REFUSED", "WorkflowError", "PlanEntry", "State", "Deviation", "RunEnd", "RunLock",
            "RobotFactory", "Listener", "scene_problems", "problem_text"]

@@ -16,8 +16,10 @@ from shelfpick.console.workflow.state import AUTH_REFUSED, PlanEntry, RunLock, S
 class Supervision(WorkflowCore):
     """`approve()` and `reject()`: exactly this plan for exactly the current capture."""
 
-    def _authenticate(self, plan_hash: str, passphrase: str, who: str, action: str, client: str) -> None:
-        """Throttled passphrase check; every refusal reads the same, wrong or too soon."""
+    def _authenticate(self, plan_hash: str, passphrase: str, who: str, action: str, client: str,
+                      planner: str | None = None) -> None:
+        """Throttled passphrase check; every refusal reads the same, wrong or too soon. `planner`:
+        whose plan the refused decision was for (the page's decisions name it)."""
         secret = self._passphrase.encode()
         given = (passphrase or "").encode()
         verdict = self.throttle.check(client, lambda: hmac.compare_digest(given, secret))
@@ -34,7 +36,7 @@ class Supervision(WorkflowCore):
                               "throttled_so_far": self.throttle.throttled})
             with self._lock:
                 self._set(decisions=self._state.decisions + (
-                    {"decision": "refused", "plan": plan_hash, "who": who,
+                    {"decision": "refused", "plan": plan_hash, "planner": planner, "who": who,
                      "reason": f"{action}: wrong passphrase", "at": time.time()},))
         self._refuse(f"{action} refused: {AUTH_REFUSED}")
 
@@ -94,7 +96,7 @@ class Supervision(WorkflowCore):
             self._held("approval")
             self._run_elsewhere("approval")   # one run at a time per database (console/workflow/run.py)
             risk_note = self._risk_note(entry, accept_risk)
-        self._authenticate(plan_hash, passphrase, who, "approval", client)
+        self._authenticate(plan_hash, passphrase, who, "approval", client, name)
         with self._lock:   # the state may have moved while the passphrase was checked
             entry, sid, name = self._decidable(plan_hash, "approval", name)
             self._held("approval")
@@ -149,7 +151,7 @@ class Supervision(WorkflowCore):
             entry, sid, name = self._decidable(plan_hash, "rejection", planner)
             if self._run is not None and self._run.started:
                 self._refuse("rejection refused: the robot is running; press `Stop robot`")
-        self._authenticate(plan_hash, passphrase, who, "rejection", client)
+        self._authenticate(plan_hash, passphrase, who, "rejection", client, name)
         with self._lock:
             run = self._run
             if run is not None and run.plan_hash == plan_hash and not run.started:

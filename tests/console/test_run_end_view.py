@@ -1,0 +1,188 @@
+"""After a run ends the page says what became of it (h16): the plan panel no longer offers the
+executed plan for review, the answer lines say how the run ended instead of an older click's
+"started.", and the supervisor's decisions name the planner. Real viser server, real workflow,
+SQLite file and TCP robot (tests/console/safety_kit.py's peer), the shelf of test_workflow."""
+from __future__ import annotations
+
+import html
+import time
+
+import pytest
+
+from safety_kit import HonestPeer
+from test_safety_app import MARKUP, literal
+from test_workflow import PASS, CodeShelfSource, small_scene
+
+
+class HeldLook(CodeShelfSource):
+    """A camera whose look after a step still shows the box it took out: the robot is held."""
+
+    def look_again(self, world, step, attempt=0):
+        from shelfpick.console.sources import Frame
+        from shelfpick.perception.render import render
+
+        return Frame(render(self.scene, seed=2 + attempt), self.scene, f"look {step}.{attempt}")
+
+
+@pytest.fixture
+def console(tmp_path):
+    """(app, workflow, one browser's view, robot peer); `script` picks the robot's answers and the
+    source whether the look after a step holds the robot."""
+    made = []
+
+    def build(script=None, held=False):
+        from shelfpick.console.web.app import ClientView, ConsoleApp
+        from shelfpick.console.robot.drivers import open_robot
+        from shelfpick.console.store.sessions import SessionStore
+        from shelfpick.console.workflow.machine import Workflow
+
+        peer = HonestPeer(script=script)
+        store = SessionStore(tmp_path / f"run-end-{len(made)}.sqlite")
+        source = (HeldLook if held else CodeShelfSource)(small_scene())
+        wf = Workflow(source, store, lambda truth, seed: open_robot(peer.url, truth=truth, seed=seed), PASS,
+                      samples=2)
+        app = ConsoleApp(wf, port=0)
+        view = ClientView(app, app.server)
+        app.views[1000 + len(made)] = view
+        made.append((app, store, peer))
+        return app, wf, view, peer
+
+    yield build
+    for app, store, peer in made:
+        app.stop()
+        store.close()
+        peer.close()
+
+
+def until(cond, timeout=30.0, what="condition"):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def settle(wf, view, timeout=10.0):
+    """Wait until the view drew the latest state (nothing changed for 0.3 s, and it was rendered)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = wf.state.version
+        time.sleep(0.3)
+        if wf.state.version == v:
+            view.render(wf.state)     # the listener's render may still be on its way: draw it here too
+            return
+    raise AssertionError("the state kept changing")
+
+
+def shown(markdown: str) -> str:
+    """What the browser shows of a markdown text (entities decoded, word joiners dropped)."""
+    return html.unescape(markdown).replace("\u2060", "")
+
+
+def approve_and_run(wf, view, planner: str = "physics"):
+    """The operator plans clearance with the button, the supervisor approves `planner`, the robot runs."""
+    view.operator.press(None, "Plan clearance")
+    assert view.operator.answer.content == "_Plan clearance: started._"
+    st = until(lambda: not wf.state.planning and wf.state.plans.get(planner) and wf.state, 60, "plans")
+    entry = st.plans[planner]
+    view.approve_plan.value = planner
+    until(lambda: view.supervisor.reviewed == (planner, entry.hash), 10, "the plan under review")
+    view.passphrase.value = PASS
+    view.accept_risk.value = not entry.plan.safe or bool(entry.plan.extra.get("continues"))
+    view._approve(None)
+    st = until(lambda: wf.state.robot in ("done", "held", "stopped", "failed") and wf.state, 60, "run end")
+    wf.wait_robot(30)
+    settle(wf, view)
+    return wf.state, entry
+
+
+def test_after_a_run_the_plan_is_shown_executed_and_the_answers_say_how_it_ended(console):
+    app, wf, view, peer = console()
+    wf.capture()
+    st, entry = approve_and_run(wf, view)
+    n = len(entry.plan.sequence)
+    assert st.robot == "done", (st.robot, st.error)
+    op, sup = view.operator, view.supervisor
+    # the plan panel: the executed plan and how it ended, not a plan up for review
+    plans = shown(op.results.content)
+    assert f"Executed: the physics plan {entry.hash} ({' → '.join(entry.plan.sequence)}): done, {n} of {n} steps" \
+        in plans.replace("*", "").replace("`", ""), plans
+    assert "predicted safe" not in plans and "plan hash" not in plans and "Capture and plan again" in plans
+    # nothing approvable twice: the supervisor is offered nothing and told why
+    assert tuple(view.approve_plan.options) == ("—",)
+    assert "Pending plans" not in sup.sup_info.content and "Nothing to decide" in sup.sup_info.content
+    # the answer lines: how the run ended, in place of the clicks' "started."
+    assert op.answer.content == sup.answer.content == f"_Run: done, {n} of {n} steps._"
+    # a click after the run is answered as itself, and the old run end does not come back over it
+    op.press(None, "Plan clearance")
+    assert op.answer.content.startswith("**Plan clearance: not done.**")
+    settle(wf, view)
+    assert op.answer.content.startswith("**Plan clearance: not done.**")
+    # the next capture: the executed plan's line goes, no plans yet
+    wf.capture()
+    settle(wf, view)
+    assert "Executed" not in op.results.content and "No plans yet" in op.results.content
+
+
+def test_a_failed_run_and_a_held_run_say_where_they_stopped(console):
+    # the robot refuses step 2: failed there, 1 step done
+    app, wf, view, peer = console(script=lambda conn, step: "refuse" if step == 1 else "ok")
+    wf.capture()
+    st, entry = approve_and_run(wf, view)
+    n, second = len(entry.plan.sequence), entry.plan.sequence[1]
+    assert st.robot == "failed", (st.robot, st.error)
+    words = f"failed at step 2 of {n} ({second}), 1 of {n} steps done"
+    assert view.operator.answer.content == f"**Run: {words}.**"
+    assert words in shown(view.operator.results.content) and "predicted safe" not in view.operator.results.content
+
+    # the look after step 1 still sees the box taken out: held there; `continue` is the only offer
+    app, wf, view, peer = console(held=True)
+    wf.capture()
+    st, entry = approve_and_run(wf, view)
+    first = entry.plan.sequence[0]
+    assert st.robot == "held", (st.robot, st.error)
+    words = f"held at {first} after step 1 of {len(entry.plan.sequence)}"
+    assert view.operator.answer.content == view.supervisor.answer.content == f"**Run: {words}.**"
+    plans = shown(view.operator.results.content)
+    assert f"Executed: the physics plan {entry.hash}" in plans.replace("*", "").replace("`", "") and words in plans
+    # every box still to take was seen: the rest is offered as `continue`, the table under that line
+    assert tuple(view.approve_plan.options) == ("continue",) and set(st.plans) == {"continue"}
+    assert st.plans["continue"].hash in plans and "predicted safe" in plans
+    assert entry.hash not in view.supervisor.sup_info.content.split("Pending plans")[1]
+
+
+def test_the_decisions_table_names_the_planner_and_shows_outside_text_literally(console):
+    from shelfpick.console.web.panels import decisions_table, executed_markdown, run_end_answer
+    from shelfpick.console.workflow.state import RunEnd
+
+    app, wf, view, peer = console()
+    wf.capture()
+    wf.plan("clear", wait=True)
+    st = wf.state
+    heur = st.plans["heuristic"]
+    view.approve_plan.value = "heuristic"
+    until(lambda: view.supervisor.reviewed == ("heuristic", heur.hash), 10, "the plan under review")
+    view.who.value = MARKUP[:80]                        # names are cut at 80 characters
+    view.reason.value = "b1 would fall"
+    view.passphrase.value = "not the passphrase"
+    view._reject(None)                                  # refused: wrong passphrase
+    view.passphrase.value = PASS
+    view.reason.value = MARKUP
+    view._reject(None)
+    settle(wf, view)
+    table = view.decisions_md.content
+    lines = table.splitlines()
+    assert lines[0] == "| decision | planner | plan | by | at | reason |"
+    rows = [[c.strip() for c in ln.split("|")[1:-1]] for ln in lines[2:]]
+    assert [(r[0], r[1], r[2]) for r in rows] == [("refused", "heuristic", f"`{heur.hash}`"),
+                                                  ("reject", "heuristic", f"`{heur.hash}`")]
+    assert all(len(r) == 6 for r in rows)               # no outside text split a row
+    assert literal(table, MARKUP) and literal(table, MARKUP[:80])
+    # a hostile box id and name in a run's end are text, never markup
+    end = RunEnd("physics", "abc", ("b0", MARKUP), "stopped", ("b0",), 1, MARKUP, MARKUP)
+    for text in (executed_markdown(end), run_end_answer(end)):
+        assert literal(text, f"stopped by {MARKUP} at step 2 of 2 ({MARKUP}), 1 of 2 steps done"), text
+    row = decisions_table([{"decision": "approve", "planner": "a|b", "plan": "h", "who": "x|y", "reason": "|"}])
+    assert row.splitlines()[2].count("|") == 7 and "a|b" in shown(row)     # six cells, the bars are text
