@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 from shelfpick.console.web.markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
 from shelfpick.console.web.panels import (OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel,
-                                          executed_markdown, quoted)
+                                          executed_markdown, md, quoted)
 from shelfpick.console.web.replay_view import LookView, ReplayView, record_view, replay_status
 from shelfpick.console.workflow.look import as_planned
 from shelfpick.console.workflow.machine import PlanEntry, State, Workflow, WorkflowError
@@ -318,7 +318,11 @@ def plans_markdown(state: State) -> str:
     if state.needs_recapture:
         return (executed_markdown(end) + "\n\n_Nothing to review: the shelf has changed. Capture and plan "
                 "again before the next run._")
-    return executed_markdown(end) + "\n\n" + results_markdown(state)
+    rest = ""
+    if end.status == "held" and "continue" in (state.plans or {}):
+        rest = (f" _The rest of it is offered below as “continue”, in the ids of the capture the look "
+                f"made (session {md(state.session_id)})._")
+    return executed_markdown(end) + rest + "\n\n" + results_markdown(state)
 
 
 class ConsoleApp:

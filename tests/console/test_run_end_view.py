@@ -150,6 +150,8 @@ def test_a_failed_run_and_a_held_run_say_where_they_stopped(console):
     # every box still to take was seen: the rest is offered as `continue`, the table under that line
     assert tuple(view.approve_plan.options) == ("continue",) and set(st.plans) == {"continue"}
     assert st.plans["continue"].hash in plans and "predicted safe" in plans
+    assert f"offered below as “continue”, in the ids of the capture the look made (session {st.session_id})" \
+        in plans
     assert entry.hash not in view.supervisor.sup_info.content.split("Pending plans")[1]
 
 
