@@ -61,8 +61,9 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
 
     Geometric, no physics: small gaps (<= `snap`) under a box are closed, small
     overlaps pushed apart (up, or sideways for neighbours), a box with nothing
-    under it is dropped onto the nearest support below, and boxes are clamped
-    into the shelf. Placeholder depths shrink to fit before the back wall. The boxes' corners
+    under it is dropped onto the nearest support below, a box measured deep into a lower
+    box beside it is parted from it sideways, not lifted onto it (`_beside`), and boxes are
+    clamped into the shelf. Placeholder depths shrink to fit before the back wall. The boxes' corners
     and separating axes are remembered for the call (`contact.pose_memo`).
     """
     notes: list[str] = []
@@ -71,7 +72,7 @@ def make_valid(boxes: list[Box], shelf: Shelf, snap: float = 0.03,
         out, said = _push_apart(out, snap, min_contact)
         notes += said
         out = [_clamp(b, shelf, notes) for b in out]
-        out, said = _rest_on_supports(out, snap, min_contact, shelf.height)
+        out, said = _rest_on_supports(out, snap, min_contact, shelf.height, shelf.width / 2)
         notes += said
         out, said = _under_the_top(out, shelf)
         notes += said
@@ -186,9 +187,10 @@ def _support(b: Box, other: Box, bottom: float, snap: float) -> tuple[float | No
 
     Touching, a gap or an overlap up to `snap`: rest on it. A deeper overlap with `other`
     lower: `b` was measured partly inside it and rests on it, but only when a measured face is
-    in the overlap; one between placeholder depths only (turned neighbours whose unseen backs
-    cross) says nothing about where the faces are: not a support (the note says so; the caller
-    then never drops `b` through it)."""
+    in the overlap and lifting is the shortest way out (`_beside`: else `other` stands beside
+    `b`); one between placeholder depths only (turned neighbours whose unseen backs cross) says
+    nothing about where the faces are: not a support (the note says so; the caller then never
+    drops `b` through it)."""
     s = sweep(b, other, UP)
     if s is None or s[0] >= 0:
         return None, ""
@@ -198,14 +200,101 @@ def _support(b: Box, other: Box, bottom: float, snap: float) -> tuple[float | No
         return None, ""
     f = face_sweep(b, other, UP)
     if f is not None and f[0] < 0 < f[1]:
-        return f[1], ""
+        return (None, "") if _beside(b, other, bottom, snap) else (f[1], "")
     return None, f"{b.id}/{other.id}: overlap behind their measured faces only (depths unknown); not moved"
 
 
+SIDEWAYS = (1.0, 0.0, 0.0)
+
+
+def _beside(b: Box, other: Box, bottom: float, snap: float) -> float:
+    """The move along x (signed; 0.0: none) that parts `b` from `other`, a lower box it overlaps
+    deeper than `snap` in height with a measured face in the overlap, when that move is shorter
+    than lifting `b` out of it: then `other` stands beside `b`, not under it.
+
+    Why: a face measured a centimetre or two too wide or off-centre (the face error) reaches
+    into the box beside it by that much sideways, over all the height the two share; read as
+    resting on it, it was lifted 14-25 cm out of it, into the box above or off its own support
+    (issue 31, `make_valid_jitter.py`: tuning shelves 31000, 31012, 31026 refused). A box
+    measured partly inside the box it rests on overlaps it the other way round: by the face
+    error in height, by much of its width sideways. The shorter way out is the one the face
+    error explains."""
+    s = sweep(b, other, UP)
+    if s is None or s[0] >= 0 or s[1] <= snap or min(c[2] for c in box_corners(other)) >= bottom - 1e-3:
+        return 0.0
+    f = face_sweep(b, other, UP)
+    x = face_sweep(b, other, SIDEWAYS)
+    if f is None or not f[0] < 0 < f[1] or x is None or not x[0] < 0 < x[1]:
+        return 0.0
+    side = x[0] - 1e-4 if -x[0] < x[1] else x[1] + 1e-4
+    return side if abs(side) < f[1] else 0.0
+
+
+def _part_sideways(out: list[Box], i: int, placed: list[int], snap: float, half_width: float) -> list[str]:
+    """Box `i` parted sideways from the lower boxes beside it that it was measured into
+    (`_beside`), before it rests; and what was done. It moves away from them as far as the room
+    on its other side allows (the shelf's side, the next placed box); what is left is cut off
+    its width on their side (its face was measured wider than the gap it stands in: with
+    neighbours on both sides, only cut). It is never cut below half its width."""
+    b = out[i]
+    bottom = _aabb(b)[0, 2]
+    moves = {j: m for j in placed if (m := _beside(b, out[j], bottom, snap))}
+    if not moves:
+        return []
+    names = "/".join(out[j].id for j in moves)
+    left = max([m for m in moves.values() if m < 0], key=abs, default=0.0)
+    right = max([m for m in moves.values() if m > 0], default=0.0)
+    shift = 0.0
+    if not (left and right):
+        shift = math.copysign(min(abs(left + right), _room(out, i, placed, moves, left + right > 0, half_width)),
+                              left + right)
+    cut_left, cut_right = (right - shift if right else 0.0), (shift - left if left else 0.0)
+    if cut_left + cut_right > b.size[0] / 2:
+        return [f"{b.id}: measured {max(right, -left) * 100:.1f} cm into {names} beside it; "
+                f"parting them would cut it below half its width: not moved"]
+    out[i] = _narrower(_moved(b, np.array([shift, 0.0, 0.0])), cut_left, cut_right)
+    reach, cut = max(right, -left), cut_left + cut_right
+    if reach <= 1e-3:
+        return []
+    said = [f"moved {abs(shift) * 100:.1f} cm {'right' if shift > 0 else 'left'}"] if abs(shift) > 5e-4 else []
+    said += [f"cut {cut * 100:.1f} cm narrower"] if cut > 5e-4 else []
+    # as when side-by-side faces are pushed apart: past `snap` both faces cannot be right
+    why = "; their perceived faces " + CONTRADICTION if reach > snap else ""
+    return [f"{b.id}: {' and '.join(said)} out of {names} beside it (not resting on it: its face "
+            f"reached {reach * 100:.1f} cm into {names} sideways){why}"]
+
+
+def _room(out: list[Box], i: int, placed: list[int], moves: dict[int, float], right: bool,
+          half_width: float) -> float:
+    """How far box `i` moves sideways (right, else left) before it meets the shelf's side or a
+    placed box it is apart from now (other than those in `moves`)."""
+    a = _aabb(out[i])
+    room = half_width - a[1, 0] if right else a[0, 0] + half_width
+    d = (1.0, 0.0, 0.0) if right else (-1.0, 0.0, 0.0)
+    for j in placed:
+        s = None if j in moves else face_sweep(out[i], out[j], d)
+        if s is not None and s[0] >= 0:
+            room = min(room, s[0])
+    return max(room - 1e-4, 0.0)
+
+
+def _narrower(b: Box, cut_left: float, cut_right: float) -> Box:
+    """The box cut `cut_left` narrower on its left (-x) side and `cut_right` on its right, along
+    its own x axis (what the cut leaves stays where it was)."""
+    if cut_left + cut_right <= 0:
+        return b
+    ex = np.asarray(quat_to_matrix(b.orientation))[:, 0]
+    ex = ex if ex[0] >= 0 else -ex
+    pos = np.asarray(b.position) + ex * (cut_left - cut_right) / 2
+    return replace(b, size=(float(b.size[0] - cut_left - cut_right), b.size[1], b.size[2]),
+                   position=tuple(float(p) for p in pos))
+
+
 def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float,
-                      height: float = np.inf) -> tuple[list[Box], list[str]]:
-    """Every box, lowest first, moved up or down onto the floor or the highest box under it;
-    and what was moved (more than 1 mm). A support whose top edge was hidden grows up to the
+                      height: float = np.inf, half_width: float = np.inf) -> tuple[list[Box], list[str]]:
+    """Every box, lowest first, parted sideways from lower boxes beside it (`_part_sideways`),
+    then moved up or down onto the floor or the highest box under it; and what was moved (more
+    than 1 mm). A support whose top edge was hidden grows up to the
     box above only where growing overlaps no other box and that box fits under the shelf's
     top (`height`); otherwise the box above drops, as onto any support (`_may_grow`)."""
     out = list(boxes)
@@ -213,6 +302,7 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float,
     order = sorted(range(len(out)), key=lambda i: _aabb(out[i])[0, 2])
     placed: list[int] = []
     for i in order:
+        notes += _part_sideways(out, i, placed, snap, half_width)
         a = _aabb(out[i])
         bottom = a[0, 2]
         delta, under, held, k = -bottom, "the floor", False, None

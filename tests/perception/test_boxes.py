@@ -281,3 +281,68 @@ def test_unexplained_matter_stand_ins_are_never_pushed_past_snap():
     boxes, notes = make_valid([_upright("b0", 0.0, 0.0, 0.2, 0.2), stand_in], shelf)
     assert boxes[0].position[0] == pytest.approx(0.0) and boxes[1].position[0] == pytest.approx(0.13)
     assert not any("pushed apart" in n for n in notes)
+
+
+# --- a face measured a few cm into a lower side neighbour is beside it, not on it (issue 31,
+# --- make_valid_jitter.py --sigma 0.015: tuning shelves 31000, 31012, 31026 refused)
+
+def _seen(i: str, x0: float, x1: float, z0: float, h: float, front: float = 0.0) -> Box:
+    """A perceived box: its face x0..x1 wide, from z0 up h, at `front`; a 25 cm placeholder depth."""
+    return Box(i, (x1 - x0, 0.25, h), ((x0 + x1) / 2, front + 0.125, z0 + h / 2), (1.0, 0.0, 0.0, 0.0),
+               None, False, 1, {"perceived": {}})
+
+
+def _bottom(b: Box) -> float:
+    return min(c[2] for c in b.corners())
+
+
+def test_a_face_measured_into_the_column_beside_it_is_parted_not_lifted_onto_it():
+    # 'top' rests on 'low'; its face was measured 4 cm too far left, into the tall 'side' column,
+    # 3.7 cm in front of side's face (so the faces' slabs never meet). It was pushed up 23 cm out
+    # of 'side', into 'above', which rests on 'right' (31000: b6 pushed up 14.4 cm out of b4)
+    shelf = Shelf()
+    seen = [_seen("side", -0.50, -0.26, 0.0, 0.40), _seen("low", -0.25, 0.25, 0.0, 0.17),
+            _seen("right", 0.26, 0.50, 0.0, 0.34), _seen("top", -0.30, 0.25, 0.17, 0.17, front=-0.037),
+            _seen("above", -0.24, 0.30, 0.34, 0.17)]
+    boxes, notes = make_valid(seen, shelf)
+    by = {b.id: b for b in boxes}
+    assert not any(n.startswith("top: pushed up") for n in notes), notes
+    assert _bottom(by["top"]) == pytest.approx(0.17, abs=1e-3)
+    # out of 'side': moved right up to 'right' (1 cm), the rest cut off its width (its face is
+    # 3 cm wider than the gap between the two columns)
+    assert min(c[0] for c in by["top"].corners()) == pytest.approx(-0.26, abs=1e-3)
+    assert max(c[0] for c in by["top"].corners()) == pytest.approx(0.26, abs=1e-3)
+    assert any(n.startswith("top: moved 1.0 cm right and cut 3.0 cm narrower out of side beside it")
+               and "cannot all be right" in n for n in notes), notes
+    assert _bottom(by["above"]) == pytest.approx(0.34, abs=1e-3)
+    assert _refusal(boxes, shelf) == ""
+
+
+def test_a_box_beside_a_taller_one_stays_on_the_floor_under_its_stack():
+    # 'a' was measured 1 cm above the floor; pushing its neighbours apart leaves it 1.75 cm into
+    # the taller 'b' sideways: it was pushed up 24 cm out of 'b' and floated with 'a2' on it
+    # (31026: b0 pushed up 25.3 cm out of b1, and b4 on it dropped under it to the floor)
+    shelf = Shelf()
+    seen = [_seen("a", -0.49, -0.25, 0.01, 0.25), _seen("a2", -0.49, -0.25, 0.26, 0.25),
+            _seen("b", -0.26, -0.01, 0.0, 0.25), _seen("c", -0.04, 0.46, 0.0, 0.17)]
+    boxes, notes = make_valid(seen, shelf)
+    by = {b.id: b for b in boxes}
+    assert not any(n.startswith("a: pushed up") for n in notes), notes
+    assert _bottom(by["a"]) == pytest.approx(0.0, abs=1e-3)
+    assert _bottom(by["a2"]) == pytest.approx(0.25, abs=1e-3)
+    assert max(c[0] for c in by["a"].corners()) <= min(c[0] for c in by["b"].corners()) + 1e-3
+    assert _refusal(boxes, shelf) == ""
+
+
+def test_a_box_measured_deep_into_boxes_on_both_sides_is_cut_to_the_gap():
+    # between two taller columns, 4 cm into each, 3.7 cm in front of them: neither is under it and
+    # no sideways move parts it from both: it is cut to the gap, rests on the floor, and says so
+    shelf = Shelf()
+    seen = [_seen("l", -0.40, -0.20, 0.0, 0.40), _seen("r", 0.20, 0.40, 0.0, 0.40),
+            _seen("mid", -0.24, 0.24, 0.01, 0.20, front=-0.037)]
+    boxes, notes = make_valid(seen, shelf)
+    by = {b.id: b for b in boxes}
+    assert _bottom(by["mid"]) == pytest.approx(0.0, abs=1e-3)
+    assert by["mid"].position[0] == pytest.approx(0.0) and by["mid"].size[0] == pytest.approx(0.40, abs=1e-3)
+    assert any(n.startswith("mid: cut 8.0 cm narrower out of l/r beside it") for n in notes), notes
+    assert _refusal(boxes, shelf) == ""
