@@ -104,9 +104,13 @@ class PhysicsConfig:
     fallen_below: float = 0.02          # m below the shelf floor: a box is off the shelf
     # a perceived shelf is measured to about 1 cm per face (docs/physics.md): its sample worlds
     # repair overlaps up to `prediction_repair_tolerance`, and a box that then moves more than
-    # `stand_tolerance` (or turns more than `stand_rotation`) while settling did not stand as seen
+    # `stand_tolerance` sideways or up (or turns more than `stand_rotation`) while settling did not
+    # stand as seen; straight down it may drop up to `stand_drop` onto what is below it: the heights
+    # of a stack's faces add up their errors (1 cm each: 3-6 cm at the top of a 1 cm-noise stack),
+    # and a gap that size under a box is a measurement, not a box that nothing holds
     prediction_repair_tolerance: float = 0.05   # m
     stand_tolerance: float = 0.03       # m
+    stand_drop: float = 0.06            # m
     stand_rotation: float = 8.0         # degrees
     stand_nudge: float = 0.5            # rad/s of the knock a standing shelf must survive (ShelfSim.nudge)
     off_shelf_front: float = 0.3        # m in front of the shelf: a settled box there fell off it
@@ -159,5 +163,5 @@ _POSITIVE = {"gravity", "density", "time_step", "solver_iterations", "prediction
              "pull_force_weights", "pull_timeout", "settle_time", "initial_settle_time", "rest_velocity",
              "rest_angular_velocity", "collapse_displacement", "collapse_rotation",
              "collapse_velocity", "collapse_angular_velocity", "collapse_peak_displacement",
-             "collapse_peak_rotation", "repair_tolerance", "stand_tolerance", "stand_rotation",
+             "collapse_peak_rotation", "repair_tolerance", "stand_tolerance", "stand_drop", "stand_rotation",
              "wall_thickness", "min_sample_depth", "record_fps", "repair_rounds"}

@@ -42,7 +42,8 @@ class Draw:
 def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> dict[str, str]:
     """Boxes of a freshly settled world that did not stand as they were given, with what they did.
 
-    Standing still is not enough: a box balanced on an edge stays put in a solver
+    A box that drops straight down onto what is below it by up to `stand_drop` stood: the
+    heights of the faces under it add up their measurement errors. Standing still is not enough: a box balanced on an edge stays put in a solver
     that nothing disturbs, so the settled world also takes a small knock
     (`ShelfSim.nudge`), and a box that then falls did not stand either (only a
     world that settled is knocked: the knock costs a settle).
@@ -50,10 +51,14 @@ def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> 
     out = {}
     for bid, (d, a) in sim.settle_moves.items():
         pos = sim.scene.box(bid).position
+        side, dz = sim.settle_offsets[bid]
         if pos[2] < 0 or pos[1] < -config.off_shelf_front:
             out[bid] = f"falls off the shelf while settling (moved {d:.2f} m)"
-        elif d > config.stand_tolerance:
+        elif side > config.stand_tolerance or dz > config.stand_tolerance:
             out[bid] = f"moves {d:.3f} m while settling (more than {config.stand_tolerance:.2f} m)"
+        elif -dz > config.stand_drop:
+            out[bid] = (f"drops {-dz:.3f} m while settling (more than {config.stand_drop:.2f} m: "
+                        f"nothing seen holds it where it is seen)")
         elif a > config.stand_rotation:
             out[bid] = f"turns {a:.0f} deg while settling (more than {config.stand_rotation:.0f} deg)"
     if out or knock is False:

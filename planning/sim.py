@@ -110,6 +110,10 @@ class ShelfSim:
         self.settle_moves: dict[str, tuple[float, float]] = {
             bid: (_dist(before[bid][0], after[bid][0]), _rot_angle_deg(before[bid][1], after[bid][1]))
             for bid in self._ids}
+        # the same move split: (sideways, vertical with sign): a box may drop onto its support
+        self.settle_offsets: dict[str, tuple[float, float]] = {
+            bid: (math.hypot(after[bid][0][0] - before[bid][0][0], after[bid][0][1] - before[bid][0][1]),
+                  after[bid][0][2] - before[bid][0][2]) for bid in self._ids}
         for bid in self._ids:
             d = _dist(before[bid][0], after[bid][0])
             if d > cfg.settle_report:

@@ -28,7 +28,7 @@ def test_a_floating_box_makes_the_plan_unsafe_and_names_the_box():
     check = plan.extra["scene_check"]
     assert check["stands_as_seen"] is False and not plan.safe
     assert [p["box"] for p in check["problems"]] == ["f"]
-    assert re.match(r"moves 0\.(29|30)\d m while settling", check["problems"][0]["what"])
+    assert re.match(r"drops 0\.(29|30)\d m while settling", check["problems"][0]["what"])
     assert check["redrawn"] >= 2   # every draw of both samples was tried again
 
 
@@ -38,6 +38,35 @@ def test_a_cube_balanced_on_its_edge_is_reported():
     assert not check["stands_as_seen"] and not plan.safe
     assert [p["box"] for p in check["problems"]] == ["edge"]
     assert "falls over at a small knock" in check["problems"][0]["what"]
+
+
+def _seen_above(gap: float, x: float = 0.0) -> Scene:
+    """`b` is seen `gap` above the top of `a` (shifted `x` sideways), `c` stands alone."""
+    return Scene(Shelf(), (cube("a", 0.0, 0.1), cube("b", x, 0.3 + gap), cube("c", 0.4, 0.1))).hide_depths()
+
+
+def test_a_box_seen_a_few_cm_above_its_support_stands():
+    """Faces are measured to about 1 cm each, and a stack's heights add up their errors: a box
+    seen 4.5 cm above the box it rests on drops onto it, and the shelf stands as seen (issue 32:
+    at 1 cm of face error 31 of the judge's 40 shelves were called "cannot stand as seen")."""
+    plan = make_plan(_seen_above(0.045), "extract", "c", samples=2, seed=0)
+    check = plan.extra["scene_check"]
+    assert check["stands_as_seen"] and check["problems"] == [], check
+    assert plan.safe
+
+
+def test_a_box_seen_far_above_its_support_does_not_stand():
+    check = make_plan(_seen_above(0.12), "extract", "c", samples=2, seed=0).extra["scene_check"]
+    assert not check["stands_as_seen"]
+    assert [p["box"] for p in check["problems"]] == ["b"]
+    assert re.match(r"drops 0\.1[12]\d m while settling", check["problems"][0]["what"])
+
+
+def test_a_box_that_drops_and_slides_off_its_support_does_not_stand():
+    """Dropping is forgiven, sliding or tipping off is not: `b` seen 4 cm up and 12 cm past the
+    edge of `a` (its centre of mass outside) falls sideways."""
+    check = make_plan(_seen_above(0.04, x=0.12), "extract", "c", samples=2, seed=0).extra["scene_check"]
+    assert not check["stands_as_seen"] and [p["box"] for p in check["problems"]] == ["b"]
 
 
 def test_a_shelf_that_stands_says_so():
@@ -53,7 +82,7 @@ def test_the_command_line_warns_and_writes_the_check_into_the_plan(tmp_path, cap
     out = tmp_path / "plan.json"
     assert main(["plan", str(path), "--target", "a", "--samples", "2", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert re.search(r"does not stand as observed: box f moves 0\.(29|30)\d m", err)
+    assert re.search(r"does not stand as observed: box f drops 0\.(29|30)\d m", err)
     doc = json.loads(out.read_text())
     assert doc["safe"] is False and doc["scene_check"]["problems"][0]["box"] == "f"
 
