@@ -1,0 +1,159 @@
+"""How much of a plan's fate is the masses nobody sees? The judge's own verdict over mass draws.
+
+A diagnostic of the gate's target (issue 32), not a planner: for each plan of a judge run
+(`../shared/judge/evaluate.py --out ROWS`), the plan is judged again by the independent judge
+(imported at run time from its folder, never copied) on the TRUE shelf, its geometry exact, with
+the boxes' masses drawn again `--draws` times (seeded, uniform in `--mass`, the range the judge's
+generator documents). The share of draws in which the plan fails is its chance of failing on a
+shelf that looks exactly like this one: what a gate that knew the geometry perfectly, and only not
+the masses, should report. If most plans that held on the judge's one draw of masses fail in more
+than `--max-risk` of the draws, no honest gate can declare most holding plans safe.
+
+    .venv/bin/python benchmarks/gate_mass_ceiling.py --rows rows_0.jsonl --draws 16 --out ceiling.jsonl
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import sys
+from pathlib import Path
+from typing import Sequence
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.judge_rows import UsageError, iter_rows, judge_fn  # noqa: E402
+from shelfpick.planning.calibration import wilson  # noqa: E402
+
+
+def redraw_masses(truth: dict, seed: int, draw: int, mass: tuple[float, float]) -> dict:
+    """The true shelf with every box's mass drawn again (uniform in `mass`), geometry untouched."""
+    rng = random.Random(f"gate-mass-ceiling:{seed}:{draw}")
+    boxes = [{**b, "mass": round(rng.uniform(*mass), 4)} for b in truth["boxes"]]
+    return {**truth, "boxes": boxes}
+
+
+def judge_unit(unit: dict) -> dict:
+    """One plan judged under every mass draw: the row with `fails` of `draws`."""
+    judge = judge_fn(unit["engine"])
+    truth = json.loads(Path(unit["judge_dir"], "scenes", unit["scene"] + ".json").read_text())
+    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": unit["target"],
+            "planner": "physics", "sequence": unit["sequence"]}
+    fails = sum(not judge(redraw_masses(truth, unit["seed"], d, unit["mass"]), plan)["ok"]
+                for d in range(unit["draws"]))
+    keep = ("scene", "target", "ok", "declared_safe", "risk", "sequence")
+    return {**{k: unit[k] for k in keep}, "fails": fails, "draws": unit["draws"]}
+
+
+def summary(rows: Sequence[dict], max_risk: float, z: float = 1.2816) -> dict:
+    """How many plans are safe on their geometry (Wilson upper end of fails/draws below
+    `max_risk`), and how the judge's one draw and our gate fare against that."""
+    def low_risk(r: dict) -> bool:       # the share itself: a point estimate, not a bound
+        return r["fails"] <= max_risk * r["draws"]
+
+    def surely_low(r: dict) -> bool:     # the share's Wilson upper end below `max_risk`
+        return wilson(r["fails"], r["draws"], z)[1] < max_risk
+
+    held = [r for r in rows if r["ok"]]
+    return {"plans": len(rows), "held": len(held),
+            "held_low_risk": sum(low_risk(r) for r in held),
+            "held_surely_low_risk": sum(surely_low(r) for r in held),
+            "held_no_failing_draw": sum(r["fails"] == 0 for r in held),
+            "low_risk": sum(low_risk(r) for r in rows),
+            "low_risk_failed_on_judge": sum(low_risk(r) and not r["ok"] for r in rows),
+            "declared_safe": sum(bool(r["declared_safe"]) for r in rows),
+            "declared_safe_failing_in_a_fifth_or_more": sum(bool(r["declared_safe"]) and r["fails"] >= 0.2 * r["draws"]
+                                                             for r in rows),
+            "mean_fail_share_held": round(sum(r["fails"] / r["draws"] for r in held) / max(1, len(held)), 3)}
+
+
+def plot(rows: Sequence[dict], path: str, max_risk: float) -> None:
+    """Each plan's share of failing mass draws, by what the gate said and what the judge saw."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = [("declared safe, held", True, True, "tab:green"), ("declared safe, collapsed", True, False, "tab:red"),
+              ("not safe, held", False, True, "tab:olive"), ("not safe, collapsed", False, False, "tab:gray")]
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    for i, (label, safe, ok, colour) in enumerate(groups):
+        ys = sorted(r["fails"] / r["draws"] for r in rows if bool(r["declared_safe"]) == safe and r["ok"] == ok)
+        xs = [i + (j - len(ys) / 2) / max(1, len(ys)) * 0.7 for j in range(len(ys))]
+        ax.scatter(xs, ys, s=12, color=colour)
+    ax.axhline(max_risk, color="k", lw=0.8, ls="--")
+    ax.set_xticks(range(len(groups)), [f"{g[0]}\n({sum(1 for r in rows if bool(r['declared_safe']) == g[1] and r['ok'] == g[2])})"
+                                       for g in groups], fontsize=8)
+    ax.set_ylabel("share of mass draws that fail\n(judge, true geometry)")
+    ax.set_title("Each plan on its true shelf, masses drawn again", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", help="rows of ../shared/judge/evaluate.py --out")
+    ap.add_argument("--judge", default=str(ROOT.parent / "shared" / "judge"))
+    ap.add_argument("--engine", default="pybullet", choices=("pybullet", "mujoco"))
+    ap.add_argument("--draws", type=int, default=16)
+    ap.add_argument("--mass", type=float, nargs=2, default=(0.5, 3.0), metavar=("LOW", "HIGH"))
+    ap.add_argument("--max-risk", type=float, default=0.05)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--out", help="write one row per plan here (JSON lines)")
+    ap.add_argument("--from-rows", action="store_true", help="judge nothing: summarize the rows in --out")
+    ap.add_argument("--png", help="draw each plan's failing share by gate verdict and judge outcome")
+    a = ap.parse_args(argv)
+    if not a.rows and not a.from_rows:
+        raise UsageError("--rows: the judge rows to judge again are needed (or --from-rows)")
+    if a.draws < 1:
+        raise UsageError(f"--draws: expected a positive number, got {a.draws}")
+    if not 0 < a.mass[0] <= a.mass[1]:
+        raise UsageError(f"--mass: expected 0 < LOW <= HIGH, got {a.mass[0]} {a.mass[1]}")
+    return a
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        a = parse_args(argv)
+        if a.from_rows:
+            if not a.out:
+                raise UsageError("--from-rows: needs --out, the rows to summarize")
+            got = [json.loads(line) for line in Path(a.out).read_text().splitlines() if line.strip()]
+            return report(got, a)
+        src = Path(a.rows)
+        try:
+            rows = [json.loads(line) for line in src.read_text().splitlines() if line.strip()]
+        except (OSError, json.JSONDecodeError) as exc:
+            raise UsageError(f"{src}: cannot read judge rows ({exc})") from None
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    units = [{**r, "judge_dir": a.judge, "engine": a.engine, "draws": a.draws, "mass": tuple(a.mass),
+              "seed": a.seed} for r in rows if r.get("sequence")]
+    out = open(a.out, "w") if a.out else None
+    got = []
+    from tqdm import tqdm
+    for row in tqdm(iter_rows(units, a.jobs, judge_unit), total=len(units), desc="plans", file=sys.stderr):
+        got.append(row)
+        if out:
+            out.write(json.dumps(row) + "\n")
+            out.flush()
+    return report(got, a)
+
+
+def report(got: Sequence[dict], a: argparse.Namespace) -> int:
+    """Print the summary (and draw it with --png)."""
+    s = summary(got, a.max_risk)
+    if a.png:
+        plot(got, a.png, a.max_risk)
+    print(json.dumps(s))
+    print(f"{s['held']} plans held on the judge's masses; on their true geometry {s['held_low_risk']} of them "
+          f"fail in at most {a.max_risk:.0%} of {got[0]['draws'] if got else a.draws} mass draws ({s['held_surely_low_risk']} surely: "
+          f"Wilson upper end below it), "
+          f"{s['held_no_failing_draw']} in none; mean fail share of held plans {s['mean_fail_share_held']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

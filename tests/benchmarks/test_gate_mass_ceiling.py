@@ -1,0 +1,56 @@
+"""benchmarks/gate_mass_ceiling.py: masses drawn again leave the geometry alone, the summary counts
+both sides, argument errors exit 2, and one real plan judged by the independent judge."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from bench_scripts import JUDGE, load
+
+gm = load("gate_mass_ceiling")
+TRUTH = {"shelf": {}, "boxes": [{"id": "a", "size": [0.2, 0.2, 0.2], "position": [0, 0.1, 0.1],
+                                 "orientation": [1, 0, 0, 0], "mass": 1.0},
+                                {"id": "b", "size": [0.2, 0.2, 0.2], "position": [0, 0.1, 0.3],
+                                 "orientation": [1, 0, 0, 0], "mass": 2.0}]}
+
+
+def test_redrawn_masses_are_seeded_in_range_and_change_nothing_else():
+    one, again = gm.redraw_masses(TRUTH, 0, 3, (0.5, 3.0)), gm.redraw_masses(TRUTH, 0, 3, (0.5, 3.0))
+    assert one == again and one != gm.redraw_masses(TRUTH, 0, 4, (0.5, 3.0))
+    for new, old in zip(one["boxes"], TRUTH["boxes"]):
+        assert 0.5 <= new["mass"] <= 3.0
+        assert {k: v for k, v in new.items() if k != "mass"} == {k: v for k, v in old.items() if k != "mass"}
+
+
+def _row(ok: bool, safe: bool, fails: int) -> dict:
+    return {"ok": ok, "declared_safe": safe, "fails": fails, "draws": 20}
+
+
+def test_the_summary_counts_plans_safe_on_their_geometry_on_both_sides():
+    rows = [_row(True, True, 0), _row(True, True, 8), _row(True, False, 1), _row(False, True, 20)]
+    s = gm.summary(rows, 0.05)
+    assert (s["held"], s["held_low_risk"], s["held_no_failing_draw"]) == (3, 2, 1)
+    assert s["held_surely_low_risk"] == 0          # 20 draws cannot show a chance surely under 5 %
+    assert s["declared_safe"] == 3 and s["declared_safe_failing_in_a_fifth_or_more"] == 2
+    assert s["low_risk_failed_on_judge"] == 0
+
+
+def test_bad_arguments_exit_2(capsys, tmp_path: Path) -> None:
+    assert gm.main(["--rows", str(tmp_path / "missing.jsonl")]) == 2
+    assert "cannot read judge rows" in capsys.readouterr().err
+    assert gm.main(["--rows", "x", "--draws", "0"]) == 2
+    assert "--draws" in capsys.readouterr().err
+    assert gm.main([]) == 2
+
+
+@pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
+def test_a_free_box_holds_under_every_mass_draw(tmp_path: Path, capsys) -> None:
+    rows = tmp_path / "rows.jsonl"
+    rows.write_text(json.dumps({"scene": "s00", "target": "b5", "ok": True, "declared_safe": True,
+                                "risk": 0.01, "sequence": ["b5"]}) + "\n")
+    out = tmp_path / "ceiling.jsonl"
+    assert gm.main(["--rows", str(rows), "--judge", str(JUDGE), "--draws", "2", "--out", str(out)]) == 0
+    got = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [(r["scene"], r["fails"], r["draws"]) for r in got] == [("s00", 0, 2)]
+    assert '"held_no_failing_draw": 1' in capsys.readouterr().out
