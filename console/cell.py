@@ -355,28 +355,14 @@ def _origins(value: Any, origin: str) -> tuple[str, ...]:
 
 
 def _planning(sec: Mapping[str, Any], origin: str) -> dict[str, Any]:
-    """The [planning] section as planning.priors.CellPriors' keyword arguments."""
-    from shelfpick.planning.uncertainty import PULL_MODES
+    """The [planning] section as planning.priors.CellPriors' keyword arguments, checked there (the
+    one check `shelfpick plan --cell` makes too)."""
+    from shelfpick.planning.priors import section_kwargs
 
-    out: dict[str, Any] = {}
-    for key, name, lo, hi in (("mass_kg", "mass", 0.01, 1000.0), ("friction", "friction", 0.01, 2.0)):
-        if key in sec:
-            v = sec[key]
-            if (not isinstance(v, list) or len(v) != 2 or any(isinstance(x, bool) or not isinstance(x, (int, float))
-                                                               or not (math.isfinite(x) and lo <= x <= hi) for x in v)
-                    or v[0] > v[1]):
-                raise CellError(origin, f"planning.{key}", f"expected [low, high] with {lo:g} <= low <= high <= {hi:g}, "
-                                                           f"got {v!r}")
-            out[name] = (float(v[0]), float(v[1]))
-    if "pull_modes" in sec:
-        v = sec["pull_modes"]
-        if not isinstance(v, list) or not v or any(m not in PULL_MODES for m in v) or len(set(v)) != len(v):
-            raise CellError(origin, "planning.pull_modes", f"expected a list of distinct modes of "
-                                                           f"{', '.join(PULL_MODES)}, got {v!r}")
-        out["pull_modes"] = tuple(v)
-    if "max_plan_risk" in sec:
-        out["max_plan_risk"] = _number(sec, "planning", "max_plan_risk", origin, lo=1e-4, hi=1.0)
-    return out
+    try:
+        return section_kwargs(sec, origin)
+    except FormatError as exc:
+        raise CellError(exc.origin, exc.field, exc.problem) from None
 
 
 __all__ = ["Cell", "CellError", "CELL_FORMAT", "ROBOT_NUMBERS", "check_robot_spec", "read_cell", "robot_number"]

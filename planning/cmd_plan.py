@@ -5,15 +5,17 @@ import argparse
 import json
 import logging
 import os
+import stat
 import sys
 import warnings
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from shelfpick.perception.errors import FormatError, SceneError
 
 if TYPE_CHECKING:  # pragma: no cover
     from shelfpick.planning.plan import Plan
+    from shelfpick.planning.priors import CellPriors
     from shelfpick.planning.uncertainty import Uncertainty
 
 log = logging.getLogger(__name__)
@@ -26,6 +28,8 @@ VERIFY = (0, 1000)
 WORKERS = (1, 256)
 SEEDS = (0, 2**63 - 1)
 BUDGET_S = 7 * 24 * 3600.0     # a week
+MAX_CELL_BYTES = 1 << 20       # a cell file is a few hundred bytes (console/cell.py's bound)
+CELL_FORMAT = "shelfpick.cell/1"
 
 
 def check_int(value: int, flag: str, bounds: tuple[int, int], what: str) -> None:
@@ -48,10 +52,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the plan found is asked of up to N more sample worlds, 10 at a time, while its "
                              "calibrated risk interval straddles --max-plan-risk (default 30; 0: only the "
                              "search's worlds)")
+    parser.add_argument("--cell", default=None, metavar="CELL.toml",
+                        help="the cell file whose [planning] section gives the sample worlds' masses, friction "
+                             "and pull modes, and --max-plan-risk's default (other sections are not read; "
+                             "docs/cli.md \"Cell file\")")
     parser.add_argument("--max-plan-risk", type=float, default=None, metavar="P",
                         help="highest acceptable calibrated chance that the plan collapses: the plan is safe "
-                             "when the upper end of its interval is below it (default 0.05; the cell's "
-                             "planning.max_plan_risk in the console)")
+                             "when the upper end of its interval is below it (default: the --cell file's "
+                             "planning.max_plan_risk, else 0.05)")
     parser.add_argument("--risk", type=float, default=0.0,
                         help="highest acceptable collapse probability per step (default 0: no sample collapses)")
     parser.add_argument("--budget", type=float, default=None, metavar="SECONDS",
@@ -100,17 +108,77 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
               f"step {worst + 1} (pull {step.box}) may move {moved}")
 
 
-def _model(args: argparse.Namespace) -> "Uncertainty | None":
-    """What the worlds draw, where the options change the default model (None: the default)."""
+def _model(args: argparse.Namespace, priors: "CellPriors | None") -> "Uncertainty | None":
+    """What the worlds draw, where the options or the cell change the default model (None: the default)."""
     from shelfpick.planning.uncertainty import Uncertainty
 
-    if not args.no_catalogue and args.face_error is None:
+    if not args.no_catalogue and args.face_error is None and priors is None:
         return None
     model = Uncertainty(catalogue=()) if args.no_catalogue else Uncertainty()
     if args.face_error is not None:
         e = args.face_error
         model = replace(model, face_error=e, face_size_error=e, face_depth_error=e)
-    return model
+    return priors.model(model) if priors is not None else model
+
+
+def _toml(origin: str) -> Any:
+    try:
+        import tomllib
+    except ModuleNotFoundError:      # Python 3.10
+        try:
+            import tomli as tomllib
+        except ModuleNotFoundError:
+            raise FormatError(origin, "", "reading a cell file on Python 3.10 needs tomli "
+                                          "(pip install tomli, or the console extra)") from None
+    return tomllib
+
+
+def _cell_bytes(path: str) -> bytes:
+    """A cell file's bytes, refused before reading when it is not a regular file (a FIFO would
+    block, /dev/zero never end) and after MAX_CELL_BYTES."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise FormatError(path, "--cell", "cell file not found") from None
+    except OSError as exc:
+        raise FormatError(path, "--cell", f"cannot read the cell file ({exc.strerror or exc})") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise FormatError(path, "--cell", "not a regular file (a device, FIFO or folder); a cell file is "
+                                              "a TOML file")
+        with os.fdopen(fd, "rb") as f:
+            fd = -1                  # the file object closes it
+            data = f.read(MAX_CELL_BYTES + 1)
+    except OSError as exc:
+        raise FormatError(path, "--cell", f"cannot read the cell file ({exc.strerror or exc})") from None
+    finally:
+        if fd >= 0:
+            os.close(fd)
+    if len(data) > MAX_CELL_BYTES:
+        raise FormatError(path, "--cell", f"more than {MAX_CELL_BYTES} bytes; a cell file is smaller")
+    return data
+
+
+def read_cell_priors(path: str) -> "CellPriors":
+    """The priors of a cell file's [planning] section (`--cell`), checked as the console checks
+    them (planning.priors); the file's other sections are the console's and are not read. A
+    FormatError (one line: file, field, value) when the file is missing, not a regular file, too
+    big, not UTF-8 TOML, of another format, or wrong in [planning]."""
+    from shelfpick.planning.priors import CellPriors
+
+    data = _cell_bytes(path)
+    try:
+        doc = _toml(path).loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, "--cell", f"not UTF-8 text (byte {exc.start})") from None
+    except ValueError as exc:        # tomllib.TOMLDecodeError is a ValueError
+        raise FormatError(path, "--cell", f"not valid TOML ({exc})") from None
+    if doc.get("format", CELL_FORMAT) != CELL_FORMAT:
+        raise FormatError(path, "format", f"expected {CELL_FORMAT!r}, got {doc['format']!r}")
+    if "planning" not in doc:
+        _warn(f"{path} has no [planning] section: the sample worlds draw the default masses, friction "
+              "and pull modes")
+    return CellPriors.from_section(doc.get("planning", {}), path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,8 +191,9 @@ def run(args: argparse.Namespace) -> int:
     check_int(args.verify, "--verify", VERIFY, "a number of sample worlds")
     from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
 
-    if args.max_plan_risk is None:
-        args.max_plan_risk = DEFAULT_MAX_PLAN_RISK
+    priors = read_cell_priors(args.cell) if args.cell is not None else None
+    if args.max_plan_risk is None:      # the flag wins over the cell, the cell over the default
+        args.max_plan_risk = priors.max_plan_risk if priors is not None else DEFAULT_MAX_PLAN_RISK
     if not 0.0 < args.max_plan_risk <= 1.0:
         raise FormatError("", "--max-plan-risk", f"expected a probability in (0, 1], got {args.max_plan_risk}")
     check_int(args.seed, "--seed", SEEDS, "a seed")
@@ -146,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             plan = make_plan(scene, args.task, args.target, planner=args.planner, samples=args.samples,
                              seed=args.seed, risk=args.risk, budget_s=args.budget, origin=args.scene,
-                             workers=args.workers, verify=args.verify, model=_model(args),
+                             workers=args.workers, verify=args.verify, model=_model(args, priors),
                              max_plan_risk=args.max_plan_risk)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
