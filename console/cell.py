@@ -18,7 +18,8 @@ from urllib.parse import quote
 
 from shelfpick.perception.errors import FormatError
 
-CELL_FORMAT = "shelfpick.cell/1"
+from shelfpick.planning.priors import CELL_FORMAT, MAX_CELL_BYTES, PLANNING_KEYS
+
 SEGMENTERS = ("auto", "depth", "photo", "yolo", "learned")
 TIMEOUTS = ("connect_timeout", "ack_timeout", "step_timeout", "heartbeat", "heartbeat_timeout", "abort_timeout")
 SECTIONS: dict[str, tuple[str, ...]] = {
@@ -29,11 +30,9 @@ SECTIONS: dict[str, tuple[str, ...]] = {
     "safety": ("samples", "seed", "workers", "host", "port", "db", "tolerance_displacement",
                "tolerance_rotation", "tolerance_match_radius", "allow_origins"),
     # the cell's stock and gripper as its sample worlds draw them, and its plan threshold (issue 32)
-    "planning": ("mass_kg", "friction", "pull_modes", "max_plan_risk"),
+    "planning": PLANNING_KEYS,
 }
 
-
-MAX_CELL_BYTES = 1 << 20     # a cell file is a few hundred bytes; checked before it is read
 # every number a robot spec may carry, in the cell file's [robot] section or a --robot URL's query: the
 # one table both are checked against (robot_number), so neither accepts what the other refuses
 ROBOT_NUMBERS: dict[str, tuple[float, float]] = {**{k: (1e-3, 3600.0) for k in TIMEOUTS},

@@ -28,8 +28,6 @@ VERIFY = (0, 1000)
 WORKERS = (1, 256)
 SEEDS = (0, 2**63 - 1)
 BUDGET_S = 7 * 24 * 3600.0     # a week
-MAX_CELL_BYTES = 1 << 20       # a cell file is a few hundred bytes (console/cell.py's bound)
-CELL_FORMAT = "shelfpick.cell/1"
 
 
 def check_int(value: int, flag: str, bounds: tuple[int, int], what: str) -> None:
@@ -136,6 +134,8 @@ def _toml(origin: str) -> Any:
 def _cell_bytes(path: str) -> bytes:
     """A cell file's bytes, refused before reading when it is not a regular file (a FIFO would
     block, /dev/zero never end) and after MAX_CELL_BYTES."""
+    from shelfpick.planning.priors import MAX_CELL_BYTES
+
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
@@ -164,7 +164,7 @@ def read_cell_priors(path: str) -> "CellPriors":
     them (planning.priors); the file's other sections are the console's and are not read. A
     FormatError (one line: file, field, value) when the file is missing, not a regular file, too
     big, not UTF-8 TOML, of another format, or wrong in [planning]."""
-    from shelfpick.planning.priors import CellPriors
+    from shelfpick.planning.priors import CELL_FORMAT, CellPriors
 
     data = _cell_bytes(path)
     try:

@@ -17,6 +17,8 @@ from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
 from shelfpick.planning.uncertainty import PULL_MODES, Uncertainty
 
 _DEFAULT = Uncertainty()
+CELL_FORMAT = "shelfpick.cell/1"      # a cell file's format (console/cell.py reads the whole file)
+MAX_CELL_BYTES = 1 << 20               # a cell file is a few hundred bytes; checked before it is read
 PLANNING_KEYS = ("mass_kg", "friction", "pull_modes", "max_plan_risk")   # a cell file's [planning] keys
 # the bounds of the cell file's values (docs/cli.md "Bounds")
 RANGES = {"mass_kg": ("mass", 0.01, 1000.0), "friction": ("friction", 0.01, 2.0)}
