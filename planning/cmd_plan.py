@@ -127,7 +127,7 @@ def _toml(origin: str) -> Any:
             import tomli as tomllib
         except ModuleNotFoundError:
             raise FormatError(origin, "", "reading a cell file on Python 3.10 needs tomli "
-                                          "(pip install tomli, or the console extra)") from None
+                                          "(pip install tomli; a dependency of shelfpick there)") from None
     return tomllib
 
 
