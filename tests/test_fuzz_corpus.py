@@ -103,7 +103,7 @@ FUZZ_REPRESENTATIVE = ["scene-id-ansi", "scene-id-lone-surrogate", "scene-shelf-
                        "image-rgb-png-30000x30000", "image-depth-npy-100000-square", "image-rgb-png-bad-idat",
                        "arg-plan-samples-1e9", "arg-console-samples-1e9", "arg-replay-id-2-70",
                        "url-bracket-open", "url-heartbeat-0", "url-sim-delay-1e308", "cell-symlink-dev-zero",
-                       "cell-step-timeout-1e308", "db-replay-plan-not-json", "db-stats-detail-deep",
+                       "cell-step-timeout-1e308", "cell-plan-mass-nan", "cell-plan-fifo", "db-replay-plan-not-json", "db-stats-detail-deep",
                        "db-replay-rgb-30000", "out-plan-fifo", "out-perceive-overlay-fifo", "out-replay-html-folder"]
 FUZZ_SUBPROCESS = ["image-rgb-png-full-1.2gb", "arg-plan-samples-1e9", "cell-symlink-dev-zero", "db-stats-plan-deep"]
 

@@ -407,6 +407,31 @@ def cell_cases(t: Path, good: Path) -> list[FuzzCase]:
     }
     for name, (text, says) in toml.items():
         cell(name, _w(d / f"{name}.toml", text), says)
+    return out + plan_cell_cases(d, good)
+
+
+def plan_cell_cases(d: Path, good: Path) -> list[FuzzCase]:
+    """`shelfpick plan --cell`: the special files above, and wrong [planning] values (exit 2 before
+    any physics is built; the clear task needs no target)."""
+    def case(name: str, path: Path, says: str) -> FuzzCase:
+        return FuzzCase(f"cell-plan-{name}", ("plan", str(good / "scene.json"), "--task", "clear",
+                                              "--samples", "1", "--cell", str(path)), says)
+
+    texts = {
+        "mass-reversed": ("[planning]\nmass_kg = [3.0, 1.0]\n", "planning.mass_kg"),
+        "mass-nan": ("[planning]\nmass_kg = [nan, 1.0]\n", "planning.mass_kg"),
+        "friction-1e308": ("[planning]\nfriction = [0.5, 1e308]\n", "planning.friction"),
+        "mode-unknown": ('[planning]\npull_modes = ["fly"]\n', "planning.pull_modes"),
+        "mode-empty": ("[planning]\npull_modes = []\n", "planning.pull_modes"),
+        "risk-zero": ("[planning]\nmax_plan_risk = 0\n", "planning.max_plan_risk"),
+        "key-unknown": ("[planning]\ngravity = 1.6\n", "planning.gravity"),
+    }
+    out = [case(name, _w(d / f"plan-{name}.toml", text), says) for name, (text, says) in texts.items()]
+    out += [case("symlink-dev-zero", d / "zero.toml", "not a regular file"),
+            case("fifo", d / "fifo.toml", "not a regular file"),
+            case("sparse-2mb", d / "big.toml", "bytes"),
+            case("not-toml", d / "bad.toml", "not valid TOML"),
+            case("missing", d / "nowhere.toml", "not found")]
     return out
 
 
