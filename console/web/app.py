@@ -13,6 +13,7 @@ from __future__ import annotations
 import re
 import threading
 import traceback
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 from shelfpick.console.web.markdown import deviation_markdown, results_markdown, robot_markdown, status_markdown
@@ -182,13 +183,15 @@ class ClientView:
         if self.replay is not None:
             r = self.replay.plans.get(name)
             return (r.preview, r.plan, r.shown) if r else ((), None)
-        e = self.wf.state.plans.get(name)
+        e = (previewable(self.wf.state) or {}).get(name)
         return (e.preview, e.plan, e.collapse_steps) if e else ((), None)
 
     def _scene(self) -> Scene | None:
+        """The shelf the preview starts from and goes back to: the replayed one, or the shelf as
+        last seen (after a robot step the look's, not the capture's)."""
         if self.replay is not None:
             return self.replay.scene
-        return self.wf.state.scene
+        return self._shelf_now(self.wf.state)
 
     def _draw_scene(self, scene: Scene | None, camera: Camera | None) -> None:
         self.drawing.draw(scene, camera, self.shown_scene is None, self._click_box)
@@ -241,9 +244,10 @@ class ClientView:
             self.shown_plans = None
             op.show_targets(state.scene)
         op.follow_target(state.target)
-        if state.plans is not self.shown_plans:
-            self.shown_plans = state.plans
-            self.preview.show_plans(state.plans)
+        offered = previewable(state)
+        if offered is not self.shown_plans:
+            self.shown_plans = offered
+            self.preview.show_plans(offered)
             self.preview.load()
         self._highlight()
 
@@ -305,6 +309,16 @@ class ClientView:
             self.sessions.end_replay()
             self.shown_scene = None       # draw the live shelf again
             self.render(self.wf.state)
+
+
+NOTHING_TO_PREVIEW: Mapping[str, PlanEntry] = MappingProxyType({})
+
+
+def previewable(state: State) -> Mapping[str, PlanEntry] | None:
+    """The plans the preview offers: none once a run has changed the shelf (they were planned on a
+    shelf that is gone, and replaying one would draw its boxes back where they stood); after a
+    hold, the `continue` plan."""
+    return NOTHING_TO_PREVIEW if state.run_end is not None and state.needs_recapture else state.plans
 
 
 def plans_markdown(state: State) -> str:

@@ -110,6 +110,10 @@ def test_after_a_run_the_plan_is_shown_executed_and_the_answers_say_how_it_ended
     assert f"Executed: the physics plan {entry.hash} ({' → '.join(entry.plan.sequence)}): done, {n} of {n} steps" \
         in plans.replace("*", "").replace("`", ""), plans
     assert "predicted safe" not in plans and "plan hash" not in plans and "Capture and plan again" in plans
+    # nor is it offered as a preview: it was planned on a shelf that is gone, and playing it would
+    # draw the boxes it took out back where they stood
+    assert view.preview.source("physics") == ((), None) and view.preview.frames == []
+    assert "No preview" in view.preview.prev_info.content
     # nothing approvable twice: the supervisor is offered nothing and told why
     assert tuple(view.approve_plan.options) == ("—",)
     assert "Pending plans" not in sup.sup_info.content and "Nothing to decide" in sup.sup_info.content
