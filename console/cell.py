@@ -10,7 +10,6 @@ the field and the value (exit 2). Relative paths are relative to the cell file. 
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -18,7 +17,8 @@ from urllib.parse import quote
 
 from shelfpick.perception.errors import FormatError
 
-from shelfpick.planning.priors import CELL_FORMAT, MAX_CELL_BYTES, PLANNING_KEYS
+from shelfpick.planning.cell_file import CELL_FORMAT
+from shelfpick.planning.priors import PLANNING_KEYS
 
 SEGMENTERS = ("auto", "depth", "photo", "yolo", "learned")
 TIMEOUTS = ("connect_timeout", "ack_timeout", "step_timeout", "heartbeat", "heartbeat_timeout", "abort_timeout")
@@ -84,48 +84,15 @@ class Cell:
                          s.get("tolerance_match_radius", d.match_radius))
 
 
-def _toml() -> Any:
-    if sys.version_info >= (3, 11):
-        import tomllib
-        return tomllib
-    import tomli  # the console extra installs it on Python 3.10
-
-    return tomli
-
-
 def read_cell(path: str | Path) -> Cell:
     """Parse and check a cell file completely; CellError (one line) on the first wrong value."""
-    p = Path(path)
-    origin = str(path)
+    from shelfpick.planning.cell_file import read_cell_toml
+
     try:
-        text = _regular_bytes(p, origin).decode("utf-8")
-    except FileNotFoundError:
-        raise CellError(origin, "", "cell file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CellError(origin, "", f"cannot read the cell file ({getattr(exc, 'strerror', None) or exc})") from None
-    try:
-        doc = _toml().loads(text)
-    except ValueError as exc:   # tomllib.TOMLDecodeError is a ValueError
-        raise CellError(origin, "", f"not valid TOML ({exc})") from None
-    return _cell(doc, origin, p.resolve().parent)
-
-
-def _regular_bytes(p: Path, origin: str) -> bytes:
-    """A regular file's bytes, its kind and size checked before reading (a symlink to /dev/zero
-    never ends; a FIFO blocks)."""
-    import os
-    import stat
-
-    st = os.stat(p)
-    if not stat.S_ISREG(st.st_mode):
-        raise CellError(origin, "", "not a regular file (a device, FIFO or folder); a cell file is a TOML file")
-    if st.st_size > MAX_CELL_BYTES:
-        raise CellError(origin, "", f"{st.st_size} bytes; a cell file is at most {MAX_CELL_BYTES} bytes")
-    with open(p, "rb") as f:
-        data = f.read(MAX_CELL_BYTES + 1)
-    if len(data) > MAX_CELL_BYTES:
-        raise CellError(origin, "", f"more than {MAX_CELL_BYTES} bytes; a cell file is smaller")
-    return data
+        doc = read_cell_toml(path)
+    except FormatError as exc:
+        raise CellError(exc.origin, exc.field, exc.problem) from None
+    return _cell(doc, str(path), Path(path).resolve().parent)
 
 
 def robot_number(key: str, text: Any, origin: str, fld: str) -> float:

@@ -5,11 +5,10 @@ import argparse
 import json
 import logging
 import os
-import stat
 import sys
 import warnings
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from shelfpick.perception.errors import FormatError, SceneError
 
@@ -119,60 +118,15 @@ def _model(args: argparse.Namespace, priors: "CellPriors | None") -> "Uncertaint
     return priors.model(model) if priors is not None else model
 
 
-def _toml(origin: str) -> Any:
-    try:
-        import tomllib
-    except ModuleNotFoundError:      # Python 3.10
-        try:
-            import tomli as tomllib
-        except ModuleNotFoundError:
-            raise FormatError(origin, "", "reading a cell file on Python 3.10 needs tomli "
-                                          "(pip install tomli; a dependency of shelfpick there)") from None
-    return tomllib
-
-
-def _cell_bytes(path: str) -> bytes:
-    """A cell file's bytes, refused before reading when it is not a regular file (a FIFO would
-    block, /dev/zero never end) and after MAX_CELL_BYTES."""
-    from shelfpick.planning.priors import MAX_CELL_BYTES
-
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except FileNotFoundError:
-        raise FormatError(path, "--cell", "cell file not found") from None
-    except OSError as exc:
-        raise FormatError(path, "--cell", f"cannot read the cell file ({exc.strerror or exc})") from None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise FormatError(path, "--cell", "not a regular file (a device, FIFO or folder); a cell file is "
-                                              "a TOML file")
-        with os.fdopen(fd, "rb") as f:
-            fd = -1                  # the file object closes it
-            data = f.read(MAX_CELL_BYTES + 1)
-    except OSError as exc:
-        raise FormatError(path, "--cell", f"cannot read the cell file ({exc.strerror or exc})") from None
-    finally:
-        if fd >= 0:
-            os.close(fd)
-    if len(data) > MAX_CELL_BYTES:
-        raise FormatError(path, "--cell", f"more than {MAX_CELL_BYTES} bytes; a cell file is smaller")
-    return data
-
-
 def read_cell_priors(path: str) -> "CellPriors":
     """The priors of a cell file's [planning] section (`--cell`), checked as the console checks
     them (planning.priors); the file's other sections are the console's and are not read. A
-    FormatError (one line: file, field, value) when the file is missing, not a regular file, too
-    big, not UTF-8 TOML, of another format, or wrong in [planning]."""
-    from shelfpick.planning.priors import CELL_FORMAT, CellPriors
+    FormatError (one line: file, field, value) when the file cannot be read as a cell file
+    (planning.cell_file), is of another format, or is wrong in [planning]."""
+    from shelfpick.planning.cell_file import CELL_FORMAT, read_cell_toml
+    from shelfpick.planning.priors import CellPriors
 
-    data = _cell_bytes(path)
-    try:
-        doc = _toml(path).loads(data.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, "--cell", f"not UTF-8 text (byte {exc.start})") from None
-    except ValueError as exc:        # tomllib.TOMLDecodeError is a ValueError
-        raise FormatError(path, "--cell", f"not valid TOML ({exc})") from None
+    doc = read_cell_toml(path, "--cell")
     if doc.get("format", CELL_FORMAT) != CELL_FORMAT:
         raise FormatError(path, "format", f"expected {CELL_FORMAT!r}, got {doc['format']!r}")
     if "planning" not in doc:

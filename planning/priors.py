@@ -3,8 +3,8 @@
 A cell file's `[planning]` section gives the range of its boxes' masses, the friction of its
 cardboard, how its gripper pulls, and the highest calibrated chance of a collapse a plan may
 carry. The section is checked here (`CellPriors.from_section`), once for both readers of a cell
-file: the console (console/cell.py) and `shelfpick plan --cell` (planning/cmd_plan.py), which read
-the file themselves. The defaults are `Uncertainty()`'s and docs/physics.md says why.
+file: the console (console/cell.py) and `shelfpick plan --cell` (planning/cmd_plan.py), which both
+read the file with planning.cell_file. The defaults are `Uncertainty()`'s and docs/physics.md says why.
 """
 from __future__ import annotations
 
@@ -17,8 +17,6 @@ from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
 from shelfpick.planning.uncertainty import PULL_MODES, Uncertainty
 
 _DEFAULT = Uncertainty()
-CELL_FORMAT = "shelfpick.cell/1"      # a cell file's format (console/cell.py reads the whole file)
-MAX_CELL_BYTES = 1 << 20               # a cell file is a few hundred bytes; checked before it is read
 PLANNING_KEYS = ("mass_kg", "friction", "pull_modes", "max_plan_risk")   # a cell file's [planning] keys
 # the bounds of the cell file's values (docs/cli.md "Bounds")
 RANGES = {"mass_kg": ("mass", 0.01, 1000.0), "friction": ("friction", 0.01, 2.0)}

@@ -43,8 +43,9 @@ def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> 
     """Boxes of a freshly settled world that did not stand as they were given, with what they did.
 
     A box that drops straight down onto what is below it by up to `stand_drop` stood: the
-    heights of the faces under it add up their measurement errors. Standing still is not enough: a box balanced on an edge stays put in a solver
-    that nothing disturbs, so the settled world also takes a small knock
+    heights of the faces under it add up their measurement errors. Standing still is not
+    enough: a box balanced on an edge stays put in a solver that nothing disturbs, so the
+    settled world also takes a small knock
     (`ShelfSim.nudge`), and a box that then falls did not stand either (only a
     world that settled is knocked: the knock costs a settle).
     """
@@ -72,6 +73,16 @@ def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> 
 _ATTEMPTS = (1.0, 1.0, 1.0, 0.66, 0.33, 0.0)   # reach of each attempt's depth draw, then as perceived
 
 
+def _world(scene: Scene, seed: int, k: int, model: Uncertainty, depths: dict[str, tuple[float, float]],
+           reach: float, config: PhysicsConfig, clients: ClientPool | None) -> ShelfSim:
+    """Draw `k` of the scene (geometry, then physics) built and settled, its repair warnings kept
+    quiet (the scene check reports what matters); SceneError when it cannot be built."""
+    sc = draw_scene(scene, seed, k, model, depths, reach)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return ShelfSim(sc, draw_config(config, seed, k, model), local=config.prediction_local, clients=clients)
+
+
 def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
                  ranges: dict[str, tuple[float, float]] | None = None,
                  model: Uncertainty | None = None, known: frozenset[str] = frozenset(),
@@ -92,11 +103,7 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     if scene.depth_known:
         # a known shelf is given as it stands: its geometry is not drawn, but what no scene file
         # says still is (a box's mass when it has none, the friction, the pull)
-        sc = draw_scene(scene, seed, sample, model.without_face_error(), {}, 1.0)
-        cfg = draw_config(config, seed, sample, model)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            sim = ShelfSim(sc, cfg, local=config.prediction_local, clients=clients)
+        sim = _world(scene, seed, sample, model.without_face_error(), {}, 1.0, config, clients)
         off = contradictions(sim, config)
         return Draw(sim, (off,) if off else (), not off, off)
     rejected: list[dict[str, str]] = []
@@ -105,14 +112,10 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     ranges = ranges if ranges is not None else depth_ranges(scene, config)
     as_seen = {b.id: (b.size[1], b.size[1]) for b in scene.boxes if not b.depth_known}
     for attempt, reach in enumerate(_ATTEMPTS + (None,)):
-        k = sample + 1000 * attempt
-        # the last resort keeps perception's placeholder depths, which perception made valid
-        sc = draw_scene(scene, seed, k, model, as_seen if reach is None else ranges, reach or 0.0)
-        cfg = draw_config(config, seed, k, model)
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                sim = ShelfSim(sc, cfg, local=config.prediction_local, clients=clients)
+            # the last resort keeps perception's placeholder depths, which perception made valid
+            sim = _world(scene, seed, sample + 1000 * attempt, model, as_seen if reach is None else ranges,
+                         reach or 0.0, config, clients)
         except SceneError as exc:  # overlaps past repair, or a world that never comes to rest
             rejected.append({"*": str(exc)})
             continue
@@ -135,12 +138,9 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
         # together can push them past repair in every attempt. The shelf exactly as perceived
         # (placeholder depths, no drawn face error) is what perception made valid; if it cannot be
         # built either, the image itself is contradictory and the plan is refused.
-        sc = draw_scene(scene, seed, sample + 1000 * len(_ATTEMPTS), model.without_face_error(), as_seen, 0.0)
-        cfg = draw_config(config, seed, sample + 1000 * len(_ATTEMPTS), model)
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                best = ShelfSim(sc, cfg, local=config.prediction_local, clients=clients)
+            best = _world(scene, seed, sample + 1000 * len(_ATTEMPTS), model.without_face_error(), as_seen, 0.0,
+                          config, clients)
         except SceneError as exc:
             raise SceneError(f"no draw of sample {sample} can be built: {exc}") from None
         best_off = contradictions(best, config)

@@ -115,9 +115,8 @@ class ShelfSim:
             bid: (math.hypot(after[bid][0][0] - before[bid][0][0], after[bid][0][1] - before[bid][0][1]),
                   after[bid][0][2] - before[bid][0][2]) for bid in self._ids}
         for bid in self._ids:
-            d = _dist(before[bid][0], after[bid][0])
+            d, dz = self.settle_moves[bid][0], self.settle_offsets[bid][1]
             if d > cfg.settle_report:
-                dz = after[bid][0][2] - before[bid][0][2]
                 what = "dropped onto its support" if dz < -0.7 * d else "shifted while settling"
                 repairs.append(f"box {bid!r} {what}: moved {d:.3f} m")
         for msg in repairs:
