@@ -26,7 +26,7 @@ if str(ROOT) not in sys.path:
 
 TUNE_SEEDS = range(31000, 31060)   # 31020-31059: more of the tune role (issue 31, h10)
 DEFAULT_SEEDS = "31000-31019"
-TUNE_LOOKS = ("flat",)
+TUNE_LOOKS = ("flat", "labels")   # docs/perception.md, "Roles": both tune; printed and stereo are held out
 
 
 def tune_scene(seed: int, cache: Path) -> dict:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-LOOK_NAMES = ("flat", "printed", "stereo")
+LOOK_NAMES = ("flat", "printed", "stereo", "labels")   # append only: the index seeds frame_rng
 
 
 def frame_rng(look: str, scene_name: str, seed: int) -> np.random.Generator:

@@ -1,4 +1,4 @@
-"""Three looks of a ray-cast shelf (issue 31): `flat`, `printed`, `stereo`.
+"""Four looks of a ray-cast shelf (issue 31): `flat`, `printed`, `stereo`, `labels`.
 
 - flat: flat untextured shading, cartons of nearly one kraft colour, a camera-side light, only
   weak seams where faces end; exact depth with 0.7 mm of noise.
@@ -7,6 +7,11 @@
 - stereo: soft light, a wider range of carton colours, sensor noise, blur and vignetting; depth as
   a 5.5 cm-baseline stereo camera gives it: holes where the second camera cannot see, disparity
   quantised to 1/16 px (error grows with z^2), flying pixels at depth edges, dropout patches.
+- labels (a TUNING look, added by h19 for printed cartons): every carton of a frame printed with ONE
+  design drawn per frame from a family (kraft or white board; 0-2 coloured bands across or down
+  the face; a logo block; rows of dark stencil text; a white shipping label with a bar code),
+  a strong directional light from a direction drawn per frame (left or right, high or low) with
+  hard shadows of drawn strength; drawn focal length and camera height.
 
 Each `make_*` takes a shelfpick.scene/1 dict and a numpy Generator and returns a `Frame`. Which
 looks train, tune and are held out is fixed in docs/perception.md, section "Roles".
@@ -157,5 +162,106 @@ def make_stereo(scene: dict, rng: np.random.Generator) -> Frame:
     return Frame(colour_to_uint8(img), _stereo_depth(hit, parts, cam, rng), cam, masks, labels)
 
 
+def _palette_colour(rng: np.random.Generator, dark: bool = False) -> np.ndarray:
+    """A saturated print colour (or a dark ink) in linear RGB."""
+    hue = rng.uniform(0, 1)
+    rgb = np.array(cv2.cvtColor(np.uint8([[[int(hue * 179), 255, 255]]]), cv2.COLOR_HSV2RGB)[0, 0], float) / 255
+    rgb = 0.05 + rgb * rng.uniform(0.35, 0.7)
+    return rgb * (0.25 if dark else 1.0)
+
+
+def draw_design(rng: np.random.Generator) -> dict:
+    """One printed design for every carton of a frame (the `labels` look): board, bands, logo,
+    text rows and a shipping label, each drawn; positions are face fractions or metres."""
+    white = rng.random() < 0.5
+    board = (np.array([0.78, 0.77, 0.72]) if white else KRAFT * rng.uniform(0.9, 1.25)) * rng.uniform(0.9, 1.05, 3)
+    bands = []
+    for _ in range(int(rng.integers(0, 3))):
+        lo = rng.uniform(0.0, 0.8)
+        bands.append((int(rng.random() < 0.25), lo, lo + rng.uniform(0.05, 0.22), _palette_colour(rng)))
+    logo = None
+    if rng.random() < 0.75:
+        u0, v0 = rng.uniform(0.05, 0.6), rng.uniform(0.1, 0.65)
+        logo = (u0, u0 + rng.uniform(0.12, 0.3), v0, v0 + rng.uniform(0.12, 0.3), _palette_colour(rng),
+                bool(rng.random() < 0.4))
+    text = None
+    if rng.random() < 0.8:
+        u0, v0 = rng.uniform(0.05, 0.5), rng.uniform(0.05, 0.55)
+        text = (u0, min(0.97, u0 + rng.uniform(0.25, 0.55)), v0, min(0.97, v0 + rng.uniform(0.15, 0.4)),
+                rng.uniform(20, 45), int(rng.integers(2, 4)), rng.uniform(8, 20), int(rng.integers(0, 1 << 30)))
+    label = None
+    if rng.random() < 0.6:
+        label = (rng.uniform(0.08, 0.14), rng.uniform(0.06, 0.10), rng.uniform(0.1, 0.9), rng.uniform(0.2, 0.8))
+    return {"board": np.clip(board, 0, 1), "bands": bands, "logo": logo, "text": text, "label": label,
+            "ink": np.array([0.04, 0.04, 0.05]) * rng.uniform(0.5, 2.0)}
+
+
+def _hash01(a: np.ndarray, b: np.ndarray, key: int) -> np.ndarray:
+    """A fixed pseudo-random number in [0, 1) per integer pair (glyph cells, bar-code bars)."""
+    h = (a.astype(np.int64) * 73856093) ^ (b.astype(np.int64) * 19349663) ^ key
+    return ((h * 2654435761) % 1000003) / 1000003.0
+
+
+def _paint_design(local: np.ndarray, half: np.ndarray, d: dict) -> np.ndarray:
+    """The drawn design on front-face hits (local -y face): RGB per hit."""
+    u = (local[:, 0] / half[:, 0] + 1) / 2            # 0 left .. 1 right
+    v = (local[:, 2] / half[:, 2] + 1) / 2            # 0 bottom .. 1 top
+    col = np.tile(d["board"], (len(u), 1))
+    for vertical, lo, hi, c in d["bands"]:
+        t = u if vertical else v
+        col[(t > lo) & (t < hi)] = c
+    if d["logo"] is not None:
+        u0, u1, v0, v1, c, disc = d["logo"]
+        if disc:
+            inside = ((u - (u0 + u1) / 2) / ((u1 - u0) / 2)) ** 2 + ((v - (v0 + v1) / 2) / ((v1 - v0) / 2)) ** 2 < 1
+        else:
+            inside = (u > u0) & (u < u1) & (v > v0) & (v < v1)
+        col[inside] = c
+    if d["text"] is not None:
+        u0, u1, v0, v1, per, every, glyphs, key = d["text"]
+        row = np.floor(v * per)
+        cell = np.floor(u * per * glyphs / 10)
+        ink = ((u > u0) & (u < u1) & (v > v0) & (v < v1) & (row % every == 0)
+               & (_hash01(row, cell, key) < 0.72))
+        col[ink] = d["ink"]
+    if d["label"] is not None:                          # a fixed-size label (metres), centred at drawn fractions
+        w, h, cu, cv = d["label"]
+        x = local[:, 0] - (cu - 0.5) * 2 * half[:, 0] * 0.6
+        z = local[:, 2] - (cv - 0.5) * 2 * half[:, 2] * 0.6
+        inside = (np.abs(x) < w / 2) & (np.abs(z) < h / 2)
+        col[inside] = [0.86, 0.86, 0.84]
+        bars = inside & (z < -h / 6) & (np.abs(x) < w * 0.4) & (_hash01(np.floor(x * 900), np.zeros_like(x), 7) < 0.5)
+        lines = inside & (z > 0) & (np.floor(z * 400) % 3 == 0) & (np.abs(x) < w * 0.42)
+        col[bars | lines] = [0.03, 0.03, 0.03]
+    return col
+
+
+def make_labels(scene: dict, rng: np.random.Generator) -> Frame:
+    """Cartons of one drawn printed design side by side under a hard light of drawn direction."""
+    f = float(rng.uniform(480.0, 600.0))
+    cam = frame_boxes(scene, 640, 480, f, f, rng, height_m=float(rng.uniform(0.75, 1.05)))
+    hit, parts, labels, masks = _base(scene, cam)
+    n = len(scene["boxes"])
+    d = draw_design(rng)
+    grey = rng.uniform(0.2, 0.5)
+    boards = np.array([[grey, grey, grey * 1.05], [grey * 0.85] * 3, [grey * 0.5] * 3])
+    az = rng.choice([-1.0, 1.0]) * rng.uniform(0.15, 0.9)      # sideways
+    light = np.array([az, -rng.uniform(0.3, 0.9), rng.uniform(0.35, 1.1)])
+    light /= np.linalg.norm(light)
+    flat_pts = hit["point"].reshape(-1, 3) + hit["normal"].reshape(-1, 3) * 1e-4
+    facing = (hit["normal"].reshape(-1, 3) @ light > 0) & (hit["idx"].reshape(-1) >= 0)
+    shadow = blocked(flat_pts, light, parts, directional=True, only=facing).reshape(masks.shape)
+    img = _albedo(hit, parts, np.tile(d["board"], (n, 1)), boards)
+    front = (masks > 0) & (hit["face"] == 3)
+    half = np.stack([p.half for p in parts] + [np.ones(3)])[hit["idx"]]
+    img[front] = _paint_design(hit["local"][front], half[front], d)
+    ambient, diffuse = rng.uniform(0.05, 0.3), rng.uniform(0.8, 1.2)
+    lit = np.clip(hit["normal"] @ light, 0.0, None)
+    dark = rng.uniform(0.6, 1.0)                                # shadow strength: share of direct light lost
+    img = img * (ambient + diffuse * lit * np.where(shadow, 1.0 - dark, 1.0))[..., None]
+    img += rng.normal(0, rng.uniform(0.003, 0.01), img.shape)
+    return Frame(colour_to_uint8(img), _depth(hit, rng, float(rng.uniform(0.0007, 0.0013))), cam, masks, labels)
+
+
 LOOKS: dict[str, Callable[[dict, np.random.Generator], Frame]] = {
-    "flat": make_flat, "printed": make_printed, "stereo": make_stereo}
+    "flat": make_flat, "printed": make_printed, "stereo": make_stereo, "labels": make_labels}
