@@ -7,7 +7,11 @@ unstructured, seed 0), planned with depths hidden as `shelfpick plan` plans them
 cell's default threshold and map, up to 30 more worlds). Each plan is made twice on one pool of
 `--workers` processes: with the gate as shipped (10 worlds, then 10 more while the calibrated
 interval straddles the threshold), and with a gate that never decides early (always the 40 worlds).
-Per mode: wall p50/p90 and the worlds the gate asked; the machine's load average with the table.
+Per mode: wall p50/p90 and the worlds the gate asked; the machine's load average with the table;
+and two figures the load does not change: the physics pulls run (search and gate) and the CPU
+seconds of this process and the pool's workers (read from /proc). `rows.jsonl` holds every plan's
+sequence, verdict and failed-world count, so two runs can be diffed (`--modes adaptive`: the
+shipped gate only, half the time).
 """
 from __future__ import annotations
 
@@ -24,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.plan_speed import build_work, true_scene  # noqa: E402
+from benchmarks.plan_speed import _cpu, build_work, true_scene  # noqa: E402
 from shelfpick.planning.bench_report import percentile  # noqa: E402
 from shelfpick.planning.calibration import Calibration, calibration_for  # noqa: E402
 from shelfpick.planning.uncertainty import Uncertainty  # noqa: E402
@@ -42,6 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.predict import Predictor
     from shelfpick.planning.worker_pool import WorkerPool
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -50,11 +55,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="gate-speed")
+    ap.add_argument("--modes", choices=("both", "adaptive"), default="both",
+                    help="both gates (default), or the shipped adaptive one only")
     a = ap.parse_args(argv)
     out = Path(a.out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
     shipped = calibration_for(Uncertainty().pull_modes)
     modes = {"adaptive (shipped)": shipped, "always 40 worlds": Undecided(**shipped.to_json())}
+    if a.modes == "adaptive":
+        modes = {"adaptive (shipped)": shipped}
     args = argparse.Namespace(groups="extract-10-14", scenes=a.scenes, seed=a.seed)
     rows = []
     load0 = os.getloadavg()
@@ -68,13 +77,23 @@ def main(argv: list[str] | None = None) -> int:
                 rng = np.random.default_rng([s, 1])
                 for i in rng.choice(len(truth.ids), min(a.targets, len(truth.ids)), replace=False):
                     for name, cal in modes.items():
-                        t0 = time.perf_counter()
-                        plan = make_plan(hidden, "extract", truth.ids[int(i)], "physics", 10, s,
-                                         workers=a.workers, pool=pool, calibration=cal)
+                        t0, c0 = time.perf_counter(), _cpu(pool)
+                        # the Predictor make_plan would build (same samples, seed, workers, pool),
+                        # built here so that its pull count can be read
+                        pred = Predictor(hidden, 10, s, workers=a.workers, pool=pool)
+                        try:
+                            plan = make_plan(hidden, "extract", truth.ids[int(i)], "physics", 10, s,
+                                             workers=a.workers, pool=pool, calibration=cal, predictor=pred)
+                        finally:
+                            pred.close()
+                        wall, cpu = time.perf_counter() - t0, _cpu(pool) - c0
                         search = plan.extra.get("search", {})
                         rows.append({"mode": name, "kind": kind, "seed": s, "n_boxes": n, "target": truth.ids[int(i)],
-                                     "plan_s": time.perf_counter() - t0, "worlds": search.get("verified_worlds"),
-                                     "safe": plan.safe})
+                                     "plan_s": wall, "cpu_s": cpu, "worlds": search.get("verified_worlds"),
+                                     "safe": plan.safe, "sequence": list(plan.sequence),
+                                     "failed_worlds": search.get("plan_risk", {}).get("failed_worlds"),
+                                     "pulls": pred.stats["pulls"], "search_pulls": search.get("pulls"),
+                                     "oracle_calls": search.get("oracle_calls")})
                         print(json.dumps(rows[-1]), flush=True)
     finally:
         if pool is not None:
@@ -83,14 +102,16 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"make_plan, extract on 10-14 box shelves, {a.workers} workers, {len(rows) // len(modes)} plans; "
              f"load average (1/5/15 min) {'/'.join(f'{x:.1f}' for x in load0)} at the start, "
              f"{'/'.join(f'{x:.1f}' for x in load1)} at the end", "",
-             "| gate | p50 wall (s) | p90 wall (s) | mean worlds asked | plans decided on 10 worlds | safe |",
-             "|---|---:|---:|---:|---:|---:|"]
+             "| gate | p50 wall (s) | p90 wall (s) | mean worlds asked | plans decided on 10 worlds | safe "
+             "| pulls (all plans) | CPU s (all plans, main + workers) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for name in modes:
         r = [x for x in rows if x["mode"] == name]
         t = [x["plan_s"] for x in r]
         w = [x["worlds"] or 0 for x in r]
         lines.append(f"| {name} | {percentile(t, 0.5):.2f} | {percentile(t, 0.9):.2f} | {sum(w) / len(w):.1f} | "
-                     f"{sum(1 for x in w if x <= 10)}/{len(w)} | {sum(x['safe'] for x in r)}/{len(r)} |")
+                     f"{sum(1 for x in w if x <= 10)}/{len(w)} | {sum(x['safe'] for x in r)}/{len(r)} | "
+                     f"{sum(x['pulls'] for x in r)} | {sum(x['cpu_s'] for x in r):.1f} |")
     text = "\n".join(lines) + "\n"
     (out / "rows.jsonl").write_text("".join(json.dumps(x) + "\n" for x in rows))
     (out / "gate_speed.md").write_text(text)

@@ -11,18 +11,27 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from shelfpick.perception.errors import SceneError
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.bullet_clients import ClientPool
 from shelfpick.planning.physics import PhysicsConfig
 from shelfpick.planning.plan import StepPrediction
-from shelfpick.planning.sample_worlds import SampleWorlds, build_sample, not_standing, scene_check
+from shelfpick.planning.sample_worlds import SampleWorlds, not_standing, scene_check
 from shelfpick.planning.sim import ShelfSim
 from shelfpick.planning.step_result import StepResult
 from shelfpick.planning.uncertainty import Uncertainty
-from shelfpick.planning.worker_pool import Build, Extend, Preview, Pull, Worker, WorkerPool
+from shelfpick.planning.worker_pool import Build, Extend, Known, Outbox, Preview, Pull, Worker, WorkerPool
+
+_EXTEND = "extend"   # the Outbox tag of an Extend (a pull's tag is its (removed, box) key)
+
+
+def needs_redraw(rejected: Sequence[Mapping[str, str]], known: frozenset[str]) -> bool:
+    """Whether a world drawn without `known` differs from one drawn with it: one of its rejected
+    attempts contradicted the image only in boxes of `known`, so a build knowing them would have
+    accepted that attempt (`build_sample`; an attempt that raised, "*", is never accepted)."""
+    return any(off and "*" not in off and set(off) <= known for off in rejected)
 
 
 class Predictor:
@@ -61,6 +70,10 @@ class Predictor:
         self._order = {b: i for i, b in enumerate(scene.ids)}
         self._local: SampleWorlds | None = None
         self._workers: list[tuple[Worker, list[int]]] = []
+        self._owner: dict[int, Worker] = {}       # sample world -> the worker holding it
+        self._outbox = Outbox()                   # pulls and builds sent, replies not read yet
+        self._asked: dict[tuple[frozenset[str], str], int] = {}   # key -> samples 0..k-1 sent for
+        self._ahead: dict[tuple[frozenset[str], str], dict[int, StepResult]] = {}   # read, not in order yet
         self._broken = False
         t0 = time.perf_counter()
         workers = max(1, min(int(workers), self._n))
@@ -82,21 +95,32 @@ class Predictor:
                       "screens": 0, "pulls": 0, "trial_s": 0.0, "workers": workers}
 
     def _start_workers(self, workers: int, clients: ClientPool | None) -> None:
-        # what does not stand in sample 0 is what the other samples need not redraw for;
-        # found here, before the workers start, so every worker count gives the same worlds
-        known: frozenset[str] = frozenset()
-        if not self.scene.depth_known:
-            first = build_sample(self.scene, self.seed, 0, self.config, None, self.model, clients=clients)
-            known = not_standing(first)
-            first.sim.close()
+        # What does not stand in sample 0 (`known`) is what the other samples need not redraw for
+        # (`build_sample`). Every worker builds its share at once as if nothing were known; the one
+        # holding sample 0 learns `known` from it, and the others then build again only the worlds
+        # it would have changed: the same worlds as a build that knew it, for every worker count.
         shares = [list(range(k, self._n, workers)) for k in range(workers)]
         assert self._pool is not None
         for w, share in zip(self._pool.lease(workers), shares):
             self._workers.append((w, share))
-            w.send(Build(self.scene, self.seed, self.config, tuple(share), self.model, known))
+            self._owner.update((i, w) for i in share)
+            w.send(Build(self.scene, self.seed, self.config, tuple(share), self.model, frozenset()))
         draws = self._gather([w for w, _ in self._workers])
+        known = frozenset() if self.scene.depth_known else not_standing(draws[0])
+        if known:
+            draws.update(self._learn(known, draws))
         self.sample_scenes = [draws[i].scene for i in range(self._n)]
         self.scene_check = scene_check([draws[i] for i in range(self._n)])
+
+    def _learn(self, known: frozenset[str], draws: dict) -> dict:
+        """Tell the workers without sample 0 `known`; each rebuilds the worlds of its share that
+        a draw knowing it would have accepted earlier (`needs_redraw`). Their new draws."""
+        told = []
+        for w, share in self._workers:
+            if 0 not in share:
+                w.send(Known(known, tuple(i for i in share if needs_redraw(draws[i].rejected, known))))
+                told.append(w)
+        return self._gather(told)
 
     def _gather(self, workers: Sequence[Worker]) -> dict:
         """One reply from each of `workers`, merged. Every reply is read, so no pipe keeps a stale
@@ -163,25 +187,50 @@ class Predictor:
         if self._local is not None:
             for i in range(m, upto):
                 runs.append(self._local.pull(i, removed, box))
+            self.stats["pulls"] += upto - m
         else:
-            hi = min(cap, max(upto, m + len(self._workers)))
-            busy = []
-            merged: dict[int, StepResult] = {}
-            try:
-                for w, share in self._workers:
-                    which = tuple(i for i in share if m <= i < hi)
-                    if which:
-                        w.send(Pull(removed, box, which))
-                        busy.append(w)
-                for w in busy:
-                    merged.update(w.recv())
-            except BaseException:  # a reply may be left in a pipe: these workers are not reused
-                self._broken = True
-                raise
-            runs.extend(merged[i] for i in range(m, hi))
-        self.stats["pulls"] += len(runs) - m
+            self._send(key, upto, cap)
+            self._collect([(key, upto)])
         self.stats["trial_s"] += time.perf_counter() - t0
         return runs
+
+    def _send(self, key: tuple[frozenset[str], str], upto: int, cap: int) -> None:
+        """Ask the workers for samples up to `upto` of `key` (one more per worker than that, as far
+        as `cap`, when fewer: an idle worker runs the next sample), without waiting for the replies.
+        What is sent depends only on what was asked before, never on when replies come."""
+        a = self._asked.get(key, 0)
+        if upto <= a:
+            return
+        hi = min(cap, max(upto, a + len(self._workers)))
+        removed, box = key
+        try:
+            for w, share in self._workers:
+                which = tuple(i for i in share if a <= i < hi)
+                if which:
+                    self._outbox.send(w, Pull(removed, box, which), key)
+        except BaseException:   # a pipe that may hold part of a message: these workers are not reused
+            self._broken = True
+            raise
+        self._asked[key] = hi
+        self.stats["pulls"] += hi - a
+
+    def _collect(self, needs: Sequence[tuple[tuple[frozenset[str], str], int]]) -> None:
+        """Read replies until every (key, upto) of `needs` has its samples 0..upto-1 in `_runs`
+        (sent before); replies to other messages read on the way are kept for their key."""
+        try:
+            for key, upto in needs:
+                runs, ahead = self._runs[key], self._ahead.setdefault(key, {})
+                while len(runs) < upto:
+                    i = len(runs)
+                    if i in ahead:
+                        runs.append(ahead.pop(i))
+                        continue
+                    tag, value = self._outbox.read(self._owner[i])
+                    if tag != _EXTEND:
+                        self._ahead.setdefault(tag, {}).update(value)
+        except BaseException:   # a worker's error, or a pipe left in an unknown state
+            self._broken = True
+            raise
 
     def trial(self, removed: frozenset[str], box: str) -> StepPrediction:
         """Pull `box` from the scene with `removed` taken away, in every depth sample."""
@@ -267,19 +316,19 @@ class Predictor:
         if self._local is not None:
             self._local.add(new)
         else:
+            # sent, not waited for: the pulls in these worlds queue behind it on each pipe, and
+            # reading their replies reads its reply first (a failed build is raised there)
             n = len(self._workers)
-            asked = [(w, share, tuple(i for i in new if i % n == k))
-                     for k, (w, share) in enumerate(self._workers)]
-            asked = [a for a in asked if a[2]]
             try:
-                for w, _, mine in asked:
-                    w.send(Extend(mine))
-                self._gather([w for w, _, _ in asked])
+                for k, (w, share) in enumerate(self._workers):
+                    mine = tuple(i for i in new if i % n == k)
+                    if mine:
+                        self._outbox.send(w, Extend(mine), _EXTEND)
+                        share.extend(mine)
+                        self._owner.update((i, w) for i in mine)
             except BaseException:   # a worker may hold part of its new worlds: not reused
                 self._broken = True
                 raise
-            for _, share, mine in asked:
-                share.extend(mine)
         self._built = total
 
     def verify(self, sequence: Sequence[str], extra: int) -> tuple[StepPrediction, ...]:
@@ -305,12 +354,36 @@ class Predictor:
             t0 = time.perf_counter()
             self._extend(total)
             self.stats["build_s"] += time.perf_counter() - t0
-        out = []
+        keys = []
         removed: frozenset[str] = frozenset()
         for box in sequence:
-            out.append(list(self._run((removed, box), total)[:total]))
+            keys.append((removed, box))
             removed = removed | {box}
-        return out
+        if self._local is not None:
+            return [list(self._run(key, total)[:total]) for key in keys]
+        # every step at once (a step's worlds start from the state with the steps before taken away,
+        # not from the pull before): each worker runs its whole share without waiting for the other
+        t0 = time.perf_counter()
+        cap = self._n if total <= self._n else self._built
+        for key in keys:
+            if key not in self._runs:
+                self._check(*key)
+                self._runs[key] = []
+            self._send(key, min(total, cap), cap)
+        self._collect([(key, min(total, cap)) for key in keys])
+        self._read_builds()
+        self.stats["trial_s"] += time.perf_counter() - t0
+        return [list(self._runs[key][:total]) for key in keys]
+
+    def _read_builds(self) -> None:
+        """Read the replies to `Extend`s still oldest on their pipes (a build's error is raised)."""
+        try:
+            for w, _ in self._workers:
+                while self._outbox.pending(w) and self._outbox.oldest(w) == _EXTEND:
+                    self._outbox.read(w)
+        except BaseException:
+            self._broken = True
+            raise
 
     def aggregate(self, box: str, results: list[StepResult]) -> StepPrediction:
         """The prediction of one step over the given per-world results."""
@@ -340,18 +413,32 @@ class Predictor:
             raise ValueError(f"sample must be in 0..{self._n - 1}, got {sample}")
         if self._local is not None:
             return self._local.preview(sequence, sample)
-        for w, share in self._workers:
-            if sample in share:
-                w.send(Preview(tuple(sequence), sample))
-                return w.recv()
-        raise AssertionError("no worker holds sample")  # pragma: no cover
+        w = self._owner[sample]
+        self._read_all(w)
+        w.send(Preview(tuple(sequence), sample))
+        return w.recv()
+
+    def _read_all(self, w: Worker) -> None:
+        """Read every reply pending on `w`'s pipe, keeping the results (before a message of its own)."""
+        try:
+            while self._outbox.pending(w):
+                tag, value = self._outbox.read(w)
+                if tag != _EXTEND:
+                    self._ahead.setdefault(tag, {}).update(value)
+        except BaseException:
+            self._broken = True
+            raise
 
     def close(self) -> None:
         if self._local is not None:
             self._local.close()
             self._local = None
         if self._workers:
-            self._pool.give_back([w for w, _ in self._workers], broken=self._broken)  # type: ignore[union-attr]
+            held = [w for w, _ in self._workers]
+            # replies nobody waited for (a sample run ahead) must not reach the workers' next owner
+            if not self._broken and not self._outbox.drain(held):
+                self._broken = True
+            self._pool.give_back(held, broken=self._broken)  # type: ignore[union-attr]
             self._workers = []
         if self._own_pool and self._pool is not None:
             self._pool.close()

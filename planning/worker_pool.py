@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import threading
+from collections import deque
 from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from typing import Any, Hashable, Sequence
 
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.bullet_clients import ClientPool
@@ -42,6 +43,15 @@ class Extend:
     """Build these sample worlds as well, beside the ones held."""
 
     indices: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Known:
+    """What does not stand in sample 0 (`known`), found after this worker built its share without it:
+    keep it for later worlds, and build `rebuild` again with it (the worlds it would have changed)."""
+
+    known: frozenset[str]
+    rebuild: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -72,7 +82,18 @@ class Reply:
     error: BaseException | None = None
 
 
+def _learn(worlds: SampleWorlds, known: frozenset[str], rebuild: tuple[int, ...]) -> dict:
+    """`Known`: later worlds are drawn knowing `known`; the worlds `rebuild` are built again with it."""
+    worlds.known = known
+    for i in rebuild:
+        worlds.sims.pop(i).close()
+        del worlds.draws[i], worlds.states[i]
+    return worlds.add(rebuild)
+
+
 def _answer(worlds: SampleWorlds | None, msg: Any) -> Reply:
+    if isinstance(msg, Known):
+        return Reply({i: DrawSummary.of(d) for i, d in _learn(worlds, msg.known, msg.rebuild).items()})  # type: ignore[arg-type]
     if isinstance(msg, Extend):
         return Reply({i: DrawSummary.of(d) for i, d in worlds.add(msg.indices).items()})  # type: ignore[union-attr]
     if isinstance(msg, Pull):
@@ -169,6 +190,60 @@ def _context(method: str | None):
         # the fork server imports the planner once; every worker is then a cheap fork of it
         ctx.set_forkserver_preload(["shelfpick.planning.worker_pool"])
     return ctx
+
+
+class Outbox:
+    """Messages sent to leased workers whose replies are not read yet, oldest first per worker.
+
+    A worker answers its messages in order, so several can be in flight on one pipe (a batch of
+    pulls, more worlds then the pulls in them) and each reply is matched to the oldest tag still
+    pending there. Whoever holds the workers `drain`s it before handing them on: a reply left in a
+    pipe would be read as the answer to the next owner's first message.
+    """
+
+    def __init__(self) -> None:
+        self._pending: dict[Worker, deque] = {}
+
+    def send(self, w: Worker, msg: Any, tag: Hashable) -> None:
+        w.send(msg)
+        self._pending.setdefault(w, deque()).append(tag)
+
+    def pending(self, w: Worker) -> int:
+        return len(self._pending.get(w, ()))
+
+    def oldest(self, w: Worker) -> Hashable:
+        """The tag of `w`'s oldest pending message (there must be one)."""
+        return self._pending[w][0]
+
+    def read(self, w: Worker) -> tuple[Hashable, Any]:
+        """(tag, value) of `w`'s oldest pending message; the worker's exception is raised here
+        (its reply read all the same)."""
+        tag = self._pending[w][0]
+        try:
+            value = w.recv()
+        except (EOFError, OSError, KeyboardInterrupt):   # the pipe's state is unknown
+            raise
+        except Exception:
+            self._pending[w].popleft()
+            raise
+        self._pending[w].popleft()
+        return tag, value
+
+    def drain(self, workers: Sequence[Worker]) -> bool:
+        """Read and drop every pending reply of `workers`; False if a pipe broke (the worker is
+        then not to be reused). A worker's reported exception is dropped with its reply."""
+        ok = True
+        for w in workers:
+            while self.pending(w):
+                try:
+                    self.read(w)
+                except (EOFError, OSError, KeyboardInterrupt):
+                    self._pending.pop(w, None)
+                    ok = False
+                    break
+                except Exception:  # noqa: BLE001 - nobody waits for this answer any more
+                    pass
+        return ok
 
 
 class WorkerPool:
