@@ -266,33 +266,30 @@ def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogu
     masks = refine(raw, capture.depth, min_pixels=minpx)
     masks = grow_on_plane(masks, capture.depth, capture.camera, rgb=capture.rgb,
                           allowed=_inside_shelf(capture.depth, capture.camera, shelf))
+    cut: list[str] = []
+    if capture.depth is not None and masks:
+        masks, cut = _repeat_cuts(masks, capture, shelf)
     if catalogue is not None and capture.depth is not None and masks:
         masks, measured, notes = apply_catalogue(masks, capture.depth, capture.camera, capture.rgb,
                                                  catalogue.scaled(scale).within(shelf.depth))
-        masks, measured, cut = _repeat_cuts(masks, measured, capture, shelf)
-        return masks, measured, scale, notes + cut
-    if capture.depth is not None and masks:
-        masks, measured, cut = _repeat_cuts(masks, None, capture, shelf)
-        return masks, measured, scale, cut
-    return masks, None, scale, []
+        return masks, measured, scale, cut + notes
+    return masks, None, scale, cut
 
 
-def _repeat_cuts(masks: list[np.ndarray], measured: list[FrontFace | None] | None, capture: Capture,
-                 shelf: Shelf) -> tuple[list[np.ndarray], list[FrontFace | None], list[str]]:
-    """(masks, faces, notes): a mask that is cartons of one print, stacked or side by side, cut
-    where the print repeats (`repairs.repeats`), kept only when every part measures as a box
-    front (RGB-D only: the faces are measured on the depth)."""
+def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf) -> tuple[list[np.ndarray], list[str]]:
+    """(masks, notes): a mask that is cartons of one print, stacked or side by side, cut where
+    the print repeats (`repairs.repeats`), kept only when every part measures as a box front
+    (RGB-D only: the parts are measured on the depth). Runs before the catalogue, whose joins
+    and splits then see the cut masks."""
     from shelfpick.perception.boxes import MIN_PART_SIDE, not_a_face, not_a_front
     from shelfpick.perception.repairs.repeats import repeat_parts
 
     depth, camera = capture.depth, capture.camera
     lab = cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
-    faces = list(measured) if measured is not None else [measure_front(m, depth, camera) for m in masks]
-    out_m: list[np.ndarray] = []
-    out_f: list[FrontFace | None] = []
+    out: list[np.ndarray] = []
     notes: list[str] = []
-    for i, (m, f) in enumerate(zip(masks, faces)):
-        parts, axis, score = repeat_parts(m, lab) if f is not None else ([m], -1, 0.0)
+    for i, m in enumerate(masks):
+        parts, axis, score = repeat_parts(m, lab)
         if len(parts) > 1:
             pf = [measure_front(p, depth, camera) for p in parts]
             if all(q is not None and not not_a_front(q, shelf) and not not_a_face(q, p)
@@ -300,12 +297,10 @@ def _repeat_cuts(masks: list[np.ndarray], measured: list[FrontFace | None] | Non
                 notes.append(f"mask {i + 1} is {len(parts)} fronts of one print "
                              f"{'stacked' if axis == 0 else 'side by side'} (alike {score:.2f}): cut into "
                              + " and ".join(q.size_cm for q in pf if q is not None))
-                out_m.extend(parts)
-                out_f.extend(pf)
+                out.extend(parts)
                 continue
-        out_m.append(m)
-        out_f.append(f)
-    return out_m, out_f, notes
+        out.append(m)
+    return out, notes
 
 
 def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, depth: np.ndarray,

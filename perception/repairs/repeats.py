@@ -64,18 +64,18 @@ def _resampled(prof: np.ndarray, a: float, b: float) -> np.ndarray:
     return prof[i] * (1 - w) + prof[np.minimum(i + 1, len(prof) - 1)] * w
 
 
-def _alike_two(prof: np.ndarray, cs: np.ndarray) -> np.ndarray:
-    """`alike(prof, [0, c, n])` for every cut c in `cs` at once."""
+def _alike_two(prof: np.ndarray, a: np.ndarray, c: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`alike(prof, [a, c, b])` for every row of the arrays a, c, b at once."""
     n = len(prof)
     t = np.linspace(0.0, 1.0, SAMPLES)
 
-    def gather(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        x = np.clip(a[:, None] + (b - 1 - a)[:, None] * t, 0, n - 1)
+    def gather(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        x = np.clip(lo[:, None] + (hi - 1 - lo)[:, None] * t, 0, n - 1)
         i = np.minimum(x.astype(int), max(n - 2, 0))
         w = (x - i)[..., None]
         return prof[i] * (1 - w) + prof[np.minimum(i + 1, n - 1)] * w
 
-    p, q = gather(np.zeros_like(cs), cs), gather(cs, np.full_like(cs, n))
+    p, q = gather(a, c), gather(c, b)
     sp = ((p - p.mean(1, keepdims=True)) ** 2).sum(2).mean(1)
     sq = ((q - q.mean(1, keepdims=True)) ** 2).sum(2).mean(1)
     out = 1 - ((p - q) ** 2).sum(2).mean(1) / np.maximum(sp + sq, 1e-9)
@@ -95,65 +95,76 @@ def alike(prof: np.ndarray, cuts: list[float]) -> float:
     return min(scores)
 
 
-def best_partition(prof: np.ndarray) -> tuple[float, float, list[float]]:
-    """(score, score of the same partition shifted, cuts) of the best-scoring partition of a
-    profile: two parts at any cut (each >= 20% and >= MIN_PART_PX), or k = 2..4 equal parts."""
+def _windows(n: int, cs: np.ndarray, kind: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(a, c, b) of two-part windows at cuts `cs`: kind 0 the whole profile [0, c, n]; kind 1
+    the first part and as much again [0, c, 2c] (a stack of three or more); kind 2 the same
+    from the far end [n - 2(n - c), c, n]."""
+    z, e = np.zeros_like(cs), np.full_like(cs, float(n))
+    if kind == 0:
+        return z, cs, e
+    if kind == 1:
+        return z, cs, 2 * cs
+    return 2 * cs - n, cs, e
+
+
+def best_cut(prof: np.ndarray) -> tuple[float, float, float]:
+    """(score, score with the cut moved by a sixth of the shorter part, cut): the cut whose two
+    sides look most alike, each side scaled to a unit face: the whole profile's two parts
+    (each >= 20%), or the first (last) part against the next one of the same length (a stack of
+    three or more cartons: the rest is cut again by the caller)."""
     n = len(prof)
-    best: tuple[float, float, list[float]] = (-1.0, -1.0, [0.0, float(n)])
-    if float(((prof - prof.mean(0)) ** 2).sum(1).mean()) < MIN_SPREAD ** 2:
-        return best                                   # no print along this axis (a plain face)
-    lo, hi = max(MIN_PART_PX, int(0.2 * n)), min(n - MIN_PART_PX, int(0.8 * n))
+    if n < 2 * MIN_PART_PX or float(((prof - prof.mean(0)) ** 2).sum(1).mean()) < MIN_SPREAD ** 2:
+        return -1.0, -1.0, 0.0                        # no print along this axis (a plain face)
+    ranges = ((max(MIN_PART_PX, int(0.2 * n)), min(n - MIN_PART_PX, int(0.8 * n))),
+              (MIN_PART_PX, n // 2 - 1), (n - n // 2 + 1, n - MIN_PART_PX))
+    best = (-1.0, 0, 0.0)
     step = max(1, n // 24)                            # coarse cuts, then every row around the best
-    cs = np.arange(lo, hi + 1, step, dtype=float)
-    if len(cs):
-        sc = _alike_two(prof, cs)
-        j = int(np.argmax(sc))
-        best = (float(sc[j]), 0.0, [0.0, float(cs[j]), float(n)])
-    for cuts in ([n * j / k for j in range(k + 1)] for k in (3, 4) if n / k >= MIN_PART_PX):
-        s = alike(prof, cuts)
-        if s > best[0]:
-            best = (s, 0.0, cuts)
-    if len(best[2]) == 3 and step > 1:
-        c0 = int(best[2][1])
-        cs = np.arange(max(lo, c0 - step + 1), min(hi, c0 + step - 1) + 1, dtype=float)
-        sc = _alike_two(prof, cs)
+    for kind, (lo, hi) in enumerate(ranges):
+        cs = np.arange(lo, hi + 1, step, dtype=float)
+        if not len(cs):
+            continue
+        sc = _alike_two(prof, *_windows(n, cs, kind))
         j = int(np.argmax(sc))
         if sc[j] > best[0]:
-            best = (float(sc[j]), 0.0, [0.0, float(cs[j]), float(n)])
-    if best[0] < 0:
-        return best
-    cuts = best[2]
-    part = min(b - a for a, b in zip(cuts[:-1], cuts[1:]))
-    d = part / 6
-    shifted = []
-    for sign in (-1, 1):
-        inner = [c + sign * d for c in cuts[1:-1]]
-        if len(cuts) == 3:        # one cut: shift the cut
-            shifted.append(alike(prof, [0.0, *inner, float(n)]))
-        else:                     # equal parts: shift every inner cut
-            shifted.append(alike(prof, [0.0, *inner, float(n)]))
-    return best[0], max(shifted), cuts
+            best = (float(sc[j]), kind, float(cs[j]))
+    score, kind, c0 = best
+    if score < 0:
+        return -1.0, -1.0, 0.0
+    lo, hi = ranges[kind]
+    cs = np.arange(max(lo, int(c0) - step + 1), min(hi, int(c0) + step - 1) + 1, dtype=float)
+    sc = _alike_two(prof, *_windows(n, cs, kind))
+    j = int(np.argmax(sc))
+    if sc[j] > score:
+        score, c0 = float(sc[j]), float(cs[j])
+    a, _, b = (float(v[0]) for v in _windows(n, np.array([c0]), kind))
+    d = min(c0 - a, b - c0) / 6
+    moved = np.array([c0 - d, c0 + d])
+    if kind == 0:
+        shifted = _alike_two(prof, np.zeros(2), moved, np.full(2, float(n)))
+    else:
+        shifted = _alike_two(prof, *_windows(n, moved, kind))
+    return score, float(shifted.max()), c0
 
 
-def repeat_parts(mask: np.ndarray, lab: np.ndarray) -> tuple[list[np.ndarray], int, float]:
+def repeat_parts(mask: np.ndarray, lab: np.ndarray, depth: int = 3) -> tuple[list[np.ndarray], int, float]:
     """(parts, axis, score): the mask cut where its print repeats, along image rows (axis 0:
-    stacked) or columns (axis 1: side by side), the better of the two; ([mask], -1, score) when
-    no partition passes MIN_SCORE and MIN_PEAK."""
-    found: tuple[float, int, list[float], int] = (-1.0, -1, [], 0)
+    stacked) or columns (axis 1: side by side), the better of the two, each part cut again (up to
+    `depth` cuts deep: a stack of four); ([mask], -1, score) when no cut passes MIN_SCORE and
+    MIN_PEAK."""
+    found: tuple[float, int, float, int] = (-1.0, -1, 0.0, 0)
     for axis in (0, 1):
-        m = mask if axis == 0 else mask.T
-        if m.any(axis=1).sum() < 2 * MIN_PART_PX:
-            continue
         lo, prof = profile(mask, lab, axis)
-        s, shifted, cuts = best_partition(prof)
+        s, shifted, cut = best_cut(prof)
         if s >= MIN_SCORE and s - shifted >= MIN_PEAK and s > found[0]:
-            found = (s, axis, cuts, lo)
-    s, axis, cuts, lo = found
+            found = (s, axis, cut, lo)
+    s, axis, cut, lo = found
     if axis < 0:
         return [mask], -1, s
-    parts = []
     grid = np.arange(mask.shape[axis])
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        sel = (grid >= lo + round(a)) & (grid < lo + round(b))
-        parts.append(mask & (sel[:, None] if axis == 0 else sel[None, :]))
+    sel = grid < lo + round(cut)
+    first = mask & (sel[:, None] if axis == 0 else sel[None, :])
+    parts = []
+    for part in (first, mask & ~first):
+        more, ax, _ = repeat_parts(part, lab, depth - 1) if depth > 1 else ([part], -1, 0.0)
+        parts.extend(more if ax == axis else [part])
     return parts, axis, s
