@@ -68,6 +68,22 @@ def summary(rows: Sequence[dict], max_risk: float, z: float = 1.2816) -> dict:
             "mean_fail_share_held": round(sum(r["fails"] / r["draws"] for r in held) / max(1, len(held)), 3)}
 
 
+def noise_floor(rows: Sequence[dict], reps: int = 500, seed: int = 0) -> dict:
+    """What the judge's one draw of masses allows the risk figures: AUC and calibration error of the
+    ideal risk (each plan's share of failing mass draws) against the judge's verdict, and the
+    calibration error a perfectly calibrated risk would show on these plans by chance alone (each
+    plan's verdict drawn `reps` times with its share as the chance: mean, 5th and 95th percentile)."""
+    from benchmarks.risk_gate_report import auc, calibration_error
+
+    ideal = [{"risk": r["fails"] / r["draws"], "ok": r["ok"]} for r in rows]
+    rng = random.Random(f"gate-mass-ceiling-floor:{seed}")
+    es = sorted(calibration_error([{"risk": r["risk"], "ok": rng.random() >= r["risk"]} for r in ideal])[0]
+                for _ in range(reps))
+    return {"ideal_auc": round(auc(ideal), 3), "ideal_calibration_error": round(calibration_error(ideal)[0], 3),
+            "calibrated_error_by_chance": [round(es[len(es) // 2], 3), round(es[len(es) // 20], 3),
+                                           round(es[len(es) * 19 // 20], 3)]}
+
+
 def plot(rows: Sequence[dict], path: str, max_risk: float) -> None:
     """Each plan's share of failing mass draws, by what the gate said and what the judge saw."""
     import matplotlib
@@ -145,6 +161,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 def report(got: Sequence[dict], a: argparse.Namespace) -> int:
     """Print the summary (and draw it with --png)."""
     s = summary(got, a.max_risk)
+    if got:
+        s.update(noise_floor(got))
     if a.png:
         plot(got, a.png, a.max_risk)
     print(json.dumps(s))
@@ -152,6 +170,11 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
           f"fail in at most {a.max_risk:.0%} of {got[0]['draws'] if got else a.draws} mass draws ({s['held_surely_low_risk']} surely: "
           f"Wilson upper end below it), "
           f"{s['held_no_failing_draw']} in none; mean fail share of held plans {s['mean_fail_share_held']}")
+    if got:
+        med, p5, p95 = s["calibrated_error_by_chance"]
+        print(f"the ideal risk (share of failing mass draws): AUC {s['ideal_auc']}, calibration error "
+              f"{s['ideal_calibration_error']}; a perfectly calibrated risk on these {len(got)} plans shows a "
+              f"calibration error of {med} by chance alone (5-95%: {p5}-{p95})")
     return 0
 
 

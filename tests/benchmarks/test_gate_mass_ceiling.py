@@ -54,3 +54,14 @@ def test_a_free_box_holds_under_every_mass_draw(tmp_path: Path, capsys) -> None:
     got = [json.loads(line) for line in out.read_text().splitlines()]
     assert [(r["scene"], r["fails"], r["draws"]) for r in got] == [("s00", 0, 2)]
     assert '"held_no_failing_draw": 1' in capsys.readouterr().out
+
+
+def test_the_noise_floor_ranks_by_share_and_a_calibrated_risk_still_errs_by_chance():
+    rows = [_row(True, True, 0)] * 30 + [_row(False, False, 20)] * 10 + [_row(i % 2 == 0, False, 10) for i in range(20)]
+    f = gm.noise_floor(rows, reps=200)
+    assert f["ideal_auc"] > 0.8                    # every sure failure outranks every quiet plan
+    med, p5, p95 = f["calibrated_error_by_chance"]
+    assert 0 <= p5 <= med <= p95 < 0.3 and med > 0  # the coin-flip plans leave an error no risk can avoid
+    assert f == gm.noise_floor(rows, reps=200)      # seeded
+    sure = [_row(True, True, 0)] * 30 + [_row(False, False, 20)] * 10
+    assert gm.noise_floor(sure, reps=50)["calibrated_error_by_chance"] == [0.0, 0.0, 0.0]
