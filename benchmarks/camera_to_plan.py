@@ -290,6 +290,23 @@ def _plan_rows(rows: Sequence[dict], look: str, which: str) -> list[dict]:
     return [t[which] for r in rows if r["what"] == "seen" and r["look"] == look for t in r["tasks"]]
 
 
+CAN_HOLD = ROOT / "benchmarks" / "data" / "judge-can-hold.json"
+
+
+@functools.cache
+def can_hold() -> frozenset[str]:
+    """The judge's tasks some plan is known to hold on the true shelf ("s00:b4"; its `about` says how)."""
+    return frozenset(json.loads(CAN_HOLD.read_text(encoding="utf-8"))["tasks"])
+
+
+def _held_where_possible(rows: Sequence[dict], look: str, which: str, engine: str) -> list[int]:
+    """[ok, tasks] over the look's planned tasks that some plan can hold."""
+    got = [bool(t[which].get("judges", {}).get(engine, {}).get("ok"))
+           for r in rows if r["what"] == "seen" and r["look"] == look for t in r["tasks"]
+           if f"{r['scene']}:{t['target']}" in can_hold()]
+    return [sum(got), len(got)]
+
+
 def summarize(rows: Sequence[dict], engine: str) -> dict:
     """Per look: segmentation figures and the judged plans (B, H); T once; over the planned tasks."""
     true_rows = {f"{r['scene']}:{r['target']}": r["plan"] for r in rows if r["what"] == "true"}
@@ -307,7 +324,11 @@ def summarize(rows: Sequence[dict], engine: str) -> dict:
         plans = {p: engine_summary(_plan_rows(rows, look, p), engine) for p in ("physics", "highest_first")}
         tasks = [(r["scene"], t["target"]) for r in rows if r["what"] == "seen" and r["look"] == look for t in r["tasks"]]
         t_same = [true_rows[f"{s}:{t}"] for s, t in tasks if f"{s}:{t}" in true_rows]
+        t_can = [bool(true_rows[f"{s}:{t}"].get("judges", {}).get(engine, {}).get("ok"))
+                 for s, t in tasks if f"{s}:{t}" in true_rows and f"{s}:{t}" in can_hold()]
         out["looks"][look] = {"seg": seg, "plans": plans, "true_same": engine_summary(t_same, engine),
+                              "can_hold": {p: _held_where_possible(rows, look, p, engine) for p in ("physics", "highest_first")}
+                              | {"true": [sum(t_can), len(t_can)]},
                               "not_perceived": sum(1 for r in _plan_rows(rows, look, "physics")
                                                    if r.get("error") == "target not perceived")}
     return out
@@ -336,6 +357,12 @@ def to_markdown(s: dict, header: str) -> str:
                         ("from the image, highest-first", v["plans"]["highest_first"]),
                         ("true faces + 1 cm (observe --noise 0.01), physics", v["true_same"])):
             lines.append(f"| {name} | {_ok(p)} | {p['declared_safe_collapsed']}/{p['declared_safe']} | {p['plan_errors']} |")
+        c = v["can_hold"]
+        pct = lambda a, b: f"{100 * a / b:.0f}%" if b else "-"  # noqa: E731
+        lines += ["", f"- of the {c['physics'][1]} tasks some plan can hold on the true shelf "
+                      f"(`{CAN_HOLD.relative_to(ROOT)}`): physics from the image {c['physics'][0]} "
+                      f"({pct(*c['physics'])}), highest-first {c['highest_first'][0]} ({pct(*c['highest_first'])}), "
+                      f"true faces + 1 cm {c['true'][0]}/{c['true'][1]} ({pct(*c['true'])})"]
         lines.append("")
     return "\n".join(lines) + "\n"
 

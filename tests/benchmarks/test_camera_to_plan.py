@@ -71,3 +71,23 @@ def test_one_shelf_from_the_image_to_the_judge(tmp_path: Path) -> None:
     assert [json.loads(line)["key"] for line in out.read_text().splitlines()] == ["seen|flat|s00", "true|s00:b5"]
     assert c2p.main(argv[:-2] + ["--out", str(out), "--summary-only", "--no-true"]) == 0   # reads, runs nothing
     assert [json.loads(line)["key"] for line in out.read_text().splitlines()] == ["seen|flat|s00", "true|s00:b5"]
+
+
+def _plan(ok: bool) -> dict:
+    return {"judges": {"pybullet": {"ok": ok}}, "exhaustive": False, "min_removals": None, "kind": "structured",
+            "sequence": ["b1"], "declared_safe": False}
+
+
+def test_tasks_some_plan_can_hold_are_counted_apart(monkeypatch) -> None:
+    assert len(c2p.can_hold()) == 98 and "s00:b5" in c2p.can_hold()   # the shipped list
+    monkeypatch.setattr(c2p, "can_hold", lambda: frozenset({"s00:b1", "s00:b2"}))
+    shelf = {"centre_err": [0.01], "true_fronts": 3, "perceived": 3, "matched_true": 3, "matched": 3,
+             "perceive_s": 0.4, "error": ""}
+    rows = [{"what": "seen", "look": "stereo", "scene": "s00", "shelf": shelf,
+             "tasks": [{"target": "b1", "physics": _plan(True), "highest_first": _plan(False)},
+                       {"target": "b2", "physics": _plan(False), "highest_first": _plan(False)},
+                       {"target": "b3", "physics": _plan(False), "highest_first": _plan(True)}]},
+            {"what": "true", "scene": "s00", "target": "b1", "plan": _plan(True)}]
+    s = c2p.summarize(rows, "pybullet")["looks"]["stereo"]
+    assert s["can_hold"] == {"physics": [1, 2], "highest_first": [0, 2], "true": [1, 1]}
+    assert "of the 2 tasks some plan can hold on the true shelf" in c2p.to_markdown(c2p.summarize(rows, "pybullet"), "")
