@@ -12,14 +12,21 @@ and two figures the load does not change: the physics pulls run (search and gate
 seconds of this process and the pool's workers (read from /proc). `rows.jsonl` holds every plan's
 sequence, verdict and failed-world count, so two runs can be diffed (`--modes adaptive`: the
 shipped gate only, half the time).
+
+`--against REV`: an A/B of `planning/predict.py` on a loaded machine. Each plan is made with the
+shipped gate twice on the one pool, once with the Predictor of git revision REV (the rest of the
+code is this tree's) and once with this tree's, the two taking turns to go first; the table then
+compares the two under the same load, and says how many plans came out the same.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import subprocess
 import sys
 import time
+import types
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +49,17 @@ class Undecided(Calibration):
         return False
 
 
+def predictor_at(rev: str) -> type:
+    """The Predictor class of `planning/predict.py` at git revision `rev` (imported beside this tree's)."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:planning/predict.py"],
+                         capture_output=True, text=True, check=True).stdout
+    mod = types.ModuleType(f"predict_at_{rev}")
+    mod.__file__ = f"{rev}:planning/predict.py"
+    sys.modules[mod.__name__] = mod
+    exec(compile(src, mod.__file__, "exec"), mod.__dict__)
+    return mod.Predictor
+
+
 def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
@@ -57,13 +75,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="gate-speed")
     ap.add_argument("--modes", choices=("both", "adaptive"), default="both",
                     help="both gates (default), or the shipped adaptive one only")
+    ap.add_argument("--against", metavar="REV", default=None,
+                    help="A/B: the shipped gate with REV's planning/predict.py and with this tree's")
     a = ap.parse_args(argv)
     out = Path(a.out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
     shipped = calibration_for(Uncertainty().pull_modes)
-    modes = {"adaptive (shipped)": shipped, "always 40 worlds": Undecided(**shipped.to_json())}
+    modes = {"adaptive (shipped)": (shipped, Predictor),
+             "always 40 worlds": (Undecided(**shipped.to_json()), Predictor)}
     if a.modes == "adaptive":
-        modes = {"adaptive (shipped)": shipped}
+        modes = {"adaptive (shipped)": (shipped, Predictor)}
+    if a.against:
+        modes = {f"adaptive, predict.py at {a.against}": (shipped, predictor_at(a.against)),
+                 "adaptive, this tree": (shipped, Predictor)}
     args = argparse.Namespace(groups="extract-10-14", scenes=a.scenes, seed=a.seed)
     rows = []
     load0 = os.getloadavg()
@@ -76,11 +100,14 @@ def main(argv: list[str] | None = None) -> int:
                 hidden = truth.hide_depths()
                 rng = np.random.default_rng([s, 1])
                 for i in rng.choice(len(truth.ids), min(a.targets, len(truth.ids)), replace=False):
-                    for name, cal in modes.items():
+                    turn = list(modes.items())
+                    if a.against and (len(rows) // 2) % 2:
+                        turn.reverse()      # A/B: each side goes first every other plan
+                    for name, (cal, make) in turn:
                         t0, c0 = time.perf_counter(), _cpu(pool)
                         # the Predictor make_plan would build (same samples, seed, workers, pool),
                         # built here so that its pull count can be read
-                        pred = Predictor(hidden, 10, s, workers=a.workers, pool=pool)
+                        pred = make(hidden, 10, s, workers=a.workers, pool=pool)
                         try:
                             plan = make_plan(hidden, "extract", truth.ids[int(i)], "physics", 10, s,
                                              workers=a.workers, pool=pool, calibration=cal, predictor=pred)
@@ -112,6 +139,11 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {name} | {percentile(t, 0.5):.2f} | {percentile(t, 0.9):.2f} | {sum(w) / len(w):.1f} | "
                      f"{sum(1 for x in w if x <= 10)}/{len(w)} | {sum(x['safe'] for x in r)}/{len(r)} | "
                      f"{sum(x['pulls'] for x in r)} | {sum(x['cpu_s'] for x in r):.1f} |")
+    if a.against:
+        key = ("kind", "seed", "target", "sequence", "safe", "failed_worlds", "worlds")
+        sides = [[tuple(json.dumps(x[k]) for k in key) for x in rows if x["mode"] == name] for name in modes]
+        lines += ["", f"plans with the same sequence, verdict and failed worlds on both sides: "
+                      f"{sum(p == q for p, q in zip(*sides))}/{len(sides[0])}"]
     text = "\n".join(lines) + "\n"
     (out / "rows.jsonl").write_text("".join(json.dumps(x) + "\n" for x in rows))
     (out / "gate_speed.md").write_text(text)

@@ -96,31 +96,46 @@ class Predictor:
 
     def _start_workers(self, workers: int, clients: ClientPool | None) -> None:
         # What does not stand in sample 0 (`known`) is what the other samples need not redraw for
-        # (`build_sample`). Every worker builds its share at once as if nothing were known; the one
-        # holding sample 0 learns `known` from it, and the others then build again only the worlds
-        # it would have changed: the same worlds as a build that knew it, for every worker count.
+        # (`build_sample`). Each worker first builds one world, the others as if nothing were known;
+        # the one holding sample 0 learns `known` from it, the others build theirs again only if
+        # `known` would have changed it, and then all build the rest of their share knowing it:
+        # the same worlds for every worker count, no world built twice in the usual case (sample 0
+        # used to be built in this process first), at most one per worker otherwise.
         shares = [list(range(k, self._n, workers)) for k in range(workers)]
         assert self._pool is not None
         for w, share in zip(self._pool.lease(workers), shares):
             self._workers.append((w, share))
             self._owner.update((i, w) for i in share)
-            w.send(Build(self.scene, self.seed, self.config, tuple(share), self.model, frozenset()))
+            w.send(Build(self.scene, self.seed, self.config, tuple(share[:1]), self.model, frozenset()))
         draws = self._gather([w for w, _ in self._workers])
         known = frozenset() if self.scene.depth_known else not_standing(draws[0])
-        if known:
-            draws.update(self._learn(known, draws))
+        for w, share in self._workers:
+            if known and 0 not in share:
+                redo = tuple(i for i in share[:1] if needs_redraw(draws[i].rejected, known))
+                self._outbox.send(w, Known(known, redo), "known")
+            if share[1:]:
+                self._outbox.send(w, Extend(tuple(share[1:])), _EXTEND)
+        draws.update(self._gather_pending())
         self.sample_scenes = [draws[i].scene for i in range(self._n)]
         self.scene_check = scene_check([draws[i] for i in range(self._n)])
 
-    def _learn(self, known: frozenset[str], draws: dict) -> dict:
-        """Tell the workers without sample 0 `known`; each rebuilds the worlds of its share that
-        a draw knowing it would have accepted earlier (`needs_redraw`). Their new draws."""
-        told = []
-        for w, share in self._workers:
-            if 0 not in share:
-                w.send(Known(known, tuple(i for i in share if needs_redraw(draws[i].rejected, known))))
-                told.append(w)
-        return self._gather(told)
+    def _gather_pending(self) -> dict:
+        """Every reply pending in the outbox, merged (draws of built worlds); as `_gather`, a
+        worker's exception is raised after all replies are read, a broken pipe at once."""
+        merged: dict = {}
+        error: BaseException | None = None
+        for w, _ in self._workers:
+            while self._outbox.pending(w):
+                try:
+                    merged.update(self._outbox.read(w)[1])
+                except (EOFError, OSError, KeyboardInterrupt):
+                    self._broken = True
+                    raise
+                except Exception as exc:  # noqa: BLE001 - the worker's, raised after all replies
+                    error = error or exc
+        if error is not None:
+            raise error
+        return merged
 
     def _gather(self, workers: Sequence[Worker]) -> dict:
         """One reply from each of `workers`, merged. Every reply is read, so no pipe keeps a stale

@@ -65,17 +65,19 @@ class CollapseMonitor:
     def look(self, step: int) -> bool:
         """Check every other box at `step`; True while something still moves."""
         p, cfg = self.p, self.cfg
+        pose, velocity = p.getBasePositionAndOrientation, p.getBaseVelocity
+        rest_v, rest_w = cfg.rest_velocity, cfg.rest_angular_velocity
         moving = False
         for k, ob in enumerate(self.bodies):
             bid = self.others[k]
-            pos, orn = p.getBasePositionAndOrientation(ob)
-            lin, ang = p.getBaseVelocity(ob)
+            lin, ang = velocity(ob)
             v = norm(lin)
             w = norm(ang)
-            if v > cfg.rest_velocity or w > cfg.rest_angular_velocity:
+            if v > rest_v or w > rest_w:
                 moving = True
             if bid in self.collapse_at:
-                continue
+                continue     # (its pose is no longer read: a query, it changes nothing)
+            pos, orn = pose(ob)
             d = dist(pos, self.start[k][0])
             if bid not in self.onset and (d > cfg.onset_displacement or v > cfg.onset_velocity):
                 self.onset[bid] = step
@@ -291,6 +293,7 @@ class PullTrial:
             free_steps = 0
             pos = self.pos0
             max_steps = int(math.ceil(cfg.pull_timeout / cfg.time_step))
+            world = p.WORLD_FRAME   # a constant, looked up once (the client resolves each name per call)
             while True:
                 target = set_point.at(self.step)
                 p.changeConstraint(cid, target, jointChildFrameOrientation=list(self.orn0),
@@ -299,7 +302,7 @@ class PullTrial:
                 if height is not None:
                     fz = height.force(target[2] - pos[2] - dz, p.getBaseVelocity(self.body)[0][2], fz)
                 if fz:
-                    p.applyExternalForce(self.body, -1, [0.0, 0.0, fz], list(pos), p.WORLD_FRAME)
+                    p.applyExternalForce(self.body, -1, [0.0, 0.0, fz], list(pos), world)
                 pos, engaged = self._one_step()
                 if stop_on_collapse and self.monitor.collapse_at:
                     self.note = "stopped at the first collapse"

@@ -211,15 +211,20 @@ class ShelfSim:
     def active(self) -> list[str]:
         return [b for b in self._ids if b not in self._parked]
 
-    def _moving(self) -> list[str]:
-        cfg, p = self.config, self._p
+    def _moving(self, first: bool = False) -> list[str]:
+        """The boxes on the shelf moving faster than rest (`first`: only the first one found; a
+        settle only needs to know whether any does, and most of its steps have one early)."""
+        cfg, velocity, body, frozen = self.config, self._p.getBaseVelocity, self._body, self._frozen
+        rest_v, rest_w = cfg.rest_velocity, cfg.rest_angular_velocity
         out = []
-        for bid in self.active():
-            if bid in self._frozen:
+        for bid in self._ids:
+            if bid in self._parked or bid in frozen:
                 continue
-            lin, ang = p.getBaseVelocity(self._body[bid])
-            if _norm(lin) > cfg.rest_velocity or _norm(ang) > cfg.rest_angular_velocity:
+            lin, ang = velocity(body[bid])
+            if _norm(lin) > rest_v or _norm(ang) > rest_w:
                 out.append(bid)
+                if first:
+                    break
         return out
 
     # --------------------------------------------------------------- stepping
@@ -234,7 +239,7 @@ class ShelfSim:
         calm = 0
         for _ in range(int(math.ceil(max_time / cfg.time_step))):
             self.step()
-            calm = calm + 1 if not self._moving() else 0
+            calm = calm + 1 if not self._moving(first=True) else 0
             if calm >= need:
                 return True
         return False

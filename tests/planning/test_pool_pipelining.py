@@ -1,0 +1,65 @@
+"""A Predictor's workers answer several messages in flight (issue 32's speed): the pipelined
+path must give what one process gives, build the same worlds, and hand clean pipes on (real physics)."""
+from __future__ import annotations
+
+from shelfpick.perception.scene import Box, Scene, Shelf
+from shelfpick.planning.predict import Predictor, needs_redraw
+from shelfpick.planning.worker_pool import WorkerPool
+from tests.planning.sim_scenes import column, cube
+
+
+def _floating() -> Scene:
+    """`high` hangs 20 cm above `a`: it drops in every draw, so it never stands as seen."""
+    return Scene(Shelf(), (cube("a", 0.0, 0.1), cube("high", 0.0, 0.5), cube("c", 0.4, 0.1))).hide_depths()
+
+
+def test_needs_redraw_only_where_known_would_have_accepted_an_attempt():
+    known = frozenset({"high"})
+    assert needs_redraw(({"high": "drops"},), known)
+    assert needs_redraw(({"*": "overlaps past repair"}, {"high": "drops"}), known)
+    assert not needs_redraw(({"high": "drops", "a": "moves"},), known)   # more than known: still rejected
+    assert not needs_redraw(({"*": "overlaps past repair"},), known)       # a failed build is never accepted
+    assert not needs_redraw((), known) and not needs_redraw(({"high": "drops"},), frozenset())
+
+
+def test_worlds_built_before_sample_0_is_known_are_the_worlds_one_process_builds():
+    # sample 0 learns that `high` never stands; a worker that built its first world without knowing
+    # that must build it again, as a build that knew would have accepted its first attempt
+    scene = _floating()
+    with Predictor(scene, samples=4, seed=3) as serial, Predictor(scene, samples=4, seed=3, workers=2) as pool:
+        assert serial.scene_check["samples_not_standing"] > 0          # the case this test is about
+        assert pool.sample_scenes == serial.sample_scenes
+        assert pool.scene_check == serial.scene_check                  # same redraws, same attempts
+        for call in [(frozenset(), "a"), (frozenset(), "c"), (frozenset({"high"}), "a")]:
+            assert pool.trial(*call) == serial.trial(*call)
+        assert pool.plan_results(["high", "a"], 6) == serial.plan_results(["high", "a"], 6)
+
+
+def test_interleaved_questions_previews_and_more_worlds_answer_as_one_process():
+    scene = column(4).hide_depths()
+    with WorkerPool(2) as workers, Predictor(scene, samples=4, seed=2) as serial, \
+            Predictor(scene, samples=4, seed=2, workers=2, pool=workers) as pool:
+        # an unsafe screen stops at sample 0 while sample 1 is still on its way
+        assert pool.screen(frozenset(), "c1") == serial.screen(frozenset(), "c1")
+        assert (pool.stats["pulls"], serial.stats["pulls"]) == (2, 1)
+        assert pool.screen(frozenset(), "f") == serial.screen(frozenset(), "f")
+        frames = [s.to_json(frames=True) for s in pool.preview(["c3", "c2"], sample=1)]
+        assert frames == [s.to_json(frames=True) for s in serial.preview(["c3", "c2"], sample=1)]
+        assert pool.trial(frozenset(), "c1") == serial.trial(frozenset(), "c1")
+        # the gate's way: every step at once, in worlds built in the same message stream
+        assert pool.plan_results(["c3", "c2", "c1"], 7) == serial.plan_results(["c3", "c2", "c1"], 7)
+        assert pool.stats["pulls"] == serial.stats["pulls"]   # the sample run ahead was used, none wasted
+
+
+def test_a_reply_nobody_waited_for_does_not_reach_the_next_predictor():
+    with WorkerPool(2) as workers:
+        with Predictor(column(4).hide_depths(), samples=4, seed=2, workers=2, pool=workers) as first:
+            first.screen(frozenset(), "c1")               # stops at sample 0; sample 1 ran ahead
+            assert any(first._outbox.pending(w) for w, _ in first._workers)
+        # the same processes serve the next Predictor (another shelf): its first reply is its own
+        scene = Scene(Shelf(), (Box("x", (0.2, 0.2, 0.2), (0.1, 0.12, 0.1)), cube("y", 0.1, 0.3)))
+        with Predictor(scene.hide_depths(), samples=3, seed=5, workers=2, pool=workers) as second, \
+                Predictor(scene.hide_depths(), samples=3, seed=5) as serial:
+            assert second.sample_scenes == serial.sample_scenes
+            assert second.trial(frozenset(), "x") == serial.trial(frozenset(), "x")
+
