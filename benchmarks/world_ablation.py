@@ -1,0 +1,294 @@
+"""Which unknown makes the sample worlds fail where a shelf holds? (issue 32, item 1)
+
+A diagnostic of the gate's world model on OUR OWN shelves (`planning.shelves.generate`, seeds of
+this script's own; never the judge's scenes). For each shelf, the physics planner's plan for a few
+targets (made as `shelfpick plan` makes it, depths hidden) is asked three ways:
+
+- **reference**: the independent judge's engine (../shared/judge, imported at run time, never
+  copied) on the TRUE shelf, the boxes' masses drawn `--draws` times (uniform in `--mass`): the
+  share of draws in which the plan fails. Both of the judge's engines with `--engines`.
+- **pinned**: our sample-world physics on the same true shelf with the same masses, and every
+  other unknown pinned to what the reference uses (friction 0.75, drag at 0.2 m/s with a 150 N
+  limit, no face error): per draw, does our world agree with the reference?
+- **ablations**: our sample worlds over `--draws` worlds, starting from the pinned model
+  (geometry known, masses drawn by us in `--mass`) and widening one unknown at a time to the
+  default cell's prior (friction, pull speed and force, masses, lift-or-drag, hidden depths,
+  face error), then all of them (the default cell as shipped).
+
+A row per plan (JSON lines, `--out`); the summary per condition: the mean share of failing worlds
+over the plans that the reference holds in at most 5% of its draws ("quiet plans"), and over all.
+An unknown whose widening raises the quiet plans' share a lot is where the gate's false alarms
+come from; whether its range is plausible is then a question about the cell, not the threshold.
+
+    .venv/bin/python benchmarks/world_ablation.py --kinds structured,unstructured --seeds 41000-41007 \
+        --targets 2 --draws 20 --jobs 2 --out ablation.jsonl [--png ablation.png]
+    .venv/bin/python benchmarks/world_ablation.py --from-rows --out ablation.jsonl
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import sys
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Sequence
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.judge_rows import UsageError, iter_rows, judge_fn  # noqa: E402
+from shelfpick.perception.errors import SceneError  # noqa: E402
+
+# what the reference (the judge's README) pulls with, and its friction
+REF = {"friction": 0.75, "pull_speed": 0.2, "pull_force": 150.0, "mode": "drag"}
+
+
+def conditions(mass: tuple[float, float]) -> dict[str, dict]:
+    """name -> (Uncertainty overrides, hide depths): the pinned model, then one unknown widened at a
+    time to the default cell's prior, then the default cell itself."""
+    from shelfpick.planning.uncertainty import Uncertainty
+
+    d = Uncertainty()
+    pinned = {"mass": tuple(mass), "friction": (REF["friction"],) * 2, "pull_speed": (REF["pull_speed"],) * 2,
+              "pull_force": (REF["pull_force"],) * 2, "pull_modes": (REF["mode"],), "face_error": 0.0}
+    return {
+        "pinned physics, our masses": (pinned, False),
+        "+ friction 0.6-0.9": ({**pinned, "friction": d.friction}, False),
+        "+ pull 0.2-0.5 m/s, 100-200 N": ({**pinned, "pull_speed": d.pull_speed, "pull_force": d.pull_force}, False),
+        "+ masses 0.3-5 kg log": ({**pinned, "mass": d.mass}, False),
+        "+ lift or drag": ({**pinned, "pull_modes": d.pull_modes}, False),
+        "+ depths hidden": (pinned, True),
+        "+ depths hidden, face error 5 mm": ({**pinned, "face_error": d.face_error}, True),
+        "default cell (all of them)": ({}, True),
+    }
+
+
+def drawn_masses(n: int, seed: int, draw: int, mass: tuple[float, float]) -> list[float]:
+    rng = random.Random(f"world-ablation:{seed}:{draw}")
+    return [round(rng.uniform(*mass), 4) for _ in range(n)]
+
+
+def _fails_of(predictor, sequence: Sequence[str], worlds: int) -> list[bool]:
+    """Per world: did some step of `sequence` fail (the gate's verdict per world)."""
+    from shelfpick.planning.gate import world_failed
+
+    runs = predictor.plan_results(sequence, worlds)
+    n = min(len(r) for r in runs)
+    return [any(world_failed(rs[i]) for rs in runs) for i in range(n)]
+
+
+def reference_fails(truth_json: dict, unit: dict, engine: str) -> list[bool]:
+    judge = judge_fn(engine)
+    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": unit["target"],
+            "planner": "physics", "sequence": unit["sequence"]}
+    out = []
+    for d in range(unit["draws"]):
+        ms = drawn_masses(len(truth_json["boxes"]), unit["seed"], d, unit["mass"])
+        boxes = [{**b, "mass": m} for b, m in zip(truth_json["boxes"], ms)]
+        out.append(not judge({**truth_json, "boxes": boxes}, plan)["ok"])
+    return out
+
+
+def pinned_fails(truth, unit: dict) -> list[bool | None]:
+    """Our worlds, one per reference draw: the true shelf with that draw's masses, all else pinned."""
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.uncertainty import Uncertainty
+
+    model = replace(Uncertainty(), mass=(0.0, 0.0), friction=(REF["friction"],) * 2,
+                    pull_speed=(REF["pull_speed"],) * 2, pull_force=(REF["pull_force"],) * 2,
+                    pull_modes=(REF["mode"],), face_error=0.0)
+    out = []
+    for d in range(unit["draws"]):
+        ms = drawn_masses(len(truth.boxes), unit["seed"], d, unit["mass"])
+        scene = replace(truth, boxes=tuple(replace(b, mass=m) for b, m in zip(truth.boxes, ms)))
+        try:
+            with Predictor(scene, samples=1, seed=unit["seed"] + d, model=model) as p:
+                out.append(_fails_of(p, unit["sequence"], 1)[0])
+        except SceneError:     # this draw's shelf does not come to rest in our world: no verdict
+            out.append(None)
+    return out
+
+
+def condition_fails(truth, unit: dict, overrides: dict, hide: bool) -> list[bool]:
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.uncertainty import Uncertainty
+
+    scene = truth.hide_depths() if hide else truth
+    scene = replace(scene, boxes=tuple(replace(b, mass=None) for b in scene.boxes))
+    try:
+        with Predictor(scene, samples=unit["draws"], seed=unit["seed"], model=replace(Uncertainty(), **overrides)) as p:
+            return _fails_of(p, unit["sequence"], unit["draws"])
+    except SceneError:         # no world can be built: the gate would refuse the shelf
+        return []
+
+
+def run_unit(unit: dict) -> dict:
+    """One plan: its reference and our conditions' per-world failures."""
+    from shelfpick.perception.scene import Scene
+
+    warnings.simplefilter("ignore")
+    truth_json = json.loads(unit["truth"])
+    truth = Scene.from_json(truth_json)
+    row = {k: unit[k] for k in ("shelf", "target", "sequence", "draws", "declared_safe")}
+    row["reference"] = {e: reference_fails(truth_json, unit, e) for e in unit["engines"]}
+    row["pinned"] = pinned_fails(truth, unit)
+    row["conditions"] = {name: condition_fails(truth, unit, ov, hide)
+                         for name, (ov, hide) in conditions(tuple(unit["mass"])).items()}
+    return row
+
+
+def plan_units(a: argparse.Namespace) -> list[dict]:
+    """The shelves and the planner's plans (made here, in this process, as `shelfpick plan` makes them)."""
+    import numpy as np
+
+    from shelfpick.planning.planner import make_plan
+    from shelfpick.planning.shelves import generate
+
+    units = []
+    lo, hi = a.seeds
+    for kind in a.kinds:
+        for s in range(lo, hi + 1):
+            truth = generate(kind, s, settle=True)
+            hidden = truth.hide_depths()
+            rng = np.random.default_rng([s, 7])
+            for i in rng.choice(len(truth.ids), min(a.targets, len(truth.ids)), replace=False):
+                target = truth.ids[int(i)]
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        plan = make_plan(hidden, "extract", target, "physics", 10, 0)
+                except SceneError:
+                    continue
+                if not plan.sequence:
+                    continue
+                units.append({"shelf": f"{kind}-{s}", "target": target, "sequence": list(plan.sequence),
+                              "truth": json.dumps(truth.to_json()), "draws": a.draws, "mass": list(a.mass),
+                              "seed": s, "engines": a.engines, "judge_dir": a.judge,
+                              "declared_safe": bool(plan.safe)})
+    return units
+
+
+def summary(rows: Sequence[dict], quiet: float = 0.05) -> list[dict]:
+    """Per condition: mean failing share over quiet plans (reference fails in <= `quiet` of draws)
+    and over all plans; and the pinned worlds' per-draw agreement with the reference."""
+    def share(f: Sequence[bool | None]) -> float | None:
+        got = [x for x in f if x is not None]
+        return sum(got) / len(got) if got else None
+
+    ref = [r["reference"][next(iter(r["reference"]))] for r in rows]
+    quiet_rows = [r for r, f in zip(rows, ref) if share(f) <= quiet]
+    out = [{"condition": f"reference ({e})", "quiet": _mean(share(r["reference"][e]) for r in quiet_rows),
+            "all": _mean(share(r["reference"][e]) for r in rows)} for e in rows[0]["reference"]] if rows else []
+    agree = [a == b for r, f in zip(rows, ref) for a, b in zip(r["pinned"], f) if a is not None]
+    out.append({"condition": "pinned (same masses as the reference)", "quiet": _mean(share(r["pinned"]) for r in quiet_rows),
+                "all": _mean(share(r["pinned"]) for r in rows), "agreement": _mean(agree)})
+    for name in (rows[0]["conditions"] if rows else ()):
+        out.append({"condition": name, "quiet": _mean(share(r["conditions"][name]) for r in quiet_rows),
+                    "all": _mean(share(r["conditions"][name]) for r in rows),
+                    "quiet_plans_failing_5pct_or_less": sum((share(r["conditions"][name]) or 0) <= quiet
+                                                           for r in quiet_rows if r["conditions"][name]),
+                    "no_world": sum(not r["conditions"][name] for r in rows)})
+    return out
+
+
+def _mean(xs) -> float:
+    xs = [x for x in xs if x is not None]
+    return round(sum(xs) / len(xs), 3) if xs else float("nan")
+
+
+def report(rows: Sequence[dict], png: str | None) -> None:
+    ref = [r["reference"][next(iter(r["reference"]))] for r in rows]
+    nq = sum(sum(f) <= 0.05 * len(f) for f in ref)
+    print(f"{len(rows)} plans on {len({r['shelf'] for r in rows})} shelves; {nq} quiet on the reference "
+          f"(fail in <= 5% of its mass draws)")
+    ds = [(r["declared_safe"], sum(f) / len(f)) for r, f in zip(rows, ref)]
+    safe = [x for d, x in ds if d]
+    print(f"the default gate declared {len(safe)} safe: {sum(x <= 0.05 for x in safe)} of them quiet, "
+          f"mean reference failing share {_mean(safe)}; of the {nq} quiet plans it declared "
+          f"{sum(d for d, x in ds if x <= 0.05)} safe")
+    print("| condition | mean failing share, quiet plans | all plans | quiet plans <= 5% here |")
+    print("|---|---:|---:|---:|")
+    for s in summary(rows):
+        extra = s.get("quiet_plans_failing_5pct_or_less", s.get("agreement", ""))
+        if s.get("no_world"):
+            extra = f"{extra} ({s['no_world']} plans: no world built)"
+        if "agreement" in s:
+            extra = f"agrees per draw {s['agreement']:.2f}"
+        print(f"| {s['condition']} | {s['quiet']} | {s['all']} | {extra} |")
+    if png:
+        plot(rows, png)
+
+
+def plot(rows: Sequence[dict], path: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = summary(rows)
+    fig, ax = plt.subplots(figsize=(8, 0.4 * len(s) + 1.2))
+    ys = range(len(s))
+    ax.barh([y + 0.2 for y in ys], [r["quiet"] for r in s], 0.4, label="quiet plans (reference <= 5%)")
+    ax.barh([y - 0.2 for y in ys], [r["all"] for r in s], 0.4, label="all plans")
+    ax.set_yticks(list(ys), [r["condition"] for r in s], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("mean share of worlds (draws) in which the plan fails")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kinds", default="structured,unstructured")
+    ap.add_argument("--seeds", default="41000-41007", help="LOW-HIGH, shelf seeds of this script's own")
+    ap.add_argument("--targets", type=int, default=2)
+    ap.add_argument("--draws", type=int, default=20)
+    ap.add_argument("--mass", type=float, nargs=2, default=(0.5, 3.0), metavar=("LOW", "HIGH"))
+    ap.add_argument("--engines", default="pybullet")
+    ap.add_argument("--judge", default=str(ROOT.parent / "shared" / "judge"))
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--from-rows", action="store_true")
+    ap.add_argument("--png")
+    a = ap.parse_args(argv)
+    try:
+        lo, hi = (int(x) for x in a.seeds.split("-"))
+    except ValueError:
+        raise UsageError(f"--seeds: expected LOW-HIGH, got {a.seeds!r}") from None
+    a.seeds = (lo, hi)
+    a.kinds = [k for k in a.kinds.split(",") if k]
+    a.engines = [e for e in a.engines.split(",") if e]
+    if a.draws < 1:
+        raise UsageError(f"--draws: expected a positive number, got {a.draws}")
+    return a
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        a = parse_args(argv)
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if a.from_rows:
+        rows = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()]
+        report(rows, a.png)
+        return 0
+    from tqdm import tqdm
+
+    units = plan_units(a)
+    rows = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()] if Path(a.out).exists() else []
+    done = {(r["shelf"], r["target"]) for r in rows}
+    units = [u for u in units if (u["shelf"], u["target"]) not in done]
+    with open(a.out, "a") as f:
+        for row in tqdm(iter_rows(units, a.jobs, run_unit), total=len(units), desc="plans", file=sys.stderr):
+            rows.append(row)
+            f.write(json.dumps(row) + "\n")
+            f.flush()
+    report(rows, a.png)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
