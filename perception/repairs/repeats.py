@@ -37,14 +37,11 @@ def profile(mask: np.ndarray, lab: np.ndarray, axis: int) -> tuple[int, np.ndarr
     lo, hi = int(idx[0]), int(idx[-1]) + 1
     cols = np.flatnonzero(m.any(axis=0))
     edges = np.linspace(cols[0], cols[-1] + 1, STRIPS + 1).astype(int)
-    out = np.full((hi - lo, STRIPS, 3), np.nan)
-    for s in range(STRIPS):
-        sub_m = m[lo:hi, edges[s]:edges[s + 1]]
-        sub = im[lo:hi, edges[s]:edges[s + 1]]
-        n = sub_m.sum(axis=1)
-        tot = (sub * sub_m[..., None]).sum(axis=1)
-        ok = n >= 2
-        out[ok, s] = tot[ok] / n[ok, None]
+    sub_m = m[lo:hi, edges[0]:edges[-1]]
+    starts = edges[:-1] - edges[0]
+    n = np.add.reduceat(sub_m, starts, axis=1).astype(float)                       # rows x strips
+    tot = np.add.reduceat(im[lo:hi, edges[0]:edges[-1]] * sub_m[..., None], starts, axis=1)
+    out = np.where((n >= 2)[..., None], tot / np.maximum(n, 1)[..., None], np.nan)
     out[..., 0] *= L_WEIGHT
     flat = out.reshape(hi - lo, -1)
     for c in range(flat.shape[1]):
@@ -150,7 +147,27 @@ def repeat_parts(mask: np.ndarray, lab: np.ndarray, depth: int = 3) -> tuple[lis
     """(parts, axis, score): the mask cut where its print repeats, along image rows (axis 0:
     stacked) or columns (axis 1: side by side), the better of the two, each part cut again (up to
     `depth` cuts deep: a stack of four); ([mask], -1, score) when no cut passes MIN_SCORE and
-    MIN_PEAK."""
+    MIN_PEAK. Works on the mask's bounding box (full-size parts come back)."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if len(rows) < 2 * MIN_PART_PX and len(cols) < 2 * MIN_PART_PX:
+        return [mask], -1, -1.0
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    px = lab[box][mask[box]] * np.array([L_WEIGHT, 1.0, 1.0])
+    if float(px.var(axis=0).sum()) < (0.8 * MIN_SPREAD) ** 2:
+        return [mask], -1, -1.0               # a plain face: no profile can have the spread
+    subs, axis, score = _cut(mask[box], lab[box], depth)
+    if len(subs) == 1:
+        return [mask], -1, score
+    parts = []
+    for sub in subs:
+        full = np.zeros_like(mask)
+        full[box] = sub
+        parts.append(full)
+    return parts, axis, score
+
+
+def _cut(mask: np.ndarray, lab: np.ndarray, depth: int) -> tuple[list[np.ndarray], int, float]:
+    """`repeat_parts` on a cropped mask and image."""
     found: tuple[float, int, float, int] = (-1.0, -1, 0.0, 0)
     for axis in (0, 1):
         lo, prof = profile(mask, lab, axis)
@@ -165,6 +182,6 @@ def repeat_parts(mask: np.ndarray, lab: np.ndarray, depth: int = 3) -> tuple[lis
     first = mask & (sel[:, None] if axis == 0 else sel[None, :])
     parts = []
     for part in (first, mask & ~first):
-        more, ax, _ = repeat_parts(part, lab, depth - 1) if depth > 1 else ([part], -1, 0.0)
+        more, ax, _ = _cut(part, lab, depth - 1) if depth > 1 else ([part], -1, 0.0)
         parts.extend(more if ax == axis else [part])
     return parts, axis, s
