@@ -77,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="both gates (default), or the shipped adaptive one only")
     ap.add_argument("--against", metavar="REV", default=None,
                     help="A/B: the shipped gate with REV's planning/predict.py and with this tree's")
+    ap.add_argument("--method", choices=("forkserver", "spawn"), default=None,
+                    help="how the pool starts its workers (default forkserver where there is one)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
@@ -91,7 +93,9 @@ def main(argv: list[str] | None = None) -> int:
     args = argparse.Namespace(groups="extract-10-14", scenes=a.scenes, seed=a.seed)
     rows = []
     load0 = os.getloadavg()
-    pool = WorkerPool(a.workers) if a.workers > 1 else None
+    pool = WorkerPool(a.workers, method=a.method) if a.workers > 1 else None
+    if pool is not None:   # started before the first plan (as the console's are): no plan pays for it
+        pool.give_back(pool.lease(a.workers))
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
