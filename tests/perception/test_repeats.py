@@ -9,6 +9,7 @@ import numpy as np
 from shelfpick.perception.boxes import planar_depth
 from shelfpick.perception.capture import Capture
 from shelfpick.perception.faces import measure_front
+from shelfpick.perception.pipeline import perceive
 from shelfpick.perception.repairs.repeats import repeat_parts
 from shelfpick.perception.scene import Camera, Shelf
 
@@ -92,3 +93,26 @@ def test_perceive_cuts_a_merged_mask_of_two_printed_fronts_into_two_boxes() -> N
     plain = np.full((480, 640, 3), 90, np.uint8)
     _paint(plain, 100, 360, 200, 400, "plain")          # one plain front of the same size stays one
     assert len(_repeat_cuts([_mask(100, 360, 200, 400)], Capture(plain, depth, CAM), Shelf())[0]) == 1
+
+
+class _OneMask:
+    """A segmenter that merged two cartons: it returns one mask over both."""
+
+    name = "one-mask"
+
+    def __init__(self, mask: np.ndarray) -> None:
+        self.mask = mask
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None) -> list[np.ndarray]:
+        return [self.mask]
+
+
+def test_perceive_makes_two_boxes_of_two_stacked_printed_cartons_a_segmenter_merged() -> None:
+    rgb = np.full((480, 640, 3), 90, np.uint8)
+    _paint(rgb, 100, 230, 200, 400)
+    _paint(rgb, 230, 360, 200, 400)
+    seg = _OneMask(_mask(100, 360, 200, 400))
+    res = perceive(Capture(rgb, planar_depth(CAM, 1.04), CAM), segmenter=seg, catalogue=None)
+    assert len(res.scene.boxes) == 2
+    assert any("2 fronts of one print stacked" in n for n in res.adjustments)
+    assert all(abs(b.size[2] - 130 / 600 * 1.04) <= 0.015 for b in res.scene.boxes)
