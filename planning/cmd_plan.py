@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
 import os
@@ -118,9 +119,10 @@ def _model(args: argparse.Namespace, priors: "CellPriors | None") -> "Uncertaint
     return priors.model(model) if priors is not None else model
 
 
-def read_cell_priors(path: str) -> "CellPriors":
+def read_cell_priors(path: str) -> tuple["CellPriors", dict]:
     """The priors of a cell file's [planning] section (`--cell`), checked as the console checks
-    them (planning.priors); the file's other sections are the console's and are not read. A
+    them (planning.priors), and the plan's record of the file (path and `section_hash` of the
+    [planning] section as read); the file's other sections are the console's and are not read. A
     FormatError (one line: file, field, value) when the file cannot be read as a cell file
     (planning.cell_file), is of another format, or is wrong in [planning]."""
     from shelfpick.planning.cell_file import CELL_FORMAT, read_cell_toml
@@ -132,7 +134,10 @@ def read_cell_priors(path: str) -> "CellPriors":
     if "planning" not in doc:
         _warn(f"{path} has no [planning] section: the sample worlds draw the default masses, friction "
               "and pull modes")
-    return CellPriors.from_section(doc.get("planning", {}), path)
+    section = doc.get("planning", {})
+    priors = CellPriors.from_section(section, path)
+    canonical = json.dumps(section, sort_keys=True, separators=(",", ":"), default=str)
+    return priors, {"path": str(path), "section_hash": hashlib.sha256(canonical.encode()).hexdigest()[:16]}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -145,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     check_int(args.verify, "--verify", VERIFY, "a number of sample worlds")
     from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK
 
-    priors = read_cell_priors(args.cell) if args.cell is not None else None
+    priors, cell = read_cell_priors(args.cell) if args.cell is not None else (None, None)
     if args.max_plan_risk is None:      # the flag wins over the cell, the cell over the default
         args.max_plan_risk = priors.max_plan_risk if priors is not None else DEFAULT_MAX_PLAN_RISK
     if not 0.0 < args.max_plan_risk <= 1.0:
@@ -173,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
                              max_plan_risk=args.max_plan_risk)
         except SceneError as exc:  # the physics refused the scene: say which file
             raise SceneError(f"{args.scene}: {exc}") from None
-    plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk)
+    plan = plan.with_provenance(scene, samples=args.samples, risk=args.risk, cell=cell)
     log.debug("scene %s: %d boxes, hash %s; %s planner, %d samples, seed %d, %d worker(s)", args.scene,
               len(scene.boxes), plan.provenance["scene_hash"], args.planner, args.samples, args.seed, args.workers)
     log.debug("timing: %s", ", ".join(f"{k} {v:.2f} s" for k, v in plan.timing.items()))

@@ -37,8 +37,9 @@ def scene_hash(scene: Scene) -> str:
 
 
 def provenance(scene: Scene, config: Any = None, samples: int | None = None,
-               risk: float | None = None) -> dict[str, Any]:
-    """What made a plan, so that a plan file can be checked against its scene and reproduced."""
+               risk: float | None = None, cell: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What made a plan, so that a plan file can be checked against its scene and reproduced
+    (`cell`: the cell file whose priors the worlds drew, as `shelfpick plan --cell` records it)."""
 
     cfg = asdict(config if config is not None else PhysicsConfig())
     physics = {k: cfg[k] for k in PHYSICS_RECORDED if k in cfg}
@@ -49,6 +50,8 @@ def provenance(scene: Scene, config: Any = None, samples: int | None = None,
         doc["samples"] = samples
     if risk is not None:
         doc["risk"] = risk
+    if cell is not None:
+        doc["cell"] = dict(cell)
     return doc
 
 
@@ -155,9 +158,9 @@ class Plan:
         return doc if isinstance(doc, Mapping) else {}
 
     def with_provenance(self, scene: Scene, config: Any = None, samples: int | None = None,
-                        risk: float | None = None) -> "Plan":
+                        risk: float | None = None, cell: Mapping[str, Any] | None = None) -> "Plan":
         """This plan recording what made it (see `provenance`); sequence and predictions unchanged."""
-        return replace(self, extra={**self.extra, "provenance": provenance(scene, config, samples, risk)})
+        return replace(self, extra={**self.extra, "provenance": provenance(scene, config, samples, risk, cell)})
 
     def content_hash(self) -> str:
         """Identity of what the robot would do: task, target and the exact sequence."""

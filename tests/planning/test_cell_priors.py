@@ -134,3 +134,21 @@ def test_the_section_check_is_a_format_error_naming_the_origin():
         CellPriors.from_section({"friction": [0.6, 3.0]}, "c.toml")
     assert str(err.value) == "c.toml: planning.friction: expected [low, high] with 0.01 <= low <= high <= 2, " \
                              "got [0.6, 3.0]"
+
+
+def test_the_plan_records_which_cell_file_and_which_priors_made_it(tmp_path, capsys):
+    def provenance(*extra):
+        _plan(tmp_path, *extra)
+        return json.loads((tmp_path / "plan.json").read_text())["provenance"]
+
+    cell = _cell(tmp_path)
+    got = provenance("--cell", cell)["cell"]
+    assert got["path"] == cell and len(got["section_hash"]) == 16
+    # the same [planning] in another layout: the same hash; another prior: another hash
+    same = _cell(tmp_path, CELL.replace("[robot]\nurl = \"sim\"\n", "").replace("mass_kg = [0.5, 3]", "mass_kg = [ 0.5, 3 ]"),
+                 "same.toml")
+    assert provenance("--cell", same)["cell"]["section_hash"] == got["section_hash"]
+    other = _cell(tmp_path, CELL.replace("mass_kg = [0.5, 3]", "mass_kg = [0.5, 4]"), "other.toml")
+    assert provenance("--cell", other)["cell"]["section_hash"] != got["section_hash"]
+    assert "cell" not in provenance()                        # no --cell, no record
+    capsys.readouterr()
