@@ -43,6 +43,7 @@ from shelfpick.perception.errors import SceneError  # noqa: E402
 
 # what the reference (the judge's README) pulls with, and its friction
 REF = {"friction": 0.75, "pull_speed": 0.2, "pull_force": 150.0, "mode": "drag"}
+DEFAULT_FRICTION = (0.6, 0.9)
 
 
 def conditions(mass: tuple[float, float]) -> dict[str, dict]:
@@ -63,6 +64,15 @@ def conditions(mass: tuple[float, float]) -> dict[str, dict]:
         "+ depths hidden, face error 5 mm": ({**pinned, "face_error": d.face_error}, True),
         "default cell (all of them)": ({}, True),
     }
+
+
+def contact_conditions(mass: tuple[float, float]) -> dict[str, tuple[dict, bool]]:
+    """The friction read as a contact's (Bullet multiplies the two bodies' values): each body gets
+    the square root, so two boxes touch with the value itself. Added with `--add contact`."""
+    pinned, _ = conditions(mass)["pinned physics, our masses"]
+    lo, hi = (f ** 0.5 for f in DEFAULT_FRICTION)
+    return {"pinned, contact friction 0.75": ({**pinned, "friction": (0.75 ** 0.5,) * 2}, False),
+            "+ contact friction 0.6-0.9": ({**pinned, "friction": (lo, hi)}, False)}
 
 
 def drawn_masses(n: int, seed: int, draw: int, mass: tuple[float, float]) -> list[float]:
@@ -136,6 +146,19 @@ def run_unit(unit: dict) -> dict:
     row["pinned"] = pinned_fails(truth, unit)
     row["conditions"] = {name: condition_fails(truth, unit, ov, hide)
                          for name, (ov, hide) in conditions(tuple(unit["mass"])).items()}
+    return row
+
+
+def add_unit(unit: dict) -> dict:
+    """The conditions of `unit["add"]` for a row made before: the row with them merged in."""
+    from shelfpick.planning.shelves import generate
+
+    warnings.simplefilter("ignore")
+    kind, seed = unit["shelf"].rsplit("-", 1)
+    truth = generate(kind, int(seed), settle=True)
+    row = dict(unit["row"])
+    row["conditions"] = {**row["conditions"], **{name: condition_fails(truth, unit, ov, hide)
+                                                 for name, (ov, hide) in unit["add"].items()}}
     return row
 
 
@@ -252,6 +275,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", required=True)
     ap.add_argument("--from-rows", action="store_true")
     ap.add_argument("--png")
+    ap.add_argument("--add", choices=("contact",), help="run these conditions on the rows in --out and merge them in")
     a = ap.parse_args(argv)
     try:
         lo, hi = (int(x) for x in a.seeds.split("-"))
@@ -277,6 +301,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     from tqdm import tqdm
 
+    if a.add:
+        old = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()]
+        extra = contact_conditions(tuple(a.mass))
+        units = [{"shelf": r["shelf"], "row": r, "add": extra, "sequence": r["sequence"], "draws": r["draws"],
+                  "seed": int(r["shelf"].rsplit("-", 1)[1]), "judge_dir": a.judge} for r in old]
+        rows = list(tqdm(iter_rows(units, a.jobs, add_unit), total=len(units), desc="plans", file=sys.stderr))
+        Path(a.out).write_text("".join(json.dumps(r) + "\n" for r in rows))
+        report(rows, a.png)
+        return 0
     units = plan_units(a)
     rows = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()] if Path(a.out).exists() else []
     done = {(r["shelf"], r["target"]) for r in rows}

@@ -60,3 +60,11 @@ def test_one_plan_of_our_own_shelf_against_the_judges_engine(tmp_path: Path, cap
     assert set(row["conditions"]) == set(wa.conditions((0.5, 3.0)))
     assert all(len(v) in (0, 2) for v in row["conditions"].values())
     assert "| default cell (all of them) |" in capsys.readouterr().out
+
+
+def test_contact_friction_gives_each_body_the_square_root():
+    c = wa.contact_conditions((0.5, 3.0))
+    ov, hide = c["pinned, contact friction 0.75"]
+    assert not hide and ov["friction"][0] ** 2 == pytest.approx(0.75)
+    lo, hi = c["+ contact friction 0.6-0.9"][0]["friction"]
+    assert (lo * lo, hi * hi) == (pytest.approx(0.6), pytest.approx(0.9))
