@@ -117,7 +117,10 @@ def split_by_depth(mask: np.ndarray, depth: np.ndarray | None, min_gap: float = 
         for k in range(1, n):
             if stats[k, cv2.CC_STAT_AREA] >= min_pixels:
                 piece = fill_holes(lbl == k)
-                out.extend(split_by_depth(piece, depth, min_gap, min_fraction, min_pixels))
+                if piece.sum() >= m.sum():      # a ring around the other part, filled: the mask again
+                    out.append(piece)           # (cutting it again would never end)
+                else:
+                    out.extend(split_by_depth(piece, depth, min_gap, min_fraction, min_pixels))
     return out or [m]
 
 
