@@ -79,6 +79,10 @@ class CountingOracle:
     def calls(self) -> int:
         return len(self._cache)
 
+    def has(self, key: tuple[frozenset[str], str]) -> bool:
+        """Whether `key` was asked (its full prediction is held)."""
+        return key in self._cache
+
     @property
     def keys(self) -> set[tuple[frozenset[str], str]]:
         """The distinct (removed, box) questions asked so far."""
@@ -108,6 +112,15 @@ class _Deadline:
 class _Outcome:
     sequence: tuple[str, ...]
     predicted: tuple[StepPrediction, ...]
+    start: frozenset[str] = frozenset()   # removed before its first step (names each step's question)
+
+    def keys(self) -> list[tuple[frozenset[str], str]]:
+        """The (removed, box) question of each step."""
+        out, removed = [], self.start
+        for box in self.sequence:
+            out.append((removed, box))
+            removed = removed | {box}
+        return out
 
     @property
     def risk(self) -> float:
@@ -118,9 +131,13 @@ class _Outcome:
         return success_prob(self.predicted)
 
 
+Bounds = Callable[[frozenset[str], str], tuple[float, float]]
+
+
 def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float = 0.0,
                    max_depth: int | None = None, deadline: float | None = None, *,
-                   screen: Oracle | None = None) -> SearchResult:
+                   screen: Oracle | None = None, bounds: Bounds | None = None,
+                   more: Callable[[frozenset[str], str], object] | None = None) -> SearchResult:
     """Plan the removals that get ``target`` out with every step's risk <= ``risk``.
 
     ``ids`` are the boxes on the shelf; ``max_depth`` bounds the recursion
@@ -134,14 +151,22 @@ def search_extract(ids: Iterable[str], target: str, trial: Oracle, risk: float =
     boxes (the blockers tried next) come from the samples run so far. Every
     step of the returned plan, and every risk compared at a dead end, is the
     full ``trial`` prediction.
+
+    ``bounds(removed, box)`` (optional, with ``screen``; ``Predictor.risk_interval``): the
+    interval the full risk of a screened pull lies in, from the samples run so far, and
+    ``more(removed, box)`` runs one more of its samples. A dead end then compares plans on those
+    intervals, sampling the widest screened step one sample at a time until they decide; a pull
+    is fully predicted only where that needs it or in the plan returned: the same plan (every
+    decision is the exact one), fewer samples run.
     """
     present = tuple(ids)
     if target not in present:
         raise ValueError(f"target {target!r} is not among the boxes {present!r}")
     oracle = trial if isinstance(trial, CountingOracle) else CountingOracle(trial)
     depth_bound = len(present) if max_depth is None else max(0, int(max_depth))
-    search = _ExtractSearch(oracle, screen, risk, depth_bound, _Deadline(deadline), frozenset(present))
-    out = search.extract(target, frozenset(), ())
+    search = _ExtractSearch(oracle, screen, risk, depth_bound, _Deadline(deadline), frozenset(present),
+                            bounds if screen is not None else None, more)
+    out = search.complete(search.extract(target, frozenset(), ()))
     return SearchResult(out.sequence, out.predicted, out.risk <= risk, oracle.calls, search.clock.hit)
 
 
@@ -156,6 +181,47 @@ class _ExtractSearch:
     depth_bound: int
     clock: "_Deadline"
     known: frozenset[str]
+    bounds: Bounds | None = None
+    more: Callable[[frozenset[str], str], object] | None = None   # run one more sample of a pull
+
+    # ---- plans whose unsafe steps may be screened only (`bounds`): exact wherever compared
+    def _exact(self, key: tuple[frozenset[str], str]) -> bool:
+        return self.bounds is None or self.oracle.has(key)
+
+    def success_range(self, o: _Outcome) -> tuple[float, float]:
+        """(lowest, highest) chance that no step of `o` collapses, whatever its unrun samples say;
+        both are `o.success` once every step is fully predicted (the same products, in order)."""
+        lo = hi = 1.0
+        for key in o.keys():
+            # a step asked in full since `o` was put together counts with its full prediction
+            r_lo, r_hi = (self.oracle(*key).risk,) * 2 if self._exact(key) else self.bounds(*key)  # type: ignore[misc]
+            lo *= 1.0 - r_hi
+            hi *= 1.0 - r_lo
+        return lo, hi
+
+    def complete(self, o: _Outcome) -> _Outcome:
+        """`o` with every step's full prediction (what the search without `bounds` holds)."""
+        if self.bounds is None:
+            return o
+        return _Outcome(o.sequence, tuple(self.oracle(*k) for k in o.keys()), o.start)
+
+    def greater(self, a: _Outcome, b: _Outcome, fa: float = 1.0, fb: float = 1.0) -> tuple[bool, _Outcome, _Outcome]:
+        """Whether fa * a.success > fb * b.success, from the ranges when they decide it, else
+        from full predictions; and `a`, `b` (completed where that was needed)."""
+        if self.bounds is None or self.more is None:   # every step fully predicted: the plain comparison
+            a, b = self.complete(a), self.complete(b)
+            return fa * a.success > fb * b.success, a, b
+        while True:
+            a_lo, a_hi = self.success_range(a)
+            b_lo, b_hi = self.success_range(b)
+            if fa * a_lo > fb * b_hi:
+                return True, a, b
+            if fa * a_hi <= fb * b_lo:   # (always one of the two once every sample has run)
+                return False, a, b
+            # one more sample of the widest screened step (first of `a`, then of `b`, on a tie)
+            widths = [(self.bounds(*k)[1] - self.bounds(*k)[0], -i, k)  # type: ignore[misc]
+                      for i, k in enumerate(a.keys() + b.keys()) if not self._exact(k)]
+            self.more(*max(widths)[2])
 
     def _ask(self, removed: frozenset[str], box: str) -> StepPrediction:
         return self.screen(removed, box) if self.screen is not None else self.oracle(removed, box)
@@ -168,14 +234,14 @@ class _ExtractSearch:
             pred = self._ask(cur, box)
             if pred.risk <= self.risk:
                 full = self.oracle(cur, box) if self.screen is not None else pred
-                return _Outcome((*seq, box), (*preds, full))
+                return _Outcome((*seq, box), (*preds, full), removed)
             cleared, best = self._clear_blocker(box, cur, stack, pred)
             if cleared is not None:
                 seq += cleared.sequence
                 preds += cleared.predicted
                 cur = cur | set(cleared.sequence)
                 continue  # retry the box with its blocker gone
-            return self._dead_end(box, cur, stack, seq, preds, pred, best)
+            return self._dead_end(box, removed, cur, stack, seq, preds, pred, best)
 
     def _clear_blocker(self, box: str, cur: frozenset[str], stack: tuple[str, ...],
                        pred: StepPrediction) -> tuple[_Outcome | None, _Outcome | None]:
@@ -189,22 +255,32 @@ class _ExtractSearch:
                 if self.clock.passed():
                     break
                 sub = self.extract(m, cur, (*stack, box))
-                if sub.risk <= self.risk:
+                if sub.risk <= self.risk:   # (a step only screened is surely over the risk)
                     return sub, None
-                if best is None or sub.success > best.success:
+                if best is None:
+                    best = sub
+                    continue
+                better, sub, best = self.greater(sub, best)
+                if better:
                     best = sub
         return None, best
 
-    def _dead_end(self, box: str, cur: frozenset[str], stack: tuple[str, ...], seq: list[str],
-                  preds: list[StepPrediction], pred: StepPrediction, best: _Outcome | None) -> _Outcome:
+    def _dead_end(self, box: str, start: frozenset[str], cur: frozenset[str], stack: tuple[str, ...],
+                  seq: list[str], preds: list[StepPrediction], pred: StepPrediction,
+                  best: _Outcome | None) -> _Outcome:
         """No blocker comes out safely. Compare two complete plans: pull the box now, or run
         the blocker plan most likely to go well and then plan this box again from there;
-        keep the likelier success."""
-        if self.screen is not None:
+        keep the likelier success. (With `bounds`, the pull now stays screened until a
+        comparison or the plan returned needs its full prediction.)"""
+        if self.screen is not None and self.bounds is None:
             pred = self.oracle(cur, box)  # the full prediction: risks are compared from here on
-        now = _Outcome((*seq, box), (*preds, pred))
-        if best is None or success_prob(preds) * best.success <= now.success:
+        now = _Outcome((*seq, box), (*preds, pred), start)
+        if best is None:
+            return now
+        bet, best, now = self.greater(best, now, success_prob(preds), 1.0)
+        if not bet:
             return now  # the blocker alone is already a worse bet than pulling now
         rest = self.extract(box, cur | set(best.sequence), stack)
-        then = _Outcome((*seq, *best.sequence, *rest.sequence), (*preds, *best.predicted, *rest.predicted))
-        return then if then.success > now.success else now
+        then = _Outcome((*seq, *best.sequence, *rest.sequence), (*preds, *best.predicted, *rest.predicted), start)
+        better, then, now = self.greater(then, now)
+        return then if better else now

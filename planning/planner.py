@@ -95,7 +95,8 @@ def _search(scene: Scene, task: str, target: str | None, planner: str, risk: flo
         least = sampling.least_risky
     if task == "extract":
         res = search_extract(scene.ids, target, oracle, risk=risk, deadline=deadline,  # type: ignore[arg-type]
-                             screen=fast)
+                             screen=fast, bounds=getattr(sampling, "risk_interval", None),
+                             more=getattr(sampling, "sample_more", None))
         passed = (lambda: deadline is not None and time.monotonic() >= deadline)
         res = shorten_extraction(res, oracle, risk, screen=bounded, passed=passed)
         res = reorder_extraction(res, scene, oracle, risk, screen=bounded, passed=passed, worlds=worlds)

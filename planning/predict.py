@@ -301,6 +301,19 @@ class Predictor:
         x = sum(1 for r in runs if r.collided or r.note.startswith("stuck"))
         return max(c, x) / self._n, len(runs) >= self._n
 
+    def risk_interval(self, removed: frozenset[str], box: str) -> tuple[float, float]:
+        """The interval the full risk of pulling `box` lies in, from the samples run so far: every
+        sample not run yet may hold or fail (a point once all have run)."""
+        runs = self._runs.get((frozenset(removed), box), [])[:self._n]
+        c = sum(1 for r in runs if r.collapsed)
+        x = sum(1 for r in runs if r.collided or r.note.startswith("stuck"))
+        return max(c, x) / self._n, (max(c, x) + self._n - len(runs)) / self._n
+
+    def sample_more(self, removed: frozenset[str], box: str) -> None:
+        """Run the next sample of pulling `box` (of the search's worlds; nothing once all have run)."""
+        key = (frozenset(removed), box)
+        self._run(key, len(self._runs.get(key, [])) + 1)
+
     def least_risky(self, removed: frozenset[str], boxes: Sequence[str]) -> str:
         """The box of `boxes` with the lowest risk (first in the given order on a tie).
 

@@ -63,3 +63,23 @@ def test_a_reply_nobody_waited_for_does_not_reach_the_next_predictor():
             assert second.sample_scenes == serial.sample_scenes
             assert second.trial(frozenset(), "x") == serial.trial(frozenset(), "x")
 
+
+
+def test_a_dead_end_compared_on_risk_intervals_plans_as_the_full_predictions_do():
+    # a generated 11-box shelf whose target `b0` cannot come out safely: the search compares
+    # blocker plans at its dead ends. Sampled only as far as each comparison needs, the plan and
+    # every prediction in it are those of the search that completes every compared pull
+    from shelfpick.planning.extract import search_extract
+    from shelfpick.planning.shelves import generate
+
+    scene = generate("unstructured", 918273325, 11).hide_depths()
+    out = []
+    for lazy in (False, True):
+        with Predictor(scene, samples=4, seed=918273325) as p:
+            kw = {"bounds": p.risk_interval, "more": p.sample_more} if lazy else {}
+            res = search_extract(scene.ids, "b0", p.trial, screen=lambda r, b: p.screen(r, b, 0.0), **kw)
+            out.append((res.sequence, res.predicted, res.safe, p.stats["pulls"]))
+    (seq, predicted, safe, pulls), (lazy_seq, lazy_predicted, lazy_safe, lazy_pulls) = out
+    assert not safe and len(seq) > 2                       # a dead end with blockers, the case at hand
+    assert (lazy_seq, lazy_predicted, lazy_safe) == (seq, predicted, safe)
+    assert lazy_pulls < pulls                              # and it did sample less
