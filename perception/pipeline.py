@@ -281,8 +281,8 @@ def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf) -> tup
     the print repeats (`repairs.repeats`), kept only when every part measures as a box front
     (RGB-D only: the parts are measured on the depth). Runs before the catalogue, whose joins
     and splits then see the cut masks."""
-    from shelfpick.perception.boxes import MIN_PART_SIDE, not_a_face, not_a_front
-    from shelfpick.perception.repairs.repeats import repeat_parts
+    from shelfpick.perception.boxes import not_a_face, not_a_front
+    from shelfpick.perception.repairs.repeats import REPEAT_MIN_SIDE, repeat_parts
 
     depth, camera = capture.depth, capture.camera
     lab = cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
@@ -293,7 +293,7 @@ def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf) -> tup
         if len(parts) > 1:
             pf = [measure_front(p, depth, camera) for p in parts]
             if all(q is not None and not not_a_front(q, shelf) and not not_a_face(q, p)
-                   and min(q.width, q.height) >= MIN_PART_SIDE for q, p in zip(pf, parts)):
+                   and min(q.width, q.height) >= REPEAT_MIN_SIDE for q, p in zip(pf, parts)):
                 notes.append(f"mask {i + 1} is {len(parts)} fronts of one print "
                              f"{'stacked' if axis == 0 else 'side by side'} (alike {score:.2f}): cut into "
                              + " and ".join(q.size_cm for q in pf if q is not None))

@@ -12,7 +12,8 @@ to `SAMPLES` points (1 = the same print, about 0 = unrelated), against the profi
 (a plain face or one band running along the axis has no profile to repeat and is never cut).
 A cut is kept only when the score beats `MIN_SCORE`, the same partition shifted by a sixth of a
 part scores clearly worse (`MIN_PEAK`: a repeat, not a texture that looks alike everywhere), and
-the caller finds every part a box front. No catalogue, no depth condition.
+the caller finds every part a box front at least `REPEAT_MIN_SIDE` on each side. No catalogue,
+no depth condition.
 """
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ MIN_SPREAD = 6.0        # CIELAB std of a part's profile below which it has no p
 MIN_SCORE = 0.6         # parts this alike are the same print (one carton's halves: <= 0.4 on the tuning look)
 MIN_PEAK = 0.1          # ... and the partition shifted by a sixth of a part is this much less alike
 MIN_PART_PX = 12        # a part spans at least this many rows (columns)
+REPEAT_MIN_SIDE = 0.10  # m: every part a carton front at least this wide and high (a cut leaving a 6 cm
+#                         strip of one face was made on two of our own renders)
 L_WEIGHT = 0.5          # lightness counts half: a hard shadow changes it, not the print's hue
 
 
