@@ -157,6 +157,10 @@ def add_unit(unit: dict) -> dict:
     kind, seed = unit["shelf"].rsplit("-", 1)
     truth = generate(kind, int(seed), settle=True)
     row = dict(unit["row"])
+    if unit["add"] == "mujoco":
+        unit = {**unit, "target": row["target"], "mass": unit["mass"]}
+        row["reference"] = {**row["reference"], "mujoco": reference_fails(truth.to_json(), unit, "mujoco")}
+        return row
     row["conditions"] = {**row["conditions"], **{name: condition_fails(truth, unit, ov, hide)
                                                  for name, (ov, hide) in unit["add"].items()}}
     return row
@@ -275,7 +279,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", required=True)
     ap.add_argument("--from-rows", action="store_true")
     ap.add_argument("--png")
-    ap.add_argument("--add", choices=("contact",), help="run these conditions on the rows in --out and merge them in")
+    ap.add_argument("--add", choices=("contact", "mujoco"),
+                    help="merge into the rows in --out: the contact-friction conditions, or MuJoCo's reference")
     a = ap.parse_args(argv)
     try:
         lo, hi = (int(x) for x in a.seeds.split("-"))
@@ -303,9 +308,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if a.add:
         old = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()]
-        extra = contact_conditions(tuple(a.mass))
+        extra = contact_conditions(tuple(a.mass)) if a.add == "contact" else a.add
         units = [{"shelf": r["shelf"], "row": r, "add": extra, "sequence": r["sequence"], "draws": r["draws"],
-                  "seed": int(r["shelf"].rsplit("-", 1)[1]), "judge_dir": a.judge} for r in old]
+                  "seed": int(r["shelf"].rsplit("-", 1)[1]), "judge_dir": a.judge, "mass": list(a.mass)} for r in old]
         rows = list(tqdm(iter_rows(units, a.jobs, add_unit), total=len(units), desc="plans", file=sys.stderr))
         Path(a.out).write_text("".join(json.dumps(r) + "\n" for r in rows))
         report(rows, a.png)
