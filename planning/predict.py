@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from typing import Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 from shelfpick.perception.errors import SceneError
 from shelfpick.perception.scene import Scene
@@ -120,31 +120,22 @@ class Predictor:
         self.scene_check = scene_check([draws[i] for i in range(self._n)])
 
     def _gather_pending(self) -> dict:
-        """Every reply pending in the outbox, merged (draws of built worlds); as `_gather`, a
-        worker's exception is raised after all replies are read, a broken pipe at once."""
-        merged: dict = {}
-        error: BaseException | None = None
-        for w, _ in self._workers:
-            while self._outbox.pending(w):
-                try:
-                    merged.update(self._outbox.read(w)[1])
-                except (EOFError, OSError, KeyboardInterrupt):
-                    self._broken = True
-                    raise
-                except Exception as exc:  # noqa: BLE001 - the worker's, raised after all replies
-                    error = error or exc
-        if error is not None:
-            raise error
-        return merged
+        """Every reply pending in the outbox, merged (draws of built worlds), as `_merge` reads them."""
+        return self._merge(lambda w=w: self._outbox.read(w)[1]
+                           for w, _ in self._workers for _ in range(self._outbox.pending(w)))
 
     def _gather(self, workers: Sequence[Worker]) -> dict:
-        """One reply from each of `workers`, merged. Every reply is read, so no pipe keeps a stale
-        one; a worker's exception is raised after that, a broken pipe at once."""
+        """One reply from each of `workers`, merged, as `_merge` reads them."""
+        return self._merge(w.recv for w in workers)
+
+    def _merge(self, reads: Iterable[Callable[[], dict]]) -> dict:
+        """The replies `reads` return, merged. Every reply is read, so no pipe keeps a stale one; a
+        worker's exception is raised after that, a broken pipe at once."""
         merged: dict = {}
         error: BaseException | None = None
-        for w in workers:
+        for read in reads:
             try:
-                merged.update(w.recv())
+                merged.update(read())
             except (EOFError, OSError, KeyboardInterrupt):   # a pipe that may hold a stale reply
                 self._broken = True
                 raise
