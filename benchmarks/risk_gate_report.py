@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -67,6 +68,17 @@ def figures(rows: Sequence[dict]) -> dict[str, Any]:
             "auc": round(auc(rows), 3), "ece": round(ece, 3), "table": table}
 
 
+def read_rows(run: str, path: str) -> list[dict]:
+    """The rows of one LABEL=ROWS argument; a ValueError naming the argument when it has no file,
+    the file cannot be read, or a row is not JSON."""
+    if not path:
+        raise ValueError(f"{run!r}: expected LABEL=ROWS.jsonl")
+    try:
+        return [json.loads(x) for x in Path(path).read_text(encoding="utf-8").splitlines() if x.strip().startswith("{")]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read judge rows ({exc})") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="LABEL=ROWS.jsonl, or LABEL=ROWS.jsonl@ENGINE for judge_report.py rows")
@@ -78,7 +90,11 @@ def main(argv: list[str] | None = None) -> int:
     for run in a.runs:
         label, _, path = run.partition("=")
         path, _, engine = path.partition("@")
-        rows = [json.loads(x) for x in Path(path).read_text().splitlines() if x.strip().startswith("{")]
+        try:
+            rows = read_rows(run, path)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
         rows = as_evaluate_rows(rows, engine or "pybullet")
         f = figures(rows)
         held = f"{f['held_declared_safe']}/{f['ok']}" + (f" ({100 * f['held_declared_safe'] / f['ok']:.0f}%)" if f["ok"] else "")

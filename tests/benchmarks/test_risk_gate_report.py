@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+import benchmarks.risk_gate_report as rgr
 from benchmarks.risk_gate_report import as_evaluate_rows, auc, calibration_error, figures
 
 
@@ -24,3 +25,14 @@ def test_judge_report_rows_read_per_engine():
              "judges": {"pybullet": {"ok": True}, "mujoco": {"ok": False}}}]
     pb, mj = as_evaluate_rows(rows, "pybullet")[0], as_evaluate_rows(rows, "mujoco")[0]
     assert pb["ok"] and not mj["ok"] and pb["risk"] == pytest.approx(0.03) and pb["declared_safe"]
+
+
+def test_a_run_without_label_or_file_is_one_line_and_exit_2(tmp_path, capsys):
+    assert rgr.main([str(tmp_path / "rows.jsonl")]) == 2
+    assert "expected LABEL=ROWS.jsonl" in capsys.readouterr().err
+    assert rgr.main([f"a={tmp_path / 'missing.jsonl'}"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot read judge rows" in err and len(err.strip().splitlines()) == 1
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("{not json\n")
+    assert rgr.main([f"a={bad}"]) == 2
