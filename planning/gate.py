@@ -1,12 +1,16 @@
 """The gate a plan passes before anyone is asked to approve it: a calibrated chance of collapse.
 
-The search decides with its sample worlds (ten by default); the gate then asks the whole plan of
-the same worlds, counts the worlds in which any step failed, and turns that count into a
-calibrated probability with an interval (`planning.calibration`). Where the interval straddles the
-cell's `max_plan_risk`, it asks `step` more worlds at a time (the worlds a Predictor of that many
-samples has: the same answer for every worker count and call order) until it no longer does, or
-`max_worlds` are spent: few worlds for clear plans, more for borderline ones. A plan is safe when
-the upper end of the interval is below the threshold.
+The search decides with its sample worlds (ten by default). The gate asks the whole plan of OTHER
+worlds, the ones after them: the search chose the plan because it held in its own worlds, so
+asked there it looks safer than it is (on our shelves, against the judge's engines, the plans the
+search's worlds called safe failed in 12.5% of the reference's mass draws, those fresh worlds
+called safe in 5.6%: docs/results/risk-gate.md, "The gate asks worlds the search never saw"). It
+counts the worlds in which any step failed and turns that count into a calibrated probability with
+an interval (`planning.calibration`). Where the interval straddles the cell's `max_plan_risk`, it
+asks `step` more worlds at a time (the worlds a Predictor of that many samples has: the same answer
+for every worker count and call order) until it no longer does, or `max_worlds` are spent: few
+worlds for clear plans, more for borderline ones. A plan is safe when the upper end of the interval
+is below the threshold.
 """
 from __future__ import annotations
 
@@ -46,13 +50,17 @@ class GateResult:
 
 
 def gate(predictor: Any, sequence: Sequence[str], stands: bool, calibration: Calibration,
-         max_plan_risk: float, first: int, max_worlds: int, step: int = 10) -> GateResult:
-    """Ask `sequence` of `first` worlds, then `step` more at a time while the calibrated interval
-    straddles `max_plan_risk`, up to `max_worlds` (`predictor`: a `planning.predict.Predictor`)."""
+         max_plan_risk: float, first: int, max_worlds: int, step: int = 10, skip: int = 0) -> GateResult:
+    """Ask `sequence` of `first` worlds after the first `skip` (the search's), then `step` more at a
+    time while the calibrated interval straddles `max_plan_risk`, up to `max_worlds`
+    (`predictor`: a `planning.predict.Predictor`). A shelf with nothing drawn has one world: it is asked."""
     n = max(1, first)
     while True:
-        runs = predictor.plan_results(sequence, n)
+        runs = [rs[skip:] for rs in predictor.plan_results(sequence, skip + n)]
         got = min((len(r) for r in runs), default=0)
+        if skip and got == 0:
+            skip = 0
+            continue
         k, _ = plan_failures([[world_failed(r) for r in rs] for rs in runs])
         if got < n or n >= max_worlds or calibration.decided(k, n, max_plan_risk, stands):
             break          # (fewer than asked: a known shelf with nothing drawn has one world)

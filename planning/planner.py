@@ -190,7 +190,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
             stands = bool((check or {}).get("stands_as_seen", True))
             pulls = getattr(getattr(predictor, "model", None), "pull_modes", Uncertainty().pull_modes)
             gated = gate(predictor, sequence, stands, calibration or calibration_for(pulls), float(max_plan_risk),
-                         sampling.worlds, sampling.worlds + max(0, int(verify)))
+                         sampling.worlds, sampling.worlds + max(0, int(verify)), skip=sampling.worlds)
             predicted = gated.predicted
             timing["verify_s"] = time.perf_counter() - t1
             search["verified_worlds"] = gated.worlds
