@@ -44,6 +44,7 @@ from shelfpick.perception.errors import SceneError  # noqa: E402
 # what the reference (the judge's README) pulls with, and its friction
 REF = {"friction": 0.75, "pull_speed": 0.2, "pull_force": 150.0, "mode": "drag"}
 DEFAULT_FRICTION = (0.6, 0.9)
+SEARCH = "default cell, the search's own worlds (seed 0)"
 
 
 def conditions(mass: tuple[float, float]) -> dict[str, dict]:
@@ -160,6 +161,9 @@ def add_unit(unit: dict) -> dict:
     if unit["add"] == "mujoco":
         unit = {**unit, "target": row["target"], "mass": unit["mass"]}
         row["reference"] = {**row["reference"], "mujoco": reference_fails(truth.to_json(), unit, "mujoco")}
+        return row
+    if unit["add"] == "search":    # the worlds the plan was searched in (make_plan's seed 0), 20 of them
+        row["conditions"] = {**row["conditions"], SEARCH: condition_fails(truth, {**unit, "seed": 0}, {}, True)}
         return row
     row["conditions"] = {**row["conditions"], **{name: condition_fails(truth, unit, ov, hide)
                                                  for name, (ov, hide) in unit["add"].items()}}
@@ -279,8 +283,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", required=True)
     ap.add_argument("--from-rows", action="store_true")
     ap.add_argument("--png")
-    ap.add_argument("--add", choices=("contact", "mujoco"),
-                    help="merge into the rows in --out: the contact-friction conditions, or MuJoCo's reference")
+    ap.add_argument("--add", choices=("contact", "mujoco", "search"),
+                    help="merge into the rows in --out: the contact-friction conditions, MuJoCo's reference, or "
+                         "the default cell in the worlds the plan was searched in (seed 0: the first 10 chose it)")
     a = ap.parse_args(argv)
     try:
         lo, hi = (int(x) for x in a.seeds.split("-"))

@@ -138,6 +138,35 @@ def test_the_gate_does_not_loop_on_a_shelf_with_one_world():
     assert one.asked == [1] and g.worlds == 1
 
 
+def test_the_gate_asks_the_worlds_after_the_searchs_own():
+    """The search chose the plan in its first worlds; the gate counts only the worlds after them."""
+    picked = ScriptedWorlds(set(range(10, 20)))           # held in the search's 10, fails in every later one
+    g = gate(picked, ("a", "b"), True, CAL, 0.05, first=10, max_worlds=40, skip=10)
+    assert picked.asked == [20] and g.worlds == 10 and g.failed == 10 and not g.safe
+    lucky = gate(ScriptedWorlds(set(range(10, 20))), ("a", "b"), True, CAL, 0.05, first=10, max_worlds=40)
+    assert lucky.failed == 0 and lucky.safe                # the search's own worlds: the winner's curse
+    one = ScriptedWorlds(set(), drawn=False)               # nothing drawn: its one world is asked
+    g1 = gate(one, ("a",), True, CAL, 0.05, first=1, max_worlds=40, skip=1)
+    assert g1.worlds == 1 and one.asked[-1] == 1
+
+
+def test_make_plan_gates_on_worlds_the_search_never_saw(monkeypatch):
+    scene = Scene(Shelf(), (cube("a", 0.0, 0.1), cube("c", 0.4, 0.1))).hide_depths()
+    from shelfpick.planning.predict import Predictor
+
+    asked = []
+    real = Predictor.plan_results
+
+    def spy(self, sequence, total):
+        asked.append(total)
+        return real(self, sequence, total)
+
+    monkeypatch.setattr(Predictor, "plan_results", spy)
+    plan = make_plan(scene, "extract", "a", samples=4, verify=8)
+    assert asked and asked[0] == 4 + 4                    # the search's 4 worlds, then 4 more to ask
+    assert plan.extra["search"]["plan_risk"]["worlds"] == asked[-1] - 4
+
+
 def test_a_plan_is_safe_when_the_upper_end_of_its_calibrated_risk_is_below_the_threshold():
     """Real physics: a cube on the floor with nothing on it, pulled out; the plan records the
     threshold and the interval, and a threshold below the interval's upper end makes it unsafe."""
