@@ -224,6 +224,38 @@ def summary(rows: Sequence[dict], quiet: float = 0.05) -> list[dict]:
     return out
 
 
+def gate_windows(rows: Sequence[dict], max_risk: float = 0.05) -> list[dict]:
+    """The shipped gate's calibrated map applied to windows of worlds (rows with `--add search`):
+    the search's own 0-9, the ten after them, 20 of another seed. Per window and reference engine:
+    plans declared safe, their mean reference failing share, the AUC of the calibrated chance
+    against "the reference fails in more than 5% of draws", and quiet plans declared safe."""
+    from shelfpick.planning.calibration import calibration_for
+    from shelfpick.planning.uncertainty import Uncertainty
+
+    cal = calibration_for(Uncertainty().pull_modes)
+    windows = {"the search's own, 0-9": lambda r: r["conditions"][SEARCH][:10],
+               "the next ten, 10-19": lambda r: r["conditions"][SEARCH][10:20],
+               "20 of another seed": lambda r: r["conditions"]["default cell (all of them)"][:20]}
+    out = []
+    for name, pick in windows.items():
+        for eng in rows[0]["reference"]:
+            got = []
+            for r in rows:
+                w = [x for x in pick(r) if x is not None]
+                if w:
+                    k, n = sum(w), len(w)
+                    ref = sum(r["reference"][eng]) / len(r["reference"][eng])
+                    got.append((cal.probability(k, n), cal.interval(k, n)[1] < max_risk, ref))
+            safe = [ref for _, s, ref in got if s]
+            pos = [p for p, _, ref in got if ref > max_risk]
+            neg = [p for p, _, ref in got if ref <= max_risk]
+            auc = sum((a > b) + 0.5 * (a == b) for a in pos for b in neg) / (len(pos) * len(neg)) if pos and neg else float("nan")
+            out.append({"window": name, "engine": eng, "plans": len(got), "safe": len(safe),
+                        "safe_mean_ref": _mean(safe), "auc": round(auc, 3),
+                        "quiet_safe": sum(1 for _, s, ref in got if s and ref <= max_risk), "quiet": len(neg)})
+    return out
+
+
 def _mean(xs) -> float:
     xs = [x for x in xs if x is not None]
     return round(sum(xs) / len(xs), 3) if xs else float("nan")
@@ -248,6 +280,12 @@ def report(rows: Sequence[dict], png: str | None) -> None:
         if "agreement" in s:
             extra = f"agrees per draw {s['agreement']:.2f}"
         print(f"| {s['condition']} | {s['quiet']} | {s['all']} | {extra} |")
+    if rows and SEARCH in rows[0]["conditions"]:
+        print("\nThe shipped gate's map on windows of worlds (declared safe; their mean reference failing share; "
+              "AUC against reference > 5%; quiet plans declared safe):")
+        for g in gate_windows(rows):
+            print(f"| {g['window']} | {g['engine']} | {g['safe']}/{g['plans']} | {g['safe_mean_ref']} | {g['auc']} | "
+                  f"{g['quiet_safe']}/{g['quiet']} |")
     if png:
         plot(rows, png)
 

@@ -68,3 +68,14 @@ def test_contact_friction_gives_each_body_the_square_root():
     assert not hide and ov["friction"][0] ** 2 == pytest.approx(0.75)
     lo, hi = c["+ contact friction 0.6-0.9"][0]["friction"]
     assert (lo * lo, hi * hi) == (pytest.approx(0.6), pytest.approx(0.9))
+
+
+def test_gate_windows_read_the_search_worlds_and_the_ones_after_apart():
+    quiet_ref = [False] * 20
+    picked = {wa.SEARCH: [False] * 10 + [True] * 10, "default cell (all of them)": [True] * 20}
+    rows = [{"reference": {"pybullet": quiet_ref}, "conditions": picked},
+            {"reference": {"pybullet": [True] * 20}, "conditions": picked}]
+    got = {g["window"]: g for g in wa.gate_windows(rows)}
+    assert got["the search's own, 0-9"]["safe"] == 2          # no failing world among the search's
+    assert got["the next ten, 10-19"]["safe"] == 0            # every later one fails
+    assert got["the search's own, 0-9"]["safe_mean_ref"] == 0.5 and got["the next ten, 10-19"]["quiet"] == 1
