@@ -102,10 +102,19 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     model = model if model is not None else Uncertainty()
     if scene.depth_known:
         # a known shelf is given as it stands: its geometry is not drawn, but what no scene file
-        # says still is (a box's mass when it has none, the friction, the pull)
-        sim = _world(scene, seed, sample, model.without_face_error(), {}, 1.0, config, clients)
-        off = contradictions(sim, config)
-        return Draw(sim, (off,) if off else (), not off, off)
+        # says still is (a box's mass when it has none, the friction, the pull); a draw under which
+        # the shelf seen standing never comes to rest contradicts the scene and is drawn again
+        failed: list[dict[str, str]] = []
+        for attempt in range(len(_ATTEMPTS) + 1):
+            try:
+                sim = _world(scene, seed, sample + 1000 * attempt, model.without_face_error(), {}, 1.0, config,
+                             clients)
+            except SceneError as exc:
+                failed.append({"*": str(exc)})
+                continue
+            off = contradictions(sim, config)
+            return Draw(sim, tuple(failed) + ((off,) if off else ()), not off, off)
+        raise SceneError(f"no draw of sample {sample} can be built: {failed[-1]['*']}")
     rejected: list[dict[str, str]] = []
     best: ShelfSim | None = None
     best_off: dict[str, str] = {}

@@ -44,3 +44,29 @@ def test_a_sample_no_drawn_attempt_can_build_is_built_as_perceived():
 def test_faces_that_cannot_be_built_even_as_perceived_are_refused():
     with pytest.raises(SceneError, match=r"no draw of sample 13 can be built: box 'a' and box 'b' overlap"):
         build_sample(_side_by_side(0.08), 0, 13, PhysicsConfig().for_prediction(), model=WILD)
+
+
+def test_a_known_shelf_redraws_physics_under_which_it_never_comes_to_rest(monkeypatch):
+    """A scene file's shelf stands; a draw of masses or friction under which it never comes to rest
+    contradicts it and is drawn again (it used to refuse the whole plan: a gate asking more worlds
+    of the README's demo shelf hit one); a shelf no draw can settle is still refused."""
+    import shelfpick.planning.sample_worlds as sw
+
+    scene = Scene(Shelf(), (Box("a", (0.2, 0.2, 0.2), (0.0, 0.12, 0.1)),))
+    real, asked = sw._world, []
+
+    def first_never_rests(sc, seed, k, *rest):
+        asked.append(k)
+        if k < 1000:
+            raise SceneError("scene does not come to rest within 3 s: box(es) a still moving")
+        return real(sc, seed, k, *rest)
+
+    monkeypatch.setattr(sw, "_world", first_never_rests)
+    draw = build_sample(scene, 0, 4, PhysicsConfig().for_prediction())
+    try:
+        assert asked == [4, 1004] and draw.stands and "*" in draw.rejected[0]
+    finally:
+        draw.sim.close()
+    monkeypatch.setattr(sw, "_world", lambda *a: (_ for _ in ()).throw(SceneError("never comes to rest")))
+    with pytest.raises(SceneError, match="no draw of sample 4 can be built: never comes to rest"):
+        build_sample(scene, 0, 4, PhysicsConfig().for_prediction())
