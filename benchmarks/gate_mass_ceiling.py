@@ -68,6 +68,34 @@ def summary(rows: Sequence[dict], max_risk: float, z: float = 1.2816) -> dict:
             "mean_fail_share_held": round(sum(r["fails"] / r["draws"] for r in held) / max(1, len(held)), 3)}
 
 
+def regate(ceiling: Sequence[dict], rows_path: str) -> list[dict]:
+    """The ceiling rows with the verdicts of another judge run of the same plans (its declared_safe,
+    risk and ok); a UsageError when a plan's sequence differs (then its mass draws are not its own)."""
+    try:
+        rows = {(r["scene"], r["target"]): r for r in map(json.loads, Path(rows_path).read_text().splitlines())}
+    except (OSError, json.JSONDecodeError, KeyError) as exc:
+        raise UsageError(f"{rows_path}: cannot read judge rows ({exc})") from None
+    out = []
+    for c in ceiling:
+        r = rows.get((c["scene"], c["target"]))
+        if r is None:
+            continue
+        if r.get("sequence") != c["sequence"]:
+            raise UsageError(f"{rows_path}: {c['scene']}:{c['target']} was planned differently; judge its plans again")
+        out.append({**c, "declared_safe": r["declared_safe"], "risk": r.get("risk"), "ok": r["ok"]})
+    return out
+
+
+def gate_auc(rows: Sequence[dict], max_risk: float) -> float:
+    """AUC of the plans' risk against "fails in more than `max_risk` of the mass draws": the ranking
+    judged on each plan's chance rather than on the judge's one draw."""
+    pos = [r["risk"] for r in rows if r.get("risk") is not None and r["fails"] > max_risk * r["draws"]]
+    neg = [r["risk"] for r in rows if r.get("risk") is not None and r["fails"] <= max_risk * r["draws"]]
+    if not pos or not neg:
+        return float("nan")
+    return round(sum((p > n) + 0.5 * (p == n) for p in pos for n in neg) / (len(pos) * len(neg)), 3)
+
+
 def noise_floor(rows: Sequence[dict], reps: int = 500, seed: int = 0) -> dict:
     """What the judge's one draw of masses allows the risk figures: AUC and calibration error of the
     ideal risk (each plan's share of failing mass draws) against the judge's verdict, and the
@@ -119,6 +147,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", help="write one row per plan here (JSON lines)")
     ap.add_argument("--from-rows", action="store_true", help="judge nothing: summarize the rows in --out")
     ap.add_argument("--png", help="draw each plan's failing share by gate verdict and judge outcome")
+    ap.add_argument("--gate-rows", help="with --from-rows: score the gate of this judge run (same plans, e.g. a "
+                                        "later run whose sequences are the same) against the mass draws in --out")
     a = ap.parse_args(argv)
     if not a.rows and not a.from_rows:
         raise UsageError("--rows: the judge rows to judge again are needed (or --from-rows)")
@@ -136,6 +166,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not a.out:
                 raise UsageError("--from-rows: needs --out, the rows to summarize")
             got = [json.loads(line) for line in Path(a.out).read_text().splitlines() if line.strip()]
+            if a.gate_rows:
+                got = regate(got, a.gate_rows)
             return report(got, a)
         src = Path(a.rows)
         try:
@@ -163,6 +195,10 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
     s = summary(got, a.max_risk)
     if got:
         s.update(noise_floor(got))
+        safe = [r["fails"] / r["draws"] for r in got if r["declared_safe"]]
+        s["declared_safe_mean_fail_share"] = round(sum(safe) / len(safe), 3) if safe else float("nan")
+        s["declared_safe_low_risk_held"] = sum(1 for r in got if r["declared_safe"] and r["ok"] and r["fails"] <= a.max_risk * r["draws"])
+        s["gate_auc_on_mass_draws"] = gate_auc(got, a.max_risk)
     if a.png:
         plot(got, a.png, a.max_risk)
     print(json.dumps(s))
@@ -171,6 +207,10 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
           f"Wilson upper end below it), "
           f"{s['held_no_failing_draw']} in none; mean fail share of held plans {s['mean_fail_share_held']}")
     if got:
+        print(f"declared safe {s['declared_safe']}: mean share of failing mass draws {s['declared_safe_mean_fail_share']}, "
+              f"{s['declared_safe_failing_in_a_fifth_or_more']} fail in a fifth or more; of the {s['held_low_risk']} "
+              f"held plans failing in at most {a.max_risk:.0%}, {s['declared_safe_low_risk_held']} declared safe; "
+              f"risk AUC against failing in more than {a.max_risk:.0%} of the draws {s['gate_auc_on_mass_draws']}")
         med, p5, p95 = s["calibrated_error_by_chance"]
         print(f"the ideal risk (share of failing mass draws): AUC {s['ideal_auc']}, calibration error "
               f"{s['ideal_calibration_error']}; a perfectly calibrated risk on these {len(got)} plans shows a "

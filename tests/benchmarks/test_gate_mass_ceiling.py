@@ -65,3 +65,22 @@ def test_the_noise_floor_ranks_by_share_and_a_calibrated_risk_still_errs_by_chan
     assert f == gm.noise_floor(rows, reps=200)      # seeded
     sure = [_row(True, True, 0)] * 30 + [_row(False, False, 20)] * 10
     assert gm.noise_floor(sure, reps=50)["calibrated_error_by_chance"] == [0.0, 0.0, 0.0]
+
+
+def test_another_run_of_the_same_plans_is_scored_on_the_same_draws(tmp_path: Path):
+    ceiling = [{"scene": "s00", "target": "b1", "sequence": ["b1"], "ok": True, "declared_safe": True,
+                "risk": 0.01, "fails": 0, "draws": 20},
+               {"scene": "s00", "target": "b2", "sequence": ["b3", "b2"], "ok": True, "declared_safe": True,
+                "risk": 0.01, "fails": 8, "draws": 20}]
+    later = tmp_path / "rows.jsonl"
+    later.write_text(json.dumps({"scene": "s00", "target": "b1", "sequence": ["b1"], "ok": True,
+                                 "declared_safe": True, "risk": 0.01}) + "\n" +
+                     json.dumps({"scene": "s00", "target": "b2", "sequence": ["b3", "b2"], "ok": True,
+                                 "declared_safe": False, "risk": 0.3}) + "\n")
+    got = gm.regate(ceiling, str(later))
+    assert [r["declared_safe"] for r in got] == [True, False] and [r["fails"] for r in got] == [0, 8]
+    assert gm.gate_auc(got, 0.05) == 1.0
+    later.write_text(json.dumps({"scene": "s00", "target": "b1", "sequence": ["b2", "b1"], "ok": True,
+                                 "declared_safe": True, "risk": 0.01}) + "\n")
+    with pytest.raises(gm.UsageError, match="planned differently"):
+        gm.regate(ceiling, str(later))
