@@ -288,20 +288,19 @@ def test_the_page_shows_the_shelf_from_capture_to_replay(browser, demo_console, 
         assert wf.state.approved is None and wf.state.robot == "idle"
         # the run: the physics plan (the heuristic one empties the shelf: nothing left to capture)
         run = st.plans["physics"]
-        if view.supervisor.approve_plan.value == "physics":   # the riskier plan was physics: review the other first
-            view.supervisor.approve_plan.value = "heuristic"
-            until(lambda: view.preview.prev_plan.value == "heuristic", 10, "3D view follows the choice")
+        def review(choice: str) -> None:
+            """Another plan under review: the 3D view follows it, the passphrase is cleared (h2's rule),
+            then typed again."""
+            view.supervisor.approve_plan.value = choice
+            until(lambda: view.preview.prev_plan.value == choice, 10, "3D view follows the choice")
             until(lambda: view.passphrase.value == "" and fill.input_value() == "", 10, "passphrase cleared")
             fill.fill(PASS)
             fill.evaluate("e => e.blur()")
             until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
-        view.supervisor.approve_plan.value = "physics"
-        until(lambda: view.preview.prev_plan.value == "physics", 10, "3D view follows the choice")
-        # another plan under review: the passphrase is cleared (h2's rule), then typed again
-        until(lambda: view.passphrase.value == "" and fill.input_value() == "", 10, "passphrase cleared")
-        fill.fill(PASS)
-        fill.evaluate("e => e.blur()")
-        until(lambda: view.passphrase.value == PASS, 10, "passphrase typed")
+
+        if view.supervisor.approve_plan.value == "physics":   # the riskier plan was physics: the other first
+            review("heuristic")
+        review("physics")
         if not run.plan.safe:
             tick(page, "Accept predicted risk")
             until(lambda: view.accept_risk.value, 10, "risk accepted")
