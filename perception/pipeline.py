@@ -269,11 +269,40 @@ def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogu
     cut: list[str] = []
     if capture.depth is not None and masks:
         masks, cut = _repeat_cuts(masks, capture, shelf)
+    measured: list[FrontFace | None] | None = None
     if catalogue is not None and capture.depth is not None and masks:
         masks, measured, notes = apply_catalogue(masks, capture.depth, capture.camera, capture.rgb,
                                                  catalogue.scaled(scale).within(shelf.depth))
-        return masks, measured, scale, cut + notes
-    return masks, None, scale, cut
+        cut += notes
+    if capture.depth is not None and len(masks) > 1:
+        masks, measured, halves = _regroup_halves(masks, measured, capture, shelf)
+        cut += halves
+    return masks, measured, scale, cut
+
+
+def _regroup_halves(masks: list[np.ndarray], measured: list[FrontFace | None] | None, capture: Capture,
+                    shelf: Shelf) -> tuple[list[np.ndarray], list[FrontFace | None], list[str]]:
+    """(masks, faces, notes): two masks on one plane that are halves of cartons of one print
+    (a stack cut down a band) re-cut where the print repeats (`repairs.halves`); after the
+    catalogue, whose seam split can make such halves too."""
+    from shelfpick.perception.repairs.halves import regroup_halves
+
+    depth, camera = capture.depth, capture.camera
+    faces = measured if measured is not None else [measure_front(m, depth, camera) for m in masks]
+    lab = cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
+    return regroup_halves(masks, faces, lab, depth, camera, lambda p: _repeat_front(p, capture, shelf))
+
+
+def _repeat_front(part: np.ndarray, capture: Capture, shelf: Shelf) -> FrontFace | None:
+    """The part's face when it measures as a box front at least `REPEAT_MIN_SIDE` a side (a
+    part of a repeat cut), else None."""
+    from shelfpick.perception.boxes import not_a_face, not_a_front
+    from shelfpick.perception.repairs.repeats import REPEAT_MIN_SIDE
+
+    q = measure_front(part, capture.depth, capture.camera)
+    if q is None or not_a_front(q, shelf) or not_a_face(q, part) or min(q.width, q.height) < REPEAT_MIN_SIDE:
+        return None
+    return q
 
 
 def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf) -> tuple[list[np.ndarray], list[str]]:
@@ -281,19 +310,16 @@ def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf) -> tup
     the print repeats (`repairs.repeats`), kept only when every part measures as a box front
     (RGB-D only: the parts are measured on the depth). Runs before the catalogue, whose joins
     and splits then see the cut masks."""
-    from shelfpick.perception.boxes import not_a_face, not_a_front
-    from shelfpick.perception.repairs.repeats import REPEAT_MIN_SIDE, repeat_parts
+    from shelfpick.perception.repairs.repeats import repeat_parts
 
-    depth, camera = capture.depth, capture.camera
     lab = cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
     out: list[np.ndarray] = []
     notes: list[str] = []
     for i, m in enumerate(masks):
         parts, axis, score = repeat_parts(m, lab)
         if len(parts) > 1:
-            pf = [measure_front(p, depth, camera) for p in parts]
-            if all(q is not None and not not_a_front(q, shelf) and not not_a_face(q, p)
-                   and min(q.width, q.height) >= REPEAT_MIN_SIDE for q, p in zip(pf, parts)):
+            pf = [_repeat_front(p, capture, shelf) for p in parts]
+            if all(q is not None for q in pf):
                 notes.append(f"mask {i + 1} is {len(parts)} fronts of one print "
                              f"{'stacked' if axis == 0 else 'side by side'} (alike {score:.2f}): cut into "
                              + " and ".join(q.size_cm for q in pf if q is not None))
