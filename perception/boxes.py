@@ -457,6 +457,98 @@ def not_a_face(f: FrontFace, mask: np.ndarray) -> str:
 
 # --------------------------------------------------------------------------
 MIN_PART_SIDE = 0.06     # a part cut off a merged mask is a box front at least this wide and high
+# a mask whose rectangle lies over at least this share of another mask's pixels ...
+COVER_SHARE = 0.5
+# ... where that mask is not this far in front of it (a box in front may hide part of a face):
+# its rectangle is no front face, for the other mask's surface would be hidden behind it
+COVER_AHEAD = 0.02
+
+
+def _rect_px(m: np.ndarray) -> tuple[np.ndarray, tuple[slice, slice]]:
+    """The filled min-area rectangle of a mask's pixels, on the crop (returned) around it."""
+    pts = cv2.findNonZero(m.astype(np.uint8))
+    corners = cv2.boxPoints(cv2.minAreaRect(pts.astype(np.float32)))
+    x0, y0 = np.floor(corners.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(corners.max(axis=0)).astype(int)
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1 + 1, m.shape[1]), min(y1 + 1, m.shape[0])
+    poly = np.zeros((max(y1 - y0, 0), max(x1 - x0, 0)), np.uint8)
+    cv2.fillPoly(poly, [np.round(corners - (x0, y0)).astype(np.int32)], 1)
+    return poly.astype(bool), (slice(y0, y1), slice(x0, x1))
+
+
+def _share_under(m: np.ndarray, others: list[np.ndarray]) -> float:
+    """The largest share of any of `others`' pixels that `m`'s rectangle lies over."""
+    rect, (sy, sx) = _rect_px(m)
+    return max((float(np.count_nonzero(rect & o[sy, sx])) / max(int(np.count_nonzero(o)), 1)
+                for o in others), default=0.0)
+
+
+def fronts(masks: list[np.ndarray], depth: np.ndarray, camera: Camera) -> list[float]:
+    """Each mask's median distance behind the shelf's front plane (shelf y, m; nan without depth)."""
+    from shelfpick.perception.geometry import point_map
+
+    pts = point_map(camera, depth)
+    ok = np.isfinite(depth) & (depth > 0)
+    out = []
+    for m in masks:
+        sel = np.asarray(m, bool) & ok
+        out.append(float(np.median(pts[sel][:, 1])) if sel.any() else float("nan"))
+    return out
+
+
+def covered_masks(m: np.ndarray, masks: list[np.ndarray], ys: list[float], i: int) -> list[int]:
+    """The masks (indices) that mask `i`'s min-area rectangle lies over by `COVER_SHARE` of their
+    pixels and that are not `COVER_AHEAD` in front of it. Its face would stand where the camera
+    sees another surface at its depth or behind it: the mask is no rectangle but two cartons
+    (an L of one print over a piece of a third, issue 31, tuning look `labels`), and the two
+    faces built from it overlap past any repair."""
+    if not np.isfinite(ys[i]):
+        return []
+    rect, (sy, sx) = _rect_px(m)
+    out = []
+    for j, o in enumerate(masks):
+        if j == i or not ys[j] >= ys[i] - COVER_AHEAD:
+            continue
+        o = np.asarray(o, bool)
+        n = int(np.count_nonzero(o))
+        if n and np.count_nonzero(rect & o[sy, sx]) >= COVER_SHARE * n:
+            out.append(j)
+    return out
+
+
+def uncovered_parts(m: np.ndarray, under: list[np.ndarray], min_px: int, stride: int = 2) -> list[np.ndarray]:
+    """`m` cut by one straight image row or column into two parts whose rectangles no longer lie
+    over the masks `under` (`COVER_SHARE`), each filling its rectangle at least half, the
+    best-filled cut winning; [m] when there is none. Rows first, and a column must fill better by
+    0.02 to win: two cartons of one print merged are most often stacked (on the tuning look the
+    row and column cuts of an L fill alike and the row was the true seam, 4 of 4)."""
+    from shelfpick.perception.repairs.merged import MIN_PART_SHARE, _largest, rect_fill
+
+    m = np.asarray(m, bool)
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    n = int(np.count_nonzero(m))
+    need = max(min_px, MIN_PART_SHARE * n)
+    best: tuple[np.ndarray, np.ndarray] | None = None
+    best_score = 0.0
+    for axis, span in ((0, rows), (1, cols)):
+        for c in range(int(span[0]) + stride, int(span[-1]) + 1 - stride, stride):
+            a = m.copy()
+            if axis == 0:
+                a[c:] = False
+            else:
+                a[:, c:] = False
+            a, b = _largest(a), _largest(m & ~a)
+            na, nb = int(np.count_nonzero(a)), int(np.count_nonzero(b))
+            if na < need or nb < need:
+                continue
+            fa, fb = rect_fill(a), rect_fill(b)
+            score = (na * fa + nb * fb) / n
+            if min(fa, fb) < MIN_RECT_FILL or score <= best_score + 0.02:
+                continue
+            if max(_share_under(a, under), _share_under(b, under)) < COVER_SHARE:
+                best, best_score = (a, b), score
+    return [m] if best is None else list(best)
 
 
 def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, depth: np.ndarray,
@@ -464,13 +556,16 @@ def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, 
     """(masks, faces, notes): a mask that is two boxes cut by geometry (issue 31): at a depth step
     running through it (one box behind the other), or, when it fills its rectangle too badly to be
     one front, at the row or column that leaves well-filled parts (two boxes of one colour side by
-    side). A mask is cut only when every part measures as a box front; its faces are re-measured."""
+    side), or when its rectangle lies over another mask not in front of it (`covered_masks`: an L
+    of two cartons; at the straight cut that frees the other mask, `uncovered_parts`). A mask is
+    cut only when every part measures as a box front; its faces are re-measured."""
     from shelfpick.perception.faces import face_normal
     from shelfpick.perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
 
     out_m: list[np.ndarray] = []
     out_f: list[FrontFace | None] = []
     notes: list[str] = []
+    ys = fronts(masks, depth, camera)
     for i, m in enumerate(masks):
         m = np.asarray(m, bool)
         f = faces[i] if faces is not None else measure_front(m, depth, camera)
@@ -487,6 +582,11 @@ def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, 
                 parts, how = [base], "thin strands trimmed,"
             else:
                 parts, how = rectangle_parts(base, min_px), "cut at the outline's corners into"
+        if len(parts) < 2 and parts[0] is m and f is not None and \
+                (over := covered_masks(m, masks, ys, i)):
+            parts = uncovered_parts(m, [masks[j] for j in over], min_px)
+            how = (f"its rectangle lay over mask{'s' if len(over) > 1 else ''} "
+                   f"{', '.join(str(j + 1) for j in over)} (not in front of it): cut into")
         if len(parts) >= 2 or parts[0] is not m:
             pf = [measure_front(p, depth, camera) for p in parts]
             if all(q is not None and not (not_a_front(q, shelf) or not_a_face(q, p)) and min(q.width, q.height)

@@ -151,7 +151,9 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
             best = _world(scene, seed, sample + 1000 * len(_ATTEMPTS), model.without_face_error(), as_seen, 0.0,
                           config, clients)
         except SceneError as exc:
-            raise SceneError(f"no draw of sample {sample} can be built: {exc}") from None
+            # one line that says whose fault it is: perception's faces, not the draws (issue 31)
+            raise SceneError(f"no draw of sample {sample} can be built: {exc}; not even as perceived "
+                             f"(no drawn error): the perceived faces cannot all be right") from None
         best_off = contradictions(best, config)
         return Draw(best, tuple(rejected), not best_off, best_off)
     return Draw(best, tuple(rejected), False, best_off)

@@ -346,3 +346,43 @@ def test_a_box_measured_deep_into_boxes_on_both_sides_is_cut_to_the_gap():
     assert by["mid"].position[0] == pytest.approx(0.0) and by["mid"].size[0] == pytest.approx(0.40, abs=1e-3)
     assert any(n.startswith("mid: cut 8.0 cm narrower out of l/r beside it") for n in notes), notes
     assert _refusal(boxes, shelf) == ""
+
+
+# --- a mask over two cartons of one print (an L) whose rectangle lies over a third mask: its face
+# --- and that mask's overlap past any repair (issue 31, tuning look `labels`: 5 of 60 frames no
+# --- sample world was built for, 31005, 31015, 31028, 31035, 31059); make_valid lifted the third
+# --- box out of the L's rectangle, where the camera did not see it
+
+def test_an_l_mask_whose_rectangle_lies_over_another_mask_is_cut_free_of_it():
+    from shelfpick.perception.boxes import planar_depth
+    from shelfpick.perception.scene import Camera
+
+    cam = Camera(640, 480, 600.0, 600.0, 320.0, 240.0)       # 1.04 m before the shelf front
+    depth = planar_depth(cam, 1.04)
+
+    def rect(y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
+        m = np.zeros((480, 640), bool)
+        m[y0:y1, x0:x1] = True
+        return m
+
+    # a 50x17 cm carton with a 20x20 one on its right end, one mask; a 30x17 cm carton on its left
+    # end, a mask of its own, in the corner of the L
+    bottom, top, piece = rect(300, 398, 180, 468), rect(185, 300, 353, 468), rect(202, 300, 180, 353)
+    shelf = Shelf()
+    old, _, _, _ = boxes_from_masks([bottom | top, piece], depth, cam, shelf)     # never cut: one L face
+    valid, notes = make_valid(old, shelf)
+    assert len(old) == 2 and _bottom(valid[1]) - _bottom(valid[0]) > 0.3             # lifted out of it
+    boxes, masks, faces, said = boxes_from_masks([bottom | top, piece], depth, cam, shelf, split_min_px=150)
+    assert len(boxes) == 3 and any("rectangle lay over mask 2" in s and "cut into" in s for s in said)
+    sizes = sorted((f.width, f.height) for f in faces)
+    assert [x for wh in sizes for x in wh] == pytest.approx([0.2, 0.2, 0.3, 0.17, 0.5, 0.17], abs=0.015)
+    valid, notes = make_valid(boxes, shelf)
+    low = min(valid, key=_bottom)
+    assert [_bottom(b) - (_bottom(low) + low.size[2]) for b in valid if b is not low] == \
+        pytest.approx([0.0, 0.0], abs=0.01)                                           # both rest on it as seen
+    assert not any("cannot all be right" in n for n in notes) and _refusal(valid, shelf) == ""
+    # a mask in front of the face (a box standing before it hides part of it) is no reason to cut
+    near = depth.copy()
+    near[piece] -= 0.10
+    boxes, _, _, said = boxes_from_masks([bottom | top, piece], near, cam, shelf, split_min_px=150)
+    assert len(boxes) == 2 and not any("lay over" in s for s in said)
