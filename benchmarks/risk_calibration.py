@@ -34,10 +34,21 @@ if str(ROOT) not in sys.path:
 KINDS = ("structured", "unstructured", "proud", "bridge", "lean", "overhang")
 
 
-def _world_flags(results) -> dict[str, list[int]]:
-    """Per world: collapsed, collided, stuck (0/1 each)."""
+def _near(r, cfg) -> float:
+    """How near a world came to a collapse: the largest other box's end-of-step displacement or
+    turn as a share of the collapse thresholds (1 or more: past them)."""
+    d = max((v / cfg.collapse_displacement for v in r.displacement.values()), default=0.0)
+    a = max((v / cfg.collapse_rotation for v in r.rotation.values()), default=0.0)
+    return round(max(d, a), 3)
+
+
+def _world_flags(results, cfg=None) -> dict[str, list]:
+    """Per world: collapsed, collided, stuck (0/1 each), and how near it came to a collapse."""
+    from shelfpick.planning.physics import PhysicsConfig
+
+    cfg = cfg or PhysicsConfig()
     return {"c": [int(bool(r.collapsed)) for r in results], "x": [int(bool(r.collided)) for r in results],
-            "s": [int(r.note.startswith("stuck")) for r in results]}
+            "s": [int(r.note.startswith("stuck")) for r in results], "m": [_near(r, cfg) for r in results]}
 
 
 def _truth_step(st, cfg) -> dict:
@@ -49,8 +60,10 @@ def _truth_step(st, cfg) -> dict:
 
 
 def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int, base_seed: int,
-                  truth_pull: str = "drag", pull_modes: tuple[str, ...] | None = None) -> list[dict]:
-    """Every row of one shelf at one noise level."""
+                  truth_pull: str = "drag", pull_modes: tuple[str, ...] | None = None,
+                  skip: int = 10) -> list[dict]:
+    """Every row of one shelf at one noise level; the evidence is `worlds` sample worlds after the
+    first `skip` (the search's own ten: the gate asks the worlds after them, `planning.gate`)."""
     from shelfpick.perception.errors import SceneError
     from shelfpick.planning.bench import derive_seed, observe, true_world, TruthModel
     from shelfpick.planning.execute import execute_plan
@@ -75,7 +88,7 @@ def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int,
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            counter = Predictor(seen, samples=worlds, seed=plan_seed, model=model)
+            counter = Predictor(seen, samples=worlds + skip, seed=plan_seed, model=model)
         except SceneError:
             return []
         planner = Predictor(seen, samples=10, seed=plan_seed, model=model)
@@ -83,12 +96,12 @@ def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int,
     stands10 = bool(planner.scene_check.get("stands_as_seen", True))
     common = {"scene": name, "kind": kind, "noise": noise, "n_boxes": len(scene.boxes), "truth_pull": truth_pull,
               "truth_lift": physics.pull_lift, "pull_modes": list(model.pull_modes),
-              "stands": stands, "stands10": stands10, "worlds": counter.worlds}
+              "stands": stands, "stands10": stands10, "worlds": counter.worlds, "skip": skip}
     cfg = PhysicsConfig()
     try:
         # every box pulled alone from the full shelf
         for i, b in enumerate(truth.ids):
-            flags = _world_flags(counter.results(frozenset(), b))
+            flags = _world_flags(counter.results(frozenset(), b)[skip:], cfg)
             ex = execute_plan(truth, [b], seed=derive_seed(base_seed, name, "alone", b), config=physics)
             rows.append(dict(common, source="alone", box=b, removed=[], **flags,
                              **_truth_step(ex.steps[0], cfg)))
@@ -99,7 +112,7 @@ def collect_scene(kind: str, seed: int, noise: float, worlds: int, targets: int,
             removed: list[str] = []
             # every step, also past the truth's first collapse: the plan's worlds need all of them
             for k, (b, st) in enumerate(zip(plan.sequence, ex.steps)):
-                flags = _world_flags(counter.results(frozenset(removed), b))
+                flags = _world_flags(counter.results(frozenset(removed), b)[skip:], cfg)
                 rows.append(dict(common, source="plan", target=target, step=k, steps=len(plan.sequence),
                                  box=b, removed=list(removed), **flags, plan_ok=bool(ex.ok),
                                  plan_safe=bool(plan.safe), **_truth_step(st, cfg)))
@@ -127,9 +140,9 @@ def _job(args: tuple) -> list[dict]:
 
 def collect(out: str, scenes: int, seed: int, worlds: int, targets: int, noises: tuple[float, ...],
             jobs: int, truth_pull: str = "drag", pull_modes: tuple[str, ...] | None = None,
-            kinds: tuple[str, ...] = KINDS) -> None:
+            kinds: tuple[str, ...] = KINDS, skip: int = 10) -> None:
     """Every kind x `scenes` shelves x each noise level, appended to `out` as JSON lines."""
-    todo = [(k, seed + i, nz, worlds, targets, seed, truth_pull, pull_modes) for k in kinds for i in range(scenes)
+    todo = [(k, seed + i, nz, worlds, targets, seed, truth_pull, pull_modes, skip) for k in kinds for i in range(scenes)
             for nz in noises]
     done = set()
     p = Path(out)
@@ -172,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--pull-modes", default=None,
                    help="the sample worlds' pull modes, comma-separated (default: the planner's, lift,drag)")
     c.add_argument("--kinds", default=",".join(KINDS), help="shelf kinds, comma-separated")
+    c.add_argument("--skip", type=int, default=10,
+                   help="sample worlds left out before the evidence (the search's own: the gate asks those after them)")
     f = sub.add_parser("fit")
     f.add_argument("rows")
     f.add_argument("--json")
@@ -180,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.cmd == "collect":
         collect(a.out, a.scenes, a.seed, a.worlds, a.targets, tuple(float(v) for v in a.noise.split(",")), a.jobs,
-                a.truth_pull, tuple(a.pull_modes.split(",")) if a.pull_modes else None, tuple(a.kinds.split(",")))
+                a.truth_pull, tuple(a.pull_modes.split(",")) if a.pull_modes else None, tuple(a.kinds.split(",")),
+                a.skip)
         return 0
     from benchmarks.risk_fit import run_fit
 

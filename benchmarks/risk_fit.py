@@ -59,6 +59,11 @@ def examples(ps: Sequence[dict], prefixes: Sequence[int] = PREFIXES) -> list[tup
     return [(sum(p["fails"][:n]), n, p["stands"], p["failed"]) for p in ps for n in prefixes if len(p["fails"]) >= n]
 
 
+def plan_of(ps: Sequence[dict], prefixes: Sequence[int] = PREFIXES) -> list[int]:
+    """Which plan each row of `examples(ps, prefixes)` comes from (the fit's floor counts a plan once)."""
+    return [i for i, p in enumerate(ps) for n in prefixes if len(p["fails"]) >= n]
+
+
 def _seed(p: dict) -> int:
     return int(p["scene"].rsplit("-", 1)[1])
 
@@ -146,8 +151,8 @@ def run_fit(rows_path: str, json_out: str | None, png: str | None, md: str | Non
     odd = [p for p in ps if _seed(p) % 2 == 1]
     if not even or not odd:
         raise SystemExit("risk_fit: the rows need shelves of even and of odd seeds (collect --scenes 2 or more)")
-    half = fit(examples(even), fitted_on="even seeds")
-    cal = fit(examples(ps), fitted_on=f"{rows_path}: {len(ps)} plans on "
+    half = fit(examples(even), fitted_on="even seeds", groups=plan_of(even))
+    cal = fit(examples(ps), groups=plan_of(ps), fitted_on=f"{rows_path}: {len(ps)} plans on "
                                       f"{len({(p['scene'], p['noise']) for p in ps})} shelf views")
     raw = Calibration(0.0, 1.0, 0.0, floor=1e-6, fitted_on="identity: the share of failing worlds")
     rel_raw = reliability(raw, examples(odd, (10,)))

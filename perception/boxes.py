@@ -502,7 +502,10 @@ def covered_masks(m: np.ndarray, masks: list[np.ndarray], ys: list[float], i: in
     pixels and that are not `COVER_AHEAD` in front of it. Its face would stand where the camera
     sees another surface at its depth or behind it: the mask is no rectangle but two cartons
     (an L of one print over a piece of a third, issue 31, tuning look `labels`), and the two
-    faces built from it overlap past any repair."""
+    faces built from it overlap past any repair. A mask that fills its own rectangle less than
+    `MIN_RECT_FILL` is no face (it is dropped, or cut itself) and contradicts nothing."""
+    from shelfpick.perception.repairs.merged import rect_fill
+
     if not np.isfinite(ys[i]):
         return []
     rect, (sy, sx) = _rect_px(m)
@@ -512,7 +515,7 @@ def covered_masks(m: np.ndarray, masks: list[np.ndarray], ys: list[float], i: in
             continue
         o = np.asarray(o, bool)
         n = int(np.count_nonzero(o))
-        if n and np.count_nonzero(rect & o[sy, sx]) >= COVER_SHARE * n:
+        if n and np.count_nonzero(rect & o[sy, sx]) >= COVER_SHARE * n and rect_fill(o) >= MIN_RECT_FILL:
             out.append(j)
     return out
 

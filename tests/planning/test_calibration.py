@@ -76,6 +76,18 @@ def test_the_fits_floor_counts_every_plan_it_would_call_safe_not_only_those_no_w
     assert risky.minimum_high > DEFAULT_MAX_PLAN_RISK
 
 
+def test_the_fits_floor_counts_a_plan_once_however_many_prefixes_of_its_worlds_it_gives():
+    # 40 quiet plans that held, each seen at 10, 20 and 30 worlds: 120 rows but 40 verdicts
+    quiet = [(0, n, True, False) for _ in range(40) for n in (10, 20, 30)]
+    risky = [(k, 30, True, True) for k in range(20, 31) for _ in range(10)]
+    groups = [i // 3 for i in range(len(quiet))] + [1000 + i for i in range(len(risky))]
+    once = fit(quiet + risky, groups=groups)
+    thrice = fit(quiet + risky)
+    assert once.minimum == pytest.approx(0.5 / 41) and thrice.minimum == pytest.approx(0.5 / 121)
+    assert once.minimum_high > thrice.minimum_high
+    assert (once.intercept, once.slope) == (thrice.intercept, thrice.slope)
+
+
 def test_a_plan_fails_in_a_world_when_any_of_its_steps_does():
     assert plan_failures([[True, False, False], [False, False, True]]) == (2, 3)
     assert plan_failures([[False] * 5]) == (0, 5)
