@@ -27,8 +27,8 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from shelfpick.perception.faces import FrontFace
-from shelfpick.perception.repairs.measure import plane_dist
+from shelfpick.perception.faces import FrontFace, face_axes
+from shelfpick.perception.geometry import backproject
 from shelfpick.perception.repairs.merged import rect_fill
 from shelfpick.perception.repairs.repeats import repeat_parts
 from shelfpick.perception.scene import Camera
@@ -42,7 +42,7 @@ MIN_TOUCH_PX = 20   # ... along at least this many pixels
 
 @dataclass(frozen=True, eq=False)
 class _Frame:
-    """What `plane_dist` reads of a repair context: the depth image and its camera."""
+    """The depth image and its camera (where the masks' depth points are)."""
 
     depth: np.ndarray
     camera: Camera
@@ -81,11 +81,13 @@ def _first_pair(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.
     kernel = np.ones((2 * GAP_PX + 1, 2 * GAP_PX + 1), np.uint8)
     near = [cv2.dilate(m.astype(np.uint8), kernel).astype(bool) for m in masks]
     cover = np.sum(masks, axis=0, dtype=np.uint8)       # how many masks claim each pixel
+    boxes = [_bbox(m) for m in masks]
     for i in range(len(masks)):
         for j in range(i + 1, len(masks)):
             key = frozenset((id(masks[i]), id(masks[j])))
             if key in tried or faces[i] is None or faces[j] is None or id(masks[i]) in made \
-                    or id(masks[j]) in made or int((near[i] & masks[j]).sum()) < MIN_TOUCH_PX:
+                    or id(masks[j]) in made or not _overlap(boxes[i], boxes[j]) \
+                    or int((near[i] & masks[j]).sum()) < MIN_TOUCH_PX:
                 continue
             tried.add(key)
             done = _recut(i, j, masks, faces, near, cover, lab, frame, front)
@@ -97,21 +99,57 @@ def _first_pair(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.
 def _recut(i: int, j: int, masks: list[np.ndarray], faces: list[FrontFace | None], near: list[np.ndarray],
            cover: np.ndarray, lab: np.ndarray, frame: _Frame, front: Callable[[np.ndarray], FrontFace | None]):
     """(parts, faces, axis, score) when masks i and j re-cut into other box fronts, else None.
-    `cover`: how many masks claim each pixel (the gap pixels joined are nobody else's)."""
-    a, b = masks[i], masks[j]
-    unclaimed = cover <= a.astype(np.uint8) + b.astype(np.uint8)
-    union = _core(a | b | (near[i] & near[j] & unclaimed))
+    `cover`: how many masks claim each pixel (the gap pixels joined are nobody else's). Works on
+    the pair's bounding box; the parts come back full size."""
+    (y0, y1, x0, x1), (v0, v1, u0, u1) = _bbox(masks[i]), _bbox(masks[j])
+    box = (slice(max(min(y0, v0) - GAP_PX, 0), max(y1, v1) + GAP_PX),
+           slice(max(min(x0, u0) - GAP_PX, 0), max(x1, u1) + GAP_PX))
+    a, b = masks[i][box], masks[j][box]
+    unclaimed = cover[box] <= a.astype(np.uint8) + b.astype(np.uint8)
+    union = _core(a | b | (near[i][box] & near[j][box] & unclaimed))
     if union is None or rect_fill(union) < MIN_FILL:
         return None
-    parts, axis, score = repeat_parts(union, lab)
-    if len(parts) < 2 or any(max(_iou(p, a), _iou(p, b)) >= SAME_IOU for p in parts):
+    if _off_plane(faces[i], b, box, frame) > PLANE_TOL or _off_plane(faces[j], a, box, frame) > PLANE_TOL:
+        return None                  # a depth step (or a turn) between them: two fronts
+    cut, axis, score = repeat_parts(union, lab[box])
+    if len(cut) < 2 or any(max(_iou(p, a), _iou(p, b)) >= SAME_IOU for p in cut):
         return None
-    if plane_dist(faces[i], b, frame) > PLANE_TOL or plane_dist(faces[j], a, frame) > PLANE_TOL:
-        return None
+    parts = []
+    for p in cut:
+        full = np.zeros_like(masks[i])
+        full[box] = p
+        parts.append(full)
     pf = [front(p) for p in parts]
     if any(f is None for f in pf):
         return None
     return parts, pf, axis, score
+
+
+def _off_plane(face: FrontFace, mask: np.ndarray, box: tuple[slice, slice], frame: _Frame,
+               most: int = 2000) -> float:
+    """Median distance (m) of the depth points of `mask` (cropped to `box`) to the plane of `face`."""
+    depth = frame.depth[box]
+    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    if len(xs) < 10:
+        return float("inf")
+    step = len(xs) // most + 1
+    ys, xs = ys[::step], xs[::step]
+    z = depth[ys, xs].astype(np.float64)
+    p = backproject(frame.camera, (xs + box[1].start).astype(np.float64), (ys + box[0].start).astype(np.float64), z)
+    return float(np.median(np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1])))
+
+
+def _bbox(m: np.ndarray) -> tuple[int, int, int, int]:
+    """(first row, last row + 1, first column, last column + 1) of a mask; (0, 0, 0, 0) if empty."""
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    if not len(rows):
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def _overlap(p: tuple[int, int, int, int], q: tuple[int, int, int, int]) -> bool:
+    """Whether two bounding boxes, grown by GAP_PX, overlap."""
+    return p[0] - GAP_PX < q[1] and q[0] - GAP_PX < p[1] and p[2] - GAP_PX < q[3] and q[2] - GAP_PX < p[3]
 
 
 def _core(union: np.ndarray) -> np.ndarray | None:
