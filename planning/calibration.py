@@ -162,15 +162,15 @@ def _quiet_outcomes(rows: Sequence[tuple[int, int, bool, bool]], quiet: Sequence
 # Fitted on our own perturbed-truth bench (benchmarks/risk_calibration.py; docs/planners.md,
 # "A calibrated risk and one threshold"); the figures behind them are in docs/results/risk-gate.md.
 # the truth's gripper lifts 3-8 mm first where nothing rests on the box (the planner's own pull)
-# (refitted in session 39 on the worlds the gate asks, those after the search's ten: the map of
-# session 31 was fitted on the search's own worlds, where a chosen plan looks safer than it is)
-LIFT = Calibration(intercept=-2.1109, slope=2.5501, not_standing=0.0,
-                   minimum=0.0053, minimum_high=0.0174,
-                   fitted_on="bench, truth lifting, the gate's worlds: 210 plans on 16 shelf views "
-                             "(docs/results/risk-calibration-lift.json)")
+# Refitted in session 39 on the worlds the gate asks (those after the search's ten) it comes out
+# more lenient (-2.11 + 2.55 logit, floor 0.0053): on the judge's engines that map declared safe 9
+# more plans at noise 0, 7 of them failing in a fifth or more of the judge's mass draws, so it is
+# not shipped (docs/results/risk-gate.md, "The lifting map refitted on the gate's worlds").
+LIFT = Calibration(intercept=-1.5905, slope=2.9350, not_standing=-0.2324,
+                   minimum=0.0086, minimum_high=0.0280,
+                   fitted_on="bench, truth lifting: 210 plans on 16 shelf views (docs/results/risk-calibration-lift.json)")
 # the truth's gripper never lifts: every box is dragged on its support (the bench's default truth;
-# fitted on the search's own worlds, not refitted: refitted on the gate's, 16 views, it stays
-# 1.07 + 0.84 logit, floor 0.38, and calls no plan safe either way)
+# refitted on the gate's worlds, 16 views, it stays 1.07 + 0.84 logit, floor 0.38: no plan safe)
 DRAG = Calibration(intercept=0.8398, slope=0.8149, not_standing=1.3610,
                    minimum=0.4326, minimum_high=0.5001,
                    fitted_on="bench, truth dragging: 332 plans on 26 shelf views (docs/results/risk-calibration-drag.json)")
