@@ -464,18 +464,13 @@ def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, 
     """(masks, faces, notes): a mask that is two boxes cut by geometry (issue 31): at a depth step
     running through it (one box behind the other), or, when it fills its rectangle too badly to be
     one front, at the row or column that leaves well-filled parts (two boxes of one colour side by
-    side), or when its rectangle lies over another mask not in front of it (`covered_masks`: an L
-    of two cartons; at the straight cut that frees the other mask, `uncovered_parts`). A mask is
-    cut only when every part measures as a box front; its faces are re-measured."""
+    side). A mask is cut only when every part measures as a box front; its faces are re-measured."""
     from shelfpick.perception.faces import face_normal
-    from shelfpick.perception.repairs.covered import Fronts, covered_masks, extent, uncovered_parts
     from shelfpick.perception.repairs.merged import depth_step_parts, off_plane_trimmed, rect_fill, rectangle_parts, trimmed
 
     out_m: list[np.ndarray] = []
     out_f: list[FrontFace | None] = []
     notes: list[str] = []
-    extents = [extent(np.asarray(m, bool)) for m in masks]
-    front = Fronts(masks, extents, depth, camera)
     for i, m in enumerate(masks):
         m = np.asarray(m, bool)
         f = faces[i] if faces is not None else measure_front(m, depth, camera)
@@ -492,11 +487,6 @@ def split_merged(masks: list[np.ndarray], faces: list[FrontFace | None] | None, 
                 parts, how = [base], "thin strands trimmed,"
             else:
                 parts, how = rectangle_parts(base, min_px), "cut at the outline's corners into"
-        if len(parts) < 2 and parts[0] is m and f is not None and \
-                (over := covered_masks(m, masks, extents, front, i, MIN_RECT_FILL)):
-            parts = uncovered_parts(m, [masks[j] for j in over], min_px, MIN_RECT_FILL)
-            how = (f"its rectangle lay over mask{'s' if len(over) > 1 else ''} "
-                   f"{', '.join(str(j + 1) for j in over)} (not in front of it): cut into")
         if len(parts) >= 2 or parts[0] is not m:
             pf = [measure_front(p, depth, camera) for p in parts]
             if all(q is not None and not (not_a_front(q, shelf) or not_a_face(q, p)) and min(q.width, q.height)
