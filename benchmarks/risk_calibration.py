@@ -134,6 +134,44 @@ def _truth_model(pull: str, noise: float, seed: int):
     return TruthModel(noise=noise, pull_lift=round(random.Random(seed).uniform(0.003, 0.008), 4))
 
 
+def near_plans(rows: list[dict]) -> list[dict]:
+    """Per plan (a box pulled alone, or a physics plan): per world whether some step failed, and how
+    near it came to a collapse (`m`, its largest step's; 1 for a failing world), and the truth's verdict."""
+    from collections import defaultdict
+
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in rows:
+        key = (r["scene"], r["noise"], "alone", r["box"]) if r["source"] == "alone" else \
+            (r["scene"], r["noise"], "plan", r["target"])
+        groups[key].append(r)
+    out = []
+    for key, steps in groups.items():
+        n = min(len(r["c"]) for r in steps)
+        fails = [int(any(r["c"][i] or r["s"][i] for r in steps)) for i in range(n)]
+        near = [1.0 if fails[i] else min(1.0, max(r["m"][i] for r in steps)) for i in range(n)]
+        failed = (steps[0]["collapse"] or not steps[0]["extracted"]) if key[2] == "alone" else not steps[0]["plan_ok"]
+        out.append({"fails": fails, "near": near, "failed": bool(failed)})
+    return out
+
+
+def near_report(rows_path: str) -> str:
+    """Does how near the worlds came to a collapse rank plans beyond the share of failing worlds?
+    AUCs against the truth's verdict, over all plans and over the plans no world failed."""
+    from benchmarks.risk_gate_split import auc
+
+    ps = near_plans([json.loads(line) for line in Path(rows_path).read_text().splitlines() if line.strip()])
+    lines = [f"{rows_path}: {len(ps)} plans, {sum(p['failed'] for p in ps)} failed on the truth"]
+    for n in (10, 20, 30):
+        y = [p["failed"] for p in ps]
+        share = [sum(p["fails"][:n]) / n for p in ps]
+        near = [sum(p["near"][:n]) / n for p in ps]
+        quiet = [i for i, s in enumerate(share) if s == 0]
+        lines.append(f"{n} worlds: AUC share {auc(share, y):.3f}, near {auc(near, y):.3f}; "
+                     f"{len(quiet)} plans no world failed ({sum(y[i] for i in quiet)} failed on the truth): "
+                     f"AUC of near among them {auc([near[i] for i in quiet], [y[i] for i in quiet]):.3f}")
+    return "\n".join(lines)
+
+
 def _job(args: tuple) -> list[dict]:
     return collect_scene(*args)
 
@@ -187,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--kinds", default=",".join(KINDS), help="shelf kinds, comma-separated")
     c.add_argument("--skip", type=int, default=10,
                    help="sample worlds left out before the evidence (the search's own: the gate asks those after them)")
+    nr = sub.add_parser("near", help="how near the worlds came to a collapse, as a ranking (rows of --skip runs)")
+    nr.add_argument("rows")
     f = sub.add_parser("fit")
     f.add_argument("rows")
     f.add_argument("--json")
@@ -197,6 +237,9 @@ def main(argv: list[str] | None = None) -> int:
         collect(a.out, a.scenes, a.seed, a.worlds, a.targets, tuple(float(v) for v in a.noise.split(",")), a.jobs,
                 a.truth_pull, tuple(a.pull_modes.split(",")) if a.pull_modes else None, tuple(a.kinds.split(",")),
                 a.skip)
+        return 0
+    if a.cmd == "near":
+        print(near_report(a.rows))
         return 0
     from benchmarks.risk_fit import run_fit
 

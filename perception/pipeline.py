@@ -267,21 +267,28 @@ def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogu
     masks = grow_on_plane(masks, capture.depth, capture.camera, rgb=capture.rgb,
                           allowed=_inside_shelf(capture.depth, capture.camera, shelf))
     cut: list[str] = []
-    if capture.depth is not None and masks:
-        masks, cut = _repeat_cuts(masks, capture, shelf)
+    lab = _lab(capture) if capture.depth is not None and masks else None   # both print repairs read it
+    if lab is not None:
+        masks, cut = _repeat_cuts(masks, capture, shelf, lab)
     measured: list[FrontFace | None] | None = None
     if catalogue is not None and capture.depth is not None and masks:
         masks, measured, notes = apply_catalogue(masks, capture.depth, capture.camera, capture.rgb,
                                                  catalogue.scaled(scale).within(shelf.depth))
         cut += notes
     if capture.depth is not None and len(masks) > 1:
-        masks, measured, halves = _regroup_halves(masks, measured, capture, shelf)
+        masks, measured, halves = _regroup_halves(masks, measured, capture, shelf, lab)
         cut += halves
     return masks, measured, scale, cut
 
 
+def _lab(capture: Capture) -> np.ndarray:
+    """The capture's image in CIELAB (what the print repairs compare)."""
+    return cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
+
+
 def _regroup_halves(masks: list[np.ndarray], measured: list[FrontFace | None] | None, capture: Capture,
-                    shelf: Shelf) -> tuple[list[np.ndarray], list[FrontFace | None], list[str]]:
+                    shelf: Shelf, lab: np.ndarray | None = None,
+                    ) -> tuple[list[np.ndarray], list[FrontFace | None], list[str]]:
     """(masks, faces, notes): two masks on one plane that are halves of cartons of one print
     (a stack cut down a band) re-cut where the print repeats (`repairs.halves`); after the
     catalogue, whose seam split can make such halves too."""
@@ -289,7 +296,7 @@ def _regroup_halves(masks: list[np.ndarray], measured: list[FrontFace | None] | 
 
     depth, camera = capture.depth, capture.camera
     faces = measured if measured is not None else [measure_front(m, depth, camera) for m in masks]
-    lab = cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
+    lab = _lab(capture) if lab is None else lab
     return regroup_halves(masks, faces, lab, depth, camera, lambda p: _repeat_front(p, capture, shelf))
 
 
@@ -305,14 +312,15 @@ def _repeat_front(part: np.ndarray, capture: Capture, shelf: Shelf) -> FrontFace
     return q
 
 
-def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf) -> tuple[list[np.ndarray], list[str]]:
+def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf,
+                 lab: np.ndarray | None = None) -> tuple[list[np.ndarray], list[str]]:
     """(masks, notes): a mask that is cartons of one print, stacked or side by side, cut where
     the print repeats (`repairs.repeats`), kept only when every part measures as a box front
     (RGB-D only: the parts are measured on the depth). Runs before the catalogue, whose joins
     and splits then see the cut masks."""
     from shelfpick.perception.repairs.repeats import repeat_parts
 
-    lab = cv2.cvtColor(capture.rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
+    lab = _lab(capture) if lab is None else lab
     out: list[np.ndarray] = []
     notes: list[str] = []
     for i, m in enumerate(masks):

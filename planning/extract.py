@@ -219,9 +219,8 @@ class _ExtractSearch:
             if fa * a_hi <= fb * b_lo:   # (always one of the two once every sample has run)
                 return False, a, b
             # one more sample of the widest screened step (first of `a`, then of `b`, on a tie)
-            widths = [(self.bounds(*k)[1] - self.bounds(*k)[0], -i, k)  # type: ignore[misc]
-                      for i, k in enumerate(a.keys() + b.keys()) if not self._exact(k)]
-            self.more(*max(widths)[2])
+            open_ = [(k, self.bounds(*k)) for k in a.keys() + b.keys() if not self._exact(k)]  # type: ignore[misc]
+            self.more(*max((hi - lo, -i, k) for i, (k, (lo, hi)) in enumerate(open_))[2])
 
     def _ask(self, removed: frozenset[str], box: str) -> StepPrediction:
         return self.screen(removed, box) if self.screen is not None else self.oracle(removed, box)

@@ -285,20 +285,23 @@ class Predictor:
         self.stats["screens"] += 1
         return self._aggregate(box, runs[:m], n)
 
-    def risk_bound(self, removed: frozenset[str], box: str) -> tuple[float, bool]:
-        """(lower bound of the risk from the samples run so far, whether that is all of them)."""
+    def _so_far(self, removed: frozenset[str], box: str) -> tuple[int, int]:
+        """(failing samples, samples run) of pulling `box`, of the search's worlds run so far."""
         runs = self._runs.get((frozenset(removed), box), [])[:self._n]
         c = sum(1 for r in runs if r.collapsed)
         x = sum(1 for r in runs if r.collided or r.note.startswith("stuck"))
-        return max(c, x) / self._n, len(runs) >= self._n
+        return max(c, x), len(runs)
+
+    def risk_bound(self, removed: frozenset[str], box: str) -> tuple[float, bool]:
+        """(lower bound of the risk from the samples run so far, whether that is all of them)."""
+        failed, run = self._so_far(removed, box)
+        return failed / self._n, run >= self._n
 
     def risk_interval(self, removed: frozenset[str], box: str) -> tuple[float, float]:
         """The interval the full risk of pulling `box` lies in, from the samples run so far: every
         sample not run yet may hold or fail (a point once all have run)."""
-        runs = self._runs.get((frozenset(removed), box), [])[:self._n]
-        c = sum(1 for r in runs if r.collapsed)
-        x = sum(1 for r in runs if r.collided or r.note.startswith("stuck"))
-        return max(c, x) / self._n, (max(c, x) + self._n - len(runs)) / self._n
+        failed, run = self._so_far(removed, box)
+        return failed / self._n, (failed + self._n - run) / self._n
 
     def sample_more(self, removed: frozenset[str], box: str) -> None:
         """Run the next sample of pulling `box` (of the search's worlds; nothing once all have run)."""
