@@ -32,6 +32,20 @@ def test_round_trip_keeps_everything(tmp_path):
     assert again.camera.width == 640
 
 
+def test_a_settled_shelf_saved_and_loaded_is_the_shelf_in_memory_bit_for_bit(tmp_path):
+    """A shelf that came out of the physics (quaternions unit to the last digits, not exactly)
+    reads back equal, so the console's capture and `shelfpick plan` on its file plan alike; a
+    quaternion written rounded is still made unit."""
+    from shelfpick.planning.shelves import generate
+
+    truth = generate("structured", 1878384624, 12)
+    path = tmp_path / "truth.json"
+    truth.save(path)
+    assert Scene.load(path) == truth
+    rounded = Scene.from_json(scene_doc(orientation=[0.7071, 0.0, 0.0, 0.7071]), "mem")
+    assert math.isclose(sum(c * c for c in rounded.boxes[0].orientation), 1.0, abs_tol=1e-15)
+
+
 def test_front_face_kept_when_depth_changes():
     b = Box("b", (0.3, 0.2, 0.2), (0.0, 0.12, 0.1), yaw_quat(0.3))
     deeper = b.with_depth(0.28)
