@@ -117,10 +117,46 @@ def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
             if d > LEFT_OVERLAP and not (a.id.startswith("~") or b.id.startswith("~")):
                 notes.append(f"{a.id}/{b.id}: overlap by {d * 100:.1f} cm that make_valid could not part; "
                              f"their perceived faces {CONTRADICTION}")
+        notes += _hidden_behind(a, boxes)
         top = _aabb(a)[1, 2]
         if top > shelf.height + 1e-6:
             notes.append(f"{a.id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m; "
                          f"the faces of its stack {CONTRADICTION}")
+    return notes
+
+
+# a seen face this far behind another, and this much of it within that face across, is hidden from the
+# camera by it: a face that was seen there says one of the two measured faces is wrong (an L of two
+# cartons measured as its rectangle, h22's labels 31015); a face behind another and partly beside it
+# is an ordinary occlusion, and faces within 1 cm in depth are the overlap test's
+HIDDEN_BEHIND = 0.01
+HIDDEN_SHARE = 0.75
+
+
+def _face_xz(b: Box) -> np.ndarray:
+    """2x2: the lowest and highest x and z of the box's front face (its local -y side)."""
+    c = box_corners(b)
+    r = np.asarray(quat_to_matrix(b.orientation))
+    front = c[(c - np.asarray(b.position)) @ r[:, 1] < 0][:, [0, 2]]
+    return np.stack([front.min(axis=0), front.max(axis=0)])
+
+
+def _hidden_behind(a: Box, boxes: list[Box]) -> list[str]:
+    """A warning note for each perceived face the perceived face of `a` would hide from the camera."""
+    if a.depth_known or a.id.startswith("~"):
+        return []
+    fa, ya, notes = _face_xz(a), a.front_center[1], []
+    for b in boxes:
+        behind = b.front_center[1] - ya
+        if b is a or b.depth_known or b.id.startswith("~") or behind <= HIDDEN_BEHIND:
+            continue
+        fb = _face_xz(b)
+        across = np.clip(np.minimum(fa[1], fb[1]) - np.maximum(fa[0], fb[0]), 0.0, None)
+        share = float(across.prod() / max(np.prod(fb[1] - fb[0]), 1e-9))
+        if share >= HIDDEN_SHARE:
+            notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s and {share:.0%} of it "
+                         f"within {a.id}'s face across, where the camera could not have seen it; their "
+                         f"perceived faces {CONTRADICTION}")
     return notes
 
 

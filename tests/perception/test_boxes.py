@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -346,3 +347,23 @@ def test_a_box_measured_deep_into_boxes_on_both_sides_is_cut_to_the_gap():
     assert by["mid"].position[0] == pytest.approx(0.0) and by["mid"].size[0] == pytest.approx(0.40, abs=1e-3)
     assert any(n.startswith("mid: cut 8.0 cm narrower out of l/r beside it") for n in notes), notes
     assert _refusal(boxes, shelf) == ""
+
+
+def test_a_face_seen_behind_another_face_that_would_hide_it_is_reported():
+    """h22's labels 31015: one mask over an L of two cartons measured as its 44x41 cm rectangle,
+    and a 20x20 face seen 2.6 cm behind it, wholly within it across. The camera cannot have seen
+    that face there, so the scene says its faces cannot all be right (the planner refuses it)."""
+    shelf = Shelf()
+    big = _upright("b6", 0.0, 0.0, 0.44, 0.41)
+    inside = Box("b7", (0.2, 0.25, 0.2), (0.08, 0.026 + 0.125, 0.15), (1.0, 0.0, 0.0, 0.0), None, False, 2,
+                 {"perceived": {}})
+    beside = Box("b8", (0.2, 0.25, 0.2), (0.27, 0.03 + 0.125, 0.1), (1.0, 0.0, 0.0, 0.0), None, False, 3,
+                 {"perceived": {}})        # 30 % of it behind b6's face: an ordinary occlusion
+    boxes, notes = make_valid([big, inside, beside], shelf)
+    said = [n for n in notes if "could not have seen" in n]
+    assert len(said) == 1 and said[0].startswith("b7: its face lies 2.6 cm behind b6's and 100% of it")
+    assert "cannot all be right" in said[0]
+    assert "overlap" in _refusal(boxes, shelf)
+    # the same face 5 mm behind (one depth, an overlap of slabs) is the overlap test's, not this one's
+    level = replace(inside, position=(0.08, 0.005 + 0.125, 0.15))
+    assert not any("could not have seen" in n for n in make_valid([big, level], shelf)[1])
