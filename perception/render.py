@@ -202,7 +202,7 @@ LOOKS = ("printed", "plain", "mixed")
 
 def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: bool = True,
            front_only: bool = True, looks: str = "printed", varied_light: bool = False,
-           textures: Sequence[np.ndarray] | None = None) -> Capture:
+           textures: Sequence[np.ndarray] | None = None, light: dict | None = None) -> Capture:
     """Render `scene` into a Capture with ground-truth masks (labels 1..N, visible boxes only).
 
     Masks hold each box's visible FRONT face (its local -y face), the part
@@ -216,7 +216,9 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
     `varied_light`: dimmer to brighter ambient light, harder shadows and a wider colour cast
     than the tuned renders. `textures`: one texture per box, in scene order, instead of drawn ones
     (cartons that share a print); what the seed draws after the boxes (the light, the noise) then
-    differs from the same seed without them. The defaults
+    differs from the same seed without them. `light`: getCameraImage light arguments that
+    replace the drawn ones (drawn all the same, so the noise draws do not move), e.g. one hard
+    directional light (`training/printed_shelves.py`). The defaults
     draw exactly what they drew before (same seed, same image).
     """
     if textures is not None and len(textures) != len(scene.boxes):
@@ -244,7 +246,7 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
                 body_to_box[body] = box.id
             _, _, rgba, zbuf, seg = client.getCameraImage(
                 cam.width, cam.height, gl_view_matrix(cam), gl_projection_matrix(cam),
-                renderer=p.ER_TINY_RENDERER, **_lighting(rng, varied_light))
+                renderer=p.ER_TINY_RENDERER, **{**_lighting(rng, varied_light), **(light or {})})
     finally:
         client.disconnect()
     h, w = cam.height, cam.width

@@ -23,6 +23,10 @@ and low/high cameras) at seeds from 30800, drawn for `--wall-share` of the crops
 
 Fourth round: `--taped N` adds N walls whose faces are cut by tape, stickers and shadow edges
 (`training.scenes.taped_wall_example`, seeds from 32000), drawn for `--taped-share` of the crops.
+
+Fifth round (issue 31): `--printed N` adds N shelves of flush cartons sharing one design under a
+hard directional light (`training.printed_shelves.printed_shelf_example`, seeds from 34000),
+drawn for `--printed-share` of the crops.
 """
 from __future__ import annotations
 
@@ -43,6 +47,7 @@ from shelfpick.perception.geometry import matrix_to_quat
 from shelfpick.perception.render import default_camera, render
 from shelfpick.perception.scene import Box, Camera, Scene, Shelf
 from shelfpick.perception.segment_learned import LearnedConfig, build_model, load_backbone, save_model, to_tensor
+from shelfpick.perception.training.printed_shelves import PRINTED_SEED0, printed_shelf_example
 from shelfpick.perception.training.scenes import TAPED_SEED0, WALL_SEED0, taped_wall_example, wall_example
 
 TRAIN_SEED0 = 30000        # outside every fixed set role (docs/perception.md)
@@ -69,6 +74,9 @@ class TrainConfig:
     taped: int = 0                         # walls with faces cut by tape and stickers (`taped_wall_example`)
     taped_seed: int = TAPED_SEED0
     taped_share: float = 0.0               # share of crops drawn from the taped walls
+    printed: int = 0                       # shelves of one design, hard light (`printed_shelf_example`)
+    printed_seed: int = PRINTED_SEED0
+    printed_share: float = 0.0             # share of crops drawn from the printed shelves
 
     def to_json(self) -> dict:
         d = dict(vars(self))
@@ -283,24 +291,29 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
 
 # ---------------------------------------------------------------- training
 def _pick(files: list[Path], walls: list[Path], taped: list[Path], cfg: TrainConfig,
-          rng: np.random.Generator) -> list[Path]:
+          rng: np.random.Generator, printed: list[Path] | None = None) -> list[Path]:
     """The frame list one crop comes from: walls for `wall_share` of the crops, taped walls
-    for `taped_share`, the shelf renders for the rest (a share whose list is empty falls to them)."""
+    for `taped_share`, printed shelves for `printed_share`, the shelf renders for the rest (a
+    share whose list is empty falls to them)."""
     r = rng.random()
     if walls and r < cfg.wall_share:
         return walls
     if taped and cfg.wall_share <= r < cfg.wall_share + cfg.taped_share:
         return taped
+    lo = cfg.wall_share + cfg.taped_share
+    if printed and lo <= r < lo + cfg.printed_share:
+        return printed
     return files
 
 
 def _batch(files: list[Path], cfg: TrainConfig, rng: np.random.Generator, cache: dict,
-           walls: list[Path] | None = None, taped: list[Path] | None = None):
+           walls: list[Path] | None = None, taped: list[Path] | None = None,
+           printed: list[Path] | None = None):
     import torch   # heavy and optional: only when training
 
     xs, ys = [], []
     for _ in range(cfg.batch):
-        pick = _pick(files, walls or [], taped or [], cfg, rng)
+        pick = _pick(files, walls or [], taped or [], cfg, rng, printed)
         p = pick[int(rng.integers(len(pick)))]
         if p not in cache:
             with np.load(p) as z:
@@ -345,6 +358,11 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         if cfg.taped_seed < TAPED_SEED0:
             raise ValueError(f"taped wall frames use seeds >= {TAPED_SEED0}, got {cfg.taped_seed}")
         taped = build_cache(cache_dir, cfg.taped, cfg.taped_seed, log, taped_wall_example, "t")
+    printed: list[Path] = []
+    if cfg.printed:
+        if cfg.printed_seed < PRINTED_SEED0:
+            raise ValueError(f"printed shelf frames use seeds >= {PRINTED_SEED0}, got {cfg.printed_seed}")
+        printed = build_cache(cache_dir, cfg.printed, cfg.printed_seed, log, printed_shelf_example, "p")
     learned_cfg = LearnedConfig()
     if cfg.init:
         from shelfpick.perception.segment_learned import load_checkpoint
@@ -372,7 +390,7 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         for m in model._blocks:          # BatchNorm statistics of the backbone stay ImageNet's
             m.eval()
         model._bn0.eval()
-        x, y = _batch(files, cfg, rng, cache, walls, taped)
+        x, y = _batch(files, cfg, rng, cache, walls, taped, printed)
         loss = F.cross_entropy(model(x), y, weight=weights)
         opt.zero_grad()
         loss.backward()
@@ -411,6 +429,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="walls with faces cut by tape and stickers (`training.scenes.taped_wall_example`)")
     p.add_argument("--taped-seed", type=int, default=TAPED_SEED0, help=f"first taped wall seed (>= {TAPED_SEED0})")
     p.add_argument("--taped-share", type=float, default=0.0, help="share of crops from the taped walls")
+    p.add_argument("--printed", type=int, default=0,
+                   help="shelves of flush cartons of one design under a hard light (`training.printed_shelves`)")
+    p.add_argument("--printed-seed", type=int, default=PRINTED_SEED0,
+                   help=f"first printed shelf seed (>= {PRINTED_SEED0})")
+    p.add_argument("--printed-share", type=float, default=0.0, help="share of crops from the printed shelves")
     a = p.parse_args(argv)
     if a.seed < TRAIN_SEED0:
         p.error(f"--seed: training renders use seeds >= {TRAIN_SEED0} (the fixed set roles live below), got {a.seed}")
@@ -418,11 +441,15 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--wall-seed: wall renders use seeds >= {WALL_SEED0}, got {a.wall_seed}")
     if a.taped and a.taped_seed < TAPED_SEED0:
         p.error(f"--taped-seed: taped wall renders use seeds >= {TAPED_SEED0}, got {a.taped_seed}")
-    if a.wall_share + a.taped_share > 1.0:
-        p.error(f"--wall-share + --taped-share: at most 1, got {a.wall_share + a.taped_share}")
+    if a.printed and a.printed_seed < PRINTED_SEED0:
+        p.error(f"--printed-seed: printed shelf renders use seeds >= {PRINTED_SEED0}, got {a.printed_seed}")
+    if a.wall_share + a.taped_share + a.printed_share > 1.0:
+        p.error(f"--wall-share + --taped-share + --printed-share: at most 1, "
+                f"got {a.wall_share + a.taped_share + a.printed_share}")
     cfg = TrainConfig(frames=a.frames, seed=a.seed, minutes=a.minutes, max_iters=a.max_iters, batch=a.batch,
                       threads=a.threads, lr=a.lr, walls=a.walls, wall_seed=a.wall_seed, wall_share=a.wall_share,
-                      init=a.init, taped=a.taped, taped_seed=a.taped_seed, taped_share=a.taped_share)
+                      init=a.init, taped=a.taped, taped_seed=a.taped_seed, taped_share=a.taped_share,
+                      printed=a.printed, printed_seed=a.printed_seed, printed_share=a.printed_share)
     meta = train(cfg, Path(a.cache), Path(a.out), log=lambda m: print(m, flush=True))
     print(json.dumps(meta))
     return 0
