@@ -117,7 +117,7 @@ def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
             if d > LEFT_OVERLAP and not (a.id.startswith("~") or b.id.startswith("~")):
                 notes.append(f"{a.id}/{b.id}: overlap by {d * 100:.1f} cm that make_valid could not part; "
                              f"their perceived faces {CONTRADICTION}")
-        notes += _hidden_behind(a, boxes)
+        notes += _faces_behind(a, boxes)
         top = _aabb(a)[1, 2]
         if top > shelf.height + 1e-6:
             notes.append(f"{a.id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m; "
@@ -131,6 +131,13 @@ def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
 # is an ordinary occlusion, and faces within 1 cm in depth are the overlap test's
 HIDDEN_BEHIND = 0.01
 HIDDEN_SHARE = 0.75
+# the planner's shallowest drawn box (`PhysicsConfig.min_sample_depth`) and the deepest overlap its
+# sample worlds repair (`prediction_repair_tolerance`), restated here because perception imports no
+# planning (tests/perception/test_boxes.py checks they agree): a face less than their difference behind
+# another that overlaps it across by more than the second both ways is one the front box, however
+# shallow, would pass through
+MIN_BOX_DEPTH = 0.15
+REPAIRABLE = 0.05
 
 
 def _face_xz(b: Box) -> np.ndarray:
@@ -141,8 +148,9 @@ def _face_xz(b: Box) -> np.ndarray:
     return np.stack([front.min(axis=0), front.max(axis=0)])
 
 
-def _hidden_behind(a: Box, boxes: list[Box]) -> list[str]:
-    """A warning note for each perceived face the perceived face of `a` would hide from the camera."""
+def _faces_behind(a: Box, boxes: list[Box]) -> list[str]:
+    """A warning note for each perceived face behind the perceived face of `a` that `a` would hide
+    from the camera, or that `a`'s box would pass through."""
     if a.depth_known or a.id.startswith("~"):
         return []
     fa, ya, notes = _face_xz(a), a.front_center[1], []
@@ -157,6 +165,11 @@ def _hidden_behind(a: Box, boxes: list[Box]) -> list[str]:
             notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s and {share:.0%} of it "
                          f"within {a.id}'s face across, where the camera could not have seen it; their "
                          f"perceived faces {CONTRADICTION}")
+        elif behind < MIN_BOX_DEPTH - REPAIRABLE and across.min() > REPAIRABLE:
+            notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s, {across[0] * 100:.0f}x"
+                         f"{across[1] * 100:.0f} cm of it within {a.id}'s face across, where {a.id}'s box (at "
+                         f"least {MIN_BOX_DEPTH * 100:.0f} cm deep) would pass through it; their perceived "
+                         f"faces {CONTRADICTION}")
     return notes
 
 

@@ -367,3 +367,25 @@ def test_a_face_seen_behind_another_face_that_would_hide_it_is_reported():
     # the same face 5 mm behind (one depth, an overlap of slabs) is the overlap test's, not this one's
     level = replace(inside, position=(0.08, 0.005 + 0.125, 0.15))
     assert not any("could not have seen" in n for n in make_valid([big, level], shelf)[1])
+
+
+def test_a_face_behind_another_closer_than_any_box_is_deep_is_reported():
+    """A face 4 cm behind another that overlaps it 6x20 cm across: the front box, at least 15 cm
+    deep in every sample world, passes 11 cm through it, more than the 5 cm the worlds repair, so
+    the planner refuses the shelf; perceive says so first. 12 cm behind it fits and is not said."""
+    from shelfpick.perception import boxes as perceived
+    from shelfpick.planning.physics import PhysicsConfig
+
+    cfg = PhysicsConfig()
+    assert (perceived.MIN_BOX_DEPTH, perceived.REPAIRABLE) == (cfg.min_sample_depth, cfg.prediction_repair_tolerance)
+    shelf = Shelf()
+    front = _upright("b0", 0.0, 0.0, 0.3, 0.3)
+    corner = Box("b1", (0.2, 0.25, 0.2), (0.19, 0.04 + 0.125, 0.1), (1.0, 0.0, 0.0, 0.0), None, False, 2,
+                 {"perceived": {}})      # x 0.09-0.29, z 0-0.2: 6x20 cm of it behind b0's face
+    boxes, notes = make_valid([front, corner], shelf)
+    said = [n for n in notes if "would pass through" in n]
+    assert len(said) == 1 and said[0].startswith("b1: its face lies 4.0 cm behind b0's, 6x20 cm of it")
+    assert "overlap" in _refusal(boxes, shelf)
+    far = replace(corner, position=(0.19, 0.12 + 0.125, 0.1))
+    boxes, notes = make_valid([front, far], shelf)
+    assert not any("cannot all be right" in n for n in notes) and _refusal(boxes, shelf) == ""
