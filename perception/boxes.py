@@ -9,6 +9,7 @@ says what it moved.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
 
 import cv2
@@ -105,6 +106,16 @@ def _face_depth(a: Box, b: Box) -> float:
     face behind it is for the sample worlds' depth draws to fit, not a contradiction, and two
     slabs side by side at one depth are one box's depth into each other, not a slab's."""
     return _depth(face_part(a), face_part(b), ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
+
+
+def flag_contradicted(boxes: list[Box], notes: list[str]) -> list[Box]:
+    """The boxes, each one a contradiction note names (`... cannot all be right`) carrying
+    `perceived.contradicted: true`, so that planning, which reads the scene file, knows which faces
+    perception itself doubts (planning/contradicted.py: a plan touching one is not declared safe)."""
+    said = [n for n in notes if CONTRADICTION in n]
+    named = {b.id for b in boxes if any(re.search(rf"(?<![\w~]){re.escape(b.id)}(?!\w)", n) for n in said)}
+    return [replace(b, extra={**b.extra, "perceived": {**(b.extra.get("perceived") or {}), "contradicted": True}})
+            if b.id in named else b for b in boxes]
 
 
 def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:

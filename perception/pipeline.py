@@ -22,6 +22,7 @@ from shelfpick.perception.boxes import (
     boxes_from_masks,
     default_front_distance,
     distance_from_box_size,
+    flag_contradicted,
     make_valid,
     planar_depth,
 )
@@ -203,7 +204,8 @@ def _perceive(capture: Capture, segmenter: Segmenter | None, shelf: Shelf | None
     if found is not None and found.regions:    # first: the console shows a capture's first three warnings
         warnings.insert(0, describe(found.regions))
     t = time.perf_counter()
-    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in boxes if b.mask_label})
+    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id + (" ?" if _doubted(b) else "")
+                                                 for b in boxes if b.mask_label})
     if found is not None and found.regions:
         overlay = draw_unexplained(overlay, found.labels, [u.id for u in found.regions])
     timing["overlay"] = time.perf_counter() - t
@@ -359,10 +361,16 @@ def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, dep
     return boxes, masks, faces, warnings, cut_notes
 
 
+def _doubted(b: Box) -> bool:
+    """Whether perception marked the box as part of a contradiction (`flag_contradicted`)."""
+    return (b.extra.get("perceived") or {}).get("contradicted") is True
+
+
 def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, labels: np.ndarray,
                          offered: list[np.ndarray], kept: list[np.ndarray], timing: dict[str, float],
                          ) -> tuple[list[Box], Found | None, list[str]]:
-    """(boxes made valid, the unexplained matter or None without depth, what make_valid changed).
+    """(boxes made valid, those a contradiction names marked `perceived.contradicted`; the
+    unexplained matter or None without depth; what make_valid changed).
 
     The matter is found first, on the boxes as measured, and stands in as supports while
     `make_valid` rests the boxes: a box on a support the segmenter missed (two merged boxes
@@ -388,7 +396,7 @@ def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, label
         t = time.perf_counter()
         found = find_unexplained(capture.depth, capture.camera, shelf, valid, labels, dropped, cand)
         timing["unexplained"] += time.perf_counter() - t
-    return valid, found, notes
+    return flag_contradicted(valid, notes), found, notes     # faces that cannot all be right, marked for planning
 
 
 def _supports(regions, shelf: Shelf) -> list[Box]:

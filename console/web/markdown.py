@@ -46,6 +46,9 @@ def results_markdown(state: State) -> str:
         if e.scene_problems else "stands as seen")
     if any(_touched(state.plans[c].plan) is not None for c in cols):    # issue 31: matter no box explains
         row("unexplained matter", lambda e: "<br>".join(md(t) for t in _touched(e.plan) or ()) or "not touched")
+    if any(_touched(state.plans[c].plan, "contradicted") is not None for c in cols):   # faces perception doubts
+        row("faces that cannot all be right", lambda e: "<br>".join(
+            md(t) for t in _touched(e.plan, "contradicted") or ()) or "not touched")
     row(f"est. execution ({SECONDS_PER_BOX:g}{NBSP}s/box)", lambda e: f"{e.est_seconds:.1f}{NBSP}s")
     row("planning time", lambda e: f"{_planning_seconds(e.plan):.2f}{NBSP}s"
         if e.plan.planner != "continue" else "—")
@@ -76,10 +79,11 @@ def _planning_seconds(plan: Plan) -> float:
     return own + float(t.get("setup_s", 0.0))
 
 
-def _touched(plan: Plan) -> list[str] | None:
-    """Why the plan touches unexplained matter (planning/unexplained.py; [] when it does not), None
+def _touched(plan: Plan, key: str = "unexplained") -> list[str] | None:
+    """Why the plan touches unexplained matter (planning/unexplained.py), or with `key`
+    "contradicted" a face perception doubts (planning/contradicted.py); [] when it does not, None
     when its scene had none."""
-    doc = (plan.extra or {}).get("unexplained")
+    doc = (plan.extra or {}).get(key)
     if not isinstance(doc, dict):
         return None
     return [str(t) for t in doc.get("touched") or [] if isinstance(t, str)]

@@ -136,3 +136,21 @@ def test_a_large_image_is_perceived_scaled_down_with_full_size_masks():
     # a limit the scaled size cannot meet exactly is scaled once, not again and again
     odd = perceive(cap, DepthEdgeSegmenter(), scene.shelf, max_pixels=160 * 120 + 77)
     assert odd.masks.shape == (240, 320) and sum("perceived at" in w for w in odd.warnings) == 1
+
+
+def test_boxes_a_contradiction_names_leave_perception_marked_for_planning():
+    """The faces perception says cannot all be right reach the scene as `perceived.contradicted`
+    (planning/contradicted.py reads it), and the overlay labels them with a "?"."""
+    from shelfpick.perception.pipeline import _doubted, _valid_and_explained
+    from shelfpick.perception.scene import Box
+    from synth_frames import SMALL_CAMERA
+
+    front = Box("b0", (0.3, 0.25, 0.3), (0.0, 0.125, 0.15), (1.0, 0.0, 0.0, 0.0), None, False, 1, {"perceived": {}})
+    behind = Box("b1", (0.2, 0.25, 0.2), (0.19, 0.165, 0.1), (1.0, 0.0, 0.0, 0.0), None, False, 2, {"perceived": {}})
+    apart = Box("b2", (0.2, 0.25, 0.2), (-0.35, 0.125, 0.1), (1.0, 0.0, 0.0, 0.0), None, False, 3, {"perceived": {}})
+    rgb = np.zeros((SMALL_CAMERA.height, SMALL_CAMERA.width, 3), np.uint8)
+    labels = np.zeros(rgb.shape[:2], np.uint16)
+    boxes, found, notes = _valid_and_explained([front, behind, apart], Capture(rgb, None, SMALL_CAMERA), Shelf(),
+                                               labels, [], [], {})
+    assert found is None and any("would pass through" in n for n in notes)
+    assert [_doubted(b) for b in boxes] == [True, True, False]

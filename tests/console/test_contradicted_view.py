@@ -1,0 +1,44 @@
+"""Faces perception doubts in the console: a "?" on the box in the 3D view (a real viser server),
+and the plan table's row saying which steps touch one (planning/contradicted.py)."""
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture()
+def server():
+    import viser
+
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+def test_a_doubted_box_is_labelled_with_a_question_mark_and_the_others_by_id(server):
+    from shelfpick.console.web.scene_view import draw_boxes
+    from shelfpick.perception.scene import Box, Scene, Shelf
+
+    doubted = Box("b1", (0.2, 0.2, 0.2), (0.1, 0.12, 0.1), extra={"perceived": {"contradicted": True}})
+    plain = Box("b0", (0.2, 0.2, 0.2), (-0.2, 0.12, 0.1), extra={"perceived": {"contradicted": False}})
+    nodes = draw_boxes(server.scene, Scene(Shelf(), (plain, doubted)))
+    assert nodes["b1"].label.text == "b1 ?" and nodes["b0"].label.text == "b0"
+
+
+def test_the_plan_table_says_what_touches_a_doubted_face_and_escapes_it():
+    from shelfpick.console.web.markdown import results_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
+    from shelfpick.planning.plan import Plan, StepPrediction
+
+    why = "step 1: pulling b_0 touches b*1, a box whose perceived face cannot be right as seen"
+    touched = Plan("extract", "b_0", "physics", ("b_0",), (StepPrediction("b_0"),), False, {}, 0,
+                   {"contradicted": {"boxes": ["b*1"], "touched": [why]}})
+    clear = Plan("extract", "b_0", "heuristic", ("b_0",), (StepPrediction("b_0"),), True, {}, 0,
+                 {"contradicted": {"boxes": ["b*1"], "touched": []}})
+    plans = {"physics": PlanEntry(touched, touched.content_hash()), "heuristic": PlanEntry(clear, clear.content_hash())}
+    md = results_markdown(State(plans=plans))
+    row = next(ln for ln in md.splitlines() if ln.startswith("| faces that cannot all be right |"))
+    assert "pulling b&#95;0 touches b&#42;1" in row and "not touched" in row   # outside text, escaped
+    plain = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), True, {}, 0, {})
+    assert "cannot all be right" not in results_markdown(State(plans={"physics": PlanEntry(plain, plain.content_hash())}))
