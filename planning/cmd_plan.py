@@ -92,6 +92,8 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
         _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
     for why in (plan.extra.get("unexplained") or {}).get("touched", []):
         _warn(f"{why} (matter perception saw but no box explains); the plan is not safe")
+    for why in (plan.extra.get("contradicted") or {}).get("touched", []):
+        _warn(f"{why} (perception said its faces cannot all be right); the plan is not safe")
     gate = search.get("plan_risk")
     if not plan.safe and plan.predicted and isinstance(gate, dict):
         _warn(f"the plan's calibrated chance of a collapse is {gate['probability']:.3f} (up to {gate['high']:.3f}; "

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from shelfpick.perception.errors import FormatError
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.clear import prefer_baseline, search_clear, visit_order
+from shelfpick.planning.contradicted import verdict as contradicted_verdict
 from shelfpick.planning.calibration import DEFAULT_MAX_PLAN_RISK, Calibration, calibration_for
 from shelfpick.planning.extract import CountingOracle, search_extract, success_prob
 from shelfpick.planning.gate import GateResult, gate
@@ -209,6 +210,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         search["plan_risk"] = gated.to_json()
     safe, extra = _verdict(predicted, risk, search, check, gated)
     safe, extra = unexplained_verdict(scene, sequence, predicted, safe, extra)   # a plan touching it is not safe
+    safe, extra = contradicted_verdict(scene, sequence, predicted, safe, extra)  # nor one on a doubted face
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench
     return plan.with_provenance(scene, config, samples, risk)
