@@ -2,19 +2,6 @@
 and the plan table's row saying which steps touch one (planning/contradicted.py)."""
 from __future__ import annotations
 
-import pytest
-
-
-@pytest.fixture()
-def server():
-    import viser
-
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        yield s
-    finally:
-        s.stop()
-
 
 def test_a_doubted_box_is_labelled_with_a_question_mark_and_the_others_by_id(server):
     from shelfpick.console.web.scene_view import draw_boxes

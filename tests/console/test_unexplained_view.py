@@ -6,17 +6,6 @@ import pytest
 from shelfpick.perception.scene import Box, Scene, Shelf, Unexplained
 
 
-@pytest.fixture()
-def server():
-    import viser
-
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        yield s
-    finally:
-        s.stop()
-
-
 def _scene(*regions: Unexplained) -> Scene:
     return Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.12, 0.1)),), unexplained=regions or None)
 
