@@ -4,6 +4,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 os.environ.setdefault("YOLO_OFFLINE", "1")
 os.environ.setdefault("YOLO_AUTOINSTALL", "0")
@@ -25,3 +27,15 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
         terminalreporter.write_line(
             "console fault injection: {faults} faults injected, {unapproved} robot steps ran unapproved, "
             "{unrecorded} unrecorded, {stops} stops of which {stops_not_stopping} did not stop".format(**kit.TALLY))
+
+
+@pytest.fixture()
+def server():
+    """A real viser server on a free local port, stopped after the test (the console's views)."""
+    import viser
+
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        yield s
+    finally:
+        s.stop()
