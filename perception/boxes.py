@@ -184,25 +184,6 @@ def _faces_behind(a: Box, boxes: list[Box]) -> list[str]:
     return notes
 
 
-def unbuildable(boxes: list[Box]) -> list[tuple[str, str]]:
-    """Pairs of perceived boxes no sample world can hold as measured, so the planner would refuse
-    the whole shelf: their faces overlap across by more than the worlds repair (`REPAIRABLE`), or
-    one face lies closer behind the other than any box is deep (`_faces_behind`'s second case)."""
-    out = []
-    for i, a in enumerate(boxes):
-        for b in boxes[i + 1:]:
-            if a.depth_known or b.depth_known or a.id.startswith("~") or b.id.startswith("~"):
-                continue
-            front, back = (a, b) if a.front_center[1] <= b.front_center[1] else (b, a)
-            behind = back.front_center[1] - front.front_center[1]
-            fa, fb = _face_xz(front), _face_xz(back)
-            across = np.clip(np.minimum(fa[1], fb[1]) - np.maximum(fa[0], fb[0]), 0.0, None)
-            shallow = HIDDEN_BEHIND < behind < MIN_BOX_DEPTH - REPAIRABLE and across.min() > REPAIRABLE
-            if shallow or _face_depth(a, b) > REPAIRABLE:
-                out.append((a.id, b.id))
-    return out
-
-
 def _under_the_top(boxes: list[Box], shelf: Shelf) -> tuple[list[Box], list[str]]:
     """A box reaching above the shelf's top is cut down to fit, its bottom where it rests: the
     stack under it measured taller than the shelf, so some face in it is wrong, and the warning

@@ -25,7 +25,6 @@ from shelfpick.perception.boxes import (
     flag_contradicted,
     make_valid,
     planar_depth,
-    unbuildable,
 )
 from shelfpick.perception.capture import Capture
 from shelfpick.perception.faces import FrontFace, measure_front
@@ -373,33 +372,7 @@ def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, label
     """(boxes made valid, those a contradiction names marked `perceived.contradicted`; the
     unexplained matter or None without depth; what make_valid changed).
 
-    Two faces no sample world can hold as measured (`boxes.unbuildable`: the planner would refuse
-    the whole shelf) are taken out and their depth becomes unexplained matter, said in a warning:
-    nobody knows which of the two is wrong, and a plan beside them is not declared safe, but a
-    target elsewhere on the shelf can still be planned."""
-    ids = {id(m) for m in kept}
-    dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in ids]
-    t = time.perf_counter()
-    cand = candidates(capture.depth, capture.camera, shelf) if capture.depth is not None else None
-    timing["unexplained"] = time.perf_counter() - t
-    valid, found, notes = _rest(boxes, capture, shelf, labels, dropped, cand, timing)
-    stuck = unbuildable(valid) if found is not None else []
-    if stuck:
-        gone = sorted({bid for pair in stuck for bid in pair})
-        said = [n for n in notes if CONTRADICTION in n]
-        valid, found, notes = _rest([b for b in boxes if b.id not in gone], capture, shelf, labels, dropped,
-                                    cand, timing)
-        found = _named(found, {b.id: kept[b.mask_label - 1] for b in boxes if b.id in gone and b.mask_label})
-        notes = said + [f"{', '.join(gone)}: no shelf holds {'these faces' if len(gone) > 2 else 'both faces'} "
-                        f"as measured; taken as unexplained matter, not boxes: their perceived faces "
-                        f"{CONTRADICTION}"] + notes
-    return flag_contradicted(valid, notes), found, notes     # faces that cannot all be right, marked for planning
-
-
-def _rest(boxes: list[Box], capture: Capture, shelf: Shelf, labels: np.ndarray,
-          dropped: list[tuple[int, np.ndarray]], cand, timing: dict[str, float],
-          ) -> tuple[list[Box], Found | None, list[str]]:
-    """The matter is found first, on the boxes as measured, and stands in as supports while
+    The matter is found first, on the boxes as measured, and stands in as supports while
     `make_valid` rests the boxes: a box on a support the segmenter missed (two merged boxes
     refused as no box front, issue 31) stays where the camera saw it instead of being dropped
     into the hole. It is found again when a box still moved (>= 1 cm): the depth there is then
@@ -407,8 +380,11 @@ def _rest(boxes: list[Box], capture: Capture, shelf: Shelf, labels: np.ndarray,
     t = time.perf_counter()
     found = None
     if capture.depth is not None:    # without a depth image nobody knows where matter is
+        ids = {id(m) for m in kept}
+        dropped = [(i + 1, m) for i, m in enumerate(offered) if id(m) not in ids]
+        cand = candidates(capture.depth, capture.camera, shelf)
         found = find_unexplained(capture.depth, capture.camera, shelf, boxes, labels, dropped, cand)
-    timing["unexplained"] = timing.get("unexplained", 0.0) + time.perf_counter() - t
+    timing["unexplained"] = time.perf_counter() - t
     t = time.perf_counter()
     props = _supports(found.regions if found is not None else (), shelf)
     valid, notes = make_valid(list(boxes) + props, shelf)
@@ -420,22 +396,7 @@ def _rest(boxes: list[Box], capture: Capture, shelf: Shelf, labels: np.ndarray,
         t = time.perf_counter()
         found = find_unexplained(capture.depth, capture.camera, shelf, valid, labels, dropped, cand)
         timing["unexplained"] += time.perf_counter() - t
-    return valid, found, notes
-
-
-def _named(found: Found | None, gone: dict[str, np.ndarray]) -> Found | None:
-    """The regions made mostly of faces taken out (`gone`: id -> mask) say so in their `why`."""
-    if found is None or not gone:
-        return found
-    regions = []
-    for u in found.regions:
-        sel = found.labels == int(u.id[1:]) + 1
-        n = int(sel.sum())
-        who = [bid for bid, m in gone.items() if int((sel & m).sum()) >= 0.3 * min(n, int(m.sum()) or 1)]
-        why = (f"{'face' if len(who) == 1 else 'faces'} {', '.join(who)} taken out: perceived faces that "
-               f"{CONTRADICTION}") if who else u.why
-        regions.append(replace(u, why=why if not (who and u.why) else f"{u.why}; {why}"))
-    return Found(tuple(regions), found.labels)
+    return flag_contradicted(valid, notes), found, notes     # faces that cannot all be right, marked for planning
 
 
 def _supports(regions, shelf: Shelf) -> list[Box]:

@@ -154,32 +154,3 @@ def test_boxes_a_contradiction_names_leave_perception_marked_for_planning():
                                                labels, [], [], {})
     assert found is None and any("would pass through" in n for n in notes)
     assert [_doubted(b) for b in boxes] == [True, True, False]
-
-
-def test_two_faces_no_shelf_can_hold_become_unexplained_matter_and_the_rest_stays_boxes():
-    """A face measured 6 cm too wide, into the face of the box beside it 4 cm further forward: the
-    front box, at least 15 cm deep in every sample world, would pass through it, so the planner
-    would refuse the whole shelf. The two are taken out, their depth becomes unexplained matter
-    named after them, and the third box stays a box a plan can be made for."""
-    from shelfpick.perception.pipeline import _valid_and_explained
-    from shelfpick.perception.scene import Box
-
-    truth = Scene(Shelf(), (box("a", 0.0, 0, 0.30, 0.30), box("b", 0.25, 0, 0.20, 0.20, front=0.06),
-                            box("c", -0.35, 0, 0.20, 0.20)))
-    cap = cast(truth)
-    up = (1.0, 0.0, 0.0, 0.0)
-    seen = [Box("b0", (0.30, 0.25, 0.30), (0.0, 0.02 + 0.125, 0.15), up, None, False, 1, {"perceived": {}}),
-            Box("b1", (0.26, 0.25, 0.20), (0.22, 0.06 + 0.125, 0.10), up, None, False, 2, {"perceived": {}}),
-            Box("b2", (0.20, 0.25, 0.20), (-0.35, 0.02 + 0.125, 0.10), up, None, False, 3, {"perceived": {}})]
-    kept = [cap.masks == k for k in (1, 2, 3)]
-    boxes, found, notes = _valid_and_explained(seen, cap, Shelf(), cap.masks.astype(np.uint16), kept, kept, {})
-    assert [b.id for b in boxes] == ["b2"]
-    assert any(n.startswith("b0, b1: no shelf holds both faces as measured; taken as unexplained matter")
-               for n in notes)
-    named = [u for u in found.regions if "taken out: perceived faces that cannot all be right" in u.why]
-    assert {u.why.split(" taken out")[0] for u in named} == {"face b0", "face b1"}
-    assert min(u.min[0] for u in named) < -0.1 and max(u.max[0] for u in named) > 0.3   # where a and b stand
-    # measured right, nothing is taken out and no matter is left unexplained
-    fine = seen[:1] + [replace(seen[1], size=(0.20, 0.25, 0.20), position=(0.25, 0.185, 0.10))] + seen[2:]
-    boxes, found, _ = _valid_and_explained(fine, cap, Shelf(), cap.masks.astype(np.uint16), kept, kept, {})
-    assert [b.id for b in boxes] == ["b0", "b1", "b2"] and not found.regions
