@@ -128,12 +128,11 @@ def _overlaps_left(boxes: list[Box], shelf: Shelf) -> list[str]:
             if d > LEFT_OVERLAP and not (a.id.startswith("~") or b.id.startswith("~")):
                 notes.append(f"{a.id}/{b.id}: overlap by {d * 100:.1f} cm that make_valid could not part; "
                              f"their perceived faces {CONTRADICTION}")
-        notes += _faces_behind(a, boxes)
         top = _aabb(a)[1, 2]
         if top > shelf.height + 1e-6:
             notes.append(f"{a.id}: reaches {top:.3f} m, above the shelf height {shelf.height:.3f} m; "
                          f"the faces of its stack {CONTRADICTION}")
-    return notes
+    return notes + _faces_behind(boxes)
 
 
 # a seen face this far behind another, and this much of it within that face across, is hidden from the
@@ -159,28 +158,28 @@ def _face_xz(b: Box) -> np.ndarray:
     return np.stack([front.min(axis=0), front.max(axis=0)])
 
 
-def _faces_behind(a: Box, boxes: list[Box]) -> list[str]:
-    """A warning note for each perceived face behind the perceived face of `a` that `a` would hide
-    from the camera, or that `a`'s box would pass through."""
-    if a.depth_known or a.id.startswith("~"):
-        return []
-    fa, ya, notes = _face_xz(a), a.front_center[1], []
-    for b in boxes:
-        behind = b.front_center[1] - ya
-        if b is a or b.depth_known or b.id.startswith("~") or behind <= HIDDEN_BEHIND:
-            continue
-        fb = _face_xz(b)
-        across = np.clip(np.minimum(fa[1], fb[1]) - np.maximum(fa[0], fb[0]), 0.0, None)
-        share = float(across.prod() / max(np.prod(fb[1] - fb[0]), 1e-9))
-        if share >= HIDDEN_SHARE:
-            notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s and {share:.0%} of it "
-                         f"within {a.id}'s face across, where the camera could not have seen it; their "
-                         f"perceived faces {CONTRADICTION}")
-        elif behind < MIN_BOX_DEPTH - REPAIRABLE and across.min() > REPAIRABLE:
-            notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s, {across[0] * 100:.0f}x"
-                         f"{across[1] * 100:.0f} cm of it within {a.id}'s face across, where {a.id}'s box (at "
-                         f"least {MIN_BOX_DEPTH * 100:.0f} cm deep) would pass through it; their perceived "
-                         f"faces {CONTRADICTION}")
+def _faces_behind(boxes: list[Box]) -> list[str]:
+    """A warning note for each perceived face behind another perceived face that the nearer one
+    would hide from the camera, or that the nearer one's box would pass through (each face's
+    rectangle measured once)."""
+    seen = [(b, _face_xz(b), b.front_center[1]) for b in boxes if not b.depth_known and not b.id.startswith("~")]
+    notes = []
+    for a, fa, ya in seen:
+        for b, fb, yb in seen:
+            behind = yb - ya
+            if behind <= HIDDEN_BEHIND:
+                continue
+            across = np.clip(np.minimum(fa[1], fb[1]) - np.maximum(fa[0], fb[0]), 0.0, None)
+            share = float(across.prod() / max(np.prod(fb[1] - fb[0]), 1e-9))
+            if share >= HIDDEN_SHARE:
+                notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s and {share:.0%} of it "
+                             f"within {a.id}'s face across, where the camera could not have seen it; their "
+                             f"perceived faces {CONTRADICTION}")
+            elif behind < MIN_BOX_DEPTH - REPAIRABLE and across.min() > REPAIRABLE:
+                notes.append(f"{b.id}: its face lies {behind * 100:.1f} cm behind {a.id}'s, {across[0] * 100:.0f}x"
+                             f"{across[1] * 100:.0f} cm of it within {a.id}'s face across, where {a.id}'s box (at "
+                             f"least {MIN_BOX_DEPTH * 100:.0f} cm deep) would pass through it; their perceived "
+                             f"faces {CONTRADICTION}")
     return notes
 
 

@@ -204,7 +204,7 @@ def _perceive(capture: Capture, segmenter: Segmenter | None, shelf: Shelf | None
     if found is not None and found.regions:    # first: the console shows a capture's first three warnings
         warnings.insert(0, describe(found.regions))
     t = time.perf_counter()
-    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id + (" ?" if _doubted(b) else "")
+    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id + (" ?" if b.contradicted else "")
                                                  for b in boxes if b.mask_label})
     if found is not None and found.regions:
         overlay = draw_unexplained(overlay, found.labels, [u.id for u in found.regions])
@@ -359,11 +359,6 @@ def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, dep
     warnings.extend(_border_warnings(boxes, masks))
     cut_notes = [f"{b.id}: {completed[id(f)]}" for b, f in zip(boxes, faces) if id(f) in completed]
     return boxes, masks, faces, warnings, cut_notes
-
-
-def _doubted(b: Box) -> bool:
-    """Whether perception marked the box as part of a contradiction (`flag_contradicted`)."""
-    return (b.extra.get("perceived") or {}).get("contradicted") is True
 
 
 def _valid_and_explained(boxes: list[Box], capture: Capture, shelf: Shelf, labels: np.ndarray,

@@ -310,6 +310,12 @@ class Box:
     extra: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
 
     @property
+    def contradicted(self) -> bool:
+        """Whether perception named this box in a warning that its faces cannot all be right
+        (`perceived.contradicted`, docs/formats.md): planning does not call a plan touching it safe."""
+        return (self.extra.get("perceived") or {}).get("contradicted") is True
+
+    @property
     def front_y(self) -> float:
         """y of the front face centre, for an upright box turned about z only."""
         return self.front_center[1]

@@ -91,8 +91,7 @@ def draw_boxes(scene_api: Any, scene: Any, prefix: str = "/boxes") -> dict[str, 
         # the id sits in the middle of the face the camera (and the operator) sees, just in front of
         # it: a label at a box's top edge reads as the box above and one click picks the wrong target
         # a face perception itself doubts (`perceived.contradicted`) says so where it stands
-        doubted = ((getattr(b, "extra", None) or {}).get("perceived") or {}).get("contradicted") is True
-        label = scene_api.add_label(f"{base}/label", f"{b.id} ?" if doubted else b.id, position=label_position(b),
+        label = scene_api.add_label(f"{base}/label", f"{b.id} ?" if b.contradicted else b.id, position=label_position(b),
                                     anchor="center-center", font_screen_scale=1.1)
         grow = (b.size[0] + 0.02, b.size[1] + 0.02, b.size[2] + 0.02)
         target = scene_api.add_box(f"{base}/target", color=TARGET_COLOR, dimensions=grow,

@@ -141,7 +141,7 @@ def test_a_large_image_is_perceived_scaled_down_with_full_size_masks():
 def test_boxes_a_contradiction_names_leave_perception_marked_for_planning():
     """The faces perception says cannot all be right reach the scene as `perceived.contradicted`
     (planning/contradicted.py reads it), and the overlay labels them with a "?"."""
-    from shelfpick.perception.pipeline import _doubted, _valid_and_explained
+    from shelfpick.perception.pipeline import _valid_and_explained
     from shelfpick.perception.scene import Box
     from synth_frames import SMALL_CAMERA
 
@@ -153,4 +153,4 @@ def test_boxes_a_contradiction_names_leave_perception_marked_for_planning():
     boxes, found, notes = _valid_and_explained([front, behind, apart], Capture(rgb, None, SMALL_CAMERA), Shelf(),
                                                labels, [], [], {})
     assert found is None and any("would pass through" in n for n in notes)
-    assert [_doubted(b) for b in boxes] == [True, True, False]
+    assert [b.contradicted for b in boxes] == [True, True, False]
