@@ -91,7 +91,7 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
         who = f"box {prob['box']}" if prob.get("box") else "the scene"
         _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
     for why in (plan.extra.get("unexplained") or {}).get("touched", []):
-        _warn(f"{why} (matter perception saw but no box explains); the plan is not safe")
+        _warn(f"{why} (matter no perceived box explains); the plan is not safe")
     for why in (plan.extra.get("contradicted") or {}).get("touched", []):
         _warn(f"{why} (perception said its faces cannot all be right); the plan is not safe")
     gate = search.get("plan_risk")

@@ -20,6 +20,19 @@ from shelfpick.planning.physics import PhysicsConfig
 Penetration = tuple[float, str, "str | None", tuple, int]
 
 
+class OverlapError(SceneError):
+    """An overlap past repair, with the boxes it names (`boxes`): the planner may set those
+    perceived faces aside (planning/set_aside.py) instead of refusing the whole shelf."""
+
+    def __init__(self, message: str, boxes: tuple[str, ...] = (), detail: str = "") -> None:
+        super().__init__(message)
+        self.boxes = tuple(boxes)
+        self.detail = detail or message      # the overlap itself, without what was tried around it
+
+    def __reduce__(self):  # crosses process boundaries (worker pools) with its boxes
+        return (type(self), (str(self), self.boxes, self.detail))
+
+
 def _overlaps(a, b) -> bool:
     return all(a[0][k] < b[1][k] and b[0][k] < a[1][k] for k in range(3))
 
@@ -149,8 +162,8 @@ def repair_overlaps(p: Client, ids: tuple[str, ...], body: dict[str, int], stati
     for depth, a, b, _, sbody in sorted(pens, key=lambda x: -x[0]):
         if depth > tol:
             other = f"box {b!r}" if b else f"the shelf's {static[sbody]}"
-            raise SceneError(f"box {a!r} and {other} overlap by {depth:.3f} m "
-                             f"(more than the {tol:.3f} m that can be repaired)")
+            raise OverlapError(f"box {a!r} and {other} overlap by {depth:.3f} m "
+                               f"(more than the {tol:.3f} m that can be repaired)", (a, b) if b else (a,))
     shifts = _Shifts(p, body, config.repair_push)
     for _ in range(config.repair_rounds):
         if not pens:
@@ -160,6 +173,6 @@ def repair_overlaps(p: Client, ids: tuple[str, ...], body: dict[str, int], stati
         pens = penetrations(p, ids, body, static, config)
     if pens:
         worst = max(pens, key=lambda x: x[0])
-        raise SceneError(f"box {worst[1]!r} overlaps {worst[2] or 'the shelf'} and the overlap "
-                         f"cannot be repaired")
+        raise OverlapError(f"box {worst[1]!r} overlaps {worst[2] or 'the shelf'} and the overlap "
+                           f"cannot be repaired", (worst[1], worst[2]) if worst[2] else (worst[1],))
     return shifts.messages(ids)

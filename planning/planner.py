@@ -24,6 +24,7 @@ from shelfpick.planning.oracle import Predicting, Screening, Verifying
 from shelfpick.planning.plan import PLANNERS, TASKS, Plan, StepPrediction
 from shelfpick.planning.predict import Predictor
 from shelfpick.planning.reorder import reorder_extraction
+from shelfpick.planning.set_aside import build_setting_aside
 from shelfpick.planning.shorten import shorten_extraction
 from shelfpick.planning.uncertainty import Uncertainty
 from shelfpick.planning.unexplained import verdict as unexplained_verdict
@@ -158,10 +159,13 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         return Plan(task, target, planner, (), (), True, {"planning_s": 0.0}, seed, {"search": search})
 
     own = predictor is None
+    given, aside = scene, []
     if own:
         search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
-        predictor = Predictor(scene, samples=samples, seed=seed, config=config, workers=workers, model=model,
-                              pool=pool, clients=clients)
+        # faces no world can hold are set aside as unexplained matter, not the whole shelf refused
+        predictor, scene, aside = build_setting_aside(
+            scene, target, lambda sc: Predictor(sc, samples=samples, seed=seed, config=config, workers=workers,
+                                                model=model, pool=pool, clients=clients))
     sampling = predictor if isinstance(predictor, Screening) else None
     try:
         if own and scene.depth_known and sampling is not None:
@@ -211,6 +215,9 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     safe, extra = _verdict(predicted, risk, search, check, gated)
     safe, extra = unexplained_verdict(scene, sequence, predicted, safe, extra)   # a plan touching it is not safe
     safe, extra = contradicted_verdict(scene, sequence, predicted, safe, extra)  # nor one on a doubted face
+    if aside:
+        extra = {**extra, "set_aside": aside}
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
-    # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench
-    return plan.with_provenance(scene, config, samples, risk)
+    # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench;
+    # the scene it was given, not the one with faces set aside
+    return plan.with_provenance(given, config, samples, risk)

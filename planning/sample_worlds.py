@@ -13,6 +13,7 @@ from typing import Mapping, Sequence
 from shelfpick.perception.errors import SceneError
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.bullet_clients import ClientPool
+from shelfpick.planning.overlap_repair import OverlapError
 from shelfpick.planning.physics import PhysicsConfig
 from shelfpick.planning.sim import ShelfSim
 from shelfpick.planning.step_result import StepResult
@@ -152,8 +153,9 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
                           config, clients)
         except SceneError as exc:
             # one line that says whose fault it is: perception's faces, not the draws (issue 31)
-            raise SceneError(f"no draw of sample {sample} can be built: {exc}; not even as perceived "
-                             f"(no drawn error): the perceived faces cannot all be right") from None
+            raise OverlapError(f"no draw of sample {sample} can be built: {exc}; not even as perceived "
+                               f"(no drawn error): the perceived faces cannot all be right",
+                               getattr(exc, "boxes", ()), str(exc)) from None
         best_off = contradictions(best, config)
         return Draw(best, tuple(rejected), not best_off, best_off)
     return Draw(best, tuple(rejected), False, best_off)

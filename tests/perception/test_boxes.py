@@ -352,7 +352,7 @@ def test_a_box_measured_deep_into_boxes_on_both_sides_is_cut_to_the_gap():
 def test_a_face_seen_behind_another_face_that_would_hide_it_is_reported():
     """h22's labels 31015: one mask over an L of two cartons measured as its 44x41 cm rectangle,
     and a 20x20 face seen 2.6 cm behind it, wholly within it across. The camera cannot have seen
-    that face there, so the scene says its faces cannot all be right (the planner refuses it)."""
+    that face there, so the scene says its faces cannot all be right (no sample world can be built from them)."""
     shelf = Shelf()
     big = _upright("b6", 0.0, 0.0, 0.44, 0.41)
     inside = Box("b7", (0.2, 0.25, 0.2), (0.08, 0.026 + 0.125, 0.15), (1.0, 0.0, 0.0, 0.0), None, False, 2,
@@ -372,7 +372,7 @@ def test_a_face_seen_behind_another_face_that_would_hide_it_is_reported():
 def test_a_face_behind_another_closer_than_any_box_is_deep_is_reported():
     """A face 4 cm behind another that overlaps it 6x20 cm across: the front box, at least 15 cm
     deep in every sample world, passes 11 cm through it, more than the 5 cm the worlds repair, so
-    the planner refuses the shelf; perceive says so first. 12 cm behind it fits and is not said."""
+    no sample world can be built from them; perceive says so first. 12 cm behind it fits and is not said."""
     from shelfpick.perception import boxes as perceived
     from shelfpick.planning.physics import PhysicsConfig
 

@@ -207,7 +207,7 @@ def test_shelfpick_plan_warns_what_touches_the_matter(tmp_path, capsys):
     assert main(["plan", str(path), "--task", "extract", "--target", "b", "--samples", "2", "--workers", "1",
                  "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "step 1: pulling b touches unexplained matter u0 (matter perception saw but no box explains); " \
+    assert "step 1: pulling b touches unexplained matter u0 (matter no perceived box explains); " \
            "the plan is not safe" in err
     plan = json.loads(out.read_text())
     assert plan["safe"] is False and plan["unexplained"]["touched"] == ["step 1: pulling b touches unexplained matter u0"]
