@@ -15,10 +15,13 @@ declared safe. Refused as before:
 from __future__ import annotations
 
 import warnings
-from typing import Callable, TypeVar
+from typing import TYPE_CHECKING, Callable, TypeVar
 
 from shelfpick.perception.scene import Box, Camera, Scene, Unexplained
 from shelfpick.planning.overlap_repair import OverlapError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from shelfpick.planning.plan import Plan
 
 T = TypeVar("T")
 
@@ -76,3 +79,18 @@ def build_setting_aside(scene: Scene, target: str | None,
             aside.append({"boxes": list(names), "why": exc.detail})
             warnings.warn(f"set aside {' and '.join(names)} as unexplained matter: no world holds their faces as "
                           f"perceived ({exc.detail}); a plan that comes near them is not declared safe", stacklevel=2)
+
+
+def as_given(plan: "Plan", given: Scene, aside: list[dict[str, object]]) -> "Plan":
+    """`plan`, made on a scene with faces set aside, told so (`extra["set_aside"]`) and bound to the
+    scene it was given (`provenance.scene_hash`): for a caller that builds its own predictor."""
+    from dataclasses import replace
+
+    from shelfpick.planning.plan import scene_hash
+
+    if not aside:
+        return plan
+    extra = {**plan.extra, "set_aside": aside}
+    if isinstance(extra.get("provenance"), dict):
+        extra["provenance"] = {**extra["provenance"], "scene_hash": scene_hash(given)}
+    return replace(plan, extra=extra)

@@ -39,3 +39,19 @@ def server():
         yield s
     finally:
         s.stop()
+
+
+@pytest.fixture()
+def contradictory():
+    """A perceived shelf with two faces no sample world can hold (planning/set_aside.py): `f` and
+    `k` 5 cm apart in depth, one right behind the other (the camera cannot have seen `k`); `n`
+    stands beside `f`, `c` stands alone 20 cm away. Depths are placeholders, as perceive writes."""
+    from shelfpick.perception.scene import Box, Scene, Shelf
+
+    def seen(bid, size, centre):
+        return Box(bid, size, centre, (1.0, 0.0, 0.0, 0.0), None, False, None, {"perceived": {"distance": 1.0}})
+
+    return Scene(Shelf(), (seen("f", (0.3, 0.25, 0.3), (0.2, 0.125, 0.15)),
+                           seen("k", (0.3, 0.25, 0.3), (0.2, 0.175, 0.15)),
+                           seen("n", (0.2, 0.25, 0.2), (-0.06, 0.125, 0.1)),
+                           seen("c", (0.2, 0.25, 0.2), (-0.35, 0.125, 0.1))))

@@ -49,6 +49,10 @@ def results_markdown(state: State) -> str:
     if any(_touched(state.plans[c].plan, "contradicted") is not None for c in cols):   # faces perception doubts
         row("faces that cannot all be right", lambda e: "<br>".join(
             md(t) for t in _touched(e.plan, "contradicted") or ()) or "not touched")
+    if any(state.plans[c].plan.extra.get("set_aside") for c in cols):    # faces no world can hold
+        row("faces set aside as unexplained matter", lambda e: "<br>".join(
+            md(f"{' and '.join(map(str, a.get('boxes', ())))}: {a.get('why', '')}")
+            for a in e.plan.extra.get("set_aside") or ()) or "none")
     row(f"est. execution ({SECONDS_PER_BOX:g}{NBSP}s/box)", lambda e: f"{e.est_seconds:.1f}{NBSP}s")
     row("planning time", lambda e: f"{_planning_seconds(e.plan):.2f}{NBSP}s"
         if e.plan.planner != "continue" else "—")

@@ -21,41 +21,32 @@ def seen(bid: str, size, centre) -> Box:
     return Box(bid, size, centre, I, None, False, None, {"perceived": {"distance": 1.0}})
 
 
-def contradictory() -> Scene:
-    """`f` and `k`: two faces 5 cm apart in depth, one right behind the other (the camera cannot
-    have seen `k`); `n` stands beside `f`, `c` stands alone 20 cm away."""
-    return Scene(Shelf(), (seen("f", (0.3, 0.25, 0.3), (0.2, 0.125, 0.15)),
-                           seen("k", (0.3, 0.25, 0.3), (0.2, 0.175, 0.15)),
-                           seen("n", (0.2, 0.25, 0.2), (-0.06, 0.125, 0.1)),
-                           seen("c", (0.2, 0.25, 0.2), (-0.35, 0.125, 0.1))))
-
-
-def test_a_plan_away_from_two_faces_no_world_can_hold_is_made_and_says_what_was_set_aside():
+def test_a_plan_away_from_two_faces_no_world_can_hold_is_made_and_says_what_was_set_aside(contradictory):
     with pytest.warns(UserWarning, match="set aside f and k as unexplained matter"):
-        plan = make_plan(contradictory(), "extract", "c", samples=2, verify=0)
+        plan = make_plan(contradictory, "extract", "c", samples=2, verify=0)
     assert plan.sequence == ("c",)
     assert [a["boxes"] for a in plan.extra["set_aside"]] == [["f", "k"]]
     assert plan.extra["set_aside"][0]["why"].startswith("box 'f' and box 'k' overlap by 0.2")
     assert plan.extra["unexplained"]["touched"] == []
 
 
-def test_the_plan_carries_the_hash_of_the_scene_it_was_given():
-    given = contradictory()
+def test_the_plan_carries_the_hash_of_the_scene_it_was_given(contradictory):
+    given = contradictory
     plan = make_plan(given, "extract", "c", samples=2, verify=0)
     other = make_plan(given.without(["f", "k"]), "extract", "c", samples=2, verify=0)
     assert plan.provenance["scene_hash"] != other.provenance["scene_hash"]
 
 
-def test_a_plan_that_comes_near_a_set_aside_face_is_not_safe():
-    plan = make_plan(contradictory(), "extract", "n", samples=2, verify=0)
+def test_a_plan_that_comes_near_a_set_aside_face_is_not_safe(contradictory):
+    plan = make_plan(contradictory, "extract", "n", samples=2, verify=0)
     assert "n" in plan.sequence and not plan.safe
     assert any("pulling n touches unexplained matter aside-f" in t for t in plan.extra["unexplained"]["touched"])
 
 
-def test_a_target_among_the_faces_or_a_scene_with_depths_is_still_refused():
+def test_a_target_among_the_faces_or_a_scene_with_depths_is_still_refused(contradictory):
     with pytest.raises(SceneError, match="box 'f' and box 'k' overlap by"):
-        make_plan(contradictory(), "extract", "f", samples=2, verify=0)
-    known = contradictory().with_boxes(replace(b, depth_known=True) for b in contradictory().boxes)
+        make_plan(contradictory, "extract", "f", samples=2, verify=0)
+    known = contradictory.with_boxes(replace(b, depth_known=True) for b in contradictory.boxes)
     with pytest.raises(SceneError, match="overlap"):
         make_plan(known, "extract", "c", samples=2, verify=0)
 
@@ -69,10 +60,10 @@ def test_a_shelf_that_needs_more_set_aside_than_the_limit_is_refused():
         make_plan(Scene(Shelf(), tuple(pairs)), "clear", samples=2, verify=0)
 
 
-def test_a_set_aside_face_is_matter_from_its_seen_face_back_and_the_error_keeps_its_boxes():
-    scene = set_aside(contradictory(), ("f", "k"), "why")
+def test_a_set_aside_face_is_matter_from_its_seen_face_back_and_the_error_keeps_its_boxes(contradictory):
+    scene = set_aside(contradictory, ("f", "k"), "why")
     assert scene.ids == ("n", "c") and [u.id for u in scene.unexplained] == ["aside-f", "aside-k"]
-    u = face_region(contradictory().box("f"), None, "why")
+    u = face_region(contradictory.box("f"), None, "why")
     assert u.columns == ((pytest.approx(0.05), pytest.approx(0.35), pytest.approx(0.0), pytest.approx(0.3),
                           pytest.approx(0.0)),)
     assert u.pixels == 1 and u.area_m2 == pytest.approx(0.09)

@@ -1,0 +1,59 @@
+"""The console plans around perceived faces no world can hold, as `shelfpick plan` does
+(planning/set_aside.py), instead of "planning failed" on the whole capture. Real workflow,
+planners, predictor and SQLite; the capture's perceived scene is put in place of a camera's."""
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture
+def wf(tmp_path):
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
+
+    store = SessionStore(tmp_path / "aside.sqlite")
+    w = Workflow(None, store, lambda truth, seed: None, "pw", samples=2)
+    yield w
+    w.close()
+    store.close()
+
+
+def captured(wf, scene, target):
+    """`scene` as a capture's perceived scene, `target` selected (what `capture` leaves behind)."""
+    with wf._lock:
+        wf._generation += 1
+        wf._set(scene=scene, target=target, plans={}, error=None)
+
+
+def test_the_console_plans_away_from_set_aside_faces_and_refuses_a_set_aside_target(wf, contradictory):
+    from shelfpick.planning.plan import scene_hash
+
+    scene = contradictory
+    captured(wf, scene, "c")
+    st = wf.plan("extract", wait=True)
+    assert st.error is None or "no safe plan" in st.error
+    phys = st.plans["physics"].plan
+    assert phys.sequence == ("c",) and [a["boxes"] for a in phys.extra["set_aside"]] == [["f", "k"]]
+    assert phys.provenance["scene_hash"] == scene_hash(scene)      # bound to the capture, not the planned scene
+    assert st.plans["heuristic"].plan.extra["set_aside"] == phys.extra["set_aside"]
+    wf.select_target("n")                     # the kept predictor plans the next target of this capture
+    st = wf.plan("extract", wait=True)
+    n = st.plans["physics"].plan
+    assert "n" in n.sequence and not n.safe and n.extra["set_aside"] == phys.extra["set_aside"]
+    wf.select_target("f")
+    st = wf.plan("extract", wait=True)
+    assert not st.plans and st.error.startswith("planning failed: f was set aside")
+
+
+def test_the_plan_table_names_the_faces_set_aside_escaped():
+    from shelfpick.console.web.markdown import results_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
+    from shelfpick.planning.plan import Plan, StepPrediction
+
+    aside = [{"boxes": ["b*6", "b_7"], "why": "box 'b*6' and box 'b_7' overlap by 0.164 m"}]
+    plan = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), False, {}, 0, {"set_aside": aside})
+    md = results_markdown(State(plans={"physics": PlanEntry(plan, plan.content_hash())}))
+    row = next(ln for ln in md.splitlines() if ln.startswith("| faces set aside as unexplained matter |"))
+    assert "b&#42;6 and b&#95;7&#58; box &#39;b&#42;6&#39; and box &#39;b&#95;7&#39; overlap by 0&#46;164 m" in row
+    plain = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), True, {}, 0, {})
+    assert "set aside" not in results_markdown(State(plans={"physics": PlanEntry(plain, plain.content_hash())}))
