@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shelfpick.perception.geometry import point_map
+from shelfpick.perception.pixels import nonzero
 from shelfpick.perception.scene import Camera, Shelf
 
 
@@ -84,7 +85,7 @@ def dominant_plane(pts: np.ndarray, tol: float, tries: int,
 def evidence(mask: np.ndarray, points: np.ndarray, valid: np.ndarray, inside: np.ndarray,
              cfg: GateConfig, rng: np.random.Generator) -> FaceEvidence:
     """The depth's evidence on one instance (`points`: HxWx3 shelf frame)."""
-    ys, xs = np.nonzero(mask)
+    ys, xs = nonzero(mask)
     have = valid[ys, xs]
     n = int(have.sum())
     if n == 0:

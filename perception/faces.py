@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from shelfpick.perception.geometry import backproject, ray_plane
+from shelfpick.perception.pixels import nonzero
 from shelfpick.perception.scene import Camera
 
 
@@ -135,7 +136,7 @@ def _face_points(m: np.ndarray, depth: np.ndarray, camera: Camera,
     sel = inner & np.isfinite(d) & (d > 0)
     if sel.sum() < 10:
         return None
-    vs, us = np.nonzero(sel)
+    vs, us = nonzero(sel)
     z = d[vs, us].astype(np.float64)
     dmed = float(np.median(z))
     keep = np.abs(z - dmed) < max(0.04, 0.05 * dmed)
@@ -194,7 +195,7 @@ def _extents(m: np.ndarray, camera: Camera, centre: np.ndarray, normal: np.ndarr
     """(centre, width, height) of the face along ex, ez: weighted quantiles of every mask pixel
     cast onto the plane, so a few stray pixels cannot inflate the rectangle, and pixel
     footprints (~z^3) weight the far side fairly."""
-    ys_all, xs_all = np.nonzero(m)
+    ys_all, xs_all = nonzero(m)
     if len(xs_all) > 20000:
         st = len(xs_all) // 20000 + 1
         ys_all, xs_all = ys_all[::st], xs_all[::st]

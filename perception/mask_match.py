@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from shelfpick.perception.pixels import count
+
 
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
-    u = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum()) / float(u) if u else 0.0
+    u = count(np.logical_or(a, b))
+    return float(count(np.logical_and(a, b))) / float(u) if u else 0.0
 
 
 def match(pred: list[np.ndarray], truth: list[np.ndarray], thr: float = 0.5) -> list[tuple[int, int, float]]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from shelfpick.perception.pixels import count, nonzero
 
 REF_DEPTH = 1.2      # m: the face distance the pixel thresholds were tuned at (default camera)
 
@@ -140,7 +141,7 @@ def dedupe(masks: list[np.ndarray], max_iou: float = 0.5, min_pixels: int = 200)
     taken = None
     for i in order:
         m = masks[i].astype(bool)
-        area = int(m.sum())
+        area = count(m)
         if area < min_pixels:
             continue
         span = _span(m)
@@ -148,7 +149,7 @@ def dedupe(masks: list[np.ndarray], max_iou: float = 0.5, min_pixels: int = 200)
             continue
         if taken is not None:
             m = m & ~taken
-            area = int(m.sum())
+            area = count(m)
             if area < min_pixels:
                 continue
             span = _span(m)
@@ -257,8 +258,8 @@ def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, ste
             continue
         out.append(_grow_one(m, plane, depth, camera, free, edge, steps, tol))
     # pixels claimed by two grown masks go to neither (they were a boundary)
-    count = np.sum([o.astype(np.uint8) for o in out], axis=0)
-    return [o & ((count == 1) | m) for o, m in zip(out, masks)]
+    claims = np.sum([o.astype(np.uint8) for o in out], axis=0)
+    return [o & ((claims == 1) | m) for o, m in zip(out, masks)]
 
 
 def _face_plane(sel: np.ndarray, depth: np.ndarray, camera,
@@ -266,7 +267,7 @@ def _face_plane(sel: np.ndarray, depth: np.ndarray, camera,
     """(centre, normal, rows, cols) of the plane fitted (SVD, outliers beyond `tol` or 3x the
     median residual dropped) to a sample of at most ~3000 of the selected pixels, the
     sample's rows and columns; None with fewer than 30 pixels."""
-    ys, xs = np.nonzero(sel)
+    ys, xs = nonzero(sel)
     if len(xs) < 30:
         return None
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy

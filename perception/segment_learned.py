@@ -37,6 +37,7 @@ from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.face_gate import keep_faces, plausible_faces
 from shelfpick.perception.mask_match import match
 from shelfpick.perception.onnx_net import OnnxNet
+from shelfpick.perception.pixels import count
 from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -333,11 +334,11 @@ def split_merged(masks: list[np.ndarray], rules: list[np.ndarray], snapped: set[
     least `cover` of it, is replaced by those masks (the depth steps and seams the rules cut
     at are between boxes the colour image shows as one)."""
     free = [j for j in range(len(rules)) if j not in used]
-    area = {j: int(rules[j].sum()) for j in free}
+    area = {j: count(rules[j]) for j in free}
     out: list[np.ndarray] = []
     for i, m in enumerate(masks):
-        held = [j for j in free if area[j] and (rules[j] & m).sum() >= inside * area[j]] if i not in snapped else []
-        if len(held) >= 2 and sum(int((rules[j] & m).sum()) for j in held) >= cover * m.sum():
+        held = [j for j in free if area[j] and count(rules[j] & m) >= inside * area[j]] if i not in snapped else []
+        if len(held) >= 2 and sum(count(rules[j] & m) for j in held) >= cover * count(m):
             out.extend(rules[j] for j in held)
             free = [j for j in free if j not in held]
         else:
@@ -356,14 +357,14 @@ def grow_partial(masks: list[np.ndarray], rules: list[np.ndarray], snapped: set[
     out: dict[int, int] = {}
     free = [j for j in range(len(rules)) if j not in used]
     for i, m in enumerate(masks):
-        n = int(m.sum())
+        n = count(m)
         if i in snapped or not n:
             continue
         for j in free:
             r = rules[j]
-            if j in out.values() or (r & m).sum() < inside * n:
+            if j in out.values() or count(r & m) < inside * n:
                 continue
-            if any(k != i and (r & o).sum() > other * o.sum() for k, o in enumerate(masks)):
+            if any(k != i and count(r & o) > other * count(o) for k, o in enumerate(masks)):
                 continue
             out[i] = j
             break
@@ -378,8 +379,8 @@ def unseen_faces(rules: list[np.ndarray], used: set[int], seen: np.ndarray, outs
     the rules cut faces by depth and do not care how a face is turned in its plane."""
     out = []
     for j, r in enumerate(rules):
-        n = int(r.sum())
-        if j not in used and n and (r & ~seen).sum() >= outside * n:
+        n = count(r)
+        if j not in used and n and count(r & ~seen) >= outside * n:
             out.append(j)
     return out
 

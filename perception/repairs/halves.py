@@ -29,6 +29,7 @@ import numpy as np
 
 from shelfpick.perception.faces import FrontFace, face_axes
 from shelfpick.perception.geometry import backproject
+from shelfpick.perception.pixels import nonzero
 from shelfpick.perception.repairs.merged import rect_fill
 from shelfpick.perception.repairs.repeats import repeat_parts
 from shelfpick.perception.scene import Camera
@@ -129,7 +130,7 @@ def _off_plane(face: FrontFace, mask: np.ndarray, box: tuple[slice, slice], fram
                most: int = 2000) -> float:
     """Median distance (m) of the depth points of `mask` (cropped to `box`) to the plane of `face`."""
     depth = frame.depth[box]
-    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(mask & np.isfinite(depth) & (depth > 0))
     if len(xs) < 10:
         return float("inf")
     step = len(xs) // most + 1

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pixels import nonzero
 from shelfpick.perception.repairs.measure import Measured, RepairContext
 from shelfpick.perception.repairs.planes import join_on_plane, plane_dist, rect_fill
 
@@ -64,7 +65,7 @@ def _l_cut(m: np.ndarray, others: list[np.ndarray], ctx: RepairContext, max_fill
            angles: tuple[float, ...]) -> tuple[float, _LJoin] | None:
     """(the line's angle, the join) of the first line (best fill, then the L's corner, at 0 deg
     then at `angles`) whose part joins a neighbour; None if none does."""
-    ys, xs = np.nonzero(m)
+    ys, xs = nonzero(m)
     for deg, step in ((0.0, False),) + tuple((a, True) for a in (0.0,) + tuple(angles)):
         if deg != 0.0 and _fill_at(ys, xs, deg) >= max_fill:
             continue          # a rectangle at this angle: not an L

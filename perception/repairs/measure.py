@@ -15,6 +15,7 @@ import numpy as np
 from shelfpick.perception.faces import FrontFace, face_axes, measure_front
 from shelfpick.perception.geometry import backproject
 from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pixels import nonzero
 from shelfpick.perception.scene import Camera
 
 if TYPE_CHECKING:
@@ -115,7 +116,7 @@ def neighbour_pieces(i: int, masks: list[np.ndarray], ctx: RepairContext,
 def plane_dist(face: FrontFace, mask: np.ndarray, ctx: RepairContext) -> float:
     """Median distance (m) of the mask's depth points to the plane of `face`."""
     depth = ctx.depth
-    ys, xs = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(mask & np.isfinite(depth) & (depth > 0))
     if len(xs) < 10:
         return math.inf
     if len(xs) > 3000:

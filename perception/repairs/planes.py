@@ -9,6 +9,7 @@ from shelfpick.perception.faces import FrontFace, face_axes
 from shelfpick.perception.geometry import backproject, ray_plane
 # plane_dist lives with RepairContext (neighbour_pieces measures with it); named here too, beside
 # the other on-plane measures, for the steps that import it from here
+from shelfpick.perception.pixels import nonzero
 from shelfpick.perception.repairs.measure import RepairContext, plane_dist
 from shelfpick.perception.scene import Camera
 
@@ -18,7 +19,7 @@ def coords(face: FrontFace, mask: np.ndarray,
     """Pixels of the mask and their (x, z) on the measured face plane, centred on the face."""
     rot = face_axes(face)
     c = np.asarray(face.center, float)
-    ys, xs = np.nonzero(mask)
+    ys, xs = nonzero(mask)
     hit = ray_plane(camera, xs.astype(np.float64), ys.astype(np.float64), c, rot[:, 1])
     rel = hit - c
     return ys, xs, rel @ rot[:, 0], rel @ rot[:, 2]
@@ -37,7 +38,7 @@ def plane_res(face: FrontFace, where: np.ndarray, ctx: RepairContext) -> np.ndar
     (inf where there is no depth or outside `where`)."""
     depth = ctx.depth
     out = np.full(where.shape, np.inf)
-    ys, xs = np.nonzero(where & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(where & np.isfinite(depth) & (depth > 0))
     if len(xs):
         p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
                         depth[ys, xs].astype(np.float64))
@@ -49,7 +50,7 @@ def on_plane(face: FrontFace, where: np.ndarray, ctx: RepairContext, tol: float)
     """The pixels of `where` whose depth point lies within `tol` of the plane of `face`."""
     depth = ctx.depth
     out = np.zeros_like(where)
-    ys, xs = np.nonzero(where & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(where & np.isfinite(depth) & (depth > 0))
     if len(xs):
         p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
                         depth[ys, xs].astype(np.float64))
@@ -115,7 +116,7 @@ def _add_on_plane(cand: np.ndarray, free: np.ndarray, face: FrontFace, ctx: Repa
     """Set the pixels of `free` (a crop at y0, x0) whose depth point lies on the face's plane."""
     d = ctx.depth[y0:y0 + free.shape[0], x0:x0 + free.shape[1]]
     free = free & np.isfinite(d) & (d > 0)
-    ys, xs = np.nonzero(free)
+    ys, xs = nonzero(free)
     if len(xs):
         p = backproject(ctx.camera, (xs + x0).astype(np.float64), (ys + y0).astype(np.float64),
                         d[ys, xs].astype(np.float64))
