@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from shelfpick.perception.depth_edge_config import DepthEdgeConfig
+from shelfpick.perception.pixels import label_percentiles, label_sums
 
 
 def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
@@ -29,7 +29,7 @@ def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab:
     idx = np.arange(1, n + 1)
     src = np.where(core, assigned, 0)
     cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)   # ndimage.sum of ones, 6x faster
-    mean = np.stack([ndimage.sum(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
+    mean = np.stack([label_sums(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
     # neighbouring pieces (one pixel apart after growing)
     pairs = set()
     for a, b in ((assigned[:, :-1], assigned[:, 1:]), (assigned[:-1, :], assigned[1:, :])):
@@ -106,7 +106,7 @@ def merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.nd
     thick = _thickness(labels, mpp, idx)
     src = np.where(core, labels, 0)
     cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)
-    mean = np.stack([np.asarray(ndimage.sum(lab[..., c], src, idx)) / cnt for c in range(3)], axis=1)
+    mean = np.stack([label_sums(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
     touch = contacts(labels)
     nbrs: dict[int, set[int]] = {i: set() for i in idx}
     for (a, b), c in touch.items():
@@ -150,8 +150,7 @@ def _thickness(labels: np.ndarray, mpp: np.ndarray, idx: np.ndarray) -> np.ndarr
         border[sl_b] |= diff
     inner = ~border
     dist = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
-    return 2 * np.asarray(ndimage.labeled_comprehension(
-        dist * mpp, labels, idx, lambda v: np.percentile(v, 90), float, 0.0), float)
+    return 2 * label_percentiles(dist * mpp, labels, idx, 90)
 
 
 def _same_colour(cand: list[int], cnt: np.ndarray, mean: np.ndarray, tol: float) -> list[int] | None:

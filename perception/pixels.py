@@ -23,3 +23,37 @@ def nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
 def count(mask: np.ndarray) -> int:
     """`int(mask.sum())` of a bool mask: its number of True pixels."""
     return int(np.count_nonzero(mask))
+
+
+def label_sums(values: np.ndarray, labels: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """`scipy.ndimage.sum(values, labels, index)` for non-negative integer labels: the float64 sum
+    of `values` over each label of `index` (0 for a label not present), by the one weighted
+    `np.bincount` scipy itself ends in, without its label range checks and pixel counts."""
+    idx = np.asarray(index, np.intp)
+    lab = np.asarray(labels).ravel()
+    n = max(int(idx.max()) + 1 if idx.size else 0, 1)
+    sums = np.bincount(lab, weights=np.asarray(values).ravel(), minlength=n)
+    return sums[idx]
+
+
+def label_percentiles(values: np.ndarray, labels: np.ndarray, index: np.ndarray, q: float,
+                      default: float = 0.0) -> np.ndarray:
+    """`scipy.ndimage.labeled_comprehension(values, labels, index, lambda v: np.percentile(v, q),
+    float, default)` for non-negative integer labels: each label's values gathered by one stable
+    sort of the labelled pixels, then numpy's own percentile of each group (the same numbers: a
+    percentile does not depend on the order of its values)."""
+    idx = np.asarray(index, np.intp)
+    out = np.full(idx.shape, default, float)
+    if not idx.size:
+        return out
+    lab = np.asarray(labels).ravel()
+    n = int(idx.max()) + 1
+    sel = np.flatnonzero((lab > 0) & (lab < n)) if idx.min() > 0 else np.flatnonzero(lab < n)
+    grouped = lab[sel]
+    vals = np.asarray(values).ravel()[sel[np.argsort(grouped, kind="stable")]]
+    counts = np.bincount(grouped, minlength=n)
+    ends = np.cumsum(counts)
+    for k, i in enumerate(idx):
+        if counts[i]:
+            out[k] = np.percentile(vals[ends[i] - counts[i]:ends[i]], q)
+    return out

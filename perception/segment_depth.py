@@ -23,11 +23,11 @@ from dataclasses import replace
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from shelfpick.perception.depth_edge_config import DepthEdgeConfig
 from shelfpick.perception.masks import pixel_scale, scaled_px
 from shelfpick.perception.piece_merge import merge_pieces, merge_tape
+from shelfpick.perception.pixels import label_sums
 from shelfpick.perception.face_gate import inside_shelf
 from shelfpick.perception.scene import Camera, Shelf, quat_to_matrix
 
@@ -226,7 +226,7 @@ def _big_pieces(core: np.ndarray, piece: np.ndarray, npiece: int, mpp: np.ndarra
     h, w = core.shape
     dist = cv2.distanceTransform(core.astype(np.uint8), cv2.DIST_L2, 3)
     idx = np.arange(1, npiece)
-    area_m2 = ndimage.sum(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
+    area_m2 = label_sums(mpp * mpp, piece, idx) if npiece > 1 else np.zeros(0)
     thick_m = 2 * label_max(dist * mpp, piece, npiece) if npiece > 1 else np.zeros(0)
     big = (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.min_side_m)
     if npiece > 1 and cfg.border_px > 0:
@@ -236,7 +236,7 @@ def _big_pieces(core: np.ndarray, piece: np.ndarray, npiece: int, mpp: np.ndarra
         b = cfg.border_px
         edge[:b, :] = True
         edge[:, :b] = edge[:, -b:] = True
-        on_edge = ndimage.sum(edge, piece, idx) >= cfg.border_min_px if npiece > 1 else np.zeros(0, bool)
+        on_edge = label_sums(edge, piece, idx) >= cfg.border_min_px if npiece > 1 else np.zeros(0, bool)
         big |= on_edge & (area_m2 >= 0.4 * cfg.min_face_m2) & (thick_m >= cfg.border_side_m)
     keep = np.zeros(npiece, bool)
     keep[1:] = big
@@ -324,16 +324,12 @@ def _grow_within(assigned: np.ndarray, patch: np.ndarray, fg: np.ndarray) -> np.
 
 def _finish(merged: np.ndarray, mpp: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
     """Relabel 1..n, dropping faces too small to be a box."""
-    labels = np.unique(merged)
+    labels = np.flatnonzero(np.bincount(merged.ravel()))     # np.unique's labels, without its sort
     labels = labels[labels > 0]
     if len(labels) == 0:
         return np.zeros(merged.shape, np.uint16)
-    area = ndimage.sum(mpp * mpp, merged, labels)
-    out = np.zeros(merged.shape, np.uint16)
-    k = 0
-    for lbl, a in zip(labels, area):
-        if a < cfg.min_face_m2:
-            continue
-        k += 1
-        out[merged == lbl] = k
-    return out
+    area = label_sums(mpp * mpp, merged, labels)
+    lut = np.zeros(int(labels[-1]) + 1, np.uint16)
+    kept = labels[~(area < cfg.min_face_m2)]
+    lut[kept] = np.arange(1, len(kept) + 1)
+    return lut[merged]

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
-from shelfpick.perception.pixels import count, nonzero
+from shelfpick.perception.pixels import count, label_percentiles, label_sums, nonzero
 
 
 def _masks() -> list[np.ndarray]:
@@ -35,3 +36,53 @@ def test_nonzero_of_other_shapes_is_numpys():
 @pytest.mark.parametrize("mask", _masks()[:5], ids=["random", "square", "empty", "small", "view"])
 def test_count_is_the_bool_masks_sum(mask):
     assert count(mask) == int(mask.sum()) and isinstance(count(mask), int)
+
+
+def _labels() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    labels = rng.integers(0, 9, size=(40, 50))
+    labels[labels == 4] = 0                               # a label not present: 0 / the default
+    values = rng.random((40, 50)).astype(np.float32) * 3
+    return labels, values
+
+
+def test_label_sums_are_ndimage_sums():
+    labels, values = _labels()
+    idx = np.arange(1, 11)                                # 9 and 10 beyond the labels
+    for v in (values, values.astype(np.float64), values > 1.5):
+        got = label_sums(v, labels, idx)
+        want = ndimage.sum(v, labels, idx)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
+def test_label_percentiles_are_the_labeled_comprehension_of_numpys_percentile():
+    labels, values = _labels()
+    for idx in (np.arange(1, 9), np.array([3, 1, 4, 8]), np.arange(0, 9)):
+        for q in (90, 50, 10):
+            want = ndimage.labeled_comprehension(values, labels, idx, lambda v: np.percentile(v, q), float, 0.0)
+            got = label_percentiles(values, labels, idx, q)
+            assert got.dtype == np.float64
+            np.testing.assert_array_equal(got, want)
+
+
+def test_depth_rules_finish_relabels_as_the_loop_it_replaced():
+    """segment_depth._finish: labels 1..n of the faces big enough, in label order (it was a loop of
+    np.unique's labels, one full-image comparison each)."""
+    from shelfpick.perception.depth_edge_config import DepthEdgeConfig
+    from shelfpick.perception.segment_depth import _finish
+
+    labels, values = _labels()
+    merged = labels * 3                                   # gaps between the labels
+    mpp = values * 0.0015 * labels                      # label 1's face too small
+    cfg = DepthEdgeConfig()
+    want = np.zeros(merged.shape, np.uint16)
+    k = 0
+    for lbl in np.unique(merged)[1:]:
+        if ndimage.sum(mpp * mpp, merged, [lbl])[0] < cfg.min_face_m2:
+            continue
+        k += 1
+        want[merged == lbl] = k
+    got = _finish(merged, mpp, cfg)
+    assert got.dtype == want.dtype and k == 6            # of the 7 present, label 1 dropped
+    np.testing.assert_array_equal(got, want)
