@@ -56,7 +56,11 @@ class FaceEvidence:
 def inside_shelf(points: np.ndarray, shelf: Shelf, wall_margin: float) -> np.ndarray:
     """HxW: shelf-frame points inside the shelf volume and more than `wall_margin` in front of
     its back wall (as `segment_depth` keeps them)."""
-    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    return inside_shelf_xyz(points[..., 0], points[..., 1], points[..., 2], shelf, wall_margin)
+
+
+def inside_shelf_xyz(x: np.ndarray, y: np.ndarray, z: np.ndarray, shelf: Shelf, wall_margin: float) -> np.ndarray:
+    """`inside_shelf` of points given as their x, y and z images (no HxWx3 array made for it)."""
     return (y < shelf.depth - wall_margin) & (np.abs(x) < shelf.width / 2 - 0.003) & (z > 0.005) \
         & (z < shelf.height - 0.003)
 

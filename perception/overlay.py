@@ -5,6 +5,7 @@ import colorsys
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 
 def palette(n: int) -> np.ndarray:
@@ -17,16 +18,15 @@ def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | No
                  alpha: float = 0.45) -> np.ndarray:
     """RGB uint8 image: each label tinted, its min-area rectangle outlined and its box id written."""
     out = rgb.copy()
-    ids = [int(k) for k in np.unique(labels) if k > 0]
+    ids = _present(labels)
     if not ids:
         return out
     cols = palette(max(ids) + 1)
-    tint = cols[labels]
     sel = labels > 0
-    out[sel] = (out[sel] * (1 - alpha) + tint[sel] * alpha).astype(np.uint8)
+    out[sel] = (out[sel] * (1 - alpha) + cols[labels[sel]] * alpha).astype(np.uint8)
+    boxes = ndimage.find_objects(labels) if labels.dtype.kind in "ui" and max(ids) < 1 << 20 else None
     for k in ids:
-        m = (labels == k).astype(np.uint8)
-        pts = cv2.findNonZero(m)
+        pts = _label_points(labels, k, None if boxes is None else boxes[k - 1])
         if pts is None:
             continue
         rect = cv2.minAreaRect(pts)
@@ -44,6 +44,26 @@ def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | No
         cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 3, cv2.LINE_AA)
         cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return out
+
+
+def _present(labels: np.ndarray) -> list[int]:
+    """The labels > 0 in the image, ascending (np.unique's, by a count instead of a sort of the
+    whole image where the labels are small non-negative integers)."""
+    flat = labels.ravel()
+    if labels.dtype.kind in "ui" and flat.size and 0 <= int(flat.min()) and int(flat.max()) < 1 << 20:
+        return [int(k) for k in np.flatnonzero(np.bincount(flat)) if k > 0]
+    return [int(k) for k in np.unique(labels) if k > 0]
+
+
+def _label_points(labels: np.ndarray, k: int, box: tuple[slice, slice] | None) -> np.ndarray | None:
+    """cv2.findNonZero of label k (its pixels as x, y, row by row), found inside the label's
+    bounding box `box` (the whole image without one) and shifted back."""
+    if box is None:
+        return cv2.findNonZero((labels == k).astype(np.uint8))
+    pts = cv2.findNonZero((labels[box] == k).astype(np.uint8))
+    if pts is not None:
+        pts += np.array([box[1].start, box[0].start], np.int32)
+    return pts
 
 
 UNEXPLAINED_RGB = (128, 128, 128)

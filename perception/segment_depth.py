@@ -28,7 +28,7 @@ from shelfpick.perception.depth_edge_config import DepthEdgeConfig
 from shelfpick.perception.masks import pixel_scale, scaled_px
 from shelfpick.perception.piece_merge import merge_pieces, merge_tape
 from shelfpick.perception.pixels import label_sums
-from shelfpick.perception.face_gate import inside_shelf
+from shelfpick.perception.face_gate import inside_shelf_xyz
 from shelfpick.perception.scene import Camera, Shelf, quat_to_matrix
 
 
@@ -87,7 +87,8 @@ class DepthEdgeSegmenter:
         if npatch <= 1:
             return np.zeros((h, w), np.uint16)
         # ---- colour edges cut patches further
-        edges = _colour_edges(rgb, fg, depth, cfg)
+        lab8 = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)
+        edges = _colour_edges(rgb, fg, depth, cfg, lab8)
         core = fg & ~edges
         npiece, piece = cv2.connectedComponents(core.astype(np.uint8), connectivity=4)
         # pixel scale (m per px) for metric sizes
@@ -97,7 +98,7 @@ class DepthEdgeSegmenter:
         # ---- pixels of a patch not in a big piece go to the nearest big piece of that patch
         assigned = _grow_within(assigned, patch, fg)
         # ---- merge pieces of one patch with matching colour and a rectangular union
-        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+        lab = lab8.astype(np.float32)
         # ---- tape: a band (or cross) of another colour between pieces of one colour
         kcore = core & keep[piece]
         merged = merge_tape(assigned, kcore, lab, mpp, cfg)
@@ -200,23 +201,32 @@ def _inside_shelf(pts: tuple[np.ndarray, np.ndarray, np.ndarray], camera: Camera
     sx = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + t[0]
     sy = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + t[1]
     sz = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + t[2]
-    return inside_shelf(np.stack((sx, sy, sz), axis=-1), s, m)
+    return inside_shelf_xyz(sx, sy, sz, s, m)
 
 
-def _colour_edges(rgb: np.ndarray, fg: np.ndarray, depth: np.ndarray, cfg: DepthEdgeConfig) -> np.ndarray:
+def _colour_edges(rgb: np.ndarray, fg: np.ndarray, depth: np.ndarray, cfg: DepthEdgeConfig,
+                  lab8: np.ndarray | None = None) -> np.ndarray:
     """Canny edges of grey and (scaled) Lab chroma, long straight ones extended over `fg`,
-    dilated 3x3."""
+    dilated 3x3. `lab8`: the image in 8-bit Lab when the caller has it already."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     gray = cv2.GaussianBlur(gray, (3, 3), 0)
     edges = cv2.Canny(gray, cfg.canny_low, cfg.canny_high) > 0
     # hue seams that grey levels miss (two browns of one brightness)
-    lab8 = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB), (3, 3), 0)
+    lab8 = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB) if lab8 is None else lab8, (3, 3), 0)
+    gain = _chroma_lut(cfg.chroma_gain) if lab8.dtype == np.uint8 else None
     for c in (1, 2) if cfg.chroma_gain > 0 else ():
-        ch = np.clip((lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255
-                     ).astype(np.uint8)
+        ch = gain[lab8[..., c]] if gain is not None else np.clip(
+            (lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255).astype(np.uint8)
         edges |= cv2.Canny(ch, cfg.canny_low, cfg.canny_high) > 0
     edges = _extend_lines(edges, fg, _scaled(cfg, depth, fg))
     return cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+
+
+def _chroma_lut(gain: float) -> np.ndarray:
+    """uint8 -> uint8: a Lab chroma channel's value scaled by `gain` about 128 and clipped (the
+    per-pixel float arithmetic done once for each of the 256 values)."""
+    return np.clip((np.arange(256, dtype=np.uint8).astype(np.float32) - 128) * gain + 128, 0, 255
+                   ).astype(np.uint8)
 
 
 def _big_pieces(core: np.ndarray, piece: np.ndarray, npiece: int, mpp: np.ndarray,

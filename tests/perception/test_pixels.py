@@ -86,3 +86,14 @@ def test_depth_rules_finish_relabels_as_the_loop_it_replaced():
     got = _finish(merged, mpp, cfg)
     assert got.dtype == want.dtype and k == 6            # of the 7 present, label 1 dropped
     np.testing.assert_array_equal(got, want)
+
+
+def test_the_chroma_lookup_is_the_per_pixel_arithmetic():
+    """segment_depth scales a Lab chroma channel through a 256-entry table: the same bytes as the
+    float arithmetic it did on every pixel."""
+    from shelfpick.perception.segment_depth import _chroma_lut
+
+    ch = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    for gain in (2.5, 1.0, 0.3):
+        want = np.clip((ch.astype(np.float32) - 128) * gain + 128, 0, 255).astype(np.uint8)
+        np.testing.assert_array_equal(_chroma_lut(gain)[ch], want)
