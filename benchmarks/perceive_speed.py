@@ -3,7 +3,7 @@
 Frames: the generator looks of `benchmarks/generators` (docs/perception.md, "Roles"), 640x480 at frame
 seed 0, written once to `--frames` and reused (generation time is not counted):
 `--set held_out` (default): looks `printed` and `stereo` on the judge's 40 shelves (../shared/judge/scenes,
-read at run time, never copied); `--set tune`: look `flat` on the tuning shelves 31000-31059
+read at run time, never copied); `--set tune`: look `flat` (or `--tune-look labels`) on the tuning shelves 31000-31059
 (`planning.shelves.generate`, as benchmarks/perceive_generated.py makes them). Held-out frames are only
 timed here: nothing in their output is read.
 
@@ -62,6 +62,7 @@ if str(ROOT) not in sys.path:
 from benchmarks.judge_summary import percentile  # noqa: E402
 
 HELD_OUT = ("printed", "stereo")      # docs/perception.md, "Roles": timed only, never tuned on
+TUNE_LOOKS = ("flat", "labels")       # the tuning looks (`labels`: printed cartons, added by h19)
 TUNE_SEEDS = range(31000, 31060)
 FRAME_SEED = 0
 TARGET_S = 0.5
@@ -117,14 +118,15 @@ def load_avg() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def frame_list(which: str, judge_dir: Path, shelves: str) -> list[tuple[str, str, dict]]:
-    """(look, shelf name, true scene dict) of every frame of the set."""
+def frame_list(which: str, judge_dir: Path, shelves: str, tune_look: str = "flat") -> list[tuple[str, str, dict]]:
+    """(look, shelf name, true scene dict) of every frame of the set (`tune_look`: the tuning look,
+    `flat` or `labels`, docs/perception.md "Roles")."""
     if which == "tune":
         from benchmarks.perceive_generated import tune_scene
 
         cache = Path(os.environ.get("TMPDIR", "/tmp")) / "perceive_speed_shelves"
         names = [str(s) for s in TUNE_SEEDS] if shelves == "all" else shelves.split(",")
-        return [("flat", n, tune_scene(int(n), cache)) for n in names]
+        return [(tune_look, n, tune_scene(int(n), cache)) for n in names]
     scenes = judge_dir / "scenes"
     names = sorted(p.stem for p in scenes.glob("*.json")) if shelves == "all" else shelves.split(",")
     docs = {n: json.loads((scenes / f"{n}.json").read_text(encoding="utf-8")) for n in names}
@@ -138,7 +140,7 @@ def frame_folder(frames: Path, look: str, name: str, truth: dict) -> Path:
     folder = frames / look / name
     meta = folder / "meta.json"
     if not meta.exists() or json.loads(meta.read_text()).get("seed") != FRAME_SEED:
-        scene_name = f"tune{name}" if look == "flat" else name   # as perceive_generated / camera_to_plan name them
+        scene_name = f"tune{name}" if look in TUNE_LOOKS else name   # as perceive_generated / camera_to_plan name them
         write_frame(truth, look, FRAME_SEED, folder, scene_name)
     return folder
 
@@ -401,6 +403,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--set", choices=("held_out", "tune"), default="held_out")
     ap.add_argument("--mode", choices=("inproc", "cli"), default="inproc")
+    ap.add_argument("--tune-look", choices=TUNE_LOOKS, default="flat",
+                    help="--set tune: the look (labels: printed cartons under a hard light)")
     ap.add_argument("--shelves", default="all", help="all, or a comma list (judge shelves s00,u03 or tune seeds)")
     ap.add_argument("--judge-dir", default=str(ROOT.parent / "shared" / "judge"))
     ap.add_argument("--frames", default=str(Path(os.environ.get("TMPDIR", "/tmp")) / "perceive_speed_frames"),
@@ -440,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
     frames_dir = Path(a.frames)
     t = time.perf_counter()
     frames = [(look, n, frame_folder(frames_dir, look, n, truth))
-              for look, n, truth in frame_list(a.set, Path(a.judge_dir), a.shelves)]
+              for look, n, truth in frame_list(a.set, Path(a.judge_dir), a.shelves, a.tune_look)]
     print(f"{len(frames)} frames ready in {time.perf_counter() - t:.1f} s (not counted)", file=sys.stderr)
     if a.profile:
         import cProfile

@@ -7,6 +7,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from shelfpick.perception.pixels import hull_candidates
+
 
 def palette(n: int) -> np.ndarray:
     """n distinct saturated RGB colours (golden-ratio hues), deterministic."""
@@ -56,11 +58,11 @@ def _present(labels: np.ndarray) -> list[int]:
 
 
 def _label_points(labels: np.ndarray, k: int, box: tuple[slice, slice] | None) -> np.ndarray | None:
-    """cv2.findNonZero of label k (its pixels as x, y, row by row), found inside the label's
-    bounding box `box` (the whole image without one) and shifted back."""
+    """The points of label k its min-area rectangle needs (`pixels.hull_candidates`), found inside
+    the label's bounding box `box` (the whole image without one) and shifted back."""
     if box is None:
-        return cv2.findNonZero((labels == k).astype(np.uint8))
-    pts = cv2.findNonZero((labels[box] == k).astype(np.uint8))
+        return hull_candidates(labels == k)
+    pts = hull_candidates(labels[box] == k)
     if pts is not None:
         pts += np.array([box[1].start, box[0].start], np.int32)
     return pts

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from shelfpick.perception.depth_edge_config import DepthEdgeConfig
-from shelfpick.perception.pixels import label_percentiles, label_sums
+from shelfpick.perception.pixels import hull_candidates, label_percentiles, label_sums
 
 
 def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
@@ -246,7 +246,7 @@ def rect_fill(mask: np.ndarray) -> float:
     sub = np.pad(mask[y:y + h, x:x + w].astype(np.uint8), 3)
     sub = cv2.morphologyEx(sub, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     core = cv2.morphologyEx(sub, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
-    cpts = cv2.findNonZero(core)
+    cpts = hull_candidates(core)
     if cpts is None:
         return 0.0
     rect = cv2.minAreaRect(cpts)

@@ -86,6 +86,11 @@ class RepairContext:
         return lab
 
     @cached_property
+    def valid(self) -> np.ndarray:
+        """The pixels with a depth reading (finite, > 0): asked for on every plane test."""
+        return np.isfinite(self.depth) & (self.depth > 0)
+
+    @cached_property
     def gap_kernel(self) -> np.ndarray:
         """Masks within `cat.max_join_gap_px` of each other are neighbours: the dilation kernel."""
         return np.ones((2 * self.cat.max_join_gap_px + 1,) * 2, np.uint8)
@@ -116,7 +121,7 @@ def neighbour_pieces(i: int, masks: list[np.ndarray], ctx: RepairContext,
 def plane_dist(face: FrontFace, mask: np.ndarray, ctx: RepairContext) -> float:
     """Median distance (m) of the mask's depth points to the plane of `face`."""
     depth = ctx.depth
-    ys, xs = nonzero(mask & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(mask & ctx.valid)
     if len(xs) < 10:
         return math.inf
     if len(xs) > 3000:

@@ -9,7 +9,7 @@ from shelfpick.perception.faces import FrontFace, face_axes
 from shelfpick.perception.geometry import backproject, ray_plane
 # plane_dist lives with RepairContext (neighbour_pieces measures with it); named here too, beside
 # the other on-plane measures, for the steps that import it from here
-from shelfpick.perception.pixels import nonzero
+from shelfpick.perception.pixels import hull_candidates, nonzero
 from shelfpick.perception.repairs.measure import RepairContext, plane_dist
 from shelfpick.perception.scene import Camera
 
@@ -38,7 +38,7 @@ def plane_res(face: FrontFace, where: np.ndarray, ctx: RepairContext) -> np.ndar
     (inf where there is no depth or outside `where`)."""
     depth = ctx.depth
     out = np.full(where.shape, np.inf)
-    ys, xs = nonzero(where & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(where & ctx.valid)
     if len(xs):
         p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
                         depth[ys, xs].astype(np.float64))
@@ -50,7 +50,7 @@ def on_plane(face: FrontFace, where: np.ndarray, ctx: RepairContext, tol: float)
     """The pixels of `where` whose depth point lies within `tol` of the plane of `face`."""
     depth = ctx.depth
     out = np.zeros_like(where)
-    ys, xs = nonzero(where & np.isfinite(depth) & (depth > 0))
+    ys, xs = nonzero(where & ctx.valid)
     if len(xs):
         p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
                         depth[ys, xs].astype(np.float64))
@@ -79,7 +79,7 @@ def largest_component(m: np.ndarray) -> tuple[np.ndarray, bool]:
 def min_area_rect(m: np.ndarray) -> np.ndarray:
     """The filled min-area rectangle around the mask's pixels (uint8, 1 inside)."""
     rect = np.zeros(m.shape, np.uint8)
-    pts = cv2.findNonZero(m.astype(np.uint8))
+    pts = hull_candidates(m)
     cv2.fillPoly(rect, [np.round(cv2.boxPoints(cv2.minAreaRect(pts))).astype(np.int32)], 1)
     return rect
 

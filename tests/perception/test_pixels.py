@@ -1,11 +1,12 @@
 """`perception.pixels` gives exactly numpy's numbers (it exists only for speed)."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
 
-from shelfpick.perception.pixels import count, label_percentiles, label_sums, nonzero
+from shelfpick.perception.pixels import count, hull_candidates, label_percentiles, label_sums, nonzero
 
 
 def _masks() -> list[np.ndarray]:
@@ -97,3 +98,51 @@ def test_the_chroma_lookup_is_the_per_pixel_arithmetic():
     for gain in (2.5, 1.0, 0.3):
         want = np.clip((ch.astype(np.float32) - 128) * gain + 128, 0, 255).astype(np.uint8)
         np.testing.assert_array_equal(_chroma_lut(gain)[ch], want)
+
+
+def _shapes(n: int, seed: int = 0) -> list[np.ndarray]:
+    """Masks of ellipses, turned rectangles, lines and speckle, alone or together, 1-120 px a side."""
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n:
+        h, w = (int(v) for v in rng.integers(1, 120, 2))
+        m = np.zeros((h, w), np.uint8)
+        for _ in range(int(rng.integers(1, 4))):
+            c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+            kind = int(rng.integers(0, 4))
+            if kind == 0:
+                cv2.ellipse(m, c, (int(rng.integers(0, 40)), int(rng.integers(0, 40))), float(rng.uniform(0, 180)),
+                            0, 360, 1, -1)
+            elif kind == 1:
+                box = cv2.boxPoints((c, (float(rng.uniform(1, 60)), float(rng.uniform(1, 60))), float(rng.uniform(-90, 90))))
+                cv2.fillPoly(m, [np.round(box).astype(np.int32)], 1)
+            elif kind == 2:
+                cv2.line(m, c, (int(rng.integers(0, w)), int(rng.integers(0, h))), 1, int(rng.integers(1, 4)))
+            else:
+                m |= (rng.random((h, w)) < 0.03).astype(np.uint8)
+        if m.any():
+            out.append(m.astype(bool))
+    return out
+
+
+def test_hull_candidates_give_the_min_area_rect_of_all_the_pixels():
+    for m in _shapes(1500) + [np.ones((1, 1), bool), np.ones((1, 7), bool), np.ones((9, 1), bool)]:
+        every = cv2.findNonZero(m.astype(np.uint8))
+        some = hull_candidates(m)
+        assert some.dtype == every.dtype and some.shape[1:] == (1, 2)
+        flat = [p.reshape(-1, 2) @ [1, m.shape[1]] for p in (every, some)]
+        assert np.isin(flat[1], flat[0]).all() and (np.diff(flat[1]) > 0).all()   # a row-major subsequence
+        assert cv2.minAreaRect(some) == cv2.minAreaRect(every)
+    assert hull_candidates(np.zeros((4, 5), bool)) is None
+
+
+def test_the_faces_cross_product_is_numpys_to_the_bit():
+    from shelfpick.perception.faces import _cross
+
+    rng = np.random.default_rng(5)
+    vectors = [rng.normal(size=3) for _ in range(300)] + [np.array([0.0, 1.0, 0.0]), np.array([-0.0, 0.0, -1.0]),
+                                                          np.array([0.0, 0.0, 1.0])]
+    for a in vectors:
+        for b in (rng.normal(size=3), np.array([0.0, 0.0, 1.0]), a):
+            want, got = np.cross(a, b), _cross(a, b)
+            assert got.dtype == want.dtype and want.tobytes() == got.tobytes()   # signs of zeros too
