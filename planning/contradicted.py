@@ -24,7 +24,7 @@ CONTACT = 0.01     # m across the pull (x, z) within which two boxes touch
 
 def doubted(scene: Scene) -> list[str]:
     """The ids of the boxes perception marked as part of a contradiction, in scene order."""
-    return [b.id for b in scene.boxes if (b.extra.get("perceived") or {}).get("contradicted") is True]
+    return [b.id for b in scene.boxes if b.contradicted]
 
 
 def _across(b: Box) -> tuple[float, float, float, float]:
