@@ -154,6 +154,7 @@ class PreviewPlayer:
         self.scene = scene
         self.after_load = after_load
         self.frames: list[sv.Keyframe] = []
+        self.recorded: set[str] = set()
         self.risk: set[str] = set()
         self.playing = False
         self.loaded: tuple | None = None      # (planner, plan hash, steps) of the preview loaded
@@ -180,6 +181,7 @@ class PreviewPlayer:
                 self.playing = False
             n_worlds = _worlds_of(plan)
             self.frames = sv.timeline(preview, shown=shown, worlds=n_worlds) if preview else []
+            self.recorded = {b for k in self.frames for b in k.poses}   # a box no frame has stays as seen
             self.risk = sv.risky_boxes(plan) if plan is not None else set()
             n = len(self.frames)
             self.slider.max = max(1, n - 1)
@@ -215,7 +217,7 @@ class PreviewPlayer:
             i = max(0, min(i, len(self.frames) - 1))
             fr = self.frames[i]
             scene = self.scene()
-            sv.apply_keyframe(self.drawing.client, self.drawing.nodes, fr, scene.shelf, None)
+            sv.apply_keyframe(self.drawing.client, self.drawing.nodes, fr, scene.shelf, None, self.recorded)
             nsteps = max(k.step for k in self.frames) + 1
             txt = f"Step {fr.step + 1}/{nsteps}: pulling **{md(fr.box)}** · t = {fr.t:.2f} s"
             if fr.world:

@@ -226,10 +226,14 @@ def visible_pose(pose: tuple | None, shelf: Any) -> bool:
 
 
 def apply_keyframe(server: Any, nodes: Mapping[str, BoxNodes], frame: Keyframe, shelf: Any,
-                   risk: set[str] | None = None) -> None:
-    """Move every box to the recorded pose in one atomic update; collapsing boxes turn red."""
+                   risk: set[str] | None = None, recorded: set[str] | None = None) -> None:
+    """Move every box to the recorded pose in one atomic update; collapsing boxes turn red. A box
+    missing from a frame was pulled or fell out of the shelf; one no frame of the preview records
+    (`recorded`: the ids any frame has; faces the planner set aside) stays as perceived."""
     with server.atomic():
         for bid, n in nodes.items():
+            if recorded is not None and bid not in recorded:
+                continue
             pose = frame.poses.get(bid)
             show = visible_pose(pose, shelf)
             if show:

@@ -57,3 +57,23 @@ def test_the_plan_table_names_the_faces_set_aside_escaped():
     assert "b&#42;6 and b&#95;7&#58; box &#39;b&#42;6&#39; and box &#39;b&#95;7&#39; overlap by 0&#46;164 m" in row
     plain = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), True, {}, 0, {})
     assert "set aside" not in results_markdown(State(plans={"physics": PlanEntry(plain, plain.content_hash())}))
+
+
+def test_the_preview_keeps_a_set_aside_box_where_it_was_seen_and_hides_a_pulled_one(server):
+    """Set-aside faces are in no sample world, so no preview frame records them: they stay drawn as
+    perceived (with their `?`), while a box a frame lacks because it was pulled is hidden."""
+    import numpy as np
+
+    from shelfpick.console.web.scene_view import Keyframe, apply_keyframe, draw_boxes
+    from shelfpick.perception.scene import Box, Scene, Shelf
+
+    scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (-0.3, 0.12, 0.1)), Box("b1", (0.2, 0.2, 0.2), (0.0, 0.12, 0.1)),
+                            Box("b6", (0.2, 0.2, 0.2), (0.3, 0.12, 0.1), extra={"perceived": {"contradicted": True}})))
+    nodes = draw_boxes(server.scene, scene)
+    frame = Keyframe(0, "b1", 0.1, {"b0": ((-0.3, 0.1, 0.1), (1.0, 0.0, 0.0, 0.0))}, ())
+    apply_keyframe(server, nodes, frame, scene.shelf, None, {"b0", "b1"})
+    assert nodes["b0"].box.visible and np.allclose(nodes["b0"].box.position, (-0.3, 0.1, 0.1))
+    assert not nodes["b1"].box.visible                       # pulled: gone from the frame
+    assert nodes["b6"].box.visible and np.allclose(nodes["b6"].box.position, (0.3, 0.12, 0.1))
+    apply_keyframe(server, nodes, frame, scene.shelf)        # without it, as before: hidden
+    assert not nodes["b6"].box.visible
