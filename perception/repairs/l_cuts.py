@@ -155,31 +155,51 @@ class _Sweep:
         fb = cb[pos] / ((t.max() - self.btmin[pos] + 1) * (bmax[pos] - bmin[pos] + 1))
         return fa, fb
 
+    def all_fills(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions 1..nb-1, `fills` of part a and of part b at each), for every line at once."""
+        pos = np.arange(1, self.nb)
+        t, ca, cb = self.t, self.ca, self.cb
+        fa = ca[pos - 1] / ((self.atmax[pos - 1] - t.min() + 1) * (self.amax[pos - 1] - self.amin[pos - 1] + 1))
+        fb = cb[pos] / ((t.max() - self.btmin[pos] + 1) * (self.bmax[pos] - self.bmin[pos] + 1))
+        return pos, fa, fb
+
     def best_fill(self, margin: int, part_fill: float) -> tuple[float, int] | None:
         """(score, pos) of the line (at least `margin` bins in from either end) whose two parts
-        both fill their rectangles best (>= `part_fill`)."""
-        best = None
-        for pos in range(margin, self.nb - margin + 1):
-            if pos <= 0 or pos >= self.nb or self.empty_side(pos):
-                continue
-            score = min(self.fills(pos))
-            if score >= part_fill and (best is None or score > best[0]):
-                best = (float(score), pos)
-        return best
+        both fill their rectangles best (>= `part_fill`); the first such line on a tie."""
+        pos, fa, fb = self.all_fills()
+        score = np.minimum(fa, fb)
+        ok = (pos >= margin) & (pos <= self.nb - margin) & (self.ca[pos - 1] != 0) & (self.cb[pos] != 0) \
+            & (score >= part_fill)
+        if not ok.any():
+            return None
+        k = int(np.argmax(np.where(ok, score, -np.inf)))
+        return float(score[k]), int(pos[k])
 
     def corner(self, margin: int, part_fill: float) -> int | None:
         """The L's corner: where the mask's extent across the line jumps most, one part filling
-        >= `part_fill` (a part may be ragged, a label edge or tape along it)."""
+        >= `part_fill` (a part may be ragged, a label edge or tape along it); the first on a tie."""
         span = np.where(self.cnt > 0, self.omax - self.omin + 1, 0.0)
-        jump = None
-        for pos in range(max(margin, 1), self.nb - max(margin, 1) + 1):
-            lo, hi = span[max(0, pos - margin):pos], span[pos:pos + margin]
-            if not len(lo) or not len(hi) or self.empty_side(pos):
-                continue
-            d = abs(float(np.median(lo)) - float(np.median(hi)))
-            if max(self.fills(pos)) >= part_fill and (jump is None or d > jump[0]):
-                jump = (d, pos)
-        return None if jump is None else jump[1]
+        pos, fa, fb = self.all_fills()
+        if margin < 1:
+            return None           # no window to compare either side of a line
+        m = margin
+        ok = (pos >= m) & (pos <= self.nb - m) & (self.ca[pos - 1] != 0) & (self.cb[pos] != 0) \
+            & (np.maximum(fa, fb) >= part_fill)
+        if not ok.any():
+            return None
+        d = np.full(len(pos), -np.inf)
+        for k in np.flatnonzero(ok):
+            p = int(pos[k])
+            d[k] = abs(_median(span[max(0, p - margin):p]) - _median(span[p:p + margin]))
+        return int(pos[int(np.argmax(d))])
+
+
+def _median(v: np.ndarray) -> float:
+    """`float(np.median(v))` of a short 1-D array without NaN: its middle value after a sort, or
+    the two middle ones' mean as numpy takes it ((a + b) / 2), without np.median's set-up (~20 us)."""
+    s = np.sort(v)
+    h = len(s) // 2
+    return float(s[h]) if len(s) % 2 else float((s[h - 1] + s[h]) / 2)
 
 
 def _best_l_cut(ys: np.ndarray, xs: np.ndarray, deg: float, margin: int,
