@@ -257,6 +257,77 @@ def run_inproc(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
 
 
 # --------------------------------------------------------------------------
+# before and after, frame by frame (--ab-with)
+def worker(out: Path) -> int:
+    """`--worker OUT`: perceive each capture folder named on stdin (a JSON line: folder, look, shelf)
+    in this process, the segmenter loaded once, and answer each with its row (a JSON line)."""
+    from shelfpick.perception.segment import load_segmenter
+
+    answer, sys.stdout = sys.stdout, sys.stderr          # only the rows go to the parent
+    seg = load_segmenter(None, "auto")
+    seg.choose(True)
+    taps = Taps()
+    for line in sys.stdin:
+        req = json.loads(line)
+        row, _ = inproc_frame(Path(req["folder"]), seg, taps, out / req["look"] / req["shelf"])
+        answer.write(json.dumps(row) + "\n")
+        answer.flush()
+    taps.close()
+    return 0
+
+
+def run_ab(frames: list[tuple[str, str, Path]], out: Path, before: str) -> dict[str, list[dict]]:
+    """Every frame perceived by two warm processes in turn, perception from `before` and the working
+    tree's, never both at once, which goes first alternating frame by frame: on a shared machine
+    both see the same load, minute by minute (two whole runs one after the other do not)."""
+    me = [sys.executable, str(Path(__file__).resolve()), "--worker"]
+    procs = {"before": subprocess.Popen(me + [str(out / "before"), "--perception-from", before],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True),
+             "after": subprocess.Popen(me + [str(out / "after")], stdin=subprocess.PIPE,
+                                       stdout=subprocess.PIPE, text=True)}
+
+    def ask(side: str, look: str, name: str, folder: Path) -> dict:
+        p = procs[side]
+        p.stdin.write(json.dumps({"folder": str(folder), "look": look, "shelf": name}) + "\n")  # type: ignore[union-attr]
+        p.stdin.flush()                                                                      # type: ignore[union-attr]
+        line = p.stdout.readline()                                                           # type: ignore[union-attr]
+        if not line:
+            raise SystemExit(f"perceive_speed: --ab-with: the {side} process ended (exit {p.wait()})")
+        row = json.loads(line)
+        return dict(row, look=look, shelf=name) if look not in HELD_OUT else \
+            {k: v for k, v in dict(row, look=look, shelf=name).items() if k != "boxes"}
+
+    rows: dict[str, list[dict]] = {"before": [], "after": []}
+    try:
+        for side in procs:                                   # one warm-up frame each, not counted
+            ask(side, "warmup", "warmup", frames[0][2])
+        for i, (look, name, folder) in enumerate(frames):
+            for side in (("before", "after") if i % 2 == 0 else ("after", "before")):
+                rows[side].append(ask(side, look, name, folder))
+            b, a = rows["before"][-1], rows["after"][-1]
+            print(f"[{i + 1}/{len(frames)}] {look} {name}: before {b['wall']['perceive']:.2f} s wall "
+                  f"{b['cpu']['perceive']:.2f} s CPU, after {a['wall']['perceive']:.2f} / {a['cpu']['perceive']:.2f} "
+                  f"(load {load_avg()})", file=sys.stderr, flush=True)
+    finally:
+        for p in procs.values():
+            p.stdin.close()                                  # type: ignore[union-attr]
+            p.wait(timeout=60)
+    return rows
+
+
+def paired(rows: dict[str, list[dict]]) -> str:
+    """Per look: the median over frames of after / before, wall and CPU of `perceive`."""
+    lines = ["| look | frames | after / before wall, median of frames | CPU |", "|---|---|---|---|"]
+    looks = list(dict.fromkeys(r["look"] for r in rows["before"]))
+    for look in looks + ["all"]:
+        pairs = [(b, a) for b, a in zip(rows["before"], rows["after"]) if look in ("all", b["look"])]
+        rw = [a["wall"]["perceive"] / b["wall"]["perceive"] for b, a in pairs]
+        rc = [a["cpu"]["perceive"] / max(b["cpu"]["perceive"], 1e-9) for b, a in pairs]
+        lines.append(f"| {look} | {len(pairs)} | {percentile(rw, 0.5):.3f} | {percentile(rc, 0.5):.3f} |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------
 # the CLI, a process per frame
 def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = None,
             perception_from: str | None = None) -> list[dict]:
@@ -392,6 +463,10 @@ def compare(a: dict, b: dict, tol: float = 1e-9) -> tuple[int, list[str], list[s
 # --------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if "--worker" in argv:       # a warm process of --ab-with (the parent reads its stdout)
+        if "--perception-from" in argv:
+            use_perception_from(argv[argv.index("--perception-from") + 1])
+        return worker(Path(argv[argv.index("--worker") + 1]))
     if "--as-cli" in argv:       # `shelfpick ARGS` with --perception-from's perception (the CLI's "before")
         k = argv.index("--as-cli")
         folder = argv[argv.index("--perception-from") + 1]
@@ -416,6 +491,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two fingerprints")
     ap.add_argument("--perception-from", metavar="DIR",
                     help="time shelfpick.perception from DIR (a perception/ folder of another commit) instead of the tree's")
+    ap.add_argument("--ab-with", metavar="DIR",
+                    help="in process, before and after frame by frame: perception from DIR (as --perception-from) "
+                         "and the working tree's, in two warm processes taking turns")
     ap.add_argument("--blas-threads-as-is", action="store_true",
                     help="in process: perceive without its one-BLAS-thread limit (to time that change alone)")
     ap.add_argument("--profile", metavar="OUT", help="--mode inproc under cProfile (stats to OUT; --set tune only)")
@@ -462,6 +540,17 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     out = Path(a.out) if a.out else frames_dir.with_suffix(".out")
     start = load_avg()
+    if a.ab_with:
+        both = run_ab(frames, out, a.ab_with)
+        if a.rows:
+            Path(a.rows).write_text("".join(json.dumps(dict(r, side=side)) + "\n" for side, rs in both.items() for r in rs))
+        print(f"perceive speed, --set {a.set} --mode inproc, before ({a.ab_with}) and after (the working tree) "
+              f"frame by frame, {len(frames)} frames 640x480; load (1/5/15 min) {start} at the start, "
+              f"{load_avg()} at the end; {os.cpu_count()} cores")
+        for side, rs in both.items():
+            print(f"\n### {side}\n\n{summary(rs, 'inproc')}")
+        print(f"\n### after / before, frame by frame\n\n{paired(both)}")
+        return 0
     rows = run_inproc(frames, out) if a.mode == "inproc" else run_cli(frames, out, a.shelfpick, a.perception_from)
     if a.rows:
         Path(a.rows).write_text("".join(json.dumps(r) + "\n" for r in rows))

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from shelfpick.perception.geometry import backproject, ray_plane
-from shelfpick.perception.pixels import nonzero
+from shelfpick.perception.pixels import count, nonzero
 from shelfpick.perception.scene import Camera
 
 
@@ -93,7 +93,7 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
         (rx, ry), rs, ra = f.rect_px
         return replace(f, rect_px=((rx + x0, ry + y0), rs, ra))
     m = mask.astype(np.uint8)
-    if m.sum() < 20:
+    if count(m) < 20:                    # m: the bool mask as 0/1
         return None
     got = _face_points(m, depth, camera, erode_px)
     if got is None:
@@ -121,7 +121,7 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
     c3, width, height = _extents(m, camera, centre, normal, ex, ez)
     rect_px = cv2.minAreaRect(outline.astype(np.float32))
     return FrontFace(tuple(float(x) for x in c3), float(width), float(height), float(angle),  # type: ignore[arg-type]
-                     float(yaw), dmed, int(m.sum()), rect_px, float(tilt))
+                     float(yaw), dmed, count(m), rect_px, float(tilt))
 
 
 def _face_points(m: np.ndarray, depth: np.ndarray, camera: Camera,
@@ -130,11 +130,11 @@ def _face_points(m: np.ndarray, depth: np.ndarray, camera: Camera,
     most ~6000), and that median depth; None with fewer than 10 valid pixels."""
     k = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)
     inner = cv2.erode(m, k) > 0
-    if inner.sum() < 20:
+    if count(inner) < 20:
         inner = m > 0
     d = depth
     sel = inner & np.isfinite(d) & (d > 0)
-    if sel.sum() < 10:
+    if count(sel) < 10:
         return None
     vs, us = nonzero(sel)
     z = d[vs, us].astype(np.float64)
@@ -163,7 +163,7 @@ def _vertical_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         res = np.abs(q @ normal)
         cut = max(0.006, 3.0 * float(np.median(res)))
         inl = res < cut
-        if inl.sum() >= 10:
+        if count(inl) >= 10:
             centre = np.median(pts[inl], axis=0)
             pts = pts[inl]
     return centre, normal, pts
@@ -200,8 +200,10 @@ def _extents(m: np.ndarray, camera: Camera, centre: np.ndarray, normal: np.ndarr
         st = len(xs_all) // 20000 + 1
         ys_all, xs_all = ys_all[::st], xs_all[::st]
     allp = ray_plane(camera, xs_all.astype(np.float64), ys_all.astype(np.float64), centre, normal)
-    okp = np.all(np.isfinite(allp), axis=1)
-    allp = allp[okp]
+    fin = np.isfinite(allp)
+    okp = fin[:, 0] & fin[:, 1] & fin[:, 2]      # np.all(fin, axis=1), without its reduction set-up
+    if not okp.all():
+        allp = allp[okp]
     rel = allp - centre
     cam_t = np.asarray(camera.position, dtype=np.float64)
     wts = np.linalg.norm(allp - cam_t, axis=1) ** 3

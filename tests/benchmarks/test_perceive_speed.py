@@ -51,3 +51,17 @@ def test_held_out_frames_are_never_profiled(capsys, tmp_path):
     assert ps.main(["--judge-dir", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
     assert "--profile: only on --set tune" in err and "has no scenes/" in err
+
+
+def test_paired_gives_the_median_of_each_frames_after_over_before():
+    ps = load("perceive_speed")
+
+    def row(look, wall, cpu):
+        return {"look": look, "shelf": "s", "wall": {"perceive": wall}, "cpu": {"perceive": cpu}}
+
+    both = {"before": [row("printed", 1.0, 1.0), row("printed", 2.0, 1.0), row("stereo", 1.0, 2.0)],
+            "after": [row("printed", 0.5, 0.8), row("printed", 1.0, 0.9), row("stereo", 0.9, 1.0)]}
+    lines = ps.paired(both).splitlines()
+    assert lines[2] == "| printed | 2 | 0.500 | 0.850 |"
+    assert lines[3] == "| stereo | 1 | 0.900 | 0.500 |"
+    assert lines[4].startswith("| all | 3 | 0.500 |")
