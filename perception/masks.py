@@ -328,10 +328,10 @@ def border_sides(mask: np.ndarray, margin: int = 2, min_pixels: int = 5,
     """The image borders among `sides` ("top", "left", "right", "bottom") a mask runs into: its
     face may go on beyond the view, so its size there is only a lower bound."""
     m = np.asarray(mask, bool)
-    if not m.any():
+    if min_pixels <= 0 and not m.any():     # (with min_pixels > 0 an empty mask meets no side anyway)
         return ()
     strips = {"top": m[:margin, :], "left": m[:, :margin], "right": m[:, -margin:], "bottom": m[-margin:, :]}
-    return tuple(s for s in sides if int(strips[s].sum()) >= min_pixels)
+    return tuple(s for s in sides if count(strips[s]) >= min_pixels)
 
 
 def border_pixels(mask: np.ndarray, side: str, margin: int = 2) -> np.ndarray:
