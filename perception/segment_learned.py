@@ -540,7 +540,7 @@ class LearnedSegmenter:
             full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
         if full.max() == 0:
             return []
-        masks = [full == k for k in range(1, int(full.max()) + 1) if (full == k).any()]
+        masks = [m for m in (full == k for k in range(1, int(full.max()) + 1)) if m.any()]
         if depth is None or not self.depth_ok:
             return masks
         seen = full > 0
