@@ -31,6 +31,10 @@ the working tree's, in process or, with `--mode cli`, as `shelfpick` run by this
     git archive b8f5da2 perception | tar -x -C /tmp/old && ln -s $PWD/static /tmp/old/static
     .venv/bin/python benchmarks/perceive_speed.py --mode inproc --perception-from /tmp/old/perception
 
+`--ab-with DIR` times both frame by frame: two warm processes (DIR's perception and the tree's) take
+turns on every frame, never at once, the first alternating; both tables and the median over frames
+of after / before. On a shared machine two whole runs one after the other see different loads.
+
 `--fingerprint OUT` writes, per tuning frame, everything `perceive` outputs (the scene JSON with
 its boxes, faces, warnings, adjustments and unexplained regions, hashes of the label images) so that
 a change meant only for speed can be shown to change nothing (`--compare A B`: byte-equal, else
