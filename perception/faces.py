@@ -8,10 +8,7 @@ OpenCV's angle convention.
 """
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -74,61 +71,12 @@ def _rect_long_edge(pts: np.ndarray) -> tuple[tuple[float, float], float, float,
 TILT_SNAP = 3.0
 
 
-class FaceMemo:
-    """The faces measured during one `perceive` (`faces_cached`), by mask content: the catalogue's
-    repairs and the print repairs measure the same mask again as a new array (10-30% of the calls
-    on printed-carton frames, ~5 ms each). A hit needs the same depth array object (held here, so
-    its id is not reused), an equal camera and settings, and the same mask bits in the same
-    bounding box (a dict key compares them in full); it returns a new, equal `FrontFace`."""
-
-    def __init__(self) -> None:
-        self.hits: dict[tuple, tuple[np.ndarray, FrontFace | None]] = {}
-
-
-# the memo of the `perceive` running in this context (None outside one): a context variable, so
-# concurrent calls (a console's threads) never share one
-_FACES: contextvars.ContextVar[FaceMemo | None] = contextvars.ContextVar("shelfpick_face_memo", default=None)
-
-
-@contextlib.contextmanager
-def faces_cached() -> Iterator[FaceMemo]:
-    """Within the body (one `perceive`), `measure_front` remembers what it measured in one new
-    `FaceMemo`, dropped at the end."""
-    memo = FaceMemo()
-    token = _FACES.set(memo)
-    try:
-        yield memo
-    finally:
-        _FACES.reset(token)
-
-
 def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px: int = 3,
                   angle_snap: float = 1.0, tilt_snap: float = TILT_SNAP) -> FrontFace | None:
-    """Measure one mask's front face; None when the mask has too little valid depth (inside
-    `faces_cached`, a mask measured before on this depth is not measured again)."""
-    memo = _FACES.get()
-    if memo is None:
-        return _measure_front(mask, depth, camera, erode_px, angle_snap, tilt_snap)
-    m = np.asarray(mask, bool)
-    rows = np.flatnonzero(m.any(axis=1))
-    if len(rows) == 0:
-        return None
-    cols = np.flatnonzero(m.any(axis=0))
-    box = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
-    key = (id(depth), m.shape, box, camera, erode_px, angle_snap, tilt_snap,
-           np.packbits(m[box[0]:box[1], box[2]:box[3]]).tobytes())
-    hit = memo.hits.get(key)
-    if hit is None or hit[0] is not depth:
-        hit = (depth, _measure_front(m, depth, camera, erode_px, angle_snap, tilt_snap))
-        memo.hits[key] = hit
-        return hit[1]
-    return None if hit[1] is None else replace(hit[1])
+    """Measure one mask's front face; None when the mask has too little valid depth.
 
-
-def _measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px: int,
-                   angle_snap: float, tilt_snap: float) -> FrontFace | None:
-    """`measure_front` computed. Works on the mask's bounding box (the camera's principal point
-    shifted with it): the same numbers as on the full frame, several times faster."""
+    Works on the mask's bounding box (the camera's principal point shifted with it):
+    the same numbers as on the full frame, several times faster."""
     mask = np.asarray(mask, bool)
     rows = np.flatnonzero(mask.any(axis=1))
     if len(rows) == 0:
@@ -139,7 +87,7 @@ def _measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px
     x0, x1 = max(0, cols[0] - pad), min(mask.shape[1], cols[-1] + pad + 1)
     if (y0, x0, y1, x1) != (0, 0) + mask.shape:
         sub = replace(camera, cx=camera.cx - x0, cy=camera.cy - y0)
-        f = _measure_front(mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], sub, erode_px, angle_snap, tilt_snap)
+        f = measure_front(mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], sub, erode_px, angle_snap, tilt_snap)
         if f is None:
             return None
         (rx, ry), rs, ra = f.rect_px
