@@ -15,6 +15,7 @@ declared safe. Refused as before:
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from typing import TYPE_CHECKING, Callable, TypeVar
 
 from shelfpick.perception.scene import Box, Camera, Scene, Unexplained
@@ -57,8 +58,7 @@ def face_region(b: Box, camera: Camera | None, why: str) -> Unexplained:
 def set_aside(scene: Scene, ids: tuple[str, ...], why: str) -> Scene:
     """`scene` with the boxes `ids` taken out and their faces added to its unexplained matter."""
     regions = tuple(face_region(scene.box(i), scene.camera, f"set aside by the planner: {why}") for i in ids)
-    return Scene(scene.shelf, tuple(b for b in scene.boxes if b.id not in ids), scene.camera, scene.source,
-                 tuple(scene.unexplained or ()) + regions)
+    return replace(scene.without(ids), unexplained=tuple(scene.unexplained or ()) + regions)
 
 
 def build_setting_aside(scene: Scene, target: str | None,
@@ -84,8 +84,6 @@ def build_setting_aside(scene: Scene, target: str | None,
 def as_given(plan: "Plan", given: Scene, aside: list[dict[str, object]]) -> "Plan":
     """`plan`, made on a scene with faces set aside, told so (`extra["set_aside"]`) and bound to the
     scene it was given (`provenance.scene_hash`): for a caller that builds its own predictor."""
-    from dataclasses import replace
-
     from shelfpick.planning.plan import scene_hash
 
     if not aside:
