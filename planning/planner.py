@@ -24,7 +24,7 @@ from shelfpick.planning.oracle import Predicting, Screening, Verifying
 from shelfpick.planning.plan import PLANNERS, TASKS, Plan, StepPrediction
 from shelfpick.planning.predict import Predictor
 from shelfpick.planning.reorder import reorder_extraction
-from shelfpick.planning.set_aside import build_setting_aside
+from shelfpick.planning.set_aside import SetAside, build_setting_aside
 from shelfpick.planning.shorten import shorten_extraction
 from shelfpick.planning.uncertainty import Uncertainty
 from shelfpick.planning.unexplained import verdict as unexplained_verdict
@@ -159,13 +159,14 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
         return Plan(task, target, planner, (), (), True, {"planning_s": 0.0}, seed, {"search": search})
 
     own = predictor is None
-    given, aside = scene, []
+    aside = SetAside(scene, scene)
     if own:
         search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
         # faces no world can hold are set aside as unexplained matter, not the whole shelf refused
-        predictor, scene, aside = build_setting_aside(
+        predictor, aside = build_setting_aside(
             scene, target, lambda sc: Predictor(sc, samples=samples, seed=seed, config=config, workers=workers,
                                                 model=model, pool=pool, clients=clients))
+        scene = aside.planned
     sampling = predictor if isinstance(predictor, Screening) else None
     try:
         if own and scene.depth_known and sampling is not None:
@@ -215,9 +216,7 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     safe, extra = _verdict(predicted, risk, search, check, gated)
     safe, extra = unexplained_verdict(scene, sequence, predicted, safe, extra)   # a plan touching it is not safe
     safe, extra = contradicted_verdict(scene, sequence, predicted, safe, extra)  # nor one on a doubted face
-    if aside:
-        extra = {**extra, "set_aside": aside}
     plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench;
-    # the scene it was given, not the one with faces set aside
-    return plan.with_provenance(given, config, samples, risk)
+    # with faces set aside, what and why, and the hash of the scene it was given
+    return aside.record(plan.with_provenance(scene, config, samples, risk))

@@ -15,9 +15,10 @@ declared safe. Refused as before:
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
-from typing import TYPE_CHECKING, Callable, TypeVar
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
+from shelfpick.perception.errors import SceneError
 from shelfpick.perception.scene import Box, Camera, Scene, Unexplained
 from shelfpick.planning.overlap_repair import OverlapError
 
@@ -61,34 +62,52 @@ def set_aside(scene: Scene, ids: tuple[str, ...], why: str) -> Scene:
     return replace(scene.without(ids), unexplained=tuple(scene.unexplained or ()) + regions)
 
 
-def build_setting_aside(scene: Scene, target: str | None,
-                        build: Callable[[Scene], T]) -> tuple[T, Scene, list[dict[str, object]]]:
+@dataclass(frozen=True)
+class SetAside:
+    """A scene as given, the scene planned on (`planned`: the given one with `entries`' boxes set
+    aside) and what was set aside and why (`{"boxes": [...], "why": "..."}` each)."""
+
+    given: Scene
+    planned: Scene
+    entries: tuple[dict[str, Any], ...] = ()
+
+    def boxes(self) -> set[str]:
+        return {b for e in self.entries for b in e["boxes"]}
+
+    def refuse(self, target: str | None) -> None:
+        """SceneError when `target` was set aside: no plan can pull a face that cannot be right."""
+        for e in self.entries:
+            if target in e["boxes"]:
+                raise SceneError(f"{target} was set aside, its face and another cannot all be right "
+                                 f"({e['why']}): no plan can pull it; capture again")
+
+    def record(self, plan: "Plan") -> "Plan":
+        """`plan`, made on `planned`, told what was set aside (`extra["set_aside"]`) and bound to the
+        scene it was given (`provenance.scene_hash`)."""
+        from shelfpick.planning.plan import scene_hash
+
+        if not self.entries:
+            return plan
+        extra = {**plan.extra, "set_aside": [dict(e) for e in self.entries]}
+        if isinstance(extra.get("provenance"), dict):
+            extra["provenance"] = {**extra["provenance"], "scene_hash": scene_hash(self.given)}
+        return replace(plan, extra=extra)
+
+
+def build_setting_aside(scene: Scene, target: str | None, build: Callable[[Scene], T]) -> tuple[T, SetAside]:
     """`build(scene)`, setting aside the boxes of each overlap past repair it raises and building
-    again; (what it built, the scene it built it on, what was set aside and why). The overlap
-    comes back when it may not be set aside (see the module docstring)."""
-    aside: list[dict[str, object]] = []
+    again; (what it built, what was set aside). The overlap comes back when it may not be set
+    aside (see the module docstring)."""
+    planned, entries = scene, []
     while True:
         try:
-            return build(scene), scene, aside
+            return build(planned), SetAside(scene, planned, tuple(entries))
         except OverlapError as exc:
-            names = tuple(b for b in dict.fromkeys(exc.boxes) if b in scene.ids)
-            n = sum(len(a["boxes"]) for a in aside) + len(names)  # type: ignore[arg-type]
-            if scene.depth_known or not names or target in names or n > MAX_SET_ASIDE:
+            names = tuple(b for b in dict.fromkeys(exc.boxes) if b in planned.ids)
+            n = sum(len(e["boxes"]) for e in entries) + len(names)
+            if planned.depth_known or not names or target in names or n > MAX_SET_ASIDE:
                 raise
-            scene = set_aside(scene, names, exc.detail)
-            aside.append({"boxes": list(names), "why": exc.detail})
+            planned = set_aside(planned, names, exc.detail)
+            entries.append({"boxes": list(names), "why": exc.detail})
             warnings.warn(f"set aside {' and '.join(names)} as unexplained matter: no world holds their faces as "
                           f"perceived ({exc.detail}); a plan that comes near them is not declared safe", stacklevel=2)
-
-
-def as_given(plan: "Plan", given: Scene, aside: list[dict[str, object]]) -> "Plan":
-    """`plan`, made on a scene with faces set aside, told so (`extra["set_aside"]`) and bound to the
-    scene it was given (`provenance.scene_hash`): for a caller that builds its own predictor."""
-    from shelfpick.planning.plan import scene_hash
-
-    if not aside:
-        return plan
-    extra = {**plan.extra, "set_aside": aside}
-    if isinstance(extra.get("provenance"), dict):
-        extra["provenance"] = {**extra["provenance"], "scene_hash": scene_hash(given)}
-    return replace(plan, extra=extra)

@@ -71,7 +71,7 @@ class WorkflowCore:
         self._clients: ClientPool | None = None    # Bullet clients reused by every plan
         # the last plan's Predictor and its capture's generation, kept for the next plan of that
         # capture: its sample worlds are the same, so the plans are too
-        self._kept: tuple[int, Predictor, Any, Any, list] | None = None   # gen, predictor, given, planned, set aside
+        self._kept: tuple[int, Predictor, Any] | None = None   # gen, predictor, its SetAside
         self._epoch = 0                     # bumped by close(): a predictor taken before is not kept
         # listeners run on one notifier thread, never under the lock: a view that holds its own
         # lock and reads `state` can then never deadlock against a change being announced

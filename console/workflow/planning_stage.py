@@ -16,6 +16,7 @@ from shelfpick.console.workflow.state import PlanEntry, State, problem_text, sce
 
 if TYPE_CHECKING:
     from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.set_aside import SetAside
 
 
 class PlanningStage(WorkflowCore):
@@ -66,51 +67,49 @@ class PlanningStage(WorkflowCore):
             if gen == self._generation:
                 self._set(progress=frac, progress_text=text)
 
-    def _predictor_for(self, gen: int, scene: Scene, target: str | None) -> tuple[Predictor, int, Scene, list]:
+    def _predictor_for(self, gen: int, scene: Scene, target: str | None) -> tuple[Predictor, int, SetAside]:
         """The Predictor of this capture: the one the last plan of it used (its sample worlds built,
-        its answers known: the same plans, sooner), else a new one; with the epoch it was taken in,
-        the scene it plans on and the faces set aside for it (planning/set_aside.py: faces no
-        world can hold become unexplained matter, as `shelfpick plan` does)."""
-        from shelfpick.perception.errors import SceneError
+        its answers known: the same plans, sooner), else a new one; with the epoch it was taken in
+        and the faces set aside for it (planning/set_aside.py: faces no world can hold become
+        unexplained matter, as `shelfpick plan` does)."""
         from shelfpick.planning.predict import Predictor
         from shelfpick.planning.set_aside import build_setting_aside
 
         with self._lock:
             kept, self._kept = self._kept, None
             epoch = self._epoch
-        if kept is not None and kept[0] == gen and kept[2] is scene and kept[1].usable():
-            _, predictor, _, planned, aside = kept
-            for a in aside:
-                if target in a["boxes"]:
-                    close_quietly(predictor)
-                    raise SceneError(f"{target} was set aside, its face and another cannot all be right "
-                                     f"({a['why']}): no plan can pull it; capture again")
-            return predictor, epoch, planned, aside
+        if kept is not None and kept[0] == gen and kept[2].given is scene and kept[1].usable():
+            try:
+                kept[2].refuse(target)
+            except Exception:
+                close_quietly(kept[1])
+                raise
+            return kept[1], epoch, kept[2]
         if kept is not None:
             close_quietly(kept[1])
         self._progress(gen, 0.05, f"building {self.samples} depth samples")
-        predictor, planned, aside = build_setting_aside(scene, target, lambda sc: Predictor(
+        predictor, aside = build_setting_aside(scene, target, lambda sc: Predictor(
             sc, samples=self.samples, seed=self.seed, workers=self.workers, clients=self._client_pool(),
             model=self.priors.model()))
-        return predictor, epoch, planned, aside
+        return predictor, epoch, aside
 
-    def _keep(self, gen: int, epoch: int, predictor: Predictor, given: Scene, planned: Scene, aside: list) -> None:
+    def _keep(self, gen: int, epoch: int, predictor: Predictor, aside: SetAside) -> None:
         """Keep `predictor` for the next plan of this capture; closed when that is over."""
         with self._lock:
             if gen == self._generation and epoch == self._epoch and self._kept is None:
-                self._kept = (gen, predictor, given, planned, aside)
+                self._kept = (gen, predictor, aside)
                 return
         close_quietly(predictor)
 
     def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
-        predictor, epoch, ok, planned, aside = None, 0, False, scene, []
+        predictor, epoch, ok, aside = None, 0, False, None
         try:
             t_setup = time.perf_counter()
-            predictor, epoch, planned, aside = self._predictor_for(gen, scene, target)
+            predictor, epoch, aside = self._predictor_for(gen, scene, target)
             t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
             repairs = tuple(str(r) for r in getattr((predictor.sims or [None])[0], "repairs", ()) or ())
-            entries = {p: self._one_plan(gen, i, p, (scene, planned, aside), task, target, predictor, t_setup,
-                                         repairs) for i, p in enumerate(PLANNERS)}
+            entries = {p: self._one_plan(gen, i, p, aside, task, target, predictor, t_setup, repairs)
+                       for i, p in enumerate(PLANNERS)}
             for e in entries.values():
                 if sid is not None and self._record(f"the {e.plan.planner} plan", self.store.add_plan, sid,
                                                     e.plan, [step_json(r) for r in e.preview]) is not None:
@@ -126,26 +125,25 @@ class PlanningStage(WorkflowCore):
                     self._set(planning=False, progress=0.0, progress_text="failed",
                               error=f"planning failed: {exc}")
         finally:
-            if predictor is not None and ok:
-                self._keep(gen, epoch, predictor, scene, planned, aside)
+            if predictor is not None and ok and aside is not None:
+                self._keep(gen, epoch, predictor, aside)
             elif predictor is not None:      # a predictor a failure went through is not trusted again
                 close_quietly(predictor)
             with self._lock:
                 if self._state.planning and gen != self._generation:
                     self._state = replace(self._state, planning=False)
 
-    def _one_plan(self, gen: int, i: int, planner: str, scenes: tuple[Scene, Scene, list], task: str,
-                  target: str | None, predictor: Predictor, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
-        """One planner's plan on `scenes` (the capture's, the one planned on, the faces set aside)."""
+    def _one_plan(self, gen: int, i: int, planner: str, aside: SetAside, task: str, target: str | None,
+                  predictor: Predictor, t_setup: float, repairs: tuple[str, ...]) -> PlanEntry:
+        """One planner's plan on the capture's scene (`aside.given`), made on `aside.planned`."""
         from shelfpick.planning.planner import make_plan
-        from shelfpick.planning.set_aside import as_given
 
-        scene, planned, aside = scenes
+        scene = aside.given
         n = len(PLANNERS)
         self._progress(gen, 0.1 + 0.85 * i / n, f"{planner} planner: searching")
         t0 = time.perf_counter()
-        plan = as_given(make_plan(planned, task, target, planner=planner, samples=self.samples, seed=self.seed,
-                                  predictor=predictor, max_plan_risk=self.priors.max_plan_risk), scene, aside)
+        plan = aside.record(make_plan(aside.planned, task, target, planner=planner, samples=self.samples,
+                                      seed=self.seed, predictor=predictor, max_plan_risk=self.priors.max_plan_risk))
         timing = dict(plan.timing)
         timing.setdefault("planning_s", time.perf_counter() - t0)
         if planner == "physics":
