@@ -206,7 +206,15 @@ class ClientView:
             risk = set(look.differ_o)
         if dev is not None and self.wf.state.session_id == dev.session:
             risk |= {d.observed for d in dev.verification.boxes if d.status in ("moved", "new")}
-        self.drawing.mark(target, risk, dev)
+        # the faces the plans set aside, on the shelf they were planned on (not on a replayed look's)
+        drawn = self.shown_scene if self.replay is None else (self.replay.scene if look is None else None)
+        self.drawing.mark(target, risk, dev, drawn, set_aside_entries(self._offered_plans()))
+
+    def _offered_plans(self) -> list[Plan]:
+        """The plans the view shows: the replayed session's, or the live ones the preview offers."""
+        if self.replay is not None:
+            return [r.plan for r in self.replay.plans.values() if r.plan is not None]
+        return [e.plan for e in (previewable(self.wf.state) or {}).values() if e.plan is not None]
 
     def render(self, state: State) -> None:
         with self.lock:
@@ -312,6 +320,18 @@ class ClientView:
 
 
 NOTHING_TO_PREVIEW: Mapping[str, PlanEntry] = MappingProxyType({})
+
+
+def set_aside_entries(plans: Sequence[Plan]) -> list[dict[str, Any]]:
+    """What the plans set aside (`extra["set_aside"]`), each set of boxes once: both planners plan
+    on the same scene, so they set aside the same faces."""
+    seen: dict[tuple, dict[str, Any]] = {}
+    for p in plans:
+        for e in (p.extra or {}).get("set_aside") or ():
+            if isinstance(e, Mapping) and isinstance(e.get("boxes"), list):
+                seen.setdefault(tuple(map(str, e["boxes"])), {"boxes": [str(b) for b in e["boxes"]],
+                                                               "why": str(e.get("why", ""))})
+    return list(seen.values())
 
 
 def previewable(state: State) -> Mapping[str, PlanEntry] | None:

@@ -96,6 +96,9 @@ class ShelfDrawing:
         self.shelf_nodes: list[viser.SceneNodeHandle] = []
         self.predicted_nodes: list[viser.SceneNodeHandle] = []
         self.shown_deviation: Deviation | None = None
+        self.aside_nodes: list[viser.SceneNodeHandle] = []
+        self.aside_key: tuple | None = None     # (scene, set-aside boxes) drawn
+        self.hidden: set[str] = set()           # boxes drawn as set-aside matter instead
 
     def draw(self, scene: Scene | None, camera: Camera | None, forget_shelf: bool,
              on_click: Callable[[str], None]) -> None:
@@ -106,9 +109,9 @@ class ShelfDrawing:
         self.nodes = {}
         if forget_shelf:
             self.shelf_nodes = []
-        for h in self.shelf_nodes:
+        for h in self.shelf_nodes + ([] if forget_shelf else self.aside_nodes):
             h.remove()
-        self.shelf_nodes = []
+        self.shelf_nodes, self.aside_nodes, self.aside_key, self.hidden = [], [], None, set()
         if scene is None:
             return
         self.shelf_nodes = sv.draw_shelf(sc, scene.shelf)
@@ -120,12 +123,34 @@ class ShelfDrawing:
         for bid, n in self.nodes.items():
             n.box.on_click(lambda ev, bid=bid: on_click(bid))
 
-    def mark(self, target: str | None, risk: set[str], dev: Deviation | None) -> None:
-        """Target and risky boxes outlined; the held step's predicted poses in blue."""
+    def mark(self, target: str | None, risk: set[str], dev: Deviation | None,
+             scene: Scene | None = None, aside: Sequence[Mapping[str, Any]] = ()) -> None:
+        """Target and risky boxes outlined; the held step's predicted poses in blue; faces the plans
+        set aside (`aside`: their `extra["set_aside"]` entries) drawn as matter of `scene`."""
         self.draw_predicted(dev)
+        self.show_aside(scene, aside)
         for bid, n in self.nodes.items():
             n.target.visible = bid == target
             n.risk.visible = bid in risk
+
+    def show_aside(self, scene: Scene | None, entries: Sequence[Mapping[str, Any]]) -> None:
+        """The set-aside faces as grey matter in place of their boxes (once per scene and set)."""
+        boxes = tuple(sorted({b for e in entries for b in e.get("boxes", ())})) if scene is not None else ()
+        key = (id(scene), boxes) if boxes else None
+        if key == self.aside_key:
+            return
+        for h in self.aside_nodes:
+            h.remove()
+        for bid in self.hidden:
+            if bid in self.nodes:
+                self.nodes[bid].box.visible = True
+        self.aside_nodes, self.aside_key, self.hidden = [], key, set()
+        if not boxes or scene is None:
+            return
+        self.aside_nodes = sv.draw_set_aside(self.client.scene, scene, entries)
+        self.hidden = {b for b in boxes if b in self.nodes}
+        for bid in self.hidden:
+            self.nodes[bid].box.visible = False
 
     def draw_predicted(self, dev: Deviation | None) -> None:
         """Blue outlines where the held step's prediction had the boxes that differ (once per deviation)."""
@@ -196,7 +221,7 @@ class PreviewPlayer:
                 self.prev_info.content = "_No preview: plan first._"
                 scene = self.scene()
                 if scene is not None:
-                    sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene)
+                    sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene, self.drawing.hidden)
             self.after_load()
 
     def show_plans(self, plans: Mapping[str, Any] | None) -> None:

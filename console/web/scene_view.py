@@ -133,6 +133,26 @@ def draw_unexplained(scene_api: Any, scene: Any, prefix: str = "/unexplained") -
     return out
 
 
+def draw_set_aside(scene_api: Any, scene: Any, entries: Sequence[Mapping[str, Any]],
+                   prefix: str = "/aside") -> list:
+    """Faces the planner set aside (a plan's `extra["set_aside"]`: two faces no sample world can hold
+    as perceived) drawn as what it planned with: unexplained matter from the seen face back to the
+    wall, grey like the rest (planning/set_aside.py). The caller hides their boxes: a box drawn there
+    would say the planner knows it stands, and after a preview it would hang in the air."""
+    from dataclasses import replace
+
+    from shelfpick.planning.set_aside import set_aside
+
+    planned = scene
+    for e in entries:
+        ids = tuple(b for b in dict.fromkeys(_get(e, "boxes", ()) or ()) if b in planned.ids)
+        if ids:
+            planned = set_aside(planned, ids, str(_get(e, "why", "")))
+    given = set(scene.unexplained or ())
+    aside = tuple(u for u in planned.unexplained or () if u not in given)
+    return draw_unexplained(scene_api, replace(planned, unexplained=aside), prefix) if aside else []
+
+
 def draw_outlines(scene_api: Any, boxes: Sequence[Any], prefix: str = "/predicted") -> list:
     """Wireframe boxes (blue) at the given poses: a step's predicted shelf over the observed one."""
     out = []
@@ -243,8 +263,10 @@ def apply_keyframe(server: Any, nodes: Mapping[str, BoxNodes], frame: Keyframe, 
             n.risk.visible = show and (bid in frame.collapsed or bool(risk and bid in risk))
 
 
-def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any) -> None:
-    """Back to the perceived poses."""
+def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any,
+                hidden: Iterable[str] = ()) -> None:
+    """Back to the perceived poses; `hidden` (faces drawn as set-aside matter) stay hidden."""
+    hidden = set(hidden)
     with server.atomic():
         for b in scene.boxes:
             n = nodes.get(b.id)
@@ -252,8 +274,8 @@ def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any) -> None:
                 continue
             n.box.position = np.asarray(b.position, dtype=float)
             n.box.wxyz = np.asarray(b.orientation, dtype=float)
-            n.box.visible = True
+            n.box.visible = b.id not in hidden
 
 
-__all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "draw_outlines", "BoxNodes",
+__all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "draw_outlines", "draw_set_aside", "BoxNodes",
            "risky_boxes", "Keyframe", "timeline", "frame_at", "label_position", "apply_keyframe", "reset_boxes", "visible_pose"]

@@ -77,3 +77,46 @@ def test_the_preview_keeps_a_set_aside_box_where_it_was_seen_and_hides_a_pulled_
     assert nodes["b6"].box.visible and np.allclose(nodes["b6"].box.position, (0.3, 0.12, 0.1))
     apply_keyframe(server, nodes, frame, scene.shelf)        # without it, as before: hidden
     assert not nodes["b6"].box.visible
+
+
+def test_set_aside_faces_are_drawn_as_grey_matter_in_place_of_their_boxes_until_no_plan_sets_them_aside(server):
+    """A set-aside face is no box the planner knows stands: the 3D view draws what it planned with
+    (grey matter from the face back to the wall, where planning puts it) and hides the box, also
+    through a preview's reset; once no plan sets it aside, the box is back and the matter gone."""
+    from types import SimpleNamespace
+
+    from shelfpick.console.web.app import set_aside_entries
+    from shelfpick.console.web.panels import ShelfDrawing
+    from shelfpick.console.web.scene_view import UNEXPLAINED_COLOR, reset_boxes
+    from shelfpick.perception.scene import Box, Scene, Shelf
+    from shelfpick.planning.plan import Plan, StepPrediction
+    from shelfpick.planning.set_aside import set_aside
+    from shelfpick.planning.unexplained import obstacles
+
+    scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (-0.3, 0.1, 0.1)), Box("b6", (0.2, 0.2, 0.2), (0.2, 0.1, 0.1)),
+                            Box("b7", (0.2, 0.2, 0.2), (0.3, 0.1, 0.1))))
+    why = "box 'b6' and box 'b7' overlap by 0.100 m"
+    aside = [{"boxes": ["b6", "b7"], "why": why}]
+    plans = [Plan("extract", "b0", p, ("b0",), (StepPrediction("b0"),), False, {}, 0, {"set_aside": aside})
+             for p in ("physics", "heuristic")]
+    entries = set_aside_entries(plans)
+    assert entries == aside                                   # both planners set aside the same faces: once
+    drawing = ShelfDrawing(SimpleNamespace(scene=server.scene))     # the view draws on its client's scene
+    drawing.draw(scene, None, False, lambda bid: None)
+    drawing.mark(None, set(), None, scene, entries)
+    assert not drawing.nodes["b6"].box.visible and not drawing.nodes["b7"].box.visible
+    assert drawing.nodes["b0"].box.visible
+    solids = [h for h in drawing.aside_nodes if getattr(h, "opacity", None)]
+    labels = sorted(h.text for h in drawing.aside_nodes if hasattr(h, "text"))
+    assert labels == ["aside-b6 ?", "aside-b7 ?"]
+    expected = obstacles(Scene(Shelf(), (scene.boxes[0],),
+                               unexplained=set_aside(scene, ("b6", "b7"), why).unexplained))
+    assert sorted(tuple(round(c, 6) for c in h.position) for h in solids) == \
+        sorted(tuple(round(c, 6) for c in centre) for _, _, centre in expected)
+    assert all(tuple(h.color) == UNEXPLAINED_COLOR for h in solids) and len(solids) == len(expected) > 0
+    reset_boxes(server, drawing.nodes, scene, drawing.hidden)           # a preview back at its start
+    assert not drawing.nodes["b6"].box.visible and drawing.nodes["b0"].box.visible
+    drawing.mark(None, set(), None, scene, [])                          # plans gone (a new target)
+    assert drawing.nodes["b6"].box.visible and drawing.nodes["b7"].box.visible and drawing.aside_nodes == []
+    assert set_aside_entries([Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), True, {}, 0,
+                                   {"set_aside": [{"boxes": "b6"}]})]) == []      # malformed: nothing drawn
