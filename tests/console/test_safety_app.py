@@ -26,6 +26,10 @@ def literal(md: str, text: str) -> bool:
 
 @pytest.fixture
 def app(tmp_path):
+    from types import SimpleNamespace
+
+    import viser
+
     from shelfpick.console.web.app import ClientView, ConsoleApp
     from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.store.sessions import SessionStore
@@ -36,13 +40,18 @@ def app(tmp_path):
     wf = Workflow(CodeShelfSource(small_scene()), store,
                   lambda truth, seed: open_robot(peer.url, truth=truth, seed=seed), PASS, samples=2)
     a = ConsoleApp(wf, port=0)
-    # seven views on the real server, as seven browsers would get (server-wide GUI handles)
-    views = [ClientView(a, a.server) for _ in range(7)]
+    # seven views on the real server, as seven browsers would get (server-wide GUI handles); each
+    # draws its 3D shelf on a scene of its own, as a browser's client does: on one shared scene each
+    # view's nodes replaced the others' ("Cannot assign to 'position' on a removed BoxHandle")
+    scenes = [viser.ViserServer(host="127.0.0.1", port=0, verbose=False) for _ in range(7)]
+    views = [ClientView(a, SimpleNamespace(gui=a.server.gui, scene=sc.scene, atomic=sc.atomic)) for sc in scenes]
     for i, v in enumerate(views):
         v.client_key = f"browser-{i}"
         a.views[1000 + i] = v
     yield a, wf, views, peer
     a.stop()
+    for sc in scenes:
+        sc.stop()
     store.close()
     peer.close()
 
