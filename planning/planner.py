@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
 from shelfpick.perception.errors import FormatError
@@ -125,6 +126,118 @@ def _verdict(predicted: tuple[StepPrediction, ...], risk: float, search: dict[st
     return safe, extra
 
 
+@dataclass(frozen=True)
+class _Searched:
+    """What the search and the gate found, before the verdicts: make_plan's middle in one value."""
+
+    sequence: tuple[str, ...]
+    predicted: tuple[StepPrediction, ...]
+    timing: dict[str, float]
+    check: Any                       # the predictor's scene check (None without a Screening one)
+    gated: GateResult | None
+
+
+def _check_plan_request(scene: Scene, task: str, target: str | None, planner: str, samples: int, risk: float,
+                        budget_s: float | None, max_plan_risk: float, origin: str) -> None:
+    """Refuse what make_plan cannot serve before any world is built: the plan threshold, the
+    request, then the budget, each named with its value."""
+    if isinstance(max_plan_risk, bool) or not isinstance(max_plan_risk, (int, float)) \
+            or not 0.0 < max_plan_risk <= 1.0:
+        raise FormatError(origin, "max_plan_risk", f"expected a probability in (0, 1], got {max_plan_risk!r}")
+    check_request(scene, task, target, planner, samples, risk, origin)
+    if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
+        raise FormatError(origin, "budget", f"expected a positive number of seconds, got {budget_s!r}")
+
+
+def _own_predictor(scene: Scene, target: str | None, search: dict[str, Any], samples: int, seed: int,
+                   config: "PhysicsConfig | None", workers: int, model: Uncertainty | None,
+                   pool: "WorkerPool | None", clients: "ClientPool | None") -> tuple[Predicting, SetAside]:
+    """A Predictor of make_plan's own, with the faces no world can hold set aside as unexplained
+    matter (not the whole shelf refused); the plan records the model its worlds were drawn from."""
+    search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
+    return build_setting_aside(
+        scene, target, lambda sc: Predictor(sc, samples=samples, seed=seed, config=config, workers=workers,
+                                            model=model, pool=pool, clients=clients))
+
+
+def _warn_repairs(sampling: Screening) -> None:
+    """With known depths every world has the scene's own geometry, so what the predictor repaired
+    (kept quiet in its worlds) is worth telling the user; reported where make_plan was called."""
+    for msg in sampling.scene_check.get("repairs", ()):
+        warnings.warn(f"scene repaired: {msg}", stacklevel=3)
+
+
+def _record_search(search: dict[str, Any], sampling: Screening | None, stats: Any, calls: int,
+                   timed_out: bool, pulls0: int, budget_s: float | None) -> None:
+    """What the search cost, in the plan's extra: the distinct questions asked of the physics
+    (screened or fully sampled), the pulls actually run, the budget and the worlds."""
+    search.update({"oracle_calls": calls, "timed_out": timed_out})
+    if isinstance(stats, dict) and "pulls" in stats:
+        search["pulls"] = stats["pulls"] - pulls0  # physics pulls (samples actually run)
+    if budget_s is not None:
+        search["budget_s"] = budget_s
+    if sampling is not None:
+        search["worlds"] = sampling.worlds
+
+
+def _gate_or_verify(predictor: Predicting, sampling: Screening | None, sequence: tuple[str, ...],
+                    predicted: tuple[StepPrediction, ...], safe: bool, check: Any, search: dict[str, Any],
+                    timing: dict[str, float], verify: int, max_plan_risk: float,
+                    calibration: Calibration | None) -> tuple[tuple[StepPrediction, ...], GateResult | None]:
+    """(predictions, gate): the plan found asked of more worlds, by the calibrated gate where the
+    predictor can, else (a safe plan) by plain verification; the search's own otherwise."""
+    if hasattr(predictor, "plan_results") and sampling is not None and sequence:
+        t1 = time.perf_counter()
+        stands = bool((check or {}).get("stands_as_seen", True))
+        pulls = getattr(getattr(predictor, "model", None), "pull_modes", Uncertainty().pull_modes)
+        gated = gate(predictor, sequence, stands, calibration or calibration_for(pulls), float(max_plan_risk),
+                     sampling.worlds, sampling.worlds + max(0, int(verify)), skip=sampling.worlds)
+        timing["verify_s"] = time.perf_counter() - t1
+        search["verified_worlds"] = gated.worlds
+        return gated.predicted, gated
+    if safe and verify and isinstance(predictor, Verifying):
+        t1 = time.perf_counter()
+        predicted = predictor.verify(sequence, verify)
+        timing["verify_s"] = time.perf_counter() - t1
+        search["verified_worlds"] = predictor.verified_worlds
+    return predicted, None
+
+
+def _search_and_gate(scene: Scene, task: str, target: str | None, planner: str, risk: float,
+                     predictor: Predicting, sampling: Screening | None, budget_s: float | None, t0: float,
+                     search: dict[str, Any], verify: int, max_plan_risk: float,
+                     calibration: Calibration | None) -> _Searched:
+    """The search, what it cost, then the gate: everything that needs the predictor open."""
+    t_ready = time.perf_counter()
+    stats = sampling.stats if sampling is not None else None
+    pulls0 = stats.get("pulls", 0) if isinstance(stats, dict) else 0
+    sequence, predicted, timed_out, timing, calls = _search(scene, task, target, planner, risk,
+                                                            predictor, sampling, budget_s, t0)
+    timing["setup_s"] = t_ready - t0
+    _record_search(search, sampling, stats, calls, timed_out, pulls0, budget_s)
+    check = sampling.scene_check if sampling is not None else None
+    safe, _ = _verdict(predicted, risk, search, check)
+    predicted, gated = _gate_or_verify(predictor, sampling, sequence, predicted, safe, check, search, timing,
+                                       verify, max_plan_risk, calibration)
+    return _Searched(sequence, predicted, timing, check, gated)
+
+
+def _judged(scene: Scene, task: str, target: str | None, planner: str, risk: float, seed: int,
+            search: dict[str, Any], found: _Searched, max_plan_risk: float) -> Plan:
+    """The plan with its verdict: the chances it succeeds, then safe only if the gate (or every
+    step) says so, no step touches unexplained matter and none stands on a doubted face."""
+    predicted, gated = found.predicted, found.gated
+    search["worlds_success_prob"] = success_prob(predicted)   # prod(1 - step risk) over the worlds
+    search["success_prob"] = 1.0 - gated.probability if gated is not None else success_prob(predicted)
+    search["max_plan_risk"] = float(max_plan_risk)
+    if gated is not None:
+        search["plan_risk"] = gated.to_json()
+    safe, extra = _verdict(predicted, risk, search, found.check, gated)
+    safe, extra = unexplained_verdict(scene, found.sequence, predicted, safe, extra)   # a plan touching it is not safe
+    safe, extra = contradicted_verdict(scene, found.sequence, predicted, safe, extra)  # nor one on a doubted face
+    return Plan(task, target, planner, tuple(found.sequence), tuple(predicted), safe, found.timing, seed, extra)
+
+
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
               samples: int = 10, seed: int = 0, risk: float = 0.0,
               config: "PhysicsConfig | None" = None, predictor: Predicting | None = None,
@@ -147,76 +260,27 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     more worlds while the interval straddles `max_plan_risk`; the plan is safe when the upper
     end is below it. Its predictions are then over every world it was asked of.
     """
-    if isinstance(max_plan_risk, bool) or not isinstance(max_plan_risk, (int, float)) \
-            or not 0.0 < max_plan_risk <= 1.0:
-        raise FormatError(origin, "max_plan_risk", f"expected a probability in (0, 1], got {max_plan_risk!r}")
-    check_request(scene, task, target, planner, samples, risk, origin)
-    if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
-        raise FormatError(origin, "budget", f"expected a positive number of seconds, got {budget_s!r}")
+    _check_plan_request(scene, task, target, planner, samples, risk, budget_s, max_plan_risk, origin)
     t0 = time.perf_counter()
     search: dict[str, Any] = {"risk_threshold": float(risk), "samples": samples}
     if not scene.boxes:  # clear of an empty shelf: nothing to do
         return Plan(task, target, planner, (), (), True, {"planning_s": 0.0}, seed, {"search": search})
-
     own = predictor is None
     aside = SetAside(scene, scene)
     if own:
-        search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
-        # faces no world can hold are set aside as unexplained matter, not the whole shelf refused
-        predictor, aside = build_setting_aside(
-            scene, target, lambda sc: Predictor(sc, samples=samples, seed=seed, config=config, workers=workers,
-                                                model=model, pool=pool, clients=clients))
+        predictor, aside = _own_predictor(scene, target, search, samples, seed, config, workers, model, pool,
+                                          clients)
         scene = aside.planned
     sampling = predictor if isinstance(predictor, Screening) else None
     try:
         if own and scene.depth_known and sampling is not None:
-            # the predictor keeps its worlds quiet; with known depths every world has the
-            # scene's own geometry, so what it repaired is worth telling the user
-            for msg in sampling.scene_check.get("repairs", ()):
-                warnings.warn(f"scene repaired: {msg}", stacklevel=2)
-        t_ready = time.perf_counter()
-        stats = sampling.stats if sampling is not None else None
-        pulls0 = stats.get("pulls", 0) if isinstance(stats, dict) else 0
-        sequence, predicted, timed_out, timing, calls = _search(scene, task, target, planner, risk,
-                                                                predictor, sampling, budget_s, t0)
-        timing["setup_s"] = t_ready - t0
-        # distinct questions asked of the physics, whether screened or fully sampled
-        search.update({"oracle_calls": calls, "timed_out": timed_out})
-        if isinstance(stats, dict) and "pulls" in stats:
-            search["pulls"] = stats["pulls"] - pulls0  # physics pulls (samples actually run)
-        if budget_s is not None:
-            search["budget_s"] = budget_s
-        check = sampling.scene_check if sampling is not None else None
-        if sampling is not None:
-            search["worlds"] = sampling.worlds
-        gated = None
-        safe, _ = _verdict(predicted, risk, search, check)
-        if hasattr(predictor, "plan_results") and sampling is not None and sequence:
-            t1 = time.perf_counter()
-            stands = bool((check or {}).get("stands_as_seen", True))
-            pulls = getattr(getattr(predictor, "model", None), "pull_modes", Uncertainty().pull_modes)
-            gated = gate(predictor, sequence, stands, calibration or calibration_for(pulls), float(max_plan_risk),
-                         sampling.worlds, sampling.worlds + max(0, int(verify)), skip=sampling.worlds)
-            predicted = gated.predicted
-            timing["verify_s"] = time.perf_counter() - t1
-            search["verified_worlds"] = gated.worlds
-        elif safe and verify and isinstance(predictor, Verifying):
-            t1 = time.perf_counter()
-            predicted = predictor.verify(sequence, verify)
-            timing["verify_s"] = time.perf_counter() - t1
-            search["verified_worlds"] = predictor.verified_worlds
+            _warn_repairs(sampling)
+        found = _search_and_gate(scene, task, target, planner, risk, predictor, sampling, budget_s, t0, search,
+                                 verify, max_plan_risk, calibration)
     finally:
         if own:
             predictor.close()  # type: ignore[union-attr]
-    search["worlds_success_prob"] = success_prob(predicted)   # prod(1 - step risk) over the worlds
-    search["success_prob"] = 1.0 - gated.probability if gated is not None else success_prob(predicted)
-    search["max_plan_risk"] = float(max_plan_risk)
-    if gated is not None:
-        search["plan_risk"] = gated.to_json()
-    safe, extra = _verdict(predicted, risk, search, check, gated)
-    safe, extra = unexplained_verdict(scene, sequence, predicted, safe, extra)   # a plan touching it is not safe
-    safe, extra = contradicted_verdict(scene, sequence, predicted, safe, extra)  # nor one on a doubted face
-    plan = Plan(task, target, planner, tuple(sequence), tuple(predicted), safe, timing, seed, extra)
+    plan = _judged(scene, task, target, planner, risk, seed, search, found, max_plan_risk)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench;
     # with faces set aside, what and why, and the hash of the scene it was given
     return aside.record(plan.with_provenance(scene, config, samples, risk))
