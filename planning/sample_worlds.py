@@ -102,25 +102,38 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
     """
     model = model if model is not None else Uncertainty()
     if scene.depth_known:
-        # a known shelf is given as it stands: its geometry is not drawn, but what no scene file
-        # says still is (a box's mass when it has none, the friction, the pull); a draw under which
-        # the shelf seen standing never comes to rest contradicts the scene and is drawn again
-        failed: list[dict[str, str]] = []
-        for attempt in range(len(_ATTEMPTS) + 1):
-            try:
-                sim = _world(scene, seed, sample + 1000 * attempt, model.without_face_error(), {}, 1.0, config,
-                             clients)
-            except SceneError as exc:
-                failed.append({"*": str(exc)})
-                continue
-            off = contradictions(sim, config)
-            return Draw(sim, tuple(failed) + ((off,) if off else ()), not off, off)
-        raise SceneError(f"no draw of sample {sample} can be built: {failed[-1]['*']}")
+        return _draw_known(scene, seed, sample, config, model, clients)
+    ranges = ranges if ranges is not None else depth_ranges(scene, config)
+    as_seen = {b.id: (b.size[1], b.size[1]) for b in scene.boxes if not b.depth_known}
+    return _draw_hidden(scene, seed, sample, config, model, ranges, as_seen, known, clients)
+
+
+def _draw_known(scene: Scene, seed: int, sample: int, config: PhysicsConfig, model: Uncertainty,
+                clients: ClientPool | None) -> Draw:
+    """A known shelf is given as it stands: its geometry is not drawn, but what no scene file says
+    still is (a box's mass when it has none, the friction, the pull); a draw under which the shelf
+    seen standing never comes to rest contradicts the scene and is drawn again."""
+    failed: list[dict[str, str]] = []
+    for attempt in range(len(_ATTEMPTS) + 1):
+        try:
+            sim = _world(scene, seed, sample + 1000 * attempt, model.without_face_error(), {}, 1.0, config,
+                         clients)
+        except SceneError as exc:
+            failed.append({"*": str(exc)})
+            continue
+        off = contradictions(sim, config)
+        return Draw(sim, tuple(failed) + ((off,) if off else ()), not off, off)
+    raise SceneError(f"no draw of sample {sample} can be built: {failed[-1]['*']}")
+
+
+def _draw_hidden(scene: Scene, seed: int, sample: int, config: PhysicsConfig, model: Uncertainty,
+                 ranges: dict[str, tuple[float, float]], as_seen: dict[str, tuple[float, float]],
+                 known: frozenset[str], clients: ClientPool | None) -> Draw:
+    """Attempts of ever shallower depth draws (the last one the perceived placeholder depths) until
+    one stands, or only `known` boxes contradict it; else the one that moved the fewest boxes."""
     rejected: list[dict[str, str]] = []
     best: ShelfSim | None = None
     best_off: dict[str, str] = {}
-    ranges = ranges if ranges is not None else depth_ranges(scene, config)
-    as_seen = {b.id: (b.size[1], b.size[1]) for b in scene.boxes if not b.depth_known}
     for attempt, reach in enumerate(_ATTEMPTS + (None,)):
         try:
             # the last resort keeps perception's placeholder depths, which perception made valid
@@ -137,28 +150,41 @@ def build_sample(scene: Scene, seed: int, sample: int, config: PhysicsConfig,
                 rejected.append(off)
             return Draw(sim, tuple(rejected), not off, off)
         rejected.append(off)
-        if best is None or len(off) < len(best_off):
-            if best is not None:
-                best.close()
-            best, best_off = sim, off
-        else:
-            sim.close()
+        best, best_off = _fewer_moved(best, best_off, sim, off)
     if best is None:
-        # no draw could be built at all: a face error drawn on top of two faces measured close
-        # together can push them past repair in every attempt. The shelf exactly as perceived
-        # (placeholder depths, no drawn face error) is what perception made valid; if it cannot be
-        # built either, the image itself is contradictory and the plan is refused.
-        try:
-            best = _world(scene, seed, sample + 1000 * len(_ATTEMPTS), model.without_face_error(), as_seen, 0.0,
-                          config, clients)
-        except SceneError as exc:
-            # one line that says whose fault it is: perception's faces, not the draws (issue 31)
-            raise OverlapError(f"no draw of sample {sample} can be built: {exc}; not even as perceived "
-                               f"(no drawn error): the perceived faces cannot all be right",
-                               getattr(exc, "boxes", ()), str(exc)) from None
-        best_off = contradictions(best, config)
-        return Draw(best, tuple(rejected), not best_off, best_off)
+        return _draw_as_perceived(scene, seed, sample, config, model, as_seen, clients, tuple(rejected))
     return Draw(best, tuple(rejected), False, best_off)
+
+
+def _fewer_moved(best: ShelfSim | None, best_off: dict[str, str], sim: ShelfSim,
+                 off: dict[str, str]) -> tuple[ShelfSim, dict[str, str]]:
+    """Of two worlds that do not stand, the one that moved fewer boxes (the earlier on a tie);
+    the other is closed (each holds a Bullet client)."""
+    if best is None or len(off) < len(best_off):
+        if best is not None:
+            best.close()
+        return sim, off
+    sim.close()
+    return best, best_off
+
+
+def _draw_as_perceived(scene: Scene, seed: int, sample: int, config: PhysicsConfig, model: Uncertainty,
+                       as_seen: dict[str, tuple[float, float]], clients: ClientPool | None,
+                       rejected: tuple[Mapping[str, str], ...]) -> Draw:
+    """No draw could be built at all: a face error drawn on top of two faces measured close together
+    can push them past repair in every attempt. The shelf exactly as perceived (placeholder depths,
+    no drawn face error) is what perception made valid; if it cannot be built either, the image
+    itself is contradictory and the plan is refused."""
+    try:
+        best = _world(scene, seed, sample + 1000 * len(_ATTEMPTS), model.without_face_error(), as_seen, 0.0,
+                      config, clients)
+    except SceneError as exc:
+        # one line that says whose fault it is: perception's faces, not the draws (issue 31)
+        raise OverlapError(f"no draw of sample {sample} can be built: {exc}; not even as perceived "
+                           f"(no drawn error): the perceived faces cannot all be right",
+                           getattr(exc, "boxes", ()), str(exc)) from None
+    best_off = contradictions(best, config)
+    return Draw(best, rejected, not best_off, best_off)
 
 
 @dataclass(frozen=True)
