@@ -174,41 +174,20 @@ def _perceive(capture: Capture, segmenter: Segmenter | None, shelf: Shelf | None
     away = looks_away(camera, shelf)
     if away:
         warnings.append(away)
-    seg = segmenter if segmenter is not None else load_segmenter(None, "auto")
-    seg = for_capture(seg, capture.depth is not None)
-    if hasattr(seg, "bind"):
-        seg = seg.bind(camera, shelf)  # type: ignore[union-attr]
+    seg = _bound_segmenter(segmenter, capture, shelf)
     depth, used_distance, flat = _stand_in_depth(capture, front_distance, box_size)
     if flat:
         warnings.append(flat)
-    t = time.perf_counter()
-    raw = seg.segment(capture.rgb, depth)
-    timing["segment"] = time.perf_counter() - t
-    t = time.perf_counter()
-    masks, measured, scale, catalogue_notes = _clean_masks(raw, capture, shelf, catalogue)
-    timing["masks"] = time.perf_counter() - t
+    masks, measured, scale, catalogue_notes = _segmented(seg, capture, depth, shelf, catalogue, timing)
     if capture.depth is None and box_size is not None and front_distance is None and masks:
-        used_distance = distance_from_box_size(masks, camera, box_size)
-        depth = planar_depth(camera, used_distance)
-        warnings.append(f"no depth image: front at {used_distance:.3f} m derived from the box size "
-                        f"{box_size[0]:g} x {box_size[1]:g} m")
-    t = time.perf_counter()
-    offered = masks
-    boxes, masks, faces, said, notes = _boxes(masks, measured, depth, capture, shelf, catalogue, placeholder)
-    warnings.extend(said)
-    timing["boxes"] = time.perf_counter() - t
-    labels = to_label_image(masks, capture.shape)
-    boxes, found, valid_notes = _valid_and_explained(boxes, capture, shelf, labels, offered, masks, timing)
-    notes = catalogue_notes + notes + valid_notes
-    warnings += [n for n in valid_notes if CONTRADICTION in n]   # faces that cannot all be right: said, not only moved
+        used_distance, depth, said_distance = _distance_from_size(masks, camera, box_size)
+        warnings.append(said_distance)
+    boxes, labels, faces, notes, found = _explained_boxes(masks, measured, depth, capture, shelf, catalogue,
+                                                          placeholder, timing, warnings)
+    notes = catalogue_notes + notes
     if found is not None and found.regions:    # first: the console shows a capture's first three warnings
         warnings.insert(0, describe(found.regions))
-    t = time.perf_counter()
-    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id + (" ?" if b.contradicted else "")
-                                                 for b in boxes if b.mask_label})
-    if found is not None and found.regions:
-        overlay = draw_unexplained(overlay, found.labels, [u.id for u in found.regions])
-    timing["overlay"] = time.perf_counter() - t
+    overlay = _overlay(capture, labels, boxes, found, timing)
     if not boxes:
         warnings.append("no boxes found in the image; the scene is empty")
     name = segmenter_name(seg)
@@ -219,6 +198,68 @@ def _perceive(capture: Capture, segmenter: Segmenter | None, shelf: Shelf | None
     return Perception(scene, labels, overlay, tuple(warnings), timing, tuple(notes), tuple(faces),
                       name, used_distance, {"pixel_scale": scale},
                       None if found is None else found.labels)
+
+
+def _bound_segmenter(segmenter: Segmenter | None, capture: Capture, shelf: Shelf) -> Segmenter:
+    """The segmenter this capture is segmented with: the one given (else the automatic choice),
+    the variant for a capture with or without depth, bound to its camera and shelf if it can be."""
+    seg = segmenter if segmenter is not None else load_segmenter(None, "auto")
+    seg = for_capture(seg, capture.depth is not None)
+    if hasattr(seg, "bind"):
+        seg = seg.bind(capture.camera, shelf)  # type: ignore[union-attr]
+    return seg
+
+
+def _segmented(seg: Segmenter, capture: Capture, depth: np.ndarray, shelf: Shelf, catalogue: Catalogue | None,
+               timing: dict[str, float]) -> tuple[list[np.ndarray], Any, float, list[str]]:
+    """The segmenter's masks, cleaned (`_clean_masks`): (masks, measured faces, pixel scale, the
+    catalogue's notes); each stage's seconds go into `timing`."""
+    t = time.perf_counter()
+    raw = seg.segment(capture.rgb, depth)
+    timing["segment"] = time.perf_counter() - t
+    t = time.perf_counter()
+    cleaned = _clean_masks(raw, capture, shelf, catalogue)
+    timing["masks"] = time.perf_counter() - t
+    return cleaned
+
+
+def _distance_from_size(masks: list[np.ndarray], camera, box_size: tuple[float, float]
+                        ) -> tuple[float, np.ndarray, str]:
+    """No depth image, but the boxes' size: (front distance, the flat depth at it, the warning that
+    says where it came from)."""
+    used_distance = distance_from_box_size(masks, camera, box_size)
+    depth = planar_depth(camera, used_distance)
+    return used_distance, depth, (f"no depth image: front at {used_distance:.3f} m derived from the box size "
+                                  f"{box_size[0]:g} x {box_size[1]:g} m")
+
+
+def _explained_boxes(masks: list[np.ndarray], measured: Any, depth: np.ndarray, capture: Capture, shelf: Shelf,
+                     catalogue: Catalogue | None, placeholder: float, timing: dict[str, float],
+                     warnings: list[str]) -> tuple[list[Box], np.ndarray, list, list[str], Found | None]:
+    """The boxes of the masks, made valid, and what no box explains: (boxes, label image, faces,
+    notes, unexplained found); what the user must hear is added to `warnings`."""
+    t = time.perf_counter()
+    offered = masks
+    boxes, masks, faces, said, notes = _boxes(masks, measured, depth, capture, shelf, catalogue, placeholder)
+    warnings.extend(said)
+    timing["boxes"] = time.perf_counter() - t
+    labels = to_label_image(masks, capture.shape)
+    boxes, found, valid_notes = _valid_and_explained(boxes, capture, shelf, labels, offered, masks, timing)
+    warnings += [n for n in valid_notes if CONTRADICTION in n]   # faces that cannot all be right: said, not only moved
+    return boxes, labels, faces, notes + valid_notes, found
+
+
+def _overlay(capture: Capture, labels: np.ndarray, boxes: list[Box], found: Found | None,
+             timing: dict[str, float]) -> np.ndarray:
+    """The masks, rectangles and box ids (' ?' on a doubted face) over the RGB, with the regions
+    no box explains; its seconds go into `timing`."""
+    t = time.perf_counter()
+    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id + (" ?" if b.contradicted else "")
+                                                 for b in boxes if b.mask_label})
+    if found is not None and found.regions:
+        overlay = draw_unexplained(overlay, found.labels, [u.id for u in found.regions])
+    timing["overlay"] = time.perf_counter() - t
+    return overlay
 
 
 def _perceive_scaled(capture: Capture, max_pixels: int, t0: float, **kw: Any) -> Perception:
