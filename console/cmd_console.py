@@ -106,55 +106,25 @@ def check_libraries(args: argparse.Namespace, cell) -> None:
 
 def build(args: argparse.Namespace):
     """Open source, store and robot factory, the workflow and the app (used by tests too)."""
-    from shelfpick.perception.errors import ShelfpickError
-
     cell = settle(args)
-    # refuse bad settings before opening anything
-    from shelfpick.console.cell import check_robot_spec
-    from shelfpick.planning.cmd_plan import SAMPLES, SEEDS, WORKERS
-
-    workers = getattr(args, "workers", 1)
-    for flag, value, (lo, hi) in (("--workers", workers, WORKERS), ("--samples", args.samples, SAMPLES),
-                                  ("--seed", args.seed, SEEDS)):   # the cell file's bounds: memory is per sample
-        if not lo <= value <= hi:
-            raise ShelfpickError(f"{flag}: must be from {lo} to {hi}, got {value}")
-    args.robot = check_robot_spec(args.robot, "--robot")     # the cell file's robot bounds, one validator
-    if not 0 <= args.port <= 65535:    # the server thread would die on it and leave the start waiting
-        raise ShelfpickError(f"--port: expected 1-65535, or 0 for any free port, got {args.port}")
-    check_libraries(args, cell)
+    workers = _check_settings(args, cell)   # refuse bad settings before opening anything
     from shelfpick.console.web.app import ConsoleApp, check_host
 
     given, where = supervisor_passphrase(args)
     check_host(args.host, given or None, where)
-    if not (args.robot == "sim" or args.robot.startswith("sim?") or args.robot.startswith("tcp://")):
-        raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {args.robot!r}")
+    _check_robot_kind(args.robot)
 
     from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import open_source
     from shelfpick.console.store.sessions import DEFAULT_DB, SessionStore
     from shelfpick.console.workflow.machine import Workflow
 
-    segmenter, options, tolerance = None, {}, None
-    if cell is not None:
-        from shelfpick.perception.scene import Shelf
-        from shelfpick.perception.segment import load_segmenter
-
-        kind = "yolo" if cell.weights and cell.segmenter == "auto" else cell.segmenter
-        segmenter = load_segmenter(cell.weights, kind)
-        if cell.shelf is not None:
-            options["shelf"] = Shelf(*cell.shelf)
-        if not cell.catalogue:
-            options["catalogue"] = None
-        tolerance = cell.tolerance()
+    segmenter, options, tolerance = _perception_settings(cell)
     passphrase = given or secrets.token_urlsafe(9)
     source = open_source(args.source, seed=args.seed)
     db = Path(args.db) if args.db else DEFAULT_DB
     spec = args.robot
-    open_robot(spec, truth=None, seed=args.seed) if spec.startswith("sim") else None  # validates options
-    if spec.startswith("tcp://"):
-        from shelfpick.console.robot.tcp import TcpRobot
-
-        TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens
+    _check_robot_opens(spec, args.seed)
     check_listen(args.host)           # an address not of this machine: one line, not a start that hangs
     store = SessionStore(db)          # a folder it cannot make, a file not ours: StoreError, one line
 
@@ -173,6 +143,63 @@ def build(args: argparse.Namespace):
         store.close()
         raise
     return app, wf, store, passphrase, bool(given), db
+
+
+def _check_settings(args: argparse.Namespace, cell) -> int:
+    """The numbers, the robot spec and the port within their bounds (the cell file's: memory is per
+    sample), and every optional library they need installed; the worker count."""
+    from shelfpick.console.cell import check_robot_spec
+    from shelfpick.perception.errors import ShelfpickError
+    from shelfpick.planning.cmd_plan import SAMPLES, SEEDS, WORKERS
+
+    workers = getattr(args, "workers", 1)
+    for flag, value, (lo, hi) in (("--workers", workers, WORKERS), ("--samples", args.samples, SAMPLES),
+                                  ("--seed", args.seed, SEEDS)):
+        if not lo <= value <= hi:
+            raise ShelfpickError(f"{flag}: must be from {lo} to {hi}, got {value}")
+    args.robot = check_robot_spec(args.robot, "--robot")     # the cell file's robot bounds, one validator
+    if not 0 <= args.port <= 65535:    # the server thread would die on it and leave the start waiting
+        raise ShelfpickError(f"--port: expected 1-65535, or 0 for any free port, got {args.port}")
+    check_libraries(args, cell)
+    return workers
+
+
+def _check_robot_kind(spec: str) -> None:
+    """Only the simulated robot or one at a TCP address drives a run."""
+    from shelfpick.perception.errors import ShelfpickError
+
+    if not (spec == "sim" or spec.startswith("sim?") or spec.startswith("tcp://")):
+        raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {spec!r}")
+
+
+def _perception_settings(cell):
+    """(segmenter, perceive options, tolerance) of the cell file: its segmenter and weights, shelf,
+    catalogue and tolerances; (None, {}, None) without one (the defaults)."""
+    if cell is None:
+        return None, {}, None
+    from shelfpick.perception.scene import Shelf
+    from shelfpick.perception.segment import load_segmenter
+
+    options = {}
+    kind = "yolo" if cell.weights and cell.segmenter == "auto" else cell.segmenter
+    segmenter = load_segmenter(cell.weights, kind)
+    if cell.shelf is not None:
+        options["shelf"] = Shelf(*cell.shelf)
+    if not cell.catalogue:
+        options["catalogue"] = None
+    return segmenter, options, cell.tolerance()
+
+
+def _check_robot_opens(spec: str, seed: int) -> None:
+    """A robot spec's options, and a TCP robot's transform file, checked: one line before anything
+    opens, not a failure at the first run."""
+    from shelfpick.console.robot.drivers import open_robot
+
+    open_robot(spec, truth=None, seed=seed) if spec.startswith("sim") else None  # validates options
+    if spec.startswith("tcp://"):
+        from shelfpick.console.robot.tcp import TcpRobot
+
+        TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens
 
 
 def supervisor_passphrase(args: argparse.Namespace) -> tuple[str, str]:
