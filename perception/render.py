@@ -227,28 +227,7 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
         raise ValueError(f"looks must be one of {LOOKS}, got {looks!r}")
     cam = camera or scene.camera or default_camera()
     rng = np.random.default_rng(seed)
-    with quiet_stdio():   # pybullet prints its build time on import and "argv[0]=" on connect
-        import pybullet as p
-        from pybullet_utils.bullet_client import BulletClient
-
-        client = BulletClient(connection_mode=p.DIRECT)
-    try:
-        with tempfile.TemporaryDirectory(prefix="shelfpick-render-") as tmp:
-            builder = _Builder(client, Path(tmp))
-            _build_shelf(builder, scene, rng)
-            body_to_box: dict[int, str] = {}
-            for k, box in enumerate(scene.boxes):
-                plain = looks == "plain" or (looks == "mixed" and rng.random() < 0.5)
-                size = int(rng.choice([64, 96, 128]))
-                tex = textures[k] if textures is not None else (plain_box_texture if plain else box_texture)(rng, size=size)
-                body = builder.box(tuple(x / 2 for x in box.size), box.position,
-                                   wxyz_to_xyzw(box.orientation), texture=tex)
-                body_to_box[body] = box.id
-            _, _, rgba, zbuf, seg = client.getCameraImage(
-                cam.width, cam.height, gl_view_matrix(cam), gl_projection_matrix(cam),
-                renderer=p.ER_TINY_RENDERER, **{**_lighting(rng, varied_light), **(light or {})})
-    finally:
-        client.disconnect()
+    rgba, zbuf, seg, body_to_box = _snapshot(scene, cam, rng, looks, textures, varied_light, light)
     h, w = cam.height, cam.width
     rgb = np.asarray(rgba, np.uint8).reshape(h, w, 4)[:, :, :3].copy()
     z = linearize_depth(np.asarray(zbuf, np.float32).reshape(h, w))
@@ -261,6 +240,44 @@ def render(scene: Scene, camera: Camera | None = None, seed: int = 0, noise: boo
         rgb = _camera_look(rgb, rng)
         z = DepthNoise().apply(z, rng)
     return Capture(rgb, z, cam, masks, labels)
+
+
+def _snapshot(scene: Scene, cam: Camera, rng: np.random.Generator, looks: str,
+              textures: Sequence[np.ndarray] | None, varied_light: bool, light: dict | None) -> tuple:
+    """(rgba, z-buffer, segmentation, body -> box id) of the shelf and its boxes built in a Bullet
+    client of its own (closed before it returns), as the camera sees them; draws from `rng` in
+    the order the seeds' images depend on: shelf, boxes, then the light."""
+    with quiet_stdio():   # pybullet prints its build time on import and "argv[0]=" on connect
+        import pybullet as p
+        from pybullet_utils.bullet_client import BulletClient
+
+        client = BulletClient(connection_mode=p.DIRECT)
+    try:
+        with tempfile.TemporaryDirectory(prefix="shelfpick-render-") as tmp:
+            builder = _Builder(client, Path(tmp))
+            _build_shelf(builder, scene, rng)
+            body_to_box = _build_boxes(builder, scene, rng, looks, textures)
+            _, _, rgba, zbuf, seg = client.getCameraImage(
+                cam.width, cam.height, gl_view_matrix(cam), gl_projection_matrix(cam),
+                renderer=p.ER_TINY_RENDERER, **{**_lighting(rng, varied_light), **(light or {})})
+    finally:
+        client.disconnect()
+    return rgba, zbuf, seg, body_to_box
+
+
+def _build_boxes(b: _Builder, scene: Scene, rng: np.random.Generator, looks: str,
+                 textures: Sequence[np.ndarray] | None) -> dict[int, str]:
+    """The scene's boxes, each with its drawn (or given) cardboard texture; body id -> box id.
+    The look and the texture size are drawn for every box, given textures or not; a drawn
+    texture draws more (so given textures move the draws that come after the boxes)."""
+    body_to_box: dict[int, str] = {}
+    for k, box in enumerate(scene.boxes):
+        plain = looks == "plain" or (looks == "mixed" and rng.random() < 0.5)
+        size = int(rng.choice([64, 96, 128]))
+        tex = textures[k] if textures is not None else (plain_box_texture if plain else box_texture)(rng, size=size)
+        body = b.box(tuple(x / 2 for x in box.size), box.position, wxyz_to_xyzw(box.orientation), texture=tex)
+        body_to_box[body] = box.id
+    return body_to_box
 
 
 def _lighting(rng: np.random.Generator, varied: bool) -> dict:
