@@ -205,19 +205,18 @@ def _inside_shelf(pts: tuple[np.ndarray, np.ndarray, np.ndarray], camera: Camera
 
 
 def _colour_edges(rgb: np.ndarray, fg: np.ndarray, depth: np.ndarray, cfg: DepthEdgeConfig,
-                  lab8: np.ndarray | None = None) -> np.ndarray:
+                  lab8: np.ndarray) -> np.ndarray:
     """Canny edges of grey and (scaled) Lab chroma, long straight ones extended over `fg`,
-    dilated 3x3. `lab8`: the image in 8-bit Lab when the caller has it already."""
+    dilated 3x3. `lab8`: the image in 8-bit Lab, which the caller has already (its chroma is
+    scaled through a lookup table of the 256 values)."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     gray = cv2.GaussianBlur(gray, (3, 3), 0)
     edges = cv2.Canny(gray, cfg.canny_low, cfg.canny_high) > 0
     # hue seams that grey levels miss (two browns of one brightness)
-    lab8 = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB) if lab8 is None else lab8, (3, 3), 0)
-    gain = _chroma_lut(cfg.chroma_gain) if lab8.dtype == np.uint8 else None
+    lab8 = cv2.GaussianBlur(lab8, (3, 3), 0)
+    gain = _chroma_lut(cfg.chroma_gain)
     for c in (1, 2) if cfg.chroma_gain > 0 else ():
-        ch = gain[lab8[..., c]] if gain is not None else np.clip(
-            (lab8[..., c].astype(np.float32) - 128) * cfg.chroma_gain + 128, 0, 255).astype(np.uint8)
-        edges |= cv2.Canny(ch, cfg.canny_low, cfg.canny_high) > 0
+        edges |= cv2.Canny(gain[lab8[..., c]], cfg.canny_low, cfg.canny_high) > 0
     edges = _extend_lines(edges, fg, _scaled(cfg, depth, fg))
     return cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
