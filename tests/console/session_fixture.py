@@ -1,6 +1,8 @@
 """A realistic stored session for the replay and CLI tests: real render, real physics preview."""
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -53,3 +55,20 @@ def make_session(db: Path) -> tuple[int, dict]:
                                        "detail": {"collapsed": [], "displacement": {"b2": 0.002}}}]})
     store.close()
     return sid, {"rgb": cap.rgb, "physics": h_phys, "heuristic": h_heur, "preview": bad}
+
+
+@contextmanager
+def replaying(store: SessionStore, sid: int) -> Iterator:
+    """A console view (a real ConsoleApp and viser server) replaying stored session `sid`."""
+    from shelfpick.console.web.app import ClientView, ConsoleApp
+    from shelfpick.console.workflow.machine import Workflow
+
+    app = ConsoleApp(Workflow(None, store, lambda truth, seed: None, "pw"), port=0)
+    try:
+        view = ClientView(app, app.server)
+        view.session_pick.options = (str(sid),)
+        view.session_pick.value = str(sid)
+        view._replay(None)
+        yield view
+    finally:
+        app.stop()

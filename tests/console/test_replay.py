@@ -13,7 +13,7 @@ import pytest
 from shelfpick.console.web.replay import export_html, keyframes, render_html
 from shelfpick.console.store.sessions import SessionStore
 
-from session_fixture import make_session, stack_scene
+from session_fixture import make_session, replaying, stack_scene
 
 
 @pytest.fixture(scope="module")
@@ -138,28 +138,20 @@ def test_replay_html_shows_predicted_outlines_over_observed_boxes_per_step(tmp_p
 
 
 def test_console_replay_draws_a_look_with_predicted_outlines(tmp_path: Path) -> None:
-    from shelfpick.console.web.app import ClientView, ConsoleApp
-    from shelfpick.console.workflow.machine import Workflow
-
     db = tmp_path / "looks.db"
     sid, _ = looked_session(db)
     store = SessionStore(db)
-    app = ConsoleApp(Workflow(None, store, lambda truth, seed: None, "pw"), port=0)
     try:
-        view = ClientView(app, app.server)
-        view.session_pick.options = (str(sid),)
-        view.session_pick.value = str(sid)
-        view._replay(None)
-        labels = view.look_pick.options[1:]
-        assert len(labels) == 2 and labels[1].startswith("step 2 (b0")
-        assert "Looks after each step" in view.replay_md.content
-        view._show_look(labels[1])
-        assert set(view.nodes) == {"o2"} and view.nodes["o2"].risk.visible      # observed, differs: red
-        assert len(view.look_nodes) == 1                                          # b2's predicted pose
-        assert tuple(view.look_nodes[0].position) == pytest.approx((0.3, 0.12, 0.1))
-        assert "moved" in view.look_md.content
-        view._show_look("—")
-        assert set(view.nodes) == {"b0", "b1", "b2"} and view.look_nodes == []
+        with replaying(store, sid) as view:
+            labels = view.look_pick.options[1:]
+            assert len(labels) == 2 and labels[1].startswith("step 2 (b0")
+            assert "Looks after each step" in view.replay_md.content
+            view._show_look(labels[1])
+            assert set(view.nodes) == {"o2"} and view.nodes["o2"].risk.visible  # observed, differs: red
+            assert len(view.look_nodes) == 1  # b2's predicted pose
+            assert tuple(view.look_nodes[0].position) == pytest.approx((0.3, 0.12, 0.1))
+            assert "moved" in view.look_md.content
+            view._show_look("—")
+            assert set(view.nodes) == {"b0", "b1", "b2"} and view.look_nodes == []
     finally:
-        app.stop()
         store.close()

@@ -125,11 +125,10 @@ def test_set_aside_faces_are_drawn_as_grey_matter_in_place_of_their_boxes_until_
 def test_a_replayed_session_draws_the_faces_its_plans_set_aside_and_going_live_draws_them_no_more(tmp_path):
     """A stored session's plans carry what they set aside: its replay draws the same grey matter in
     place of those boxes; back to live (no capture), nothing of it is left drawn."""
+    from session_fixture import replaying
     from test_store import tiny_capture
 
     from shelfpick.console.store.sessions import SessionStore
-    from shelfpick.console.web.app import ClientView, ConsoleApp
-    from shelfpick.console.workflow.machine import Workflow
     from shelfpick.perception.scene import Box, Scene, Shelf
     from shelfpick.planning.plan import Plan, StepPrediction
 
@@ -140,16 +139,11 @@ def test_a_replayed_session_draws_the_faces_its_plans_set_aside_and_going_live_d
     sid = store.new_session("files:aside", tiny_capture(), scene, None, None)
     store.add_plan(sid, Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), False, {}, 0,
                              {"set_aside": aside}))
-    app = ConsoleApp(Workflow(None, store, lambda truth, seed: None, "pw"), port=0)
     try:
-        view = ClientView(app, app.server)
-        view.session_pick.options = (str(sid),)
-        view.session_pick.value = str(sid)
-        view._replay(None)
-        assert view.drawing.hidden == {"b6", "b7"} and view.drawing.nodes["b0"].box.visible
-        assert sorted(h.text for h in view.drawing.aside_nodes if hasattr(h, "text")) == ["aside-b6 ?", "aside-b7 ?"]
-        view._live(None)
-        assert view.drawing.hidden == set() and view.drawing.aside_nodes == []
+        with replaying(store, sid) as view:
+            assert view.drawing.hidden == {"b6", "b7"} and view.drawing.nodes["b0"].box.visible
+            assert sorted(h.text for h in view.drawing.aside_nodes if hasattr(h, "text")) == ["aside-b6 ?", "aside-b7 ?"]
+            view._live(None)
+            assert view.drawing.hidden == set() and view.drawing.aside_nodes == []
     finally:
-        app.stop()
         store.close()
