@@ -67,6 +67,7 @@ def test_a_set_aside_face_is_matter_from_its_seen_face_back_and_the_error_keeps_
     assert u.columns == ((pytest.approx(0.05), pytest.approx(0.35), pytest.approx(0.0), pytest.approx(0.3),
                           pytest.approx(0.0)),)
     assert u.pixels == 1 and u.area_m2 == pytest.approx(0.09)
-    json.dumps(scene.to_json())       # a scene with it is still a scene file
+    back = Scene.from_json(json.loads(json.dumps(scene.to_json())))   # a scene with it is still a scene file
+    assert back.ids == scene.ids and back.unexplained == scene.unexplained
     err = pickle.loads(pickle.dumps(OverlapError("msg", ("a", "b"), "inner")))
     assert isinstance(err, SceneError) and (str(err), err.boxes, err.detail) == ("msg", ("a", "b"), "inner")
