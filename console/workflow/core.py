@@ -91,8 +91,9 @@ class WorkflowCore:
 
     def close(self) -> None:
         """Close the kept Predictor (and its worker processes), disconnect the Bullet clients the
-        plans used and end the notifier thread once it has announced the last change (the
-        console's shutdown; a later plan or change starts them again)."""
+        plans used, release the source's camera (one that has a `close`: a RealSense) and end the
+        notifier thread once it has announced the last change (the console's shutdown; a later
+        plan, capture or change starts them again)."""
         with self._lock:
             pool, self._clients = self._clients, None
             kept, self._kept = self._kept, None
@@ -101,6 +102,12 @@ class WorkflowCore:
             close_quietly(kept[1])
         if pool is not None:
             pool.close()
+        release = getattr(self.source, "close", None)
+        if callable(release):
+            try:
+                release()
+            except Exception:  # noqa: BLE001 - a camera that is already gone
+                pass
         with self._notify_cv:
             notifier, self._notifier = self._notifier, None
             self._notify_cv.notify_all()

@@ -365,3 +365,39 @@ def test_a_kept_predictor_whose_worker_died_is_replaced_not_used(make_wf):
     again = wf.plan("extract", wait=True)
     assert again.error == first.error and wf._kept[1] is not kept
     assert {k: e.plan.sequence for k, e in again.plans.items()} == {k: e.plan.sequence for k, e in first.plans.items()}
+
+
+def test_close_releases_the_sources_camera_even_when_the_camera_is_already_gone(tmp_path):
+    """The console's shutdown (ConsoleApp.stop -> Workflow.close) hands a camera back, as a
+    RealSense source's `close` does; a camera that fails to close does not stop the shutdown."""
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.workflow.machine import Workflow
+
+    class HeldCamera(CodeShelfSource):
+        """A source that holds its device from the first capture until `close`."""
+
+        def __init__(self, scene: Scene, broken: bool = False) -> None:
+            super().__init__(scene)
+            self.held, self.broken = False, broken
+
+        def capture(self):
+            self.held = True
+            return super().capture()
+
+        def close(self) -> None:
+            if self.broken:
+                raise OSError("device disconnected")
+            self.held = False
+
+    for broken in (False, True):
+        store = SessionStore(tmp_path / f"cam-{broken}.sqlite")
+        cam = HeldCamera(small_scene(), broken)
+        wf = Workflow(cam, store, sim_factory(), PASS, samples=2, seed=0)
+        try:
+            wf.capture()
+            assert cam.held
+            wf.close()
+            assert cam.held == broken
+        finally:
+            wf.close()
+            store.close()
