@@ -195,8 +195,9 @@ def _check_robot_opens(spec: str, seed: int) -> None:
     opens, not a failure at the first run."""
     from shelfpick.console.robot.drivers import open_robot
 
-    open_robot(spec, truth=None, seed=seed) if spec.startswith("sim") else None  # validates options
-    if spec.startswith("tcp://"):
+    if spec.startswith("sim"):
+        open_robot(spec, truth=None, seed=seed)      # validates its options
+    elif spec.startswith("tcp://"):
         from shelfpick.console.robot.tcp import TcpRobot
 
         TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Callable, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, TypeVar
 
 from shelfpick.perception.errors import SceneError
 from shelfpick.perception.scene import Box, Camera, Scene, Unexplained
@@ -71,8 +71,26 @@ class SetAside:
     planned: Scene
     entries: tuple[dict[str, Any], ...] = ()
 
+    @classmethod
+    def from_entries(cls, given: Scene, entries: "Sequence[Mapping[str, Any]]") -> "SetAside":
+        """What a plan's record (`extra["set_aside"]`) says was set aside, rebuilt on the scene it
+        was given, as `build_setting_aside` built it (an entry's boxes the scene no longer has, or
+        already set aside by an earlier entry, are skipped): a view or a replay draws from it."""
+        planned, kept = given, []
+        for e in entries:
+            ids = tuple(b for b in dict.fromkeys(e.get("boxes", ())) if b in planned.ids)
+            if ids:
+                planned = set_aside(planned, ids, str(e.get("why", "")))
+                kept.append({"boxes": list(ids), "why": str(e.get("why", ""))})
+        return cls(given, planned, tuple(kept))
+
     def boxes(self) -> set[str]:
         return {b for e in self.entries for b in e["boxes"]}
+
+    def regions(self) -> tuple[Unexplained, ...]:
+        """The matter the set-aside faces became (the planned scene's regions the given one lacks)."""
+        given = set(self.given.unexplained or ())
+        return tuple(u for u in self.planned.unexplained or () if u not in given)
 
     def refuse(self, target: str | None) -> None:
         """SceneError when `target` was set aside: no plan can pull a face that cannot be right."""

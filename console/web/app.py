@@ -322,16 +322,11 @@ class ClientView:
 NOTHING_TO_PREVIEW: Mapping[str, PlanEntry] = MappingProxyType({})
 
 
-def set_aside_entries(plans: Sequence[Plan]) -> list[dict[str, Any]]:
-    """What the plans set aside (`extra["set_aside"]`), each set of boxes once: both planners plan
-    on the same scene, so they set aside the same faces."""
-    seen: dict[tuple, dict[str, Any]] = {}
-    for p in plans:
-        for e in (p.extra or {}).get("set_aside") or ():
-            if isinstance(e, Mapping) and isinstance(e.get("boxes"), list):
-                seen.setdefault(tuple(map(str, e["boxes"])), {"boxes": [str(b) for b in e["boxes"]],
-                                                               "why": str(e.get("why", ""))})
-    return list(seen.values())
+def set_aside_entries(plans: Sequence[Plan]) -> list[Mapping[str, Any]]:
+    """What the plans set aside (`extra["set_aside"]`; both planners plan on one scene, so they
+    repeat each other, which `SetAside.from_entries` skips); a stored entry of another shape is left out."""
+    return [e for p in plans for e in (p.extra or {}).get("set_aside") or ()
+            if isinstance(e, Mapping) and isinstance(e.get("boxes"), list)]
 
 
 def previewable(state: State) -> Mapping[str, PlanEntry] | None:

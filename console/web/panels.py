@@ -147,8 +147,11 @@ class ShelfDrawing:
         self.aside_nodes, self.aside_key, self.hidden = [], key, set()
         if not boxes or scene is None:
             return
-        self.aside_nodes = sv.draw_set_aside(self.client.scene, scene, entries)
-        self.hidden = {b for b in boxes if b in self.nodes}
+        from shelfpick.planning.set_aside import SetAside
+
+        aside = SetAside.from_entries(scene, entries)
+        self.aside_nodes = sv.draw_set_aside(self.client.scene, aside)
+        self.hidden = {b for b in aside.boxes() if b in self.nodes}
         for bid in self.hidden:
             self.nodes[bid].box.visible = False
 

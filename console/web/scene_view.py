@@ -133,24 +133,15 @@ def draw_unexplained(scene_api: Any, scene: Any, prefix: str = "/unexplained") -
     return out
 
 
-def draw_set_aside(scene_api: Any, scene: Any, entries: Sequence[Mapping[str, Any]],
-                   prefix: str = "/aside") -> list:
-    """Faces the planner set aside (a plan's `extra["set_aside"]`: two faces no sample world can hold
+def draw_set_aside(scene_api: Any, aside: Any, prefix: str = "/aside") -> list:
+    """Faces the planner set aside (`planning.set_aside.SetAside`: two faces no sample world can hold
     as perceived) drawn as what it planned with: unexplained matter from the seen face back to the
-    wall, grey like the rest (planning/set_aside.py). The caller hides their boxes: a box drawn there
-    would say the planner knows it stands, and after a preview it would hang in the air."""
+    wall, grey like the rest. The caller hides their boxes: a box drawn there would say the planner
+    knows it stands, and after a preview it would hang in the air."""
     from dataclasses import replace
 
-    from shelfpick.planning.set_aside import set_aside
-
-    planned = scene
-    for e in entries:
-        ids = tuple(b for b in dict.fromkeys(_get(e, "boxes", ()) or ()) if b in planned.ids)
-        if ids:
-            planned = set_aside(planned, ids, str(_get(e, "why", "")))
-    given = set(scene.unexplained or ())
-    aside = tuple(u for u in planned.unexplained or () if u not in given)
-    return draw_unexplained(scene_api, replace(planned, unexplained=aside), prefix) if aside else []
+    regions = aside.regions()
+    return draw_unexplained(scene_api, replace(aside.planned, unexplained=regions), prefix) if regions else []
 
 
 def draw_outlines(scene_api: Any, boxes: Sequence[Any], prefix: str = "/predicted") -> list:

@@ -365,9 +365,10 @@ def train(cfg: TrainConfig, cache_dir: Path, out: Path, backbone: str | Path | N
         it += 1
         if it % 25 == 0:
             log(f"iter {it} loss {np.mean(hist[-25:]):.4f} ({time.perf_counter() - t0:.0f} s)")
-        if it % 100 == 0 or it == cfg.max_iters:
+        if it % 100 == 0:
             _save(model, out, learned_cfg, meta, it, t0, hist)
-    _save(model, out, learned_cfg, meta, it, t0, hist)
+    if it == 0 or it % 100:          # the end, unless the loop saved it just now
+        _save(model, out, learned_cfg, meta, it, t0, hist)
     return meta
 
 

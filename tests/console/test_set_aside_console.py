@@ -91,7 +91,7 @@ def test_set_aside_faces_are_drawn_as_grey_matter_in_place_of_their_boxes_until_
     from shelfpick.console.web.scene_view import UNEXPLAINED_COLOR, reset_boxes
     from shelfpick.perception.scene import Box, Scene, Shelf
     from shelfpick.planning.plan import Plan, StepPrediction
-    from shelfpick.planning.set_aside import set_aside
+    from shelfpick.planning.set_aside import SetAside, set_aside
     from shelfpick.planning.unexplained import obstacles
 
     scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (-0.3, 0.1, 0.1)), Box("b6", (0.2, 0.2, 0.2), (0.2, 0.1, 0.1)),
@@ -101,7 +101,7 @@ def test_set_aside_faces_are_drawn_as_grey_matter_in_place_of_their_boxes_until_
     plans = [Plan("extract", "b0", p, ("b0",), (StepPrediction("b0"),), False, {}, 0, {"set_aside": aside})
              for p in ("physics", "heuristic")]
     entries = set_aside_entries(plans)
-    assert entries == aside                                   # both planners set aside the same faces: once
+    assert SetAside.from_entries(scene, entries).entries == tuple(aside)   # both planners' record: drawn once
     drawing = ShelfDrawing(SimpleNamespace(scene=server.scene))     # the view draws on its client's scene
     drawing.draw(scene, None, False, lambda bid: None)
     drawing.mark(None, set(), None, scene, entries)

@@ -71,3 +71,21 @@ def test_a_set_aside_face_is_matter_from_its_seen_face_back_and_the_error_keeps_
     assert back.ids == scene.ids and back.unexplained == scene.unexplained
     err = pickle.loads(pickle.dumps(OverlapError("msg", ("a", "b"), "inner")))
     assert isinstance(err, SceneError) and (str(err), err.boxes, err.detail) == ("msg", ("a", "b"), "inner")
+
+
+def test_a_plans_record_rebuilds_the_scene_it_was_made_on(contradictory):
+    """A view or a replay has only the plan: its `extra["set_aside"]` rebuilt on the given scene is
+    the scene `build_setting_aside` planned on; a record repeated (two planners) or naming a box
+    the scene lacks adds nothing."""
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.set_aside import SetAside, build_setting_aside
+
+    with pytest.warns(UserWarning):
+        predictor, built = build_setting_aside(contradictory, "c", lambda sc: Predictor(sc, samples=2))
+    predictor.close()
+    assert built.boxes() == {"f", "k"}
+    record = list(built.entries) * 2 + [{"boxes": ["gone"], "why": "x"}]
+    again = SetAside.from_entries(contradictory, record)
+    assert again.planned == built.planned and again.entries == built.entries and again.boxes() == {"f", "k"}
+    assert [u.id for u in again.regions()] == ["aside-f", "aside-k"]
+    assert SetAside.from_entries(contradictory, []).planned is contradictory
