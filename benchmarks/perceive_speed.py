@@ -18,10 +18,20 @@ Two ways a user meets `perceive`:
   the functions tapped in `STAGES`, each timed exclusive of the tapped stages it calls, so the stages
   and `other` add up to the frame.
 
+- `--mode split`: a process per frame as `--mode cli`, but `benchmarks/perceive_startup.py` does the
+  CLI's work with a time stamp per phase (interpreter start, imports, reading, the ONNX session, the
+  first forward pass, the rest of perceive, writing, the interpreter's exit), where the 1.5 s of a
+  `shelfpick perceive` process go.
+
+`--pycache DIR` (cli, split): the timed processes keep their bytecode in DIR (outside the repo), as an
+installed package does, even where PYTHONDONTWRITEBYTECODE is set (then, without it, every process
+compiles the repo's own modules from source again); one untimed process fills it first.
+
 `uptime`'s load is printed before and after: the machine is shared, wall times move with it.
 
     .venv/bin/python benchmarks/perceive_speed.py --mode inproc --frames /tmp/ps/frames
     .venv/bin/python benchmarks/perceive_speed.py --mode cli --frames /tmp/ps/frames
+    .venv/bin/python benchmarks/perceive_speed.py --mode split --frames /tmp/ps/frames --pycache /tmp/ps/pyc
     .venv/bin/python benchmarks/perceive_speed.py --set tune --fingerprint /tmp/ps/fp-before.json --frames /tmp/ps/frames
     .venv/bin/python benchmarks/perceive_speed.py --compare /tmp/ps/fp-before.json /tmp/ps/fp-after.json
 
@@ -333,8 +343,21 @@ def paired(rows: dict[str, list[dict]]) -> str:
 
 # --------------------------------------------------------------------------
 # the CLI, a process per frame
+def child_env(pycache: str | None) -> dict[str, str] | None:
+    """The environment of a timed process: as this one's, or with `pycache` (`--pycache DIR`) its
+    bytecode cached in DIR, outside the repo (PYTHONPYCACHEPREFIX), even where
+    PYTHONDONTWRITEBYTECODE is set: an installed package's modules are compiled once, at install,
+    but a process that may not write bytecode compiles the repo's own modules from source every
+    time (~0.1 s a process here)."""
+    if pycache is None:
+        return None
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPYCACHEPREFIX"] = str(Path(pycache).resolve())
+    return env
+
+
 def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = None,
-            perception_from: str | None = None) -> list[dict]:
+            perception_from: str | None = None, pycache: str | None = None) -> list[dict]:
     """`shelfpick perceive` on each frame, one process each: wall, the child's CPU, perceive's own total.
     `given`: the command to run instead of `shelfpick` beside this Python (split at spaces)."""
     exe = Path(sys.executable).with_name("shelfpick")
@@ -342,7 +365,7 @@ def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = 
     if perception_from:          # `shelfpick` run by this script with that perception imported
         cmd = [sys.executable, str(Path(__file__).resolve()), "--perception-from", perception_from, "--as-cli"]
     rows = []
-    for i, (look, name, folder) in enumerate(frames):
+    for i, (look, name, folder) in enumerate(frames[:1] * bool(pycache) + frames):   # --pycache: one untimed first
         d = out / look / name
         d.mkdir(parents=True, exist_ok=True)
         src = inputs(folder)
@@ -351,18 +374,64 @@ def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = 
                       "--masks", str(d / "perceived_masks.png"), "--overlay", str(d / "overlay.png")]
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         w = time.perf_counter()
-        p = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+        p = subprocess.run(argv, capture_output=True, text=True, timeout=600, env=child_env(pycache))
         wall = time.perf_counter() - w
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         if p.returncode != 0:       # the exit status only: a held-out frame's output is not read
             raise SystemExit(f"perceive_speed: {look} {name}: shelfpick perceive exit {p.returncode}")
         total = json.loads((d / "report.json").read_text())["timing"]["total"]
+        if pycache and i == 0:
+            continue                # the run that filled the bytecode cache
         rows.append({"look": look, "shelf": name, "wall": {"frame": wall, "perceive": total},
                      "cpu": {"frame": cpu}})
-        print(f"[{i + 1}/{len(frames)}] {look} {name}: {wall:.2f} s wall ({total:.2f} s in perceive), "
+        print(f"[{i + 1 - bool(pycache)}/{len(frames)}] {look} {name}: {wall:.2f} s wall ({total:.2f} s in perceive), "
               f"{cpu:.2f} s CPU (load {load_avg()})", file=sys.stderr, flush=True)
     return rows
+
+
+# --------------------------------------------------------------------------
+# one process's phases (--mode split)
+SPLIT = ("interpreter", "cli_import", "perceive_imports", "read", "seg_import", "session", "forward_first",
+         "perceive_rest", "write", "exit", "process", "forward_again")
+
+
+def run_split(frames: list[tuple[str, str, Path]], out: Path, pycache: str | None = None) -> list[dict]:
+    """`benchmarks/perceive_startup.py` on each frame, a fresh process each: the phases of one
+    `shelfpick perceive` process (that script's docstring), the interpreter's start (spawn to its
+    first line) and exit (its last stamp to the parent seeing it end) from the parent's clock."""
+    child = Path(__file__).resolve().with_name("perceive_startup.py")
+    rows = []
+    for i, (look, name, folder) in enumerate(frames[:1] * bool(pycache) + frames):   # --pycache: one untimed first
+        d = out / look / name
+        d.mkdir(parents=True, exist_ok=True)
+        t = time.time()
+        p = subprocess.run([sys.executable, str(child), str(folder), str(d)], capture_output=True, text=True,
+                           timeout=600, env=child_env(pycache))
+        end = time.time()
+        if p.returncode != 0:       # the exit status only: a held-out frame's output is not read
+            raise SystemExit(f"perceive_speed: {look} {name}: perceive_startup.py exit {p.returncode}")
+        r = json.loads(p.stdout.strip().splitlines()[-1])
+        if pycache and i == 0:
+            continue                # the run that filled the bytecode cache
+        wall = {k: r[k] for k in SPLIT if k in r}
+        wall.update(interpreter=r["start"] - t, exit=end - r["end"], perceive_rest=r["perceive"] - r["forward_first"])
+        wall["process"] = wall["interpreter"] + r["total"] + wall["exit"]     # less the extra passes
+        rows.append({"look": look, "shelf": name, "wall": wall})
+        print(f"[{i + 1 - bool(pycache)}/{len(frames)}] {look} {name}: {wall['process']:.2f} s process, "
+              + ", ".join(f"{k} {wall[k]:.3f}" for k in SPLIT[:-2]) + f" (load {load_avg()})",
+              file=sys.stderr, flush=True)
+    return rows
+
+
+def split_summary(rows: list[dict]) -> str:
+    """p50, p90 and mean wall per phase of the process, all frames."""
+    lines = ["| phase | wall p50 | wall p90 | wall mean |", "|---|---|---|---|"]
+    for k in SPLIT:
+        v = [r["wall"][k] for r in rows]
+        lines.append(f"| {k} | {percentile(v, 0.5):.3f} | {percentile(v, 0.9):.3f} | {np.mean(v):.3f} |")
+    return "\n".join(lines) + ("\n\n(`process`: spawn to exit, the phases above it add up to it; "
+                               "`forward_again`: a second pass of the same input, outside the process's work.)")
 
 
 # --------------------------------------------------------------------------
@@ -481,7 +550,8 @@ def main(argv: list[str] | None = None) -> int:
         return cli_main()
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--set", choices=("held_out", "tune"), default="held_out")
-    ap.add_argument("--mode", choices=("inproc", "cli"), default="inproc")
+    ap.add_argument("--mode", choices=("inproc", "cli", "split"), default="inproc",
+                    help="split: a process per frame, timed phase by phase (benchmarks/perceive_startup.py)")
     ap.add_argument("--tune-look", choices=TUNE_LOOKS, default="flat",
                     help="--set tune: the look (labels: printed cartons under a hard light)")
     ap.add_argument("--shelves", default="all", help="all, or a comma list (judge shelves s00,u03 or tune seeds)")
@@ -491,6 +561,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="folder for the perceived outputs (default <frames>.out)")
     ap.add_argument("--rows", default=None, help="write the per-frame rows here (JSONL)")
     ap.add_argument("--shelfpick", default=None, help="--mode cli: the command to run (default: shelfpick beside this Python)")
+    ap.add_argument("--pycache", metavar="DIR",
+                    help="--mode cli/split: the processes' bytecode cached in DIR (outside the repo), as an "
+                         "installed package's is, even under PYTHONDONTWRITEBYTECODE")
     ap.add_argument("--fingerprint", metavar="OUT", help="write the outputs' fingerprint of the frames (JSON)")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two fingerprints")
     ap.add_argument("--perception-from", metavar="DIR",
@@ -555,10 +628,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"\n### {side}\n\n{summary(rs, 'inproc')}")
         print(f"\n### after / before, frame by frame\n\n{paired(both)}")
         return 0
-    rows = run_inproc(frames, out) if a.mode == "inproc" else run_cli(frames, out, a.shelfpick, a.perception_from)
+    if a.mode == "split":
+        if a.perception_from:
+            print("perceive_speed: --mode split times the working tree's perception only", file=sys.stderr)
+            return 2
+        rows = run_split(frames, out, a.pycache)
+        if a.rows:
+            Path(a.rows).write_text("".join(json.dumps(r) + "\n" for r in rows))
+        print(f"perceive speed, --set {a.set} --mode split{' --pycache' if a.pycache else ''}, {len(rows)} frames "
+              "640x480, a process each; "
+              f"load (1/5/15 min) {start} at the start, {load_avg()} at the end; {os.cpu_count()} cores")
+        print(split_summary(rows))
+        return 0
+    rows = run_inproc(frames, out) if a.mode == "inproc" else run_cli(frames, out, a.shelfpick, a.perception_from,
+                                                                      a.pycache)
     if a.rows:
         Path(a.rows).write_text("".join(json.dumps(r) + "\n" for r in rows))
-    print(f"perceive speed, --set {a.set} --mode {a.mode}, {len(rows)} frames 640x480; "
+    print(f"perceive speed, --set {a.set} --mode {a.mode}{' --pycache' if a.pycache else ''}, {len(rows)} frames 640x480; "
           f"load (1/5/15 min) {start} at the start, {load_avg()} at the end; {os.cpu_count()} cores")
     print(summary(rows, a.mode))
     return 0

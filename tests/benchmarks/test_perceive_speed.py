@@ -65,3 +65,19 @@ def test_paired_gives_the_median_of_each_frames_after_over_before():
     assert lines[2] == "| printed | 2 | 0.500 | 0.850 |"
     assert lines[3] == "| stereo | 1 | 0.900 | 0.500 |"
     assert lines[4].startswith("| all | 3 | 0.500 |")
+
+
+def test_a_timed_process_may_cache_its_bytecode_outside_the_repo(monkeypatch, tmp_path):
+    ps = load("perceive_speed")
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    assert ps.child_env(None) is None                        # as this process's environment
+    env = ps.child_env(str(tmp_path / "pyc"))
+    assert "PYTHONDONTWRITEBYTECODE" not in env and env["PYTHONPYCACHEPREFIX"] == str(tmp_path / "pyc")
+
+
+def test_the_split_of_a_process_gives_each_phase_over_frames():
+    ps = load("perceive_speed")
+    rows = [{"look": "printed", "shelf": s, "wall": {k: t for k in ps.SPLIT}} for s, t in (("a", 0.1), ("b", 0.3))]
+    lines = ps.split_summary(rows).splitlines()
+    assert lines[2] == "| interpreter | 0.200 | 0.280 | 0.200 |"
+    assert [ln.split(" | ")[0] for ln in lines[2:2 + len(ps.SPLIT)]] == [f"| {k}" for k in ps.SPLIT]
