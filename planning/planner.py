@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable
 
 from shelfpick.perception.errors import FormatError
@@ -67,13 +67,38 @@ def evaluate_sequence(sequence: tuple[str, ...],
     return tuple(out)
 
 
-def _search(scene: Scene, task: str, target: str | None, planner: str, risk: float,
-            predictor: Predicting, sampling: Screening | None, budget_s: float | None,
+@dataclass(frozen=True)
+class _Request:
+    """make_plan's arguments in one value, built once: what its helpers pass along unchanged, so
+    each takes the request and only what is its own. `scene` is the one planned on (the given
+    one less any faces set aside, once make_plan's own predictor has been built)."""
+
+    scene: Scene
+    task: str
+    target: str | None
+    planner: str
+    samples: int
+    seed: int
+    risk: float
+    config: "PhysicsConfig | None"
+    budget_s: float | None
+    origin: str
+    workers: int
+    model: Uncertainty | None
+    pool: "WorkerPool | None"
+    clients: "ClientPool | None"
+    verify: int
+    max_plan_risk: float
+    calibration: Calibration | None
+
+
+def _search(req: _Request, predictor: Predicting, sampling: Screening | None,
             t0: float) -> tuple[tuple[str, ...], tuple[StepPrediction, ...], bool, dict[str, float], int]:
     """Run the planner: (sequence, predicted, timed out, timing, distinct questions asked of the physics)."""
+    scene, task, target, risk, budget_s = req.scene, req.task, req.target, req.risk, req.budget_s
     oracle = CountingOracle(predictor.trial)
     screened: set[tuple[frozenset[str], str]] = set()
-    if planner == "heuristic":
+    if req.planner == "heuristic":
         t1 = time.perf_counter()
         sequence = heuristic_order(scene, target)
         t_plan = time.perf_counter() - t1
@@ -137,27 +162,27 @@ class _Searched:
     gated: GateResult | None
 
 
-def _check_plan_request(scene: Scene, task: str, target: str | None, planner: str, samples: int, risk: float,
-                        budget_s: float | None, max_plan_risk: float, origin: str) -> None:
+def _check_plan_request(req: _Request) -> None:
     """Refuse what make_plan cannot serve before any world is built: the plan threshold, the
     request, then the budget, each named with its value."""
+    max_plan_risk, budget_s, origin = req.max_plan_risk, req.budget_s, req.origin
     if isinstance(max_plan_risk, bool) or not isinstance(max_plan_risk, (int, float)) \
             or not 0.0 < max_plan_risk <= 1.0:
         raise FormatError(origin, "max_plan_risk", f"expected a probability in (0, 1], got {max_plan_risk!r}")
-    check_request(scene, task, target, planner, samples, risk, origin)
+    check_request(req.scene, req.task, req.target, req.planner, req.samples, req.risk, origin)
     if budget_s is not None and (not math.isfinite(budget_s) or budget_s <= 0):
         raise FormatError(origin, "budget", f"expected a positive number of seconds, got {budget_s!r}")
 
 
-def _own_predictor(scene: Scene, target: str | None, search: dict[str, Any], samples: int, seed: int,
-                   config: "PhysicsConfig | None", workers: int, model: Uncertainty | None,
-                   pool: "WorkerPool | None", clients: "ClientPool | None") -> tuple[Predicting, SetAside]:
+def _own_predictor(req: _Request, search: dict[str, Any]) -> tuple[Predicting, SetAside]:
     """A Predictor of make_plan's own, with the faces no world can hold set aside as unexplained
     matter (not the whole shelf refused); the plan records the model its worlds were drawn from."""
+    model = req.model
     search["uncertainty"] = (model if model is not None else Uncertainty()).to_json()
     return build_setting_aside(
-        scene, target, lambda sc: Predictor(sc, samples=samples, seed=seed, config=config, workers=workers,
-                                            model=model, pool=pool, clients=clients))
+        req.scene, req.target, lambda sc: Predictor(sc, samples=req.samples, seed=req.seed, config=req.config,
+                                                    workers=req.workers, model=model, pool=req.pool,
+                                                    clients=req.clients))
 
 
 def _warn_repairs(sampling: Screening) -> None:
@@ -180,62 +205,58 @@ def _record_search(search: dict[str, Any], sampling: Screening | None, stats: An
         search["worlds"] = sampling.worlds
 
 
-def _gate_or_verify(predictor: Predicting, sampling: Screening | None, sequence: tuple[str, ...],
-                    predicted: tuple[StepPrediction, ...], safe: bool, check: Any, search: dict[str, Any],
-                    timing: dict[str, float], verify: int, max_plan_risk: float,
-                    calibration: Calibration | None) -> tuple[tuple[StepPrediction, ...], GateResult | None]:
-    """(predictions, gate): the plan found asked of more worlds, by the calibrated gate where the
-    predictor can, else (a safe plan) by plain verification; the search's own otherwise."""
+def _gate_or_verify(req: _Request, predictor: Predicting, sampling: Screening | None, found: _Searched,
+                    search: dict[str, Any]) -> _Searched:
+    """`found` (the search's, no gate yet) asked of more worlds: by the calibrated gate where the
+    predictor can, else (a plan safe by the search's worlds) by plain verification; as it was otherwise."""
+    sequence, predicted, check, timing, verify = found.sequence, found.predicted, found.check, found.timing, req.verify
+    safe, _ = _verdict(predicted, req.risk, search, check)
     if hasattr(predictor, "plan_results") and sampling is not None and sequence:
         t1 = time.perf_counter()
         stands = bool((check or {}).get("stands_as_seen", True))
         pulls = getattr(getattr(predictor, "model", None), "pull_modes", Uncertainty().pull_modes)
-        gated = gate(predictor, sequence, stands, calibration or calibration_for(pulls), float(max_plan_risk),
-                     sampling.worlds, sampling.worlds + max(0, int(verify)), skip=sampling.worlds)
+        gated = gate(predictor, sequence, stands, req.calibration or calibration_for(pulls),
+                     float(req.max_plan_risk), sampling.worlds, sampling.worlds + max(0, int(verify)),
+                     skip=sampling.worlds)
         timing["verify_s"] = time.perf_counter() - t1
         search["verified_worlds"] = gated.worlds
-        return gated.predicted, gated
+        return replace(found, predicted=gated.predicted, gated=gated)
     if safe and verify and isinstance(predictor, Verifying):
         t1 = time.perf_counter()
         predicted = predictor.verify(sequence, verify)
         timing["verify_s"] = time.perf_counter() - t1
         search["verified_worlds"] = predictor.verified_worlds
-    return predicted, None
+    return replace(found, predicted=predicted)
 
 
-def _search_and_gate(scene: Scene, task: str, target: str | None, planner: str, risk: float,
-                     predictor: Predicting, sampling: Screening | None, budget_s: float | None, t0: float,
-                     search: dict[str, Any], verify: int, max_plan_risk: float,
-                     calibration: Calibration | None) -> _Searched:
-    """The search, what it cost, then the gate: everything that needs the predictor open."""
+def _search_and_gate(req: _Request, predictor: Predicting, sampling: Screening | None, search: dict[str, Any],
+                     t0: float) -> _Searched:
+    """The search, what it cost, then the gate: everything that needs the predictor open
+    (`t0`: when make_plan began, which the setup and planning times count from)."""
     t_ready = time.perf_counter()
     stats = sampling.stats if sampling is not None else None
     pulls0 = stats.get("pulls", 0) if isinstance(stats, dict) else 0
-    sequence, predicted, timed_out, timing, calls = _search(scene, task, target, planner, risk,
-                                                            predictor, sampling, budget_s, t0)
+    sequence, predicted, timed_out, timing, calls = _search(req, predictor, sampling, t0)
     timing["setup_s"] = t_ready - t0
-    _record_search(search, sampling, stats, calls, timed_out, pulls0, budget_s)
+    _record_search(search, sampling, stats, calls, timed_out, pulls0, req.budget_s)
     check = sampling.scene_check if sampling is not None else None
-    safe, _ = _verdict(predicted, risk, search, check)
-    predicted, gated = _gate_or_verify(predictor, sampling, sequence, predicted, safe, check, search, timing,
-                                       verify, max_plan_risk, calibration)
-    return _Searched(sequence, predicted, timing, check, gated)
+    return _gate_or_verify(req, predictor, sampling, _Searched(sequence, predicted, timing, check, None), search)
 
 
-def _judged(scene: Scene, task: str, target: str | None, planner: str, risk: float, seed: int,
-            search: dict[str, Any], found: _Searched, max_plan_risk: float) -> Plan:
+def _judged(req: _Request, search: dict[str, Any], found: _Searched) -> Plan:
     """The plan with its verdict: the chances it succeeds, then safe only if the gate (or every
     step) says so, no step touches unexplained matter and none stands on a doubted face."""
-    predicted, gated = found.predicted, found.gated
+    predicted, gated, scene = found.predicted, found.gated, req.scene
     search["worlds_success_prob"] = success_prob(predicted)   # prod(1 - step risk) over the worlds
     search["success_prob"] = 1.0 - gated.probability if gated is not None else success_prob(predicted)
-    search["max_plan_risk"] = float(max_plan_risk)
+    search["max_plan_risk"] = float(req.max_plan_risk)
     if gated is not None:
         search["plan_risk"] = gated.to_json()
-    safe, extra = _verdict(predicted, risk, search, found.check, gated)
+    safe, extra = _verdict(predicted, req.risk, search, found.check, gated)
     safe, extra = unexplained_verdict(scene, found.sequence, predicted, safe, extra)   # a plan touching it is not safe
     safe, extra = contradicted_verdict(scene, found.sequence, predicted, safe, extra)  # nor one on a doubted face
-    return Plan(task, target, planner, tuple(found.sequence), tuple(predicted), safe, found.timing, seed, extra)
+    return Plan(req.task, req.target, req.planner, tuple(found.sequence), tuple(predicted), safe, found.timing,
+                req.seed, extra)
 
 
 def make_plan(scene: Scene, task: str, target: str | None = None, planner: str = "physics",
@@ -260,7 +281,10 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     more worlds while the interval straddles `max_plan_risk`; the plan is safe when the upper
     end is below it. Its predictions are then over every world it was asked of.
     """
-    _check_plan_request(scene, task, target, planner, samples, risk, budget_s, max_plan_risk, origin)
+    req = _Request(scene=scene, task=task, target=target, planner=planner, samples=samples, seed=seed, risk=risk,
+                   config=config, budget_s=budget_s, origin=origin, workers=workers, model=model, pool=pool,
+                   clients=clients, verify=verify, max_plan_risk=max_plan_risk, calibration=calibration)
+    _check_plan_request(req)
     t0 = time.perf_counter()
     search: dict[str, Any] = {"risk_threshold": float(risk), "samples": samples}
     if not scene.boxes:  # clear of an empty shelf: nothing to do
@@ -268,19 +292,17 @@ def make_plan(scene: Scene, task: str, target: str | None = None, planner: str =
     own = predictor is None
     aside = SetAside(scene, scene)
     if own:
-        predictor, aside = _own_predictor(scene, target, search, samples, seed, config, workers, model, pool,
-                                          clients)
-        scene = aside.planned
+        predictor, aside = _own_predictor(req, search)
+        req = replace(req, scene=aside.planned)
     sampling = predictor if isinstance(predictor, Screening) else None
     try:
-        if own and scene.depth_known and sampling is not None:
+        if own and req.scene.depth_known and sampling is not None:
             _warn_repairs(sampling)
-        found = _search_and_gate(scene, task, target, planner, risk, predictor, sampling, budget_s, t0, search,
-                                 verify, max_plan_risk, calibration)
+        found = _search_and_gate(req, predictor, sampling, search, t0)
     finally:
         if own:
             predictor.close()  # type: ignore[union-attr]
-    plan = _judged(scene, task, target, planner, risk, seed, search, found, max_plan_risk)
+    plan = _judged(req, search, found)
     # every plan says what made it (version, scene hash, physics), whoever asked: CLI, console, bench;
     # with faces set aside, what and why, and the hash of the scene it was given
-    return aside.record(plan.with_provenance(scene, config, samples, risk))
+    return aside.record(plan.with_provenance(req.scene, config, samples, risk))
