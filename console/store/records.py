@@ -85,6 +85,8 @@ class SessionRecord:
     verifications: tuple[dict, ...] = ()   # per verified step: verdict, predicted and observed Scene
     files: Path | None = None
     missing_files: tuple[str, ...] = field(default_factory=tuple)
+    labels: np.ndarray | None = None       # perception's masks (schema 4; None before, or unreadable)
+    matter: np.ndarray | None = None       # perception's unexplained regions (label k+1 = unexplained[k])
 
     def plan(self, plan_hash: str) -> Plan:
         for p in self.plans:
@@ -117,10 +119,12 @@ def session_record(rows: SessionRows, db_path: Path, origin: str) -> SessionReco
     scene = Scene.from_json(json.loads(scenes["perceived"]["scene"]), origin)
     truth = Scene.from_json(json.loads(scenes["truth"]["scene"]), origin) if "truth" in scenes else None
     perception = json.loads(scenes["perceived"]["perception"]) if scenes["perceived"]["perception"] else None
-    capture, overlay, missing = None, None, []
+    capture, overlay, missing, layers = None, None, [], {}
     if rows.capture is not None:
-        capture, overlay, missing = load_images(rows.capture, db_path.parent,
-                                                db_path.with_name(db_path.name + ".files"))
+        root = db_path.with_name(db_path.name + ".files")
+        capture, overlay, missing = load_images(rows.capture, db_path.parent, root)
+        layers, unread = load_label_images(rows.capture, db_path.parent, root)
+        missing += unread
     return SessionRecord(
         id=int(s["id"]), started=s["started"], source=s["source"], status=s["status"], task=s["task"],
         capture=capture, overlay=overlay, scene=scene, truth=truth, perception=perception,
@@ -133,7 +137,7 @@ def session_record(rows: SessionRows, db_path: Path, origin: str) -> SessionReco
                             "detail": json.loads(r["detail"]) if r["detail"] else None} for r in rows.events),
         outcome=json.loads(rows.outcome["outcome"]) if rows.outcome is not None else None,
         files=db_path.parent / s["files"] if s["files"] else None,
-        missing_files=tuple(missing),
+        missing_files=tuple(missing), labels=layers.get("labels"), matter=layers.get("matter"),
         verifications=tuple({"plan_hash": r["plan_hash"], "run": r["run"], "at": r["at"], "step": r["step"],
                              "box": r["box"], "within": bool(r["within"]), "verdict": json.loads(r["verdict"]),
                              "predicted": stored_scene(r["predicted"], origin),
@@ -169,3 +173,29 @@ def load_images(row: sqlite3.Row, base: Path, root: Path | None = None
             unread.append(f"{row['overlay']} (not read: {str(exc).split(': ', 1)[-1]})")
     shown = missing + [f"{r} (outside {root.name if root else 'the session store'}/: not read)" for r in refused]
     return capture, overlay, shown + unread
+
+
+def load_label_images(row: sqlite3.Row, base: Path, root: Path | None = None
+                      ) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Perception's label images (`labels`, `matter`; schema 4) as stored beside the capture, each
+    the capture's size; a row of an older log has none. Like the overlay they are an illustration:
+    one missing, outside `root` or unreadable is reported and left out, and the record replays."""
+    from shelfpick.perception.capture import read_masks
+    from shelfpick.perception.errors import PerceptionError
+
+    got: dict[str, np.ndarray] = {}
+    unread: list[str] = []
+    for key in ("labels", "matter"):
+        rel = row[key] if key in row.keys() else None
+        if not rel:
+            continue
+        if _outside(rel, base, root):
+            unread.append(f"{rel} (outside {root.name if root else 'the session store'}/: not read)")
+        elif not (base / rel).is_file():
+            unread.append(rel)
+        else:
+            try:
+                got[key] = read_masks(base / rel, (int(row["height"]), int(row["width"])))
+            except PerceptionError as exc:
+                unread.append(f"{rel} (not read: {str(exc).split(': ', 1)[-1]})")
+    return got, unread

@@ -3,7 +3,7 @@
 One SQLite file in WAL mode (synchronous=FULL, foreign keys on). A file that
 is not a shelfpick session log, or one written by a newer shelfpick, is
 refused before anything is written to it, read-only or not; older versions
-are migrated in place (1 -> 2 -> 3: tables added, `meta.schema` raised).
+are migrated in place (1 -> 2 -> 3: tables added; 3 -> 4: columns added; `meta.schema` raised).
 SQLite's errors become one-line `StoreError`s naming the file and the cause.
 """
 from __future__ import annotations
@@ -14,9 +14,12 @@ from pathlib import Path
 
 from shelfpick.perception.errors import ShelfpickError
 
-SCHEMA_VERSION = 3          # 2: the runs table (crash recovery); 3: verifications (the look after each step)
+SCHEMA_VERSION = 4          # 2: the runs table (crash recovery); 3: verifications (the look after each step);
+                            # 4: captures.labels, captures.matter (perception's label images: the overlay redrawn)
 OUR_TABLES = frozenset({"meta", "sessions", "captures", "scenes", "plans", "decisions", "robot_events", "outcomes",
                         "runs", "verifications"})
+
+ADDED_COLUMNS = {"captures": ("labels", "matter")}    # by a migration to an existing table (TEXT)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -32,7 +35,8 @@ CREATE TABLE IF NOT EXISTS sessions (
 CREATE TABLE IF NOT EXISTS captures (
     session_id INTEGER PRIMARY KEY REFERENCES sessions(id),
     rgb TEXT NOT NULL, depth TEXT, camera TEXT NOT NULL, masks TEXT, masks_json TEXT, overlay TEXT,
-    width INTEGER NOT NULL, height INTEGER NOT NULL
+    width INTEGER NOT NULL, height INTEGER NOT NULL,
+    labels TEXT, matter TEXT         -- perceived masks, unexplained regions (uint16 PNG, schema 4)
 );
 CREATE TABLE IF NOT EXISTS scenes (
     session_id INTEGER NOT NULL REFERENCES sessions(id),
@@ -270,10 +274,14 @@ def create_schema(db: sqlite3.Connection) -> None:
         for stmt in _SCHEMA.split(";"):
             if stmt.strip():
                 cur.execute(stmt)
+        have = {r[1] for r in cur.execute("PRAGMA table_info(captures)")}
+        for column in ADDED_COLUMNS["captures"]:      # 3 -> 4: a log made before they were
+            if column not in have:
+                cur.execute(f"ALTER TABLE captures ADD COLUMN {column} TEXT")
         cur.execute("INSERT OR IGNORE INTO meta(key, value) VALUES ('schema', ?)",
                     (str(SCHEMA_VERSION),))
         cur.execute("UPDATE meta SET value=? WHERE key='schema' AND CAST(value AS INTEGER) < ?",
-                    (str(SCHEMA_VERSION), SCHEMA_VERSION))   # 1 -> 2 -> 3: tables added above
+                    (str(SCHEMA_VERSION), SCHEMA_VERSION))   # 1 -> 2 -> 3 -> 4: added above
         cur.execute("COMMIT")
     except BaseException:
         if db.in_transaction:

@@ -4,8 +4,9 @@ Every operator and supervisor action is a row committed at once (WAL,
 synchronous=FULL), so killing the server loses no record that was already
 reported as written. Images would bloat the database and make it hard to
 look at, so they live in `<db>.files/<session id>/` (rgb.png, depth.png,
-camera.json, masks.png, masks.json, overlay.png) and the rows hold paths
-relative to the database's folder.
+camera.json, masks.png, masks.json, overlay.png, and perception's own label
+images labels.png and matter.png) and the rows hold paths relative to the
+database's folder.
 
 viser runs callbacks on a thread pool, so one connection is shared behind a
 lock (`check_same_thread=False`). A database that is locked by another
@@ -155,8 +156,11 @@ class SessionStore:
 
     # ------------------------------------------------------------------ writes
     def new_session(self, source: str, capture: Capture, scene: Scene, truth: Scene | None,
-                    overlay: np.ndarray | None, perception: dict | None = None) -> int:
+                    overlay: np.ndarray | None, perception: dict | None = None, *,
+                    labels: np.ndarray | None = None, matter: np.ndarray | None = None) -> int:
         """Record a capture and its perceived (and, when known, true) scene; returns the id.
+        `labels` and `matter` (perception's masks and unexplained regions, uint16 label images)
+        let a replay draw the overlay again with the faces a plan set aside as matter.
 
         The row and the image files are written in one transaction: if the
         files cannot be written the row is rolled back and StoreError names
@@ -168,13 +172,13 @@ class SessionStore:
             cur.execute("INSERT INTO sessions(started, source, n_boxes, status) VALUES (?,?,?,?)",
                         (started, source, len(scene.boxes), "captured"))
             sid = int(cur.lastrowid)
-            rel = self._save_images(sid, capture, overlay)
+            rel = self._save_images(sid, capture, overlay, {"labels": labels, "matter": matter})
             cur.execute("UPDATE sessions SET files=? WHERE id=?", (f"{self.files_root.name}/{sid}", sid))
             h, w = capture.shape
             cur.execute("INSERT INTO captures(session_id, rgb, depth, camera, masks, masks_json, overlay, "
-                        "width, height) VALUES (?,?,?,?,?,?,?,?,?)",
+                        "width, height, labels, matter) VALUES (?,?,?,?,?,?,?,?,?,?,?)",
                         (sid, rel["rgb"], rel.get("depth"), rel["camera"], rel.get("masks"),
-                         rel.get("masks_json"), rel.get("overlay"), w, h))
+                         rel.get("masks_json"), rel.get("overlay"), w, h, rel.get("labels"), rel.get("matter")))
             cur.execute("INSERT INTO scenes(session_id, kind, scene, perception) VALUES (?,?,?,?)",
                         (sid, "perceived", json.dumps(scene.to_json()),
                          json.dumps(perception) if perception is not None else None))
@@ -185,7 +189,8 @@ class SessionStore:
 
         return self._write(fn)
 
-    def _save_images(self, sid: int, capture: Capture, overlay: np.ndarray | None) -> dict[str, str]:
+    def _save_images(self, sid: int, capture: Capture, overlay: np.ndarray | None,
+                     label_images: dict[str, np.ndarray | None]) -> dict[str, str]:
         import cv2
 
         d = self.files_root / str(sid)
@@ -200,6 +205,11 @@ class SessionStore:
                 paths["overlay"] = d / "overlay.png"
                 if not cv2.imwrite(str(paths["overlay"]), cv2.cvtColor(ov.astype(np.uint8), cv2.COLOR_RGB2BGR)):
                     raise OSError(f"cannot write {paths['overlay']}")
+            for key, img in label_images.items():     # perceived labels.png, matter.png (uint16)
+                if img is not None and np.asarray(img).shape == capture.shape:
+                    paths[key] = d / f"{key}.png"
+                    if not cv2.imwrite(str(paths[key]), np.asarray(img).astype(np.uint16)):
+                        raise OSError(f"cannot write {paths[key]}")
             for k, p in paths.items():
                 if not Path(p).is_file():
                     raise OSError(f"cannot write {p}")

@@ -20,6 +20,7 @@ from shelfpick.console.web.markdown import deviation_markdown, results_markdown,
 from shelfpick.console.web.panels import (OperatorPanel, PreviewPlayer, SessionsPanel, ShelfDrawing, SupervisorPanel,
                                           executed_markdown, md, quoted)
 from shelfpick.console.web.replay_view import LookView, ReplayView, record_view, replay_status
+from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes, set_aside_entries
 from shelfpick.console.workflow.look import as_planned
 from shelfpick.console.workflow.machine import PlanEntry, State, Workflow, WorkflowError
 from shelfpick.perception.errors import ShelfpickError
@@ -117,6 +118,7 @@ class ClientView:
         self.lock = threading.RLock()
         self.shown_scene: Scene | None = None
         self.shown_capture: Capture | None = None
+        self.shown_segmentation: tuple[Capture | None, frozenset[str]] | None = None  # capture, set aside
         self.shown_plans: Mapping[str, PlanEntry] | None = None
         self.replay: ReplayView | None = None      # a stored session drawn instead of the live state
         self.shown_look: LookView | None = None    # the replayed look after a step that is drawn
@@ -245,6 +247,7 @@ class ClientView:
         if state.capture is not self.shown_capture:
             self.shown_capture = state.capture
             op.show_images(state.capture.rgb if state.capture is not None else None, state.overlay)
+        self._show_segmentation(state)
         scene = self._shelf_now(state)
         if scene is not self.shown_scene:
             self._draw_scene(scene, state.capture.camera if state.capture is not None else None)
@@ -258,6 +261,19 @@ class ClientView:
             self.preview.show_plans(offered)
             self.preview.load()
         self._highlight()
+
+    def _show_segmentation(self, state: State) -> None:
+        """The Segmentation image redrawn when the faces the offered plans set aside change: those
+        masks as grey matter (segmentation_view), as the 3D view draws them; perception's own overlay
+        again once no plan sets them aside."""
+        aside = set_aside_boxes(self._offered_plans())
+        prev, self.shown_segmentation = self.shown_segmentation, (state.capture, aside)
+        same_capture = prev is not None and prev[0] is state.capture
+        if (same_capture and prev[1] == aside) or (not aside and not (same_capture and prev[1])):
+            return                     # as shown (a new capture's overlay is shown with its RGB)
+        image = segmentation_image(state.capture.rgb if state.capture is not None else None, state.overlay,
+                                   state.labels, state.matter, state.scene, aside)
+        self.operator.show_images(None, image)
 
     def _shelf_now(self, state: State) -> Scene | None:
         """The shelf as last seen: after a robot step the look's shelf (with the plan's ids on the
@@ -285,7 +301,7 @@ class ClientView:
             self.operator.show_images(rec.rgb, rec.overlay)
             self._draw_scene(rec.scene, rec.camera)
             self.shown_scene = None
-            self.shown_capture = None
+            self.shown_capture, self.shown_segmentation = None, None
             self.shown_plans = None
             self.operator.results.content = rec.plans_md
             self.sessions.start_replay(rec.summary_md, [lk.label for lk in rec.looks], rec.rgb, rec.overlay)
@@ -320,13 +336,6 @@ class ClientView:
 
 
 NOTHING_TO_PREVIEW: Mapping[str, PlanEntry] = MappingProxyType({})
-
-
-def set_aside_entries(plans: Sequence[Plan]) -> list[Mapping[str, Any]]:
-    """What the plans set aside (`extra["set_aside"]`; both planners plan on one scene, so they
-    repeat each other, which `SetAside.from_entries` skips); a stored entry of another shape is left out."""
-    return [e for p in plans for e in (p.extra or {}).get("set_aside") or ()
-            if isinstance(e, Mapping) and isinstance(e.get("boxes"), list)]
 
 
 def previewable(state: State) -> Mapping[str, PlanEntry] | None:

@@ -24,6 +24,7 @@ from shelfpick.planning.plan import Plan
 
 from shelfpick.console.store.sessions import PlanRecord, SessionRecord
 from shelfpick.console.workflow.machine import SECONDS_PER_BOX   # the estimate the console shows, defined once
+from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
 
 MAX_FRAMES_PER_STEP = 30
 
@@ -487,8 +488,14 @@ def render_html(rec: SessionRecord) -> str:
     images = []
     if rec.capture is not None:
         images.append(("Captured RGB", rec.capture.rgb))
-    if rec.overlay is not None:
-        images.append(("Segmentation overlay (masks, rectangles, box ids)", rec.overlay))
+    aside = set_aside_boxes([p.plan for p in rec.plans])
+    overlay = segmentation_image(rec.capture.rgb if rec.capture is not None else None, rec.overlay, rec.labels,
+                                 rec.matter, rec.scene, aside)
+    if overlay is not None:
+        caption = "Segmentation overlay (masks, rectangles, box ids)"
+        if overlay is not rec.overlay:
+            caption += "; faces a plan set aside shown as unexplained matter (aside-…?)"
+        images.append((caption, overlay))
     if rec.capture is not None and rec.capture.depth is not None:
         images.append(("Depth (near = warm)", depth_colour(rec.capture.depth)))
     if rec.capture is not None and rec.capture.masks is not None:

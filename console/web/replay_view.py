@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from shelfpick.console.web.markdown import results_markdown
 from shelfpick.console.web.panels import decisions_markdown, md, pct
 from shelfpick.console.web.replay import decided_planner, shown_worlds
+from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
 from shelfpick.console.workflow.machine import PlanEntry, State
 from shelfpick.perception.scene import Camera, Scene
 from shelfpick.planning.plan import Plan
@@ -103,7 +104,9 @@ def record_view(rec: SessionRecord) -> ReplayView:
     if looks:
         lines.append("\n**Looks after each step** (pick one in `Look after step`)")
         lines += [f"- {'✓' if lk.within else '⚠'} {md(lk.summary)}" for lk in looks]
-    return ReplayView(id=rec.id, rgb=cap.rgb if cap is not None else None, overlay=rec.overlay,
+    overlay = segmentation_image(cap.rgb if cap is not None else None, rec.overlay, rec.labels, rec.matter,
+                                 rec.scene, set_aside_boxes([p.plan for p in plans.values()]))
+    return ReplayView(id=rec.id, rgb=cap.rgb if cap is not None else None, overlay=overlay,
                       scene=rec.scene, camera=cap.camera if cap is not None else rec.scene.camera,
                       target=target, plans=plans, plans_md=plans_md, summary_md="\n".join(lines), looks=looks,
                       robot_md=stored_robot_markdown(rec))

@@ -93,7 +93,8 @@ class Workflow(PlanningStage, Supervision, RobotRun):
         audit = None
         try:
             sid = self.store.new_session(self._state.source, frame.capture, scene, frame.truth,
-                                         perception.overlay, info)
+                                         perception.overlay, info, labels=perception.masks,
+                                         matter=perception.unexplained_labels)
         except Exception as exc:  # noqa: BLE001
             sid = None
             audit = (f"database: could not record this capture ({exc}); nothing can be approved or run "
@@ -104,7 +105,8 @@ class Workflow(PlanningStage, Supervision, RobotRun):
         target = scene.ids[-1] if scene.boxes else None
         with self._lock:
             return self._set(session_id=sid, frame_name=frame.name, capture=frame.capture,
-                             overlay=perception.overlay, scene=scene, truth=frame.truth,
+                             overlay=perception.overlay, labels=perception.masks,
+                             matter=perception.unexplained_labels, scene=scene, truth=frame.truth,
                              warnings=tuple(perception.warnings), target=target, task=None,
                              plans={}, capturing=False, planning=False, progress=0.0, progress_text="",
                              approved=None, approval=None, decisions=(), robot="idle", robot_events=(),
@@ -114,8 +116,8 @@ class Workflow(PlanningStage, Supervision, RobotRun):
                                      + (f" (session {sid})" if sid is not None else ""))
 
     def _capture_failed(self, msg: str, frame: Frame | None = None) -> State:
-        return self._set(capture=frame.capture if frame else None, overlay=None, scene=None,
-                         truth=None, plans={}, approved=None, approval=None, decisions=(), target=None,
+        return self._set(capture=frame.capture if frame else None, overlay=None, labels=None, matter=None,
+                         scene=None, truth=None, plans={}, approved=None, approval=None, decisions=(), target=None,
                          robot="idle", robot_events=(), outcome=None, planning=False, capturing=False,
                          scene_problems=(), repairs=(), session_id=None, verifications=(), deviation=None,
                          run_end=None, message="", error=msg)

@@ -318,7 +318,8 @@ class RobotRun(WorkflowCore):
                                     "run": run.robot_run}}
         try:
             sid = self.store.new_session(self._state.source, frame.capture, perception.scene, frame.truth,
-                                         perception.overlay, info)
+                                         perception.overlay, info, labels=perception.masks,
+                                         matter=perception.unexplained_labels)
         except Exception as exc:  # noqa: BLE001 - no record, nothing of it can be approved: fall back
             self._audit_failed("the capture taken after the held step", exc)
             return False
@@ -339,7 +340,7 @@ class RobotRun(WorkflowCore):
                     + (", or a supervisor approves `continue` (the rest of the plan as planned)"
                        if recorded else "") + ".")
             self._set(session_id=sid, frame_name=frame.name, capture=frame.capture, overlay=perception.overlay,
-                      scene=scene, truth=frame.truth, warnings=tuple(perception.warnings),
+                      labels=perception.masks, matter=perception.unexplained_labels, scene=scene, truth=frame.truth, warnings=tuple(perception.warnings),
                       target=mapped_target(run.entry.plan, v, scene), task=None,
                       plans={"continue": cont} if recorded else {}, planning=False, progress=0.0,
                       progress_text="", approved=None, approval=None, decisions=(), robot=status,

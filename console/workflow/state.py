@@ -63,6 +63,8 @@ class State:
     frame_name: str = ""
     capture: Capture | None = None
     overlay: np.ndarray | None = None   # HxWx3 uint8 segmentation overlay
+    labels: np.ndarray | None = None    # HxW uint16 perceived masks (Box.mask_label): the overlay redrawn
+    matter: np.ndarray | None = None    # HxW uint16 unexplained regions (k+1 = scene.unexplained[k])
     scene: Scene | None = None          # perceived Scene
     truth: Scene | None = None          # true Scene when the source knows it (demo)
     warnings: tuple[str, ...] = ()

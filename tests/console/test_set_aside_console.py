@@ -86,7 +86,7 @@ def test_set_aside_faces_are_drawn_as_grey_matter_in_place_of_their_boxes_until_
     through a preview's reset; once no plan sets it aside, the box is back and the matter gone."""
     from types import SimpleNamespace
 
-    from shelfpick.console.web.app import set_aside_entries
+    from shelfpick.console.web.segmentation_view import set_aside_entries
     from shelfpick.console.web.panels import ShelfDrawing
     from shelfpick.console.web.scene_view import UNEXPLAINED_COLOR, reset_boxes
     from shelfpick.perception.scene import Box, Scene, Shelf
