@@ -235,8 +235,24 @@ def _clutter(img: np.ndarray, bg: np.ndarray, rng: np.random.Generator) -> None:
 def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """A random crop at a random scale, jittered in colour and tone, blurred, noised,
-    JPEG-compressed; returns (RGB crop, class map at 1/4 of the crop)."""
+    JPEG-compressed; returns (RGB crop, class map at 1/4 of the crop).
+
+    The steps draw from `rng` in a fixed order (crop, clutter, colour, degradation), so a
+    seeded run gives the same crops."""
     cw, ch = cfg.crop
+    img, lab = _crop(rgb, labels, cw, ch, rng)
+    if rng.random() < 0.35:
+        _clutter(img, lab == 0, rng)
+    img = _degrade(_colour_jitter(img, rng), cw, ch, rng)
+    target = class_map(lab, cfg.boundary_px)
+    target = cv2.resize(target, (cw // 4, ch // 4), interpolation=cv2.INTER_NEAREST)
+    return img, target
+
+
+def _crop(rgb: np.ndarray, labels: np.ndarray, cw: int, ch: int,
+          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A `cw` x `ch` crop of the frame scaled by 0.5-1 (padded where the scaled frame is smaller:
+    mirrored image, background labels), flipped left-right half the time."""
     s = float(rng.uniform(0.5, 1.0))
     w, h = int(rgb.shape[1] * s), int(rgb.shape[0] * s)
     img = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
@@ -250,8 +266,12 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
     lab = lab[y0:y0 + ch, x0:x0 + cw]
     if rng.random() < 0.5:
         img, lab = img[:, ::-1].copy(), lab[:, ::-1].copy()
-    if rng.random() < 0.35:
-        _clutter(img, lab == 0, rng)
+    return img, lab
+
+
+def _colour_jitter(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The crop as float32 with hue and saturation shifted (half the time), sometimes grey, then
+    white balance, contrast, brightness and gamma drawn: no two cameras or lights look alike."""
     f = img.astype(np.float32)
     if rng.random() < 0.5:                                   # hue / saturation
         hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV).astype(np.float32)
@@ -263,30 +283,39 @@ def augment(rgb: np.ndarray, labels: np.ndarray, cfg: TrainConfig,
     f *= rng.uniform(0.75, 1.3, 3).astype(np.float32)        # white balance
     mean = f.mean()
     f = (f - mean) * rng.uniform(0.55, 1.5) + mean + rng.uniform(-45, 45)
-    f = 255.0 * (np.clip(f, 0, 255) / 255.0) ** rng.uniform(0.6, 1.6)
+    return 255.0 * (np.clip(f, 0, 255) / 255.0) ** rng.uniform(0.6, 1.6)
+
+
+def _degrade(f: np.ndarray, cw: int, ch: int, rng: np.random.Generator) -> np.ndarray:
+    """What a real camera adds, each drawn: uneven light, a blur, sensor noise and JPEG
+    artefacts; the crop back as uint8 RGB."""
     if rng.random() < 0.3:                                   # uneven light
         gy, gx = np.mgrid[0:ch, 0:cw].astype(np.float32)
         a = rng.uniform(-1, 1, 2)
         f *= (1 + 0.35 * (a[0] * (gx / cw - 0.5) + a[1] * (gy / ch - 0.5)))[..., None]
-    r = rng.random()
-    if r < 0.35:
-        f = cv2.GaussianBlur(f, (0, 0), float(rng.uniform(0.5, 2.0)))
-    elif r < 0.5:
-        n = int(rng.integers(3, 9))
-        k = np.zeros((n, n), np.float32)
-        k[n // 2] = 1.0 / n
-        m = cv2.getRotationMatrix2D((n / 2 - 0.5, n / 2 - 0.5), float(rng.uniform(0, 180)), 1.0)
-        k = cv2.warpAffine(k, m, (n, n))
-        f = cv2.filter2D(f, -1, k / max(k.sum(), 1e-6))
+    f = _blur(f, rng)
     if rng.random() < 0.6:
         f += rng.normal(0, rng.uniform(2, 14), f.shape).astype(np.float32)
     img = np.clip(f, 0, 255).astype(np.uint8)
     if rng.random() < 0.6:
         _, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(15, 90))])
         img = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
-    target = class_map(lab, cfg.boundary_px)
-    target = cv2.resize(target, (cw // 4, ch // 4), interpolation=cv2.INTER_NEAREST)
-    return img, target
+    return img
+
+
+def _blur(f: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A Gaussian blur (35 % of crops), a motion blur along a drawn angle (15 %), or none."""
+    r = rng.random()
+    if r < 0.35:
+        return cv2.GaussianBlur(f, (0, 0), float(rng.uniform(0.5, 2.0)))
+    if r < 0.5:
+        n = int(rng.integers(3, 9))
+        k = np.zeros((n, n), np.float32)
+        k[n // 2] = 1.0 / n
+        m = cv2.getRotationMatrix2D((n / 2 - 0.5, n / 2 - 0.5), float(rng.uniform(0, 180)), 1.0)
+        k = cv2.warpAffine(k, m, (n, n))
+        return cv2.filter2D(f, -1, k / max(k.sum(), 1e-6))
+    return f
 
 
 # ---------------------------------------------------------------- training
