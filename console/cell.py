@@ -143,6 +143,8 @@ def check_robot_spec(spec: str, origin: str = "--robot") -> str:
             robot_number(key, values[0], origin, key)
     if q.get("surprise", ["0"])[0] not in ("0", "1"):
         raise CellError(origin, "surprise", f"expected 0 or 1, got {q['surprise'][0]!r}")
+    if base != "sim" and not spec.startswith("tcp://"):   # urlsplit lowers the scheme; the console takes tcp:// as written
+        raise CellError(origin, "", f"expected sim or tcp://HOST:PORT, got {spec!r}")
     return spec
 
 

@@ -112,7 +112,6 @@ def build(args: argparse.Namespace):
 
     given, where = supervisor_passphrase(args)
     check_host(args.host, given or None, where)
-    _check_robot_kind(args.robot)
 
     from shelfpick.console.robot.drivers import open_robot
     from shelfpick.console.sources import open_source
@@ -124,7 +123,7 @@ def build(args: argparse.Namespace):
     source = open_source(args.source, seed=args.seed)
     db = Path(args.db) if args.db else DEFAULT_DB
     spec = args.robot
-    _check_robot_opens(spec, args.seed)
+    _check_robot_transform(spec)
     check_listen(args.host)           # an address not of this machine: one line, not a start that hangs
     store = SessionStore(db)          # a folder it cannot make, a file not ours: StoreError, one line
 
@@ -157,19 +156,11 @@ def _check_settings(args: argparse.Namespace, cell) -> int:
                                   ("--seed", args.seed, SEEDS)):
         if not lo <= value <= hi:
             raise ShelfpickError(f"{flag}: must be from {lo} to {hi}, got {value}")
-    args.robot = check_robot_spec(args.robot, "--robot")     # the cell file's robot bounds, one validator
+    args.robot = check_robot_spec(args.robot, "--robot")     # the one check of a spec's text: kind, options, bounds
     if not 0 <= args.port <= 65535:    # the server thread would die on it and leave the start waiting
         raise ShelfpickError(f"--port: expected 1-65535, or 0 for any free port, got {args.port}")
     check_libraries(args, cell)
     return workers
-
-
-def _check_robot_kind(spec: str) -> None:
-    """Only the simulated robot or one at a TCP address drives a run."""
-    from shelfpick.perception.errors import ShelfpickError
-
-    if not (spec == "sim" or spec.startswith("sim?") or spec.startswith("tcp://")):
-        raise ShelfpickError(f"--robot: expected sim or tcp://HOST:PORT, got {spec!r}")
 
 
 def _perception_settings(cell):
@@ -190,17 +181,14 @@ def _perception_settings(cell):
     return segmenter, options, cell.tolerance()
 
 
-def _check_robot_opens(spec: str, seed: int) -> None:
-    """A robot spec's options, and a TCP robot's transform file, checked: one line before anything
-    opens, not a failure at the first run."""
-    from shelfpick.console.robot.drivers import open_robot
-
-    if spec.startswith("sim"):
-        open_robot(spec, truth=None, seed=seed)      # validates its options
-    elif spec.startswith("tcp://"):
+def _check_robot_transform(spec: str) -> None:
+    """A TCP robot's transform (its file, or position and orientation), read as the driver reads it:
+    what the spec's text alone (`check_robot_spec`, which has passed) cannot tell, said in one line
+    before anything opens, not at the first run. A sim spec has nothing more to check."""
+    if spec.startswith("tcp://"):
         from shelfpick.console.robot.tcp import TcpRobot
 
-        TcpRobot.from_spec(spec)      # a bad transform file or option: one line before anything opens
+        TcpRobot.from_spec(spec)
 
 
 def supervisor_passphrase(args: argparse.Namespace) -> tuple[str, str]:

@@ -151,6 +151,7 @@ def test_a_live_wal_is_still_read(archive, tmp_path: Path, capsys) -> None:
     ("sim?bogus=1", "bogus: unknown option"),
     ("tcp://127.0.0.1:99999", "expected sim or tcp://HOST:PORT"),
     ("sim\x1b[2J", "printable"),
+    ("TCP://127.0.0.1:9000", "expected sim or tcp://HOST:PORT, got 'TCP://127.0.0.1:9000'"),   # the scheme as written
 ])
 def test_robot_specs_get_the_cell_files_bounds(spec: str, says: str) -> None:
     with pytest.raises(CellError, match=says.replace("[", r"\[").replace("]", r"\]")):
