@@ -27,6 +27,14 @@ Two ways a user meets `perceive`:
 installed package does, even where PYTHONDONTWRITEBYTECODE is set (then, without it, every process
 compiles the repo's own modules from source again); one untimed process fills it first.
 
+`--ab-tree TREE` (cli, split): before and after frame by frame, a process each, which goes first
+alternating: TREE is a whole other commit (`git archive COMMIT | tar -x -C TREE`), imported as
+`shelfpick` through a folder of links ahead of the installed package (so a change to console/cli.py
+is timed too, not only perception's):
+
+    git archive COMMIT | tar -x -C /tmp/ps/old
+    .venv/bin/python benchmarks/perceive_speed.py --mode cli --frames /tmp/ps/frames --pycache /tmp/ps/pyc --ab-tree /tmp/ps/old
+
 `uptime`'s load is printed before and after: the machine is shared, wall times move with it.
 
     .venv/bin/python benchmarks/perceive_speed.py --mode inproc --frames /tmp/ps/frames
@@ -343,6 +351,23 @@ def paired(rows: dict[str, list[dict]]) -> str:
 
 # --------------------------------------------------------------------------
 # the CLI, a process per frame
+def tree_env(tree: str, pycache: str | None) -> dict[str, str]:
+    """The environment in which `import shelfpick` is another commit's whole tree `tree` (`git archive
+    COMMIT | tar -x -C TREE`): a folder of links named as pyproject.toml maps the packages, ahead of the
+    installed (editable) one on PYTHONPATH."""
+    root = Path(tree).resolve()
+    pkg = root / "_as_installed" / "shelfpick"
+    pkg.mkdir(parents=True, exist_ok=True)
+    for name, src in (("__init__.py", "shelfpick/__init__.py"), ("perception", "perception"),
+                      ("planning", "planning"), ("console", "console"), ("robotsim", "robotsim"), ("static", "static")):
+        if not (pkg / name).exists():
+            (pkg / name).symlink_to(root / src)
+    env = dict(child_env(pycache) or os.environ)
+    env["PYTHONPATH"] = str(pkg.parent)
+    env["PYTHONSAFEPATH"] = "1"        # nor the working directory (a checkout's shelfpick/) ahead of it
+    return env
+
+
 def child_env(pycache: str | None) -> dict[str, str] | None:
     """The environment of a timed process: as this one's, or with `pycache` (`--pycache DIR`) its
     bytecode cached in DIR, outside the repo (PYTHONPYCACHEPREFIX), even where
@@ -357,11 +382,14 @@ def child_env(pycache: str | None) -> dict[str, str] | None:
 
 
 def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = None,
-            perception_from: str | None = None, pycache: str | None = None) -> list[dict]:
+            perception_from: str | None = None, pycache: str | None = None, env: dict[str, str] | None = None,
+            cmd: list[str] | None = None) -> list[dict]:
     """`shelfpick perceive` on each frame, one process each: wall, the child's CPU, perceive's own total.
-    `given`: the command to run instead of `shelfpick` beside this Python (split at spaces)."""
+    `given`: the command to run instead of `shelfpick` beside this Python (split at spaces); `env`,
+    `cmd`: the process's environment (else `child_env(pycache)`) and command (else as `given` says)."""
     exe = Path(sys.executable).with_name("shelfpick")
-    cmd = given.split() if given else [str(exe)] if exe.exists() else ["shelfpick"]
+    cmd = cmd or (given.split() if given else [str(exe)] if exe.exists() else ["shelfpick"])
+    env = env if env is not None else child_env(pycache)
     if perception_from:          # `shelfpick` run by this script with that perception imported
         cmd = [sys.executable, str(Path(__file__).resolve()), "--perception-from", perception_from, "--as-cli"]
     rows = []
@@ -374,7 +402,7 @@ def run_cli(frames: list[tuple[str, str, Path]], out: Path, given: str | None = 
                       "--masks", str(d / "perceived_masks.png"), "--overlay", str(d / "overlay.png")]
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         w = time.perf_counter()
-        p = subprocess.run(argv, capture_output=True, text=True, timeout=600, env=child_env(pycache))
+        p = subprocess.run(argv, capture_output=True, text=True, timeout=600, env=env)
         wall = time.perf_counter() - w
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -396,18 +424,20 @@ SPLIT = ("interpreter", "cli_import", "perceive_imports", "read", "seg_import", 
          "perceive_rest", "write", "exit", "process", "forward_again")
 
 
-def run_split(frames: list[tuple[str, str, Path]], out: Path, pycache: str | None = None) -> list[dict]:
+def run_split(frames: list[tuple[str, str, Path]], out: Path, pycache: str | None = None,
+              env: dict[str, str] | None = None) -> list[dict]:
     """`benchmarks/perceive_startup.py` on each frame, a fresh process each: the phases of one
     `shelfpick perceive` process (that script's docstring), the interpreter's start (spawn to its
     first line) and exit (its last stamp to the parent seeing it end) from the parent's clock."""
     child = Path(__file__).resolve().with_name("perceive_startup.py")
+    env = env if env is not None else child_env(pycache)
     rows = []
     for i, (look, name, folder) in enumerate(frames[:1] * bool(pycache) + frames):   # --pycache: one untimed first
         d = out / look / name
         d.mkdir(parents=True, exist_ok=True)
         t = time.time()
         p = subprocess.run([sys.executable, str(child), str(folder), str(d)], capture_output=True, text=True,
-                           timeout=600, env=child_env(pycache))
+                           timeout=600, env=env)
         end = time.time()
         if p.returncode != 0:       # the exit status only: a held-out frame's output is not read
             raise SystemExit(f"perceive_speed: {look} {name}: perceive_startup.py exit {p.returncode}")
@@ -432,6 +462,36 @@ def split_summary(rows: list[dict]) -> str:
         lines.append(f"| {k} | {percentile(v, 0.5):.3f} | {percentile(v, 0.9):.3f} | {np.mean(v):.3f} |")
     return "\n".join(lines) + ("\n\n(`process`: spawn to exit, the phases above it add up to it; "
                                "`forward_again`: a second pass of the same input, outside the process's work.)")
+
+
+def run_process_ab(frames: list[tuple[str, str, Path]], out: Path, mode: str, tree: str,
+                   pycache: str | None) -> dict[str, list[dict]]:
+    """`--mode cli|split --ab-tree TREE`: each frame run by a process of TREE's code (before) and one of
+    the working tree's (after), one after the other, which goes first alternating frame by frame, so
+    that both meet the same load."""
+    cmd = {"before": [sys.executable, "-m", "shelfpick.console.cli"], "after": None}
+    env = {"before": tree_env(tree, pycache), "after": child_env(pycache)}
+    rows: dict[str, list[dict]] = {"before": [], "after": []}
+    for i, frame in enumerate(frames[:1] * bool(pycache) + frames):      # --pycache: one untimed pair first
+        for side in (("before", "after") if i % 2 == 0 else ("after", "before")):
+            one = (run_cli([frame], out / side, env=env[side], cmd=cmd[side]) if mode == "cli"
+                   else run_split([frame], out / side, env=env[side]))
+            if not (pycache and i == 0):
+                rows[side] += one
+        if not (pycache and i == 0):
+            k = "process" if mode == "split" else "frame"
+            print(f"  before {rows['before'][-1]['wall'][k]:.2f} s, after {rows['after'][-1]['wall'][k]:.2f} s",
+                  file=sys.stderr, flush=True)
+    return rows
+
+
+def paired_process(rows: dict[str, list[dict]], key: str) -> str:
+    """Per look: the median over frames of after / before of a process's wall time."""
+    lines = ["| look | frames | after / before wall, median of frames |", "|---|---|---|"]
+    for look in list(dict.fromkeys(r["look"] for r in rows["before"])) + ["all"]:
+        rw = [a["wall"][key] / b["wall"][key] for b, a in zip(rows["before"], rows["after"]) if look in ("all", b["look"])]
+        lines.append(f"| {look} | {len(rw)} | {percentile(rw, 0.5):.3f} |")
+    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------
@@ -561,6 +621,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="folder for the perceived outputs (default <frames>.out)")
     ap.add_argument("--rows", default=None, help="write the per-frame rows here (JSONL)")
     ap.add_argument("--shelfpick", default=None, help="--mode cli: the command to run (default: shelfpick beside this Python)")
+    ap.add_argument("--ab-tree", metavar="TREE",
+                    help="--mode cli/split: before and after frame by frame, a process each: TREE (a whole other "
+                         "commit, `git archive COMMIT | tar -x -C TREE`) and the working tree")
     ap.add_argument("--pycache", metavar="DIR",
                     help="--mode cli/split: the processes' bytecode cached in DIR (outside the repo), as an "
                          "installed package's is, even under PYTHONDONTWRITEBYTECODE")
@@ -627,6 +690,17 @@ def main(argv: list[str] | None = None) -> int:
         for side, rs in both.items():
             print(f"\n### {side}\n\n{summary(rs, 'inproc')}")
         print(f"\n### after / before, frame by frame\n\n{paired(both)}")
+        return 0
+    if a.ab_tree and a.mode in ("cli", "split"):
+        both = run_process_ab(frames, out, a.mode, a.ab_tree, a.pycache)
+        if a.rows:
+            Path(a.rows).write_text("".join(json.dumps(dict(r, side=side)) + "\n" for side, rs in both.items() for r in rs))
+        print(f"perceive speed, --set {a.set} --mode {a.mode}{' --pycache' if a.pycache else ''}, before ({a.ab_tree}) "
+              f"and after (the working tree) frame by frame, a process each, {len(frames)} frames 640x480; load "
+              f"(1/5/15 min) {start} at the start, {load_avg()} at the end; {os.cpu_count()} cores")
+        for side, rs in both.items():
+            print(f"\n### {side}\n\n{split_summary(rs) if a.mode == 'split' else summary(rs, 'cli')}")
+        print(f"\n### after / before, frame by frame\n\n{paired_process(both, 'process' if a.mode == 'split' else 'frame')}")
         return 0
     if a.mode == "split":
         if a.perception_from:

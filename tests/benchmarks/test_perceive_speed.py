@@ -81,3 +81,20 @@ def test_the_split_of_a_process_gives_each_phase_over_frames():
     lines = ps.split_summary(rows).splitlines()
     assert lines[2] == "| interpreter | 0.200 | 0.280 | 0.200 |"
     assert [ln.split(" | ")[0] for ln in lines[2:2 + len(ps.SPLIT)]] == [f"| {k}" for k in ps.SPLIT]
+
+
+def test_another_commits_tree_is_imported_as_shelfpick_ahead_of_the_installed_one(tmp_path):
+    import subprocess
+    import sys
+
+    ps = load("perceive_speed")
+    tree = tmp_path / "old"
+    for part in ("shelfpick", "perception", "planning", "console", "robotsim", "static"):
+        (tree / part).mkdir(parents=True)
+    (tree / "shelfpick" / "__init__.py").write_text("")
+    (tree / "perception" / "__init__.py").write_text("WHO = 'the old tree'\n")
+    env = ps.tree_env(str(tree), None)
+    assert env["PYTHONSAFEPATH"] == "1"
+    out = subprocess.run([sys.executable, "-c", "import shelfpick.perception as p; print(p.WHO)"], env=env,
+                         capture_output=True, text=True, cwd=ps.ROOT)     # the checkout's own shelfpick/ beside
+    assert out.stdout.strip() == "the old tree", out.stderr
