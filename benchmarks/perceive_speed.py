@@ -485,6 +485,32 @@ def run_process_ab(frames: list[tuple[str, str, Path]], out: Path, mode: str, tr
     return rows
 
 
+def outputs_digest(folder: Path) -> str:
+    """One hash of what `shelfpick perceive` wrote in `folder` (the scene, masks, overlay, and the report
+    less its timing): two processes' outputs are equal or not, nothing more is read of them."""
+    d = hashlib.sha256()
+    for name in ("perceived.json", "perceived_masks.png", "overlay.png"):
+        d.update((folder / name).read_bytes())
+    report = json.loads((folder / "report.json").read_text())
+    report.pop("timing", None)
+    d.update(json.dumps(report, sort_keys=True).encode())
+    return d.hexdigest()
+
+
+def compare_outputs(a: Path, b: Path) -> tuple[int, list[str]]:
+    """(frames whose outputs are equal, frames that differ or are missing on one side) of two `--out`
+    folders of `--mode cli` (LOOK/SHELF/ each)."""
+    names = sorted({str(p.parent.relative_to(root)) for root in (a, b) for p in root.glob("*/*/report.json")})
+    same, diff = 0, []
+    for n in names:
+        try:
+            equal = outputs_digest(a / n) == outputs_digest(b / n)
+        except (OSError, ValueError):
+            equal = False
+        same, diff = (same + 1, diff) if equal else (same, diff + [n])
+    return same, diff
+
+
 def paired_process(rows: dict[str, list[dict]], key: str) -> str:
     """Per look: the median over frames of after / before of a process's wall time."""
     lines = ["| look | frames | after / before wall, median of frames |", "|---|---|---|"]
@@ -629,6 +655,9 @@ def main(argv: list[str] | None = None) -> int:
                          "installed package's is, even under PYTHONDONTWRITEBYTECODE")
     ap.add_argument("--fingerprint", metavar="OUT", help="write the outputs' fingerprint of the frames (JSON)")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two fingerprints")
+    ap.add_argument("--compare-outputs", nargs=2, metavar=("A", "B"),
+                    help="compare two --mode cli --out folders (e.g. OUT/before and OUT/after of --ab-tree): "
+                         "frames whose written outputs are equal (report less its timing)")
     ap.add_argument("--perception-from", metavar="DIR",
                     help="time shelfpick.perception from DIR (a perception/ folder of another commit) instead of the tree's")
     ap.add_argument("--ab-with", metavar="DIR",
@@ -638,6 +667,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="in process: perceive without its one-BLAS-thread limit (to time that change alone)")
     ap.add_argument("--profile", metavar="OUT", help="--mode inproc under cProfile (stats to OUT; --set tune only)")
     a = ap.parse_args(argv)
+    if a.compare_outputs:
+        same, diff = compare_outputs(*(Path(p) for p in a.compare_outputs))
+        print(f"{same} frames' outputs equal, {len(diff)} different {diff}")
+        return 1 if diff else 0
     if a.compare:
         fa, fb = (json.loads(Path(p).read_text()) for p in a.compare)
         same, close, diff = compare(fa, fb)
@@ -693,6 +726,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if a.ab_tree and a.mode in ("cli", "split"):
         both = run_process_ab(frames, out, a.mode, a.ab_tree, a.pycache)
+        if a.mode == "cli":
+            same, diff = compare_outputs(out / "before", out / "after")
+            print(f"outputs: {same} frames equal before and after, {len(diff)} different {diff}", file=sys.stderr)
         if a.rows:
             Path(a.rows).write_text("".join(json.dumps(dict(r, side=side)) + "\n" for side, rs in both.items() for r in rs))
         print(f"perceive speed, --set {a.set} --mode {a.mode}{' --pycache' if a.pycache else ''}, before ({a.ab_tree}) "

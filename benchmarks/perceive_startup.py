@@ -14,7 +14,9 @@ parent can count the interpreter's start before the first stamp and its exit aft
 - `perceive`: `pipeline.perceive`, of it `forward_first` (the network's first pass in this process);
 - `forward_again`: the same input through the network twice more, the faster (what a warm pass
   costs; not part of the CLI's work: timed after the outputs are written, left out of every phase);
-- `write`: the scene, overlay, masks and report.
+- `write`: the scene, overlay, masks and report;
+- then what `cli.main` does last in a `perceive` process (`_ending_process`, where the tree has it),
+  and the interpreter's exit, timed by the parent.
 
 Only `time`, `sys`, `json` are imported before the first stamp. Prints one JSON line.
 """
@@ -86,4 +88,9 @@ def main(folder: str, out: str) -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(main(sys.argv[1], sys.argv[2])))
+    print(json.dumps(main(sys.argv[1], sys.argv[2])), flush=True)
+    from shelfpick.console import cli
+
+    ending = getattr(cli, "_ending_process", None)      # what cli.main does last in a perceive process
+    if ending is not None:
+        ending()

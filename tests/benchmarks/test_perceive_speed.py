@@ -98,3 +98,21 @@ def test_another_commits_tree_is_imported_as_shelfpick_ahead_of_the_installed_on
     out = subprocess.run([sys.executable, "-c", "import shelfpick.perception as p; print(p.WHO)"], env=env,
                          capture_output=True, text=True, cwd=ps.ROOT)     # the checkout's own shelfpick/ beside
     assert out.stdout.strip() == "the old tree", out.stderr
+
+
+def test_two_cli_runs_outputs_are_equal_or_not_the_reports_timing_aside(tmp_path):
+    import json
+
+    ps = load("perceive_speed")
+    for side, (total, masks) in {"before": (1.5, b"m"), "after": (0.9, b"m")}.items():
+        d = tmp_path / side / "printed" / "s00"
+        d.mkdir(parents=True)
+        (d / "perceived.json").write_text('{"boxes": []}')
+        (d / "perceived_masks.png").write_bytes(masks)
+        (d / "overlay.png").write_bytes(b"o")
+        (d / "report.json").write_text(json.dumps({"warnings": [], "timing": {"total": total}}))
+    assert ps.compare_outputs(tmp_path / "before", tmp_path / "after") == (1, [])
+    (tmp_path / "after" / "printed" / "s00" / "perceived_masks.png").write_bytes(b"other")
+    assert ps.compare_outputs(tmp_path / "before", tmp_path / "after") == (0, ["printed/s00"])
+    (tmp_path / "after" / "printed" / "s00" / "report.json").unlink()       # missing on one side
+    assert ps.compare_outputs(tmp_path / "before", tmp_path / "after") == (0, ["printed/s00"])
