@@ -35,6 +35,10 @@ is timed too, not only perception's):
     git archive COMMIT | tar -x -C /tmp/ps/old
     .venv/bin/python benchmarks/perceive_speed.py --mode cli --frames /tmp/ps/frames --pycache /tmp/ps/pyc --ab-tree /tmp/ps/old
 
+`--ab-pycache` (cli, split, with `--pycache DIR`): the same frame by frame, the working tree's code on
+both sides, before under PYTHONDONTWRITEBYTECODE (a checkout without __pycache__ compiles its modules
+in every process), after with the bytecode cache.
+
 `uptime`'s load is printed before and after: the machine is shared, wall times move with it.
 
     .venv/bin/python benchmarks/perceive_speed.py --mode inproc --frames /tmp/ps/frames
@@ -464,13 +468,17 @@ def split_summary(rows: list[dict]) -> str:
                                "`forward_again`: a second pass of the same input, outside the process's work.)")
 
 
-def run_process_ab(frames: list[tuple[str, str, Path]], out: Path, mode: str, tree: str,
+def run_process_ab(frames: list[tuple[str, str, Path]], out: Path, mode: str, tree: str | None,
                    pycache: str | None) -> dict[str, list[dict]]:
     """`--mode cli|split --ab-tree TREE`: each frame run by a process of TREE's code (before) and one of
     the working tree's (after), one after the other, which goes first alternating frame by frame, so
-    that both meet the same load."""
-    cmd = {"before": [sys.executable, "-m", "shelfpick.console.cli"], "after": None}
-    env = {"before": tree_env(tree, pycache), "after": child_env(pycache)}
+    that both meet the same load. `tree` None (`--ab-pycache`): the working tree's both, before under
+    PYTHONDONTWRITEBYTECODE (a checkout without __pycache__ then compiles its modules every time), after
+    with its bytecode cached in `pycache`."""
+    cmd = {"before": [sys.executable, "-m", "shelfpick.console.cli"] if tree else None, "after": None}
+    plain = {k: v for k, v in os.environ.items() if k != "PYTHONPYCACHEPREFIX"}
+    env = {"before": tree_env(tree, pycache) if tree else dict(plain, PYTHONDONTWRITEBYTECODE="1"),
+           "after": child_env(pycache)}
     rows: dict[str, list[dict]] = {"before": [], "after": []}
     for i, frame in enumerate(frames[:1] * bool(pycache) + frames):      # --pycache: one untimed pair first
         for side in (("before", "after") if i % 2 == 0 else ("after", "before")):
@@ -650,6 +658,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ab-tree", metavar="TREE",
                     help="--mode cli/split: before and after frame by frame, a process each: TREE (a whole other "
                          "commit, `git archive COMMIT | tar -x -C TREE`) and the working tree")
+    ap.add_argument("--ab-pycache", action="store_true",
+                    help="--mode cli/split with --pycache: the working tree's processes without (before) and with "
+                         "(after) the bytecode cache, frame by frame")
     ap.add_argument("--pycache", metavar="DIR",
                     help="--mode cli/split: the processes' bytecode cached in DIR (outside the repo), as an "
                          "installed package's is, even under PYTHONDONTWRITEBYTECODE")
@@ -724,15 +735,19 @@ def main(argv: list[str] | None = None) -> int:
             print(f"\n### {side}\n\n{summary(rs, 'inproc')}")
         print(f"\n### after / before, frame by frame\n\n{paired(both)}")
         return 0
-    if a.ab_tree and a.mode in ("cli", "split"):
-        both = run_process_ab(frames, out, a.mode, a.ab_tree, a.pycache)
+    if a.ab_pycache and not a.pycache:
+        print("perceive_speed: --ab-pycache needs --pycache DIR", file=sys.stderr)
+        return 2
+    if (a.ab_tree or a.ab_pycache) and a.mode in ("cli", "split"):
+        both = run_process_ab(frames, out, a.mode, None if a.ab_pycache else a.ab_tree, a.pycache)
         if a.mode == "cli":
             same, diff = compare_outputs(out / "before", out / "after")
             print(f"outputs: {same} frames equal before and after, {len(diff)} different {diff}", file=sys.stderr)
         if a.rows:
             Path(a.rows).write_text("".join(json.dumps(dict(r, side=side)) + "\n" for side, rs in both.items() for r in rs))
-        print(f"perceive speed, --set {a.set} --mode {a.mode}{' --pycache' if a.pycache else ''}, before ({a.ab_tree}) "
-              f"and after (the working tree) frame by frame, a process each, {len(frames)} frames 640x480; load "
+        what = ("before without and after with the bytecode cache" if a.ab_pycache else
+                f"before ({a.ab_tree}) and after (the working tree)")
+        print(f"perceive speed, --set {a.set} --mode {a.mode}{' --pycache' if a.pycache else ''}, {what} frame by frame, a process each, {len(frames)} frames 640x480; load "
               f"(1/5/15 min) {start} at the start, {load_avg()} at the end; {os.cpu_count()} cores")
         for side, rs in both.items():
             print(f"\n### {side}\n\n{split_summary(rs) if a.mode == 'split' else summary(rs, 'cli')}")

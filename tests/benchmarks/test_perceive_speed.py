@@ -116,3 +116,10 @@ def test_two_cli_runs_outputs_are_equal_or_not_the_reports_timing_aside(tmp_path
     assert ps.compare_outputs(tmp_path / "before", tmp_path / "after") == (0, ["printed/s00"])
     (tmp_path / "after" / "printed" / "s00" / "report.json").unlink()       # missing on one side
     assert ps.compare_outputs(tmp_path / "before", tmp_path / "after") == (0, ["printed/s00"])
+
+
+def test_with_and_without_the_bytecode_cache_needs_the_cache_folder(capsys, tmp_path):
+    ps = load("perceive_speed")
+    (tmp_path / "judge" / "scenes").mkdir(parents=True)
+    assert ps.main(["--judge-dir", str(tmp_path / "judge"), "--mode", "cli", "--ab-pycache"]) == 2
+    assert "--ab-pycache needs --pycache DIR" in capsys.readouterr().err
