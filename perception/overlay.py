@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import colorsys
+from typing import Any, Iterable
 
 import cv2
 import numpy as np
@@ -14,6 +15,12 @@ def palette(n: int) -> np.ndarray:
     """n distinct saturated RGB colours (golden-ratio hues), deterministic."""
     return np.array([[int(255 * c) for c in colorsys.hsv_to_rgb((i * 0.618034) % 1.0, 0.85, 0.95)]
                      for i in range(max(n, 1))], np.uint8)
+
+
+def box_names(boxes: Iterable[Any]) -> dict[int, str]:
+    """Mask label -> the id the overlay writes on it: the box's id, with ' ?' on a face perception
+    doubts (`Box.contradicted`), for every box that has a mask."""
+    return {b.mask_label: b.id + (" ?" if b.contradicted else "") for b in boxes if b.mask_label}
 
 
 def draw_overlay(rgb: np.ndarray, labels: np.ndarray, names: dict[int, str] | None = None,

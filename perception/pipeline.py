@@ -30,7 +30,7 @@ from shelfpick.perception.capture import Capture
 from shelfpick.perception.faces import FrontFace, measure_front
 from shelfpick.perception.geometry import check_intrinsics, point_map, points_cached, pose_matrix
 from shelfpick.perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
-from shelfpick.perception.overlay import draw_overlay, draw_unexplained
+from shelfpick.perception.overlay import box_names, draw_overlay, draw_unexplained
 from shelfpick.perception.repairs.border_cut import complete_cut_face
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
@@ -254,8 +254,7 @@ def _overlay(capture: Capture, labels: np.ndarray, boxes: list[Box], found: Foun
     """The masks, rectangles and box ids (' ?' on a doubted face) over the RGB, with the regions
     no box explains; its seconds go into `timing`."""
     t = time.perf_counter()
-    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id + (" ?" if b.contradicted else "")
-                                                 for b in boxes if b.mask_label})
+    overlay = draw_overlay(capture.rgb, labels, box_names(boxes))
     if found is not None and found.regions:
         overlay = draw_unexplained(overlay, found.labels, [u.id for u in found.regions])
     timing["overlay"] = time.perf_counter() - t
@@ -270,7 +269,7 @@ def _perceive_scaled(capture: Capture, max_pixels: int, t0: float, **kw: Any) ->
     res = perceive(small, **kw, max_pixels=small.shape[0] * small.shape[1])   # once: never scaled again
     labels = cv2.resize(res.masks, (w, h), interpolation=cv2.INTER_NEAREST)
     t = time.perf_counter()
-    overlay = draw_overlay(capture.rgb, labels, {b.mask_label: b.id for b in res.scene.boxes if b.mask_label})
+    overlay = draw_overlay(capture.rgb, labels, box_names(res.scene.boxes))     # ' ?' as unscaled
     regions = res.unexplained_labels
     if regions is not None:
         regions = cv2.resize(regions, (w, h), interpolation=cv2.INTER_NEAREST)

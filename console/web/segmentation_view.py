@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, AbstractSet, Any, Mapping, Sequence
 
 import numpy as np
 
-from shelfpick.perception.overlay import draw_overlay, draw_unexplained
+from shelfpick.perception.overlay import box_names, draw_overlay, draw_unexplained
 from shelfpick.perception.scene import Scene
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -28,9 +28,7 @@ def draw_segmentation(rgb: np.ndarray, labels: np.ndarray, matter: np.ndarray | 
     out_ids = {b.mask_label: b.id for b in scene.boxes if b.mask_label and b.id in aside}
     kept = labels.copy()
     kept[np.isin(labels, list(out_ids))] = 0
-    names = {b.mask_label: b.id + (" ?" if b.contradicted else "")
-             for b in scene.boxes if b.mask_label and b.id not in aside}
-    out = draw_overlay(rgb, kept, names)
+    out = draw_overlay(rgb, kept, box_names(b for b in scene.boxes if b.id not in aside))
     own = matter is not None and matter.shape == labels.shape and bool(scene.unexplained)
     regions = np.array(matter, np.uint16) if own else np.zeros(labels.shape, np.uint16)
     region_names = [u.id for u in scene.unexplained or ()] if own else []

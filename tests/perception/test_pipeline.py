@@ -8,6 +8,7 @@ import pytest
 
 from shelfpick.perception.capture import Capture
 from shelfpick.perception.errors import PerceptionError
+from shelfpick.perception.overlay import box_names, draw_overlay
 from shelfpick.perception.pipeline import perceive
 from shelfpick.perception.scene import Scene, Shelf
 from shelfpick.perception.segment_depth import DepthEdgeSegmenter
@@ -154,3 +155,14 @@ def test_boxes_a_contradiction_names_leave_perception_marked_for_planning():
                                                labels, [], [], {})
     assert found is None and any("would pass through" in n for n in notes)
     assert [b.contradicted for b in boxes] == [True, True, False]
+    assert box_names(boxes) == {1: "b0 ?", 2: "b1 ?", 3: "b2"}   # what the overlay writes, scaled down or not
+
+
+def test_a_scaled_down_capture_writes_the_ids_as_a_full_size_one_does():
+    """The overlay of a capture perceived scaled down names its boxes by `box_names` too (it wrote
+    no '?' on a doubted face): the full-size labels drawn with those names."""
+    scene = _scene()
+    cap = cast(scene, noise=0.001)
+    res = perceive(cap, DepthEdgeSegmenter(), scene.shelf, max_pixels=160 * 120)
+    assert not res.scene.unexplained
+    assert np.array_equal(res.overlay, draw_overlay(cap.rgb, res.masks, box_names(res.scene.boxes)))
