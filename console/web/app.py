@@ -116,6 +116,7 @@ class ClientView:
         self.client = client
         self.wf: Workflow = app.workflow
         self.lock = threading.RLock()
+        self.closed = False                        # its browser went away or the server stops: draw nothing
         self.shown_scene: Scene | None = None
         self.shown_capture: Capture | None = None
         self.shown_segmentation: tuple[Capture | None, frozenset[str]] | None = None  # capture, set aside
@@ -179,6 +180,13 @@ class ClientView:
         """The preview thread ends at its next frame (the browser went away or the server stops)."""
         self.preview.playing = False
 
+    def close(self) -> None:
+        """Its browser went away or the server stops: once a render under way has ended, no other
+        starts (a state change on another thread drew on a connection already closed)."""
+        with self.lock:
+            self.closed = True
+            self.stop_preview()
+
     # ---------------------------------------------------------------- render
     def _preview_source(self, name: str) -> tuple[Any, ...]:
         """(preview step results, plan) for the chosen planner, live or replayed."""
@@ -220,6 +228,8 @@ class ClientView:
 
     def render(self, state: State) -> None:
         with self.lock:
+            if self.closed:
+                return
             try:
                 self._render(state)
             except Exception:  # noqa: BLE001 - a client that went away mid-update
@@ -421,7 +431,7 @@ class ConsoleApp:
         with self._views_lock:
             view = self.views.pop(client.client_id, None)
         if view is not None:
-            view.stop_preview()
+            view.close()
             self.workflow.throttle.disconnected(view.client_key)
 
     def _on_state(self, state: State) -> None:
@@ -438,8 +448,9 @@ class ConsoleApp:
         """Stop serving; the workflow's Bullet clients are disconnected (the app is its last user)."""
         self.workflow.remove_listener(self._on_state)
         with self._views_lock:
-            for v in self.views.values():
-                v.stop_preview()
+            views = list(self.views.values())
+        for v in views:
+            v.close()
         self.server.stop()
         self.workflow.close()
 

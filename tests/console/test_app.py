@@ -133,3 +133,46 @@ def test_a_step_risk_that_is_a_collision_is_shown_beside_the_collapse():
     md = results_markdown(State(plans={"physics": replace(e, plan=plan)})).replace("\u00a0", " ")
     assert "| collapse risk per step | 1. b1 0%, collision 50%<br>2. b0 0% |" in md
     assert "| max risk (collapse or collision) | 50% |" in md
+
+
+def test_a_view_whose_browser_went_away_or_whose_server_stops_draws_nothing_more(tmp_path):
+    """A state change on another thread (a plan finishing) must not draw on a connection already
+    closed: a closed view renders nothing, a render under way ends before `close` returns, and
+    the app's stop and a browser's disconnect close the view."""
+    import threading
+    from types import SimpleNamespace
+
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.console.web.app import ClientView, ConsoleApp
+    from shelfpick.console.workflow.machine import Workflow
+
+    store = SessionStore(tmp_path / "closed.sqlite")
+    wf = Workflow(None, store, lambda truth, seed: None, "pw")
+    app = ConsoleApp(wf, port=0)
+    try:
+        gone, stays, third = (ClientView(app, app.server) for _ in range(3))
+        app.views.update({1: gone, 2: stays, 3: third})
+        with wf._lock:
+            wf._set(message="first")
+        app._on_state(wf.state)
+        before = gone.operator.status.content
+        app._disconnect(SimpleNamespace(client_id=1))
+        assert gone.closed and not stays.closed and 1 not in app.views
+        with wf._lock:
+            wf._set(message="second, after the browser left")
+        gone.render(wf.state)                     # as _on_state does with a view it listed before the pop
+        stays.render(wf.state)
+        assert gone.operator.status.content == before != stays.operator.status.content
+        order: list[str] = []
+        with stays.lock:                          # a render under way on another thread ...
+            closer = threading.Thread(target=lambda: (stays.close(), order.append("closed")))
+            closer.start()
+            closer.join(0.2)
+            order.append("render ended")
+        closer.join(5)
+        assert order == ["render ended", "closed"]  # ... ends before close returns
+        assert not third.closed
+    finally:
+        app.stop()
+        store.close()
+    assert third.closed                           # the app's stop closed it
