@@ -95,6 +95,7 @@ def draw_unexplained(rgb: np.ndarray, labels: np.ndarray, names: list[str], alph
     out[hatch] = (40, 40, 40)
     scale = max(0.5, w / 640)
     thick = max(1, round(2 * scale))
+    written: list[tuple[int, int, int, int]] = []
     for k, name in enumerate(names, start=1):
         m = (labels == k).astype(np.uint8)
         contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
@@ -102,10 +103,29 @@ def draw_unexplained(rgb: np.ndarray, labels: np.ndarray, names: list[str], alph
             continue
         cv2.drawContours(out, contours, -1, (255, 255, 255), thick + 1, cv2.LINE_AA)
         cv2.drawContours(out, contours, -1, (30, 30, 30), thick, cv2.LINE_AA)
-        x, y, bw, bh = cv2.boundingRect(max(contours, key=cv2.contourArea))
         text = f"{name}?"
         (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
-        org = (x + bw // 2 - tw // 2, y + bh // 2 + th // 2)
+        org = name_spot(m, (tw, th), written)
         cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 3, cv2.LINE_AA)
         cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return out
+
+
+def name_spot(mask: np.ndarray, size: tuple[int, int], written: list[tuple[int, int, int, int]]) -> tuple[int, int]:
+    """Where a region's name is written (the text's bottom-left): centred on the region's most
+    inner pixel, not on its bounding box's centre, which an L-shaped region or a thin strip beside
+    another does not contain; moved a line down or up, nearest first, off every name in `written`
+    (x0, y0, x1, y1; the chosen one is added), and kept in the image."""
+    h, w = mask.shape
+    tw, th = size
+    dist = cv2.distanceTransform(np.pad(mask, 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+    cy, cx = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    step, rect = th + max(4, th // 2), (0, 0, 0, 0)
+    for shift in (0, 1, -1, 2, -2, 3, -3):
+        x0 = int(min(max(cx - tw // 2, 0), max(w - tw, 0)))
+        y1 = int(min(max(cy + th // 2 + shift * step, th), h - 1))
+        rect = (x0 - 2, y1 - th - 2, x0 + tw + 2, y1 + 4)
+        if not any(rect[0] < o[2] and o[0] < rect[2] and rect[1] < o[3] and o[1] < rect[3] for o in written):
+            break
+    written.append(rect)
+    return rect[0] + 2, rect[3] - 4
