@@ -186,6 +186,7 @@ class ClientView:
         with self.lock:
             self.closed = True
             self.stop_preview()
+            self.operator.answers.close()      # a click's answer that comes after it
 
     # ---------------------------------------------------------------- render
     def _preview_source(self, name: str) -> tuple[Any, ...]:
@@ -307,6 +308,8 @@ class ClientView:
             self.notify("Replay failed", str(exc))
             return
         with self.lock:
+            if self.closed:
+                return
             self.replay, self.shown_look = rec, None
             self.operator.show_images(rec.rgb, rec.overlay)
             self._draw_scene(rec.scene, rec.camera)
@@ -321,7 +324,7 @@ class ClientView:
     def _show_look(self, label: str) -> None:
         """Replay: the shelf observed after one step with the plan's predicted poses as outlines."""
         with self.lock:
-            if self.replay is None:
+            if self.replay is None or self.closed:
                 return
             self.sessions.clear_look()
             look = next((lk for lk in self.replay.looks if lk.label == label), None)
@@ -339,6 +342,8 @@ class ClientView:
 
     def _live(self, event: Any) -> None:
         with self.lock:
+            if self.closed:                   # the click came as the browser went away
+                return
             self.replay, self.shown_look = None, None
             self.sessions.end_replay()
             self.shown_scene = None       # draw the live shelf again

@@ -360,6 +360,11 @@ class AnswerLine:
         self.lock = threading.Lock()
         self.text = ""
         self.since: RunEnd | None = None     # the run end the answer already accounts for
+        self.closed = False                  # the browser went away: a click's late answer is not sent
+
+    def close(self) -> None:
+        with self.lock:
+            self.closed = True
 
     def clicked(self, what: str, fn: Callable[..., Any], *args: Any) -> Callable[[], None]:
         """`fn(*args)` with its answer in this line."""
@@ -383,6 +388,8 @@ class AnswerLine:
     def show(self, state: State) -> None:
         """The answer as of `state`: a run end the click did not know of replaces it."""
         with self.lock:
+            if self.closed:
+                return
             end = state.run_end
             if end is not None and end is not self.since:
                 self.since, self.text = end, run_end_answer(end)

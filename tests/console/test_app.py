@@ -163,6 +163,10 @@ def test_a_view_whose_browser_went_away_or_whose_server_stops_draws_nothing_more
         gone.render(wf.state)                     # as _on_state does with a view it listed before the pop
         stays.render(wf.state)
         assert gone.operator.status.content == before != stays.operator.status.content
+        answer = gone.operator.answers.handle.content
+        gone.operator.answers.clicked("Capture", lambda: None)()    # a click's answer after it left
+        gone._live(None)
+        assert gone.operator.answers.handle.content == answer and gone.operator.status.content == before
         order: list[str] = []
         with stays.lock:                          # a render under way on another thread ...
             closer = threading.Thread(target=lambda: (stays.close(), order.append("closed")))
