@@ -120,11 +120,11 @@ def build(args: argparse.Namespace):
 
     segmenter, options, tolerance = _perception_settings(cell)
     passphrase = given or secrets.token_urlsafe(9)
-    source = open_source(args.source, seed=args.seed)
-    db = Path(args.db) if args.db else DEFAULT_DB
     spec = args.robot
     _check_robot_transform(spec)
     check_listen(args.host)           # an address not of this machine: one line, not a start that hangs
+    source = open_source(args.source, seed=args.seed)
+    db = Path(args.db) if args.db else DEFAULT_DB
     store = SessionStore(db)          # a folder it cannot make, a file not ours: StoreError, one line
 
     def robot_factory(truth, seed):
