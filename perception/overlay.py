@@ -118,8 +118,10 @@ def name_spot(mask: np.ndarray, size: tuple[int, int], written: list[tuple[int, 
     (x0, y0, x1, y1; the chosen one is added), and kept in the image."""
     h, w = mask.shape
     tw, th = size
-    dist = cv2.distanceTransform(np.pad(mask, 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+    x, y, bw, bh = cv2.boundingRect(mask)          # the transform over the region's box only
+    dist = cv2.distanceTransform(np.pad(mask[y:y + bh, x:x + bw], 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
     cy, cx = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    cy, cx = cy + y, cx + x
     step, rect = th + max(4, th // 2), (0, 0, 0, 0)
     for shift in (0, 1, -1, 2, -2, 3, -3):
         x0 = int(min(max(cx - tw // 2, 0), max(w - tw, 0)))

@@ -119,15 +119,13 @@ def session_record(rows: SessionRows, db_path: Path, origin: str) -> SessionReco
     scene = Scene.from_json(json.loads(scenes["perceived"]["scene"]), origin)
     truth = Scene.from_json(json.loads(scenes["truth"]["scene"]), origin) if "truth" in scenes else None
     perception = json.loads(scenes["perceived"]["perception"]) if scenes["perceived"]["perception"] else None
-    capture, overlay, missing, layers = None, None, [], {}
+    capture, images, missing = None, {}, []
     if rows.capture is not None:
-        root = db_path.with_name(db_path.name + ".files")
-        capture, overlay, missing = load_images(rows.capture, db_path.parent, root)
-        layers, unread = load_label_images(rows.capture, db_path.parent, root)
-        missing += unread
+        capture, images, missing = load_images(rows.capture, db_path.parent,
+                                               db_path.with_name(db_path.name + ".files"))
     return SessionRecord(
         id=int(s["id"]), started=s["started"], source=s["source"], status=s["status"], task=s["task"],
-        capture=capture, overlay=overlay, scene=scene, truth=truth, perception=perception,
+        capture=capture, overlay=images.get("overlay"), scene=scene, truth=truth, perception=perception,
         plans=tuple(PlanRecord(r["hash"], Plan.from_json(json.loads(r["plan"]), origin), r["created"],
                                json.loads(r["preview"]) if r["preview"] else None) for r in rows.plans),
         decisions=tuple({"id": r["id"], "plan_hash": r["plan_hash"], "decision": r["decision"],
@@ -137,7 +135,7 @@ def session_record(rows: SessionRows, db_path: Path, origin: str) -> SessionReco
                             "detail": json.loads(r["detail"]) if r["detail"] else None} for r in rows.events),
         outcome=json.loads(rows.outcome["outcome"]) if rows.outcome is not None else None,
         files=db_path.parent / s["files"] if s["files"] else None,
-        missing_files=tuple(missing), labels=layers.get("labels"), matter=layers.get("matter"),
+        missing_files=tuple(missing), labels=images.get("labels"), matter=images.get("matter"),
         verifications=tuple({"plan_hash": r["plan_hash"], "run": r["run"], "at": r["at"], "step": r["step"],
                              "box": r["box"], "within": bool(r["within"]), "verdict": json.loads(r["verdict"]),
                              "predicted": stored_scene(r["predicted"], origin),
@@ -150,52 +148,34 @@ def _outside(rel: str, base: Path, root: Path | None) -> bool:
 
 
 def load_images(row: sqlite3.Row, base: Path, root: Path | None = None
-                ) -> tuple[Capture | None, np.ndarray | None, list[str]]:
-    """Images back as arrays; a deleted file is reported, not fatal (the record stays readable).
-    Only files inside `root` (the database's `<db>.files/`) are read: a stored path that leads out
-    of it is reported as not read (a damaged or hostile archive must not embed other files)."""
-    from shelfpick.perception.capture import load_capture, read_rgb
+                ) -> tuple[Capture | None, dict[str, np.ndarray], list[str]]:
+    """The capture and its illustrations back as arrays: the overlay and perception's label images
+    (`labels`, `matter`: schema 4, none in an older log's row). A deleted file is reported, not
+    fatal, and an illustration that cannot be read is reported and left out: the record stays
+    readable. Only files inside `root` (the database's `<db>.files/`) are read: a stored path that
+    leads out of it is reported as not read (a damaged or hostile archive must not embed other files)."""
+    from shelfpick.perception.capture import load_capture, read_masks, read_rgb
     from shelfpick.perception.errors import PerceptionError
 
-    keys = ("rgb", "camera", "depth", "masks", "overlay")
-    refused = [row[k] for k in keys if row[k] and _outside(row[k], base, root)]
-    missing = [row[k] for k in keys if row[k] and row[k] not in refused and not (base / row[k]).is_file()]
+    stored = {k: row[k] for k in ("rgb", "camera", "depth", "masks", "overlay", "labels", "matter")
+              if k in row.keys() and row[k]}
+    refused = [rel for rel in stored.values() if _outside(rel, base, root)]
+    missing = [rel for rel in stored.values() if rel not in refused and not (base / rel).is_file()]
     skip = set(missing) | set(refused)
     capture = None
-    if not {row["rgb"], row["camera"]} & skip and not (row["depth"] and row["depth"] in skip):
-        capture = load_capture(base / row["rgb"], base / row["depth"] if row["depth"] else None,
+    if not {row["rgb"], row["camera"]} & skip and stored.get("depth") not in skip:
+        capture = load_capture(base / row["rgb"], base / stored["depth"] if "depth" in stored else None,
                                base / row["camera"])
-    overlay, unread = None, []
-    if row["overlay"] and row["overlay"] not in skip:
-        try:
-            overlay = read_rgb(base / row["overlay"])  # bounded: the header is checked before decoding
-        except PerceptionError as exc:                 # the overlay is an illustration: the record replays
-            unread.append(f"{row['overlay']} (not read: {str(exc).split(': ', 1)[-1]})")
-    shown = missing + [f"{r} (outside {root.name if root else 'the session store'}/: not read)" for r in refused]
-    return capture, overlay, shown + unread
-
-
-def load_label_images(row: sqlite3.Row, base: Path, root: Path | None = None
-                      ) -> tuple[dict[str, np.ndarray], list[str]]:
-    """Perception's label images (`labels`, `matter`; schema 4) as stored beside the capture, each
-    the capture's size; a row of an older log has none. Like the overlay they are an illustration:
-    one missing, outside `root` or unreadable is reported and left out, and the record replays."""
-    from shelfpick.perception.capture import read_masks
-    from shelfpick.perception.errors import PerceptionError
-
-    got: dict[str, np.ndarray] = {}
-    unread: list[str] = []
-    for key in ("labels", "matter"):
-        rel = row[key] if key in row.keys() else None
-        if not rel:
-            continue
-        if _outside(rel, base, root):
-            unread.append(f"{rel} (outside {root.name if root else 'the session store'}/: not read)")
-        elif not (base / rel).is_file():
-            unread.append(rel)
-        else:
+    shape = (int(row["height"]), int(row["width"]))
+    readers = {"overlay": read_rgb,        # bounded: the header is checked before decoding
+               "labels": lambda p: read_masks(p, shape), "matter": lambda p: read_masks(p, shape)}
+    images, unread = {}, []
+    for key, read in readers.items():
+        rel = stored.get(key)
+        if rel and rel not in skip:
             try:
-                got[key] = read_masks(base / rel, (int(row["height"]), int(row["width"])))
+                images[key] = read(base / rel)
             except PerceptionError as exc:
                 unread.append(f"{rel} (not read: {str(exc).split(': ', 1)[-1]})")
-    return got, unread
+    shown = missing + [f"{r} (outside {root.name if root else 'the session store'}/: not read)" for r in refused]
+    return capture, images, shown + unread

@@ -119,7 +119,7 @@ class ClientView:
         self.closed = False                        # its browser went away or the server stops: draw nothing
         self.shown_scene: Scene | None = None
         self.shown_capture: Capture | None = None
-        self.shown_segmentation: tuple[Capture | None, frozenset[str]] | None = None  # capture, set aside
+        self.shown_aside: frozenset[str] = frozenset()    # the boxes the Segmentation image shows set aside
         self.shown_plans: Mapping[str, PlanEntry] | None = None
         self.replay: ReplayView | None = None      # a stored session drawn instead of the live state
         self.shown_look: LookView | None = None    # the replayed look after a step that is drawn
@@ -255,10 +255,7 @@ class ClientView:
         if not live:
             return
         op.results.content = plans_markdown(state)
-        if state.capture is not self.shown_capture:
-            self.shown_capture = state.capture
-            op.show_images(state.capture.rgb if state.capture is not None else None, state.overlay)
-        self._show_segmentation(state)
+        self._show_images(state)
         scene = self._shelf_now(state)
         if scene is not self.shown_scene:
             self._draw_scene(scene, state.capture.camera if state.capture is not None else None)
@@ -273,18 +270,18 @@ class ClientView:
             self.preview.load()
         self._highlight()
 
-    def _show_segmentation(self, state: State) -> None:
-        """The Segmentation image redrawn when the faces the offered plans set aside change: those
-        masks as grey matter (segmentation_view), as the 3D view draws them; perception's own overlay
-        again once no plan sets them aside."""
+    def _show_images(self, state: State) -> None:
+        """The Camera folder again when the capture, or the faces the offered plans set aside,
+        change: those masks drawn as grey matter in the Segmentation image (segmentation_view), as
+        the 3D view draws them; perception's own overlay while none is set aside."""
         aside = set_aside_boxes(self._offered_plans())
-        prev, self.shown_segmentation = self.shown_segmentation, (state.capture, aside)
-        same_capture = prev is not None and prev[0] is state.capture
-        if (same_capture and prev[1] == aside) or (not aside and not (same_capture and prev[1])):
-            return                     # as shown (a new capture's overlay is shown with its RGB)
-        image = segmentation_image(state.capture.rgb if state.capture is not None else None, state.overlay,
-                                   state.labels, state.matter, state.scene, aside)
-        self.operator.show_images(None, image)
+        new = state.capture is not self.shown_capture
+        if not new and aside == self.shown_aside:
+            return
+        self.shown_capture, self.shown_aside = state.capture, aside
+        rgb = state.capture.rgb if state.capture is not None else None
+        self.operator.show_images(rgb if new else None,
+                                  segmentation_image(rgb, state.overlay, state.labels, state.matter, state.scene, aside))
 
     def _shelf_now(self, state: State) -> Scene | None:
         """The shelf as last seen: after a robot step the look's shelf (with the plan's ids on the
@@ -314,7 +311,7 @@ class ClientView:
             self.operator.show_images(rec.rgb, rec.overlay)
             self._draw_scene(rec.scene, rec.camera)
             self.shown_scene = None
-            self.shown_capture, self.shown_segmentation = None, None
+            self.shown_capture = None
             self.shown_plans = None
             self.operator.results.content = rec.plans_md
             self.sessions.start_replay(rec.summary_md, [lk.label for lk in rec.looks], rec.rgb, rec.overlay)
