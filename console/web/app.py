@@ -315,7 +315,7 @@ class ClientView:
             self.shown_plans = None
             self.operator.results.content = rec.plans_md
             self.sessions.start_replay(rec.summary_md, [lk.label for lk in rec.looks], rec.rgb, rec.overlay)
-            self.preview.load()
+            self.preview.load(force=True)     # another shelf: from its first frame, even for the same plan
             self.render(self.wf.state)
 
     def _show_look(self, label: str) -> None:
@@ -344,6 +344,7 @@ class ClientView:
             self.replay, self.shown_look = None, None
             self.sessions.end_replay()
             self.shown_scene = None       # draw the live shelf again
+            self.preview.load(force=True)     # the live plan from its first frame, not where the replay was
             self.render(self.wf.state)
 
 

@@ -155,3 +155,26 @@ def test_console_replay_draws_a_look_with_predicted_outlines(tmp_path: Path) -> 
             assert set(view.nodes) == {"b0", "b1", "b2"} and view.look_nodes == []
     finally:
         store.close()
+
+
+def test_a_replay_opens_its_preview_at_the_first_frame_even_for_the_plan_already_shown(stored) -> None:
+    """The preview keeps its place for the same plan (it gained worlds); a replay is another shelf:
+    replaying a session whose preview was played to its end (or the live plan, the same one) drew
+    the end, every box pulled, as if the stored shelf were empty."""
+    db, sid, _ = stored
+    store = SessionStore(db, readonly=True)
+    try:
+        with replaying(store, sid) as view:
+            view.preview.prev_plan.value = "heuristic"          # the plan with a recorded preview
+            view.preview.load(force=True)
+            last = int(view.preview.slider.max)
+            assert last > 0
+            view.preview.slider.value = last
+            view.preview.show_frame(last)
+            view._replay(None)                                  # the same session again
+            assert int(view.preview.slider.value) == 0
+            view.preview.slider.value = last
+            view._live(None)                                    # back to live: no plan there, frame 0
+            assert int(view.preview.slider.value) == 0
+    finally:
+        store.close()
