@@ -114,7 +114,8 @@ def check_robot_spec(spec: str, origin: str = "--robot") -> str:
     """A robot spec as `console.robot.drivers.open_robot` takes it (`sim[?delay=S&seed=N&surprise=0|1]` or
     `tcp://HOST:PORT[?options]`), checked completely before anything is opened: its shape (an IPv6
     host in brackets), known options only, every number within ROBOT_NUMBERS (the cell file's
-    bounds). CellError, one line naming `origin` and the option; returns the spec stripped."""
+    bounds). CellError, one line naming `origin` and the option; returns the spec stripped, its scheme
+    written `tcp`."""
     from urllib.parse import parse_qs, urlsplit
 
     spec = spec.strip()
@@ -143,8 +144,8 @@ def check_robot_spec(spec: str, origin: str = "--robot") -> str:
             robot_number(key, values[0], origin, key)
     if q.get("surprise", ["0"])[0] not in ("0", "1"):
         raise CellError(origin, "surprise", f"expected 0 or 1, got {q['surprise'][0]!r}")
-    if base != "sim" and not spec.startswith("tcp://"):   # urlsplit lowers the scheme; the console takes tcp:// as written
-        raise CellError(origin, "", f"expected sim or tcp://HOST:PORT, got {spec!r}")
+    if base != "sim":     # a scheme is case-blind (RFC 3986), as in the cell file: the drivers read tcp://
+        spec = "tcp" + spec[len(parts.scheme):]
     return spec
 
 

@@ -151,11 +151,20 @@ def test_a_live_wal_is_still_read(archive, tmp_path: Path, capsys) -> None:
     ("sim?bogus=1", "bogus: unknown option"),
     ("tcp://127.0.0.1:99999", "expected sim or tcp://HOST:PORT"),
     ("sim\x1b[2J", "printable"),
-    ("TCP://127.0.0.1:9000", "expected sim or tcp://HOST:PORT, got 'TCP://127.0.0.1:9000'"),   # the scheme as written
 ])
 def test_robot_specs_get_the_cell_files_bounds(spec: str, says: str) -> None:
     with pytest.raises(CellError, match=says.replace("[", r"\[").replace("]", r"\]")):
         check_robot_spec(spec)
+
+
+def test_a_scheme_is_case_blind_on_the_command_line_as_in_the_cell_file(tmp_path: Path) -> None:
+    assert check_robot_spec(" TCP://127.0.0.1:9000?step_timeout=5 ") == "tcp://127.0.0.1:9000?step_timeout=5"
+    assert check_robot_spec("Tcp://[::1]:9000") == "tcp://[::1]:9000"
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[robot]\nurl = "TCP://127.0.0.1:9000"\n')
+    assert read_cell(cell).robot == "tcp://127.0.0.1:9000"
+    with pytest.raises(CellError, match="expected sim or tcp://HOST:PORT"):
+        check_robot_spec("TCPX://127.0.0.1:9000")
 
 
 def test_the_cell_file_refuses_what_the_url_refuses(tmp_path: Path) -> None:
