@@ -10,8 +10,9 @@ interval straddles the threshold), and with a gate that never decides early (alw
 Per mode: wall p50/p90 and the worlds the gate asked; the machine's load average with the table;
 and two figures the load does not change: the physics pulls run (search and gate) and the CPU
 seconds of this process and the pool's workers (read from /proc). `rows.jsonl` holds every plan's
-sequence, verdict and failed-world count, so two runs can be diffed (`--modes adaptive`: the
-shipped gate only, half the time).
+sequence, verdict, failed-world count, risk and step predictions, so two runs can be diffed
+(`--modes adaptive`: the shipped gate only, half the time). With `--workers 1` the plans share one
+`ClientPool` (Bullet clients reused from plan to plan, as a pool worker's are).
 
 `--against REV`: an A/B of `planning/predict.py` on a loaded machine. Each plan is made with the
 shipped gate twice on the one pool, once with the Predictor of git revision REV (the rest of the
@@ -63,6 +64,7 @@ def predictor_at(rev: str) -> type:
 def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
+    from shelfpick.planning.bullet_clients import ClientPool
     from shelfpick.planning.planner import make_plan
     from shelfpick.planning.predict import Predictor
     from shelfpick.planning.worker_pool import WorkerPool
@@ -96,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     pool = WorkerPool(a.workers, method=a.method) if a.workers > 1 else None
     if pool is not None:   # started before the first plan (as the console's are): no plan pays for it
         pool.give_back(pool.lease(a.workers))
+    clients = ClientPool() if pool is None else None   # one process: its clients serve every plan
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -111,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                         t0, c0 = time.perf_counter(), _cpu(pool)
                         # the Predictor make_plan would build (same samples, seed, workers, pool),
                         # built here so that its pull count can be read
-                        pred = make(hidden, 10, s, workers=a.workers, pool=pool)
+                        pred = make(hidden, 10, s, workers=a.workers, pool=pool, clients=clients)
                         try:
                             plan = make_plan(hidden, "extract", truth.ids[int(i)], "physics", 10, s,
                                              workers=a.workers, pool=pool, calibration=cal, predictor=pred)
@@ -123,12 +126,17 @@ def main(argv: list[str] | None = None) -> int:
                                      "plan_s": wall, "cpu_s": cpu, "worlds": search.get("verified_worlds"),
                                      "safe": plan.safe, "sequence": list(plan.sequence),
                                      "failed_worlds": search.get("plan_risk", {}).get("failed_worlds"),
+                                     "plan_risk": search.get("plan_risk"),
+                                     "predicted": [[x.box, x.collapse_prob, x.collision_prob, list(x.moved)]
+                                                   for x in plan.predicted],
                                      "pulls": pred.stats["pulls"], "search_pulls": search.get("pulls"),
                                      "oracle_calls": search.get("oracle_calls")})
                         print(json.dumps(rows[-1]), flush=True)
     finally:
         if pool is not None:
             pool.close()
+        if clients is not None:
+            clients.close()
     load1 = os.getloadavg()
     lines = [f"make_plan, extract on 10-14 box shelves, {a.workers} workers, {len(rows) // len(modes)} plans; "
              f"load average (1/5/15 min) {'/'.join(f'{x:.1f}' for x in load0)} at the start, "

@@ -95,8 +95,10 @@ def true_scene(cached: Path, kind: str, seed: int, n: int):
     return truth
 
 
-def timed_plan(hidden, task: str, target: str | None, seed: int, args: argparse.Namespace, config, pool):
-    """make_plan, with its own Predictor on the pool when there are workers; (plan, wall s, CPU s)."""
+def timed_plan(hidden, task: str, target: str | None, seed: int, args: argparse.Namespace, config, pool,
+               clients=None):
+    """make_plan, with its own Predictor on the pool when there are workers (else on `clients`, the
+    run's Bullet clients); (plan, wall s, CPU s)."""
     from shelfpick.planning.planner import make_plan
     from shelfpick.planning.predict import Predictor
 
@@ -106,7 +108,7 @@ def timed_plan(hidden, task: str, target: str | None, seed: int, args: argparse.
             if args.workers > 1 else None)
     try:
         plan = make_plan(hidden, task, target, "physics", args.samples, seed, risk=0.0, config=config,
-                         predictor=pred)
+                         predictor=pred, clients=clients)
     finally:
         if pred is not None:
             pred.close()
@@ -114,7 +116,7 @@ def timed_plan(hidden, task: str, target: str | None, seed: int, args: argparse.
 
 
 def scene_rows(item: tuple[str, str, str, int, int], args: argparse.Namespace, config, pool,
-               scene_dir: Path, out: Path) -> list[dict]:
+               scene_dir: Path, out: Path, clients=None) -> list[dict]:
     """Every target of one scene planned (timed) on the hidden-depth scene and executed on the truth."""
     import numpy as np
 
@@ -131,11 +133,13 @@ def scene_rows(item: tuple[str, str, str, int, int], args: argparse.Namespace, c
                [truth.ids[int(i)] for i in rng.choice(len(truth.ids), min(args.targets, len(truth.ids)), replace=False)])
     rows = []
     for t in targets:
-        plan, dt, dc = timed_plan(hidden, task, t, s, args, config, pool)
+        plan, dt, dc = timed_plan(hidden, task, t, s, args, config, pool, clients)
         ex = execute_plan(truth, plan.sequence, seed=s)   # the default physics: the truth
         row = {"group": g, "kind": kind, "seed": s, "n_boxes": n, "target": t,
                "plan_s": dt, "cpu_s": dc, "ok": bool(ex.ok), "removed": len(plan.sequence),
                "safe": plan.safe, "sequence": list(plan.sequence),
+               "plan_risk": plan.extra.get("search", {}).get("plan_risk"),
+               "predicted": [[x.box, x.collapse_prob, x.collision_prob, list(x.moved)] for x in plan.predicted],
                "oracle_calls": plan.extra.get("search", {}).get("oracle_calls")}
         rows.append(row)
         with open(out / "rows.jsonl", "a") as fh:   # what is done survives a stopped run
@@ -147,19 +151,23 @@ def run_work(work: list, args: argparse.Namespace, config, out: Path, scene_dir:
     """All scenes in turn (one worker pool for all of them when --workers > 1), with a progress bar."""
     from tqdm import tqdm
 
+    from shelfpick.planning.bullet_clients import ClientPool
     from shelfpick.planning.worker_pool import WorkerPool
 
     pool = WorkerPool(args.workers) if args.workers > 1 else None
+    clients = ClientPool() if pool is None else None   # one process: its clients serve every plan
     rows: list[dict] = []
     bar = tqdm(total=len(work), desc="plan speed", unit="scene")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for item in work:
-            rows += scene_rows(item, args, config, pool, scene_dir, out)
+            rows += scene_rows(item, args, config, pool, scene_dir, out, clients)
             bar.update()
     bar.close()
     if pool is not None:
         pool.close()
+    if clients is not None:
+        clients.close()
     return rows
 
 
