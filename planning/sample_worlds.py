@@ -41,7 +41,8 @@ class Draw:
 
 
 def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> dict[str, str]:
-    """Boxes of a freshly settled world that did not stand as they were given, with what they did.
+    """Boxes of a freshly settled world (nothing run in it since it was built) that did not stand
+    as they were given, with what they did.
 
     A box that drops straight down onto what is below it by up to `stand_drop` stood: the
     heights of the faces under it add up their measurement errors. Standing still is not
@@ -65,7 +66,7 @@ def contradictions(sim: ShelfSim, config: PhysicsConfig, knock: bool = True) -> 
             out[bid] = f"turns {a:.0f} deg while settling (more than {config.stand_rotation:.0f} deg)"
     if out or knock is False:
         return out
-    for bid, (d, a) in sim.nudge(config.stand_nudge).items():
+    for bid, (d, a) in sim.nudge(config.stand_nudge, now=sim.start_state).items():
         if d > config.stand_tolerance or a > config.stand_rotation:
             out[bid] = f"falls over at a small knock (moved {d:.2f} m, turned {a:.0f} deg): it cannot stand as seen"
     return out
@@ -267,7 +268,7 @@ class SampleWorlds:
                              frozenset() if i == 0 else self.known, self.clients)
             self.draws[i] = out[i] = d
             self.sims[i] = d.sim
-            self.states[i] = {frozenset(): d.sim.snapshot()}
+            self.states[i] = {frozenset(): d.sim.start_state}   # (knocked, then put back as built)
             if i == 0:
                 self.known = not_standing(d)
         return out
