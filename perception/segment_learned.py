@@ -202,7 +202,6 @@ class LearnedConfig:
     input_widths: tuple = ()       # several input widths: their maps, resized to the largest, averaged
     #                                (a carton too small at one width may be whole at the next; (): input_width)
     flip: bool = False             # average the softmax of the frame and of its mirror, mirrored back
-    #                                (the shipped file is read with it: `CHOSEN_AFTER_EXPORT`)
     interior_threshold: float = 0.5
     min_seed_px: int = 12          # interior components smaller than this (at 1/4 scale) are noise
     foreground_threshold: float = 0.5
@@ -412,22 +411,14 @@ class TorchNet:
         return out
 
 
-# Inference settings chosen on the tuning role after the shipped weights were exported: they
-# replace the checkpoint's own values (its export wrote `flip: false`). The mirror pass on RGB-D
-# frames: `labels` F1 +0.02 on 31000-31029 for 0.07 s CPU (docs/results/perception.md, h29).
-CHOSEN_AFTER_EXPORT = {"flip": True}
-
-
 def load_net(weights: str | Path, threads: int | None = 1) -> tuple[OnnxNet | TorchNet, LearnedConfig]:
     """The network and its inference settings: an `.onnx` file on ONNX Runtime (no torch), any
-    other file as a shelfpick-learned checkpoint on torch; `CHOSEN_AFTER_EXPORT` over either's config."""
+    other file as a shelfpick-learned checkpoint on torch."""
     if Path(weights).suffix.lower() == ".onnx":
-        net: OnnxNet | TorchNet = OnnxNet(weights, threads)
-        config = LearnedConfig.from_json(net.metadata.get("config", {}))
-    else:
-        model, config = load_model(weights)
-        net = TorchNet(model, threads)
-    return net, dataclasses.replace(config, **CHOSEN_AFTER_EXPORT)
+        net = OnnxNet(weights, threads)
+        return net, LearnedConfig.from_json(net.metadata.get("config", {}))
+    model, config = load_model(weights)
+    return TorchNet(model, threads), config
 
 
 class LearnedSegmenter:

@@ -17,7 +17,6 @@ import pytest
 from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.perception.segment_learned import (
-    CHOSEN_AFTER_EXPORT,
     LEARNED_ONNX,
     LEARNED_WEIGHTS,
     LearnedConfig,
@@ -68,15 +67,14 @@ def test_shipped_weights_load_without_network(monkeypatch):
     assert LEARNED_ONNX.is_file() and LEARNED_ONNX.stat().st_size <= 30 * 2 ** 20
     seg = LearnedSegmenter()
     assert seg.weights == str(LEARNED_ONNX) and type(seg.model).__name__ == "OnnxNet"
-    chosen = CHOSEN_AFTER_EXPORT     # inference settings chosen after the export (h29) replace the file's
-    assert seg.config == dataclasses.replace(LearnedConfig.from_json(seg.model.metadata["config"]), **chosen)
+    assert seg.config == LearnedConfig.from_json(seg.model.metadata["config"])
     if importlib.util.find_spec("torch") is None:
         return
     assert LEARNED_WEIGHTS.is_file() and LEARNED_WEIGHTS.stat().st_size <= 30 * 2 ** 20
     model, cfg = load_model(LEARNED_WEIGHTS)
     assert isinstance(cfg, LearnedConfig) and not model.training
     assert all(p.dtype.is_floating_point for p in model.parameters())
-    assert dataclasses.replace(cfg, **chosen) == seg.config    # the ONNX file carries the checkpoint's settings
+    assert cfg == seg.config                      # the ONNX file carries the checkpoint's settings
 
 
 def test_masks_of_a_render_have_its_shape_are_disjoint_and_repeat(rendered, segmenter):
@@ -180,7 +178,7 @@ def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segm
     off = seg.with_config(dataclasses.replace(seg.config, snap_iou=0.0)).segment(cap.rgb, cap.depth)
     assert seg.config.snap_iou > 0 and outlines_from_rules(seg.segment(cap.rgb, cap.depth)) >= 2
     assert outlines_from_rules(off) == 0
-    unset = dict(photo_input_widths=(), photo_flip=seg.config.flip, photo_interior_threshold=0.0, photo_min_seed_px=0)
+    unset = dict(photo_input_widths=(), photo_flip=False, photo_interior_threshold=0.0, photo_min_seed_px=0)
     photo = seg.with_config(dataclasses.replace(seg.config, **unset)).rgb_only().segment(cap.rgb, cap.depth)
     assert len(photo) == len(off) and all(np.array_equal(a, b) for a, b in zip(photo, off))
 
@@ -262,16 +260,16 @@ def test_an_instance_holding_two_rule_faces_is_split_into_them():
 
 def test_photo_settings_are_used_only_by_rgb_only(rendered, segmenter):
     """Issue 14 (photo inference settings): the photo widths, mirror averaging and thresholds
-    change what `rgb_only()` reads; the RGB-D path keeps `input_width`, its own mirror setting
-    (on since h29), the general thresholds, and the same masks as with no photo settings at all."""
+    change what `rgb_only()` reads; the RGB-D path keeps `input_width`, no mirror, the general
+    thresholds, and the same masks as with no photo settings at all."""
     scene, cap = rendered
     plain = segmenter.bind(cap.camera, scene.shelf)
-    none = dataclasses.replace(plain.config, photo_input_widths=(), photo_flip=True, photo_interior_threshold=0.0,
+    none = dataclasses.replace(plain.config, photo_input_widths=(), photo_flip=False, photo_interior_threshold=0.0,
                                photo_min_seed_px=0)
     cfg = dataclasses.replace(none, photo_input_widths=(320, 480), photo_flip=True, photo_interior_threshold=0.7,
                               photo_min_seed_px=24)
     seg = plain.with_config(cfg)
-    assert (seg.config.input_width, seg.config.input_widths, seg.config.flip) == (480, (), True)
+    assert (seg.config.input_width, seg.config.input_widths, seg.config.flip) == (480, (), False)
     photo = seg.rgb_only()
     c = photo.config
     assert (c.input_widths, c.flip, c.interior_threshold, c.min_seed_px) == ((320, 480), True, 0.7, 24)
@@ -281,32 +279,7 @@ def test_photo_settings_are_used_only_by_rgb_only(rendered, segmenter):
     assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
     assert plain.with_config(none).rgb_only().config == none               # unset: photos as before
     shipped = LearnedConfig()
-    assert (shipped.input_width, shipped.input_widths, shipped.flip) == (480, (), False)  # a config's own default
-
-
-def test_rgbd_frames_are_read_with_their_mirror_whatever_the_export_says(rendered, segmenter):
-    """Issue 31 (h29): an RGB-D frame is read at one width with its mirror averaged in (chosen on
-    the tuning look `labels` after the shipped file was exported with `flip: false`): two network
-    passes a frame, and the map is the mean of the plain and the mirrored pass."""
-    scene, cap = rendered
-    from shelfpick.perception.segment_learned import LEARNED_ONNX, OnnxNet
-
-    assert OnnxNet(LEARNED_ONNX, 1).metadata["config"]["flip"] is False    # what the export wrote
-    assert segmenter.config.flip is True
-    seg = segmenter.bind(cap.camera, scene.shelf)
-    calls = []
-    real = seg.model
-
-    def counting(x):
-        calls.append(x.shape)
-        return real(x)
-
-    seg.model = counting
-    seg.segment(cap.rgb, cap.depth)
-    assert len(calls) == 2 and calls[0] == calls[1]
-    plain = segmenter.with_config(dataclasses.replace(segmenter.config, flip=False)).probabilities(cap.rgb)
-    mirror = segmenter.with_config(dataclasses.replace(segmenter.config, flip=False)).probabilities(cap.rgb[:, ::-1])
-    assert np.allclose(segmenter.probabilities(cap.rgb), (plain + mirror[:, :, ::-1]) / 2, atol=1e-5)
+    assert (shipped.input_width, shipped.input_widths, shipped.flip) == (480, (), False)   # RGB-D as before
 
 
 def test_mirror_averaging_is_mirror_symmetric_and_repeats(segmenter):
