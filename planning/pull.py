@@ -18,7 +18,7 @@ from typing import Iterable, Protocol, runtime_checkable
 
 from shelfpick.perception.scene import Quat, Vec3, quat_to_matrix, xyzw_to_wxyz
 from shelfpick.planning.bullet_clients import Client
-from shelfpick.planning.geometry3 import dist, matvec, rot_angle_deg
+from shelfpick.planning.geometry3 import dist, matvec, norm, rot_angle_deg
 from shelfpick.planning.physics import PhysicsConfig
 from shelfpick.planning.step_result import Frame, StepResult
 
@@ -67,29 +67,23 @@ class CollapseMonitor:
         p, cfg = self.p, self.cfg
         pose, velocity = p.getBasePositionAndOrientation, p.getBaseVelocity
         rest_v, rest_w = cfg.rest_velocity, cfg.rest_angular_velocity
-        onset_d, onset_v, sqrt = cfg.onset_displacement, cfg.onset_velocity, math.sqrt
-        others, start, onset, collapse_at = self.others, self.start, self.onset, self.collapse_at
         moving = False
-        # geometry3's norm, dist and rot_angle_deg inlined (the same arithmetic, bit for bit): this
-        # loop runs for every other box at every other step of every pull
         for k, ob in enumerate(self.bodies):
-            bid = others[k]
+            bid = self.others[k]
             lin, ang = velocity(ob)
-            v = sqrt(lin[0] * lin[0] + lin[1] * lin[1] + lin[2] * lin[2])
-            w = sqrt(ang[0] * ang[0] + ang[1] * ang[1] + ang[2] * ang[2])
+            v = norm(lin)
+            w = norm(ang)
             if v > rest_v or w > rest_w:
                 moving = True
-            if bid in collapse_at:
+            if bid in self.collapse_at:
                 continue     # (its pose is no longer read: a query, it changes nothing)
             pos, orn = pose(ob)
-            p0, q0 = start[k]
-            d = sqrt((pos[0] - p0[0]) ** 2 + (pos[1] - p0[1]) ** 2 + (pos[2] - p0[2]) ** 2)
-            if bid not in onset and (d > onset_d or v > onset_v):
-                onset[bid] = step
-            c = abs(orn[0] * q0[0] + orn[1] * q0[1] + orn[2] * q0[2] + orn[3] * q0[3])
-            if self._certain(k, d, math.degrees(2.0 * math.acos(min(1.0, c))), v, w):
-                collapse_at[bid] = step
-                onset.setdefault(bid, step)
+            d = dist(pos, self.start[k][0])
+            if bid not in self.onset and (d > cfg.onset_displacement or v > cfg.onset_velocity):
+                self.onset[bid] = step
+            if self._certain(k, d, rot_angle_deg(orn, self.start[k][1]), v, w):
+                self.collapse_at[bid] = step
+                self.onset.setdefault(bid, step)
         return moving
 
     def _certain(self, k: int, d: float, a: float, v: float, w: float) -> bool:

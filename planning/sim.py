@@ -235,27 +235,13 @@ class ShelfSim:
         self.sim_time += self.config.time_step
 
     def _settle(self, max_time: float) -> bool:
-        """Step until every box on the shelf rests for `rest_window`; False if it never does.
-
-        The same test as `_moving(first=True)` after each step, inlined (the parked and frozen
-        boxes cannot change while it runs): a third of a settle's time was that call's Python.
-        """
+        """Step until every box on the shelf rests for `rest_window`; False if it never does."""
         cfg = self.config
         need = max(1, int(round(cfg.rest_window / cfg.time_step)))
-        rest_v, rest_w, sqrt = cfg.rest_velocity, cfg.rest_angular_velocity, math.sqrt
-        velocity, step_simulation, dt = self._p.getBaseVelocity, self._p.stepSimulation, cfg.time_step
-        bodies = [self._body[b] for b in self._ids if b not in self._parked and b not in self._frozen]
         calm = 0
-        for _ in range(int(math.ceil(max_time / dt))):
-            step_simulation()
-            self.sim_time += dt
-            calm += 1
-            for body in bodies:
-                v, w = velocity(body)
-                if (sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) > rest_v
-                        or sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) > rest_w):
-                    calm = 0
-                    break
+        for _ in range(int(math.ceil(max_time / cfg.time_step))):
+            self.step()
+            calm = calm + 1 if not self._moving(first=True) else 0
             if calm >= need:
                 return True
         return False
