@@ -11,6 +11,8 @@ from typing import Any, Callable
 
 # faults injected, robot steps that ran unapproved or unrecorded (0), stops that did not stop (0)
 TALLY = {"faults": 0, "unapproved": 0, "unrecorded": 0, "stops": 0, "stops_not_stopping": 0}
+# the TCP driver against hostile peers (test_faults_robot.py): "unapproved" counts steps sent after a fault
+ROBOT_TALLY = {"faults": 0, "unapproved": 0, "unrecorded": 0, "stops": 0, "stops_not_stopping": 0}
 
 
 def fault(n: int = 1) -> None:

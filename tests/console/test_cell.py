@@ -255,7 +255,7 @@ def test_the_console_plans_with_the_cells_priors_and_threshold(tmp_path):
     args = build_parser().parse_args(["console", "--cell", str(write_cell(tmp_path, text)), "--port", "0",
                                       "--no-capture", "--samples", "2", "--supervisor-passphrase", PASS])
     parts = cmd_console.build(args)
-    wf, store = parts[1], parts[2]
+    app, wf, store = parts[:3]
     try:
         assert wf.priors.max_plan_risk == 0.02 and wf.priors.model().pull_modes == ("lift",)
         wf.source = CodeShelfSource(small_scene())
@@ -264,5 +264,5 @@ def test_the_console_plans_with_the_cells_priors_and_threshold(tmp_path):
         search = wf.state.plans["physics"].plan.extra["search"]
         assert search["max_plan_risk"] == 0.02 and search["plan_risk"]["max_plan_risk"] == 0.02
     finally:
-        wf.close()
+        app.stop()          # (and the workflow with it)
         store.close()

@@ -5,7 +5,7 @@ Each peer is a thread with a real listening socket on 127.0.0.1 that follows a
 script: it disconnects mid-step, stalls, lies (wrong plan, wrong or missing
 step, a `done` for a step never sent, a duplicate `done`), floods (blank
 lines, huge lines, pings) or puts markup in its `error` text. Every case
-counts into a tally printed at the end of the module: faults injected, steps
+counts into a tally printed at the end of the run (safety_kit.ROBOT_TALLY): faults injected, steps
 that reached the peer after its fault (unapproved) or that the outcome does not
 account for (unrecorded), and stops that did not stop; all but the first must
 be 0.
@@ -20,6 +20,7 @@ from typing import Callable
 
 import pytest
 
+from safety_kit import ROBOT_TALLY as TALLY
 from shelfpick.console.robot.drivers import RobotEvent
 from shelfpick.console.robot.tcp import LineConn, ProtocolError, Timeouts, TcpRobot
 from shelfpick.console.robot.base import StepHistory
@@ -28,7 +29,6 @@ from shelfpick.planning.plan import Plan
 
 FAST = Timeouts(connect=2.0, ack=1.0, step=2.0, heartbeat_interval=0.1, heartbeat_timeout=0.6, abort=0.5)
 BOUND = 4.0  # s: the slowest fault (a stalled step) ends at step timeout + abort; nothing may take longer
-TALLY = {"faults": 0, "unapproved": 0, "unrecorded": 0, "stops": 0, "stops_not_stopping": 0}
 
 
 def row_scene() -> Scene:
@@ -38,19 +38,6 @@ def row_scene() -> Scene:
 
 PLAN = Plan("clear", None, "physics", ("b0", "b1", "b2", "b3"))
 H = PLAN.content_hash()
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _tally(request):
-    yield
-    rep = request.config.pluginmanager.get_plugin("terminalreporter")
-    capture = request.config.pluginmanager.get_plugin("capturemanager")
-    line = ("robot fault injection: {faults} faults injected, {unapproved} steps sent after a fault, "
-            "{unrecorded} steps unrecorded, {stops} stops of which {stops_not_stopping} did not stop"
-            ).format(**TALLY)
-    if rep is not None and capture is not None and TALLY["faults"]:
-        with capture.global_and_fixture_disabled():
-            rep.write_line("\n" + line)
 
 
 # --------------------------------------------------------------------------

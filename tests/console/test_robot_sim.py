@@ -160,8 +160,8 @@ def test_the_console_stores_and_shows_the_robot_world_repairs_escaped(tmp_path) 
     from test_workflow import PASS, sim_factory
 
     store = SessionStore(tmp_path / "repairs.sqlite")
+    wf = Workflow(_FloatingTruthSource(), store, sim_factory(), PASS, samples=2, seed=0)
     try:
-        wf = Workflow(_FloatingTruthSource(), store, sim_factory(), PASS, samples=2, seed=0)
         wf.capture()
         st = wf.plan("clear", wait=True)
         entry = st.plans["physics"]
@@ -171,6 +171,7 @@ def test_the_console_stores_and_shows_the_robot_world_repairs_escaped(tmp_path) 
         st = wf.wait_robot(30)
         stored = [e for e in store.load_session(st.session_id).robot_events if e["kind"] == "note"]
     finally:
+        wf.close()
         store.close()
     notes = [e for e in st.robot_events if e.kind == "note"]
     assert len(notes) == 1 and len(stored) == 1

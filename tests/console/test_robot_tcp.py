@@ -363,15 +363,18 @@ def test_the_console_records_the_run_id_it_sends_and_a_new_capture_runs_again(tm
         wf = Workflow(CodeShelfSource(small_scene()), store,
                       lambda truth, seed: open_robot(ctl.url, truth=truth, seed=seed), PASS, samples=2)
         done = []
-        for _ in range(2):
-            wf.capture()
-            st = wf.plan("clear", wait=True)
-            entry = st.plans["physics"]
-            wf.approve(entry.hash, PASS, "sue", accept_risk=True)
-            st = wf.execute(wait=True)
-            st = wf.wait_robot(30)
-            assert st.robot == "done", (st.error, st.outcome)
-            done.append((st.session_id, entry.hash))
+        try:
+            for _ in range(2):
+                wf.capture()
+                st = wf.plan("clear", wait=True)
+                entry = st.plans["physics"]
+                wf.approve(entry.hash, PASS, "sue", accept_risk=True)
+                st = wf.execute(wait=True)
+                st = wf.wait_robot(30)
+                assert st.robot == "done", (st.error, st.outcome)
+                done.append((st.session_id, entry.hash))
+        finally:
+            wf.close()
         steps = ctl.received("step")
     assert done[0][1] == done[1][1] and done[0][0] != done[1][0]
     recorded = []

@@ -414,15 +414,18 @@ def _check_new_run(peer):
         store = SessionStore(Path(d) / "n.sqlite")
         wf = Workflow(CodeShelfSource(small_scene()), store,
                       lambda truth, seed: open_robot(peer.url, truth=truth, seed=seed), PASS, samples=2)
-        st1, e1 = run_once(wf)
-        assert st1.robot == "done" and len(peer.steps) == 3
-        fault()
-        st2, e2 = run_once(wf)
-        assert e2.hash == e1.hash and st2.session_id != st1.session_id
-        assert st2.robot == "done" and st2.outcome.ok and len(peer.steps) == 6     # the robot was asked
-        assert [s[2] for s in peer.steps[3:]] == [0, 1, 2]
-        judge_session(store, st2.session_id, [(e2.hash, i) for i in range(3)])
-        store.close()
+        try:
+            st1, e1 = run_once(wf)
+            assert st1.robot == "done" and len(peer.steps) == 3
+            fault()
+            st2, e2 = run_once(wf)
+            assert e2.hash == e1.hash and st2.session_id != st1.session_id
+            assert st2.robot == "done" and st2.outcome.ok and len(peer.steps) == 6     # the robot was asked
+            assert [s[2] for s in peer.steps[3:]] == [0, 1, 2]
+            judge_session(store, st2.session_id, [(e2.hash, i) for i in range(3)])
+        finally:
+            wf.close()
+            store.close()
 
 
 @pytest.mark.parametrize("fault_kind", ["refuse", "drop_after_ack"])
@@ -434,6 +437,7 @@ def test_after_an_error_or_unknown_step_a_new_capture_sends_again(tmp_path, faul
     # first connection: step 0 done, then step 1 refused / acknowledged and the link drops
     peer = HonestPeer(script=lambda conn, step: fault_kind if conn == 0 and step == 1 else "ok")
     store = SessionStore(tmp_path / "e.sqlite")
+    wf = None
     try:
         wf = Workflow(CodeShelfSource(small_scene()), store,
                       lambda truth, seed: open_robot(peer.url, truth=truth, seed=seed), PASS, samples=2)
@@ -448,6 +452,8 @@ def test_after_an_error_or_unknown_step_a_new_capture_sends_again(tmp_path, faul
         assert st2.robot == "done", (st2.error, st2.outcome)
         assert [s[2] for s in peer.steps if s[0] >= 1] == [0, 1, 2]     # step 0 sent again
     finally:
+        if wf is not None:
+            wf.close()
         peer.close()
         store.close()
 
@@ -480,6 +486,7 @@ def test_step_states_survive_a_restart_and_an_unknown_step_refuses_only_that_cap
     with pytest.raises(WorkflowError, match=r"step 2 \(b1\) .* unknown outcome for this capture"):
         wf._steps_before(run)
     assert wf._steps_before(RunLock(h, PlanEntry(plan, h), sid2, 0, "sue")) == {}
+    wf.close()
     s.close()
 
 
