@@ -68,6 +68,26 @@ def summary(rows: Sequence[dict], max_risk: float, z: float = 1.2816) -> dict:
             "mean_fail_share_held": round(sum(r["fails"] / r["draws"] for r in held) / max(1, len(held)), 3)}
 
 
+def expected_sides(rows: Sequence[dict], max_rate: float) -> dict:
+    """The issue's two gate figures in expectation over the masses, each plan failing with its share
+    p of failing draws: the share of "safe" plans that collapse is their mean p, the share of
+    holding plans declared safe is the sum of (1 - p) over "safe" plans over that sum over all.
+    The oracle knows every p and calls safe the lowest-p plans while their mean p stays within
+    `max_rate` (an aggregate bound, as the issue states its target, not a bound on each plan);
+    "ours" is the gate of the judge run the rows carry (`declared_safe`)."""
+    ps = sorted(r["fails"] / r["draws"] for r in rows)
+    hold = sum(1 - p for p in ps) or float("nan")
+    k = 0
+    while k < len(ps) and sum(ps[:k + 1]) <= max_rate * (k + 1):
+        k += 1
+    ours = [r["fails"] / r["draws"] for r in rows if r["declared_safe"]]
+    return {"expected_holding": round(hold, 1),
+            "oracle_safe": k, "oracle_collapse_share": round(sum(ps[:k]) / k, 3) if k else float("nan"),
+            "oracle_held_safe_share": round(sum(1 - p for p in ps[:k]) / hold, 3),
+            "ours_collapse_share": round(sum(ours) / len(ours), 3) if ours else float("nan"),
+            "ours_held_safe_share": round(sum(1 - p for p in ours) / hold, 3)}
+
+
 def regate(ceiling: Sequence[dict], rows_path: str) -> list[dict]:
     """The ceiling rows with the verdicts of another judge run of the same plans (its declared_safe,
     risk and ok); a UsageError when a plan's sequence differs (then its mass draws are not its own)."""
@@ -199,6 +219,7 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
         s["declared_safe_mean_fail_share"] = round(sum(safe) / len(safe), 3) if safe else float("nan")
         s["declared_safe_low_risk_held"] = sum(1 for r in got if r["declared_safe"] and r["ok"] and r["fails"] <= a.max_risk * r["draws"])
         s["gate_auc_on_mass_draws"] = gate_auc(got, a.max_risk)
+        s.update(expected_sides(got, a.max_risk))
     if a.png:
         plot(got, a.png, a.max_risk)
     print(json.dumps(s))
@@ -215,6 +236,9 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
         print(f"the ideal risk (share of failing mass draws): AUC {s['ideal_auc']}, calibration error "
               f"{s['ideal_calibration_error']}; a perfectly calibrated risk on these {len(got)} plans shows a "
               f"calibration error of {med} by chance alone (5-95%: {p5}-{p95})")
+        print(f"in expectation over the masses: a gate that knew each plan's share calls {s['oracle_safe']} safe, "
+              f"{s['oracle_collapse_share']:.1%} of them collapse, {s['oracle_held_safe_share']:.1%} of holding plans "
+              f"declared safe; this run's gate: {s['ours_collapse_share']:.1%} and {s['ours_held_safe_share']:.1%}")
     return 0
 
 

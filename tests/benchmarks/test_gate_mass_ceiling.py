@@ -36,6 +36,18 @@ def test_the_summary_counts_plans_safe_on_their_geometry_on_both_sides():
     assert s["low_risk_failed_on_judge"] == 0
 
 
+def test_expected_sides_let_an_oracle_average_a_risky_plan_in_with_quiet_ones():
+    """Two plans that never fail and one failing in 2 of 20 draws: the oracle may call all three
+    safe (mean 1/30 <= 5 %), not a fourth failing in 10 of 20; this run's gate, calling the quiet
+    two and the half-failing one safe, averages 1/6."""
+    rows = [_row(True, True, 0), _row(True, True, 0), _row(True, False, 2), _row(False, True, 10)]
+    e = gm.expected_sides(rows, 0.05)
+    assert e["oracle_safe"] == 3 and e["oracle_collapse_share"] == round(0.1 / 3, 3)
+    assert e["expected_holding"] == 3.4 and e["oracle_held_safe_share"] == round(2.9 / 3.4, 3)
+    assert e["ours_collapse_share"] == round(0.5 / 3, 3) and e["ours_held_safe_share"] == round(2.5 / 3.4, 3)
+    assert gm.expected_sides(rows[3:], 0.05)["oracle_safe"] == 0
+
+
 def test_bad_arguments_exit_2(capsys, tmp_path: Path) -> None:
     assert gm.main(["--rows", str(tmp_path / "missing.jsonl")]) == 2
     assert "cannot read judge rows" in capsys.readouterr().err
