@@ -76,6 +76,20 @@ def settle(wf, view, timeout=10.0):
     raise AssertionError("the state kept changing")
 
 
+def choose(view, planner: str, plan_hash: str) -> None:
+    """The supervisor picks `planner` once it is offered, and until the view reviews it: a render of
+    new plans rewrites the dropdown's options and keeps the choice it had, so a pick made in the same
+    instant can come back to the old one (the page then shows, and approves, that one); pick again."""
+    def reviewed() -> bool:
+        if planner not in view.approve_plan.options:
+            return False
+        if view.approve_plan.value != planner:
+            view.approve_plan.value = planner
+        return view.supervisor.reviewed == (planner, plan_hash)
+
+    until(reviewed, 10, f"the plan under review ({planner})")
+
+
 def shown(markdown: str) -> str:
     """What the browser shows of a markdown text (entities decoded, word joiners dropped)."""
     return html.unescape(markdown).replace("\u2060", "")
@@ -87,8 +101,7 @@ def approve_and_run(wf, view, planner: str = "physics"):
     assert view.operator.answer.content == "_Plan clearance: started._"
     st = until(lambda: not wf.state.planning and wf.state.plans.get(planner) and wf.state, 60, "plans")
     entry = st.plans[planner]
-    view.approve_plan.value = planner
-    until(lambda: view.supervisor.reviewed == (planner, entry.hash), 10, "the plan under review")
+    choose(view, planner, entry.hash)
     view.passphrase.value = PASS
     view.accept_risk.value = not entry.plan.safe or bool(entry.plan.extra.get("continues"))
     view._approve(None)
@@ -168,8 +181,7 @@ def test_the_decisions_table_names_the_planner_and_shows_outside_text_literally(
     wf.plan("clear", wait=True)
     st = wf.state
     heur = st.plans["heuristic"]
-    view.approve_plan.value = "heuristic"
-    until(lambda: view.supervisor.reviewed == ("heuristic", heur.hash), 10, "the plan under review")
+    choose(view, "heuristic", heur.hash)
     view.who.value = MARKUP[:80]                        # names are cut at 80 characters
     view.reason.value = "b1 would fall"
     view.passphrase.value = "not the passphrase"
