@@ -81,11 +81,15 @@ def expected_sides(rows: Sequence[dict], max_rate: float) -> dict:
     while k < len(ps) and sum(ps[:k + 1]) <= max_rate * (k + 1):
         k += 1
     ours = [r["fails"] / r["draws"] for r in rows if r["declared_safe"]]
+    risks = [r["risk"] for r in rows if r.get("risk") is not None]
+    floor = [r["fails"] / r["draws"] for r in rows if risks and r.get("risk") == min(risks)]
     return {"expected_holding": round(hold, 1),
             "oracle_safe": k, "oracle_collapse_share": round(sum(ps[:k]) / k, 3) if k else float("nan"),
             "oracle_held_safe_share": round(sum(1 - p for p in ps[:k]) / hold, 3),
-            "ours_collapse_share": round(sum(ours) / len(ours), 3) if ours else float("nan"),
-            "ours_held_safe_share": round(sum(1 - p for p in ours) / hold, 3)}
+            "oracle_largest_share": ps[k - 1] if k else float("nan"),
+            "ours_held_safe_share": round(sum(1 - p for p in ours) / hold, 3),
+            # the plans at our risk's lowest value (the map's floor): their mean share of failing draws
+            "floor_plans": len(floor), "floor_mean_share": round(sum(floor) / len(floor), 3) if floor else float("nan")}
 
 
 def regate(ceiling: Sequence[dict], rows_path: str) -> list[dict]:
@@ -238,7 +242,9 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
               f"calibration error of {med} by chance alone (5-95%: {p5}-{p95})")
         print(f"in expectation over the masses: a gate that knew each plan's share calls {s['oracle_safe']} safe, "
               f"{s['oracle_collapse_share']:.1%} of them collapse, {s['oracle_held_safe_share']:.1%} of holding plans "
-              f"declared safe; this run's gate: {s['ours_collapse_share']:.1%} and {s['ours_held_safe_share']:.1%}")
+              f"declared safe (the largest share among them {s['oracle_largest_share']:.0%}); this run's gate: "
+              f"{s['declared_safe_mean_fail_share']:.1%} and {s['ours_held_safe_share']:.1%}; the {s['floor_plans']} "
+              f"plans at its lowest risk fail in {s['floor_mean_share']:.1%} of the draws")
     return 0
 
 

@@ -38,13 +38,16 @@ def test_the_summary_counts_plans_safe_on_their_geometry_on_both_sides():
 
 def test_expected_sides_let_an_oracle_average_a_risky_plan_in_with_quiet_ones():
     """Two plans that never fail and one failing in 2 of 20 draws: the oracle may call all three
-    safe (mean 1/30 <= 5 %), not a fourth failing in 10 of 20; this run's gate, calling the quiet
-    two and the half-failing one safe, averages 1/6."""
+    safe (mean 1/30 <= 5 %), not a fourth failing in 10 of 20; the plans at the lowest risk, two
+    quiet ones and the half-failing one, fail in 1/6 of the draws."""
     rows = [_row(True, True, 0), _row(True, True, 0), _row(True, False, 2), _row(False, True, 10)]
     e = gm.expected_sides(rows, 0.05)
     assert e["oracle_safe"] == 3 and e["oracle_collapse_share"] == round(0.1 / 3, 3)
     assert e["expected_holding"] == 3.4 and e["oracle_held_safe_share"] == round(2.9 / 3.4, 3)
-    assert e["ours_collapse_share"] == round(0.5 / 3, 3) and e["ours_held_safe_share"] == round(2.5 / 3.4, 3)
+    assert e["oracle_largest_share"] == 0.1 and e["ours_held_safe_share"] == round(2.5 / 3.4, 3)
+    lowest = [dict(r, risk=x) for r, x in zip(rows, (0.01, 0.01, 0.2, 0.01))]
+    assert (gm.expected_sides(lowest, 0.05)["floor_plans"], gm.expected_sides(lowest, 0.05)["floor_mean_share"]) \
+        == (3, round(0.5 / 3, 3))
     assert gm.expected_sides(rows[3:], 0.05)["oracle_safe"] == 0
 
 
