@@ -95,16 +95,22 @@ def _touched(plan: Plan, key: str = "unexplained") -> list[str] | None:
 
 def _plan_risk(plan: Plan) -> str:
     """The plan's calibrated chance of a collapse, its interval and the cell's threshold (issue 32):
-    the plan is safe when the interval's upper end is below the threshold."""
+    the plan is safe when the interval's upper end is below the threshold. Then the evidence behind
+    it, the gate's worlds in which some step failed: the map can call a plan safe that collapsed in
+    a few of them (it is fitted on a gripper that lifts), and the supervisor should see that."""
     search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
     g = search.get("plan_risk")
     if not isinstance(g, dict):
         return "—"
     try:
         p, hi, limit = (100.0 * float(g[k]) for k in ("probability", "high", "max_plan_risk"))
-        return f"{p:.1f}% (up to {hi:.1f}%; threshold {limit:.1f}%)"
     except (KeyError, TypeError, ValueError):
         return "—"
+    text = f"{p:.1f}% (up to {hi:.1f}%; threshold {limit:.1f}%)"
+    k, n = g.get("failed_worlds"), g.get("worlds")
+    if all(isinstance(x, int) and not isinstance(x, bool) for x in (k, n)) and 0 <= k <= n and n > 0:
+        text += f"; failed in {k} of {n} sample worlds"
+    return text
 
 
 def _worlds(plan: Plan) -> str:

@@ -23,4 +23,23 @@ def test_the_table_shows_the_calibrated_risk_and_the_threshold():
     md = results_markdown(State(plans={"physics": PlanEntry(gated, gated.content_hash()),
                                        "heuristic": PlanEntry(old, old.content_hash())}))
     row = _rows(md)["chance of a collapse (calibrated)"]
-    assert row == ["1.2% (up to 3.1%; threshold 5.0%)", "—"]
+    assert row == ["1.2% (up to 3.1%; threshold 5.0%); failed in 0 of 20 sample worlds", "—"]
+
+
+def test_the_table_shows_worlds_that_failed_behind_a_safe_verdict():
+    """A plan the map calls safe although some of the gate's worlds collapsed says how many (the
+    lifting map puts up to 2 of 10 and 4 of 20 on its floor: docs/results/risk-gate.md)."""
+    from shelfpick.console.web.markdown import results_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
+
+    def plan(gate: dict) -> Plan:
+        return Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0", 0.15),), True, {"planning_s": 1.0}, 0,
+                    {"search": {"worlds": 10, "verified_worlds": 20, "max_plan_risk": 0.05, "plan_risk": gate}})
+
+    risk = {"probability": 0.0086, "low": 0.0086, "high": 0.028, "max_plan_risk": 0.05}
+    shown = plan({**risk, "failed_worlds": 3, "worlds": 20})
+    odd = plan({**risk, "failed_worlds": 30, "worlds": 20})       # a count that cannot be: not shown
+    md = results_markdown(State(plans={"physics": PlanEntry(shown, shown.content_hash()),
+                                       "heuristic": PlanEntry(odd, odd.content_hash())}))
+    assert _rows(md)["chance of a collapse (calibrated)"] == [
+        "0.9% (up to 2.8%; threshold 5.0%); failed in 3 of 20 sample worlds", "0.9% (up to 2.8%; threshold 5.0%)"]
