@@ -76,6 +76,13 @@ def contact_conditions(mass: tuple[float, float]) -> dict[str, tuple[dict, bool]
             "+ contact friction 0.6-0.9": ({**pinned, "friction": (lo, hi)}, False)}
 
 
+def mode_conditions() -> dict[str, tuple[dict, bool]]:
+    """The default cell with its gripper's pull known: drag only, lift only (and as shipped, lift or
+    drag), depths hidden, 20 worlds of the shelf's own seed (not the search's). Added with `--add modes`."""
+    return {"default cell (all of them)": ({}, True), "default cell, drag only": ({"pull_modes": ("drag",)}, True),
+            "default cell, lift only": ({"pull_modes": ("lift",)}, True)}
+
+
 def drawn_masses(n: int, seed: int, draw: int, mass: tuple[float, float]) -> list[float]:
     rng = random.Random(f"world-ablation:{seed}:{draw}")
     return [round(rng.uniform(*mass), 4) for _ in range(n)]
@@ -90,7 +97,9 @@ def _fails_of(predictor, sequence: Sequence[str], worlds: int) -> list[bool]:
     return [any(world_failed(rs[i]) for rs in runs) for i in range(n)]
 
 
-def reference_fails(truth_json: dict, unit: dict, engine: str) -> list[bool]:
+def reference_fails(truth_json: dict, unit: dict, engine: str, detail: list | None = None) -> list[bool]:
+    """Per mass draw: did the plan fail on the reference? With `detail`, each failing draw's first
+    failing step is appended to it (step index, the pulled box, the boxes that moved, an error)."""
     judge = judge_fn(engine)
     plan = {"format": "shelfpick.plan/1", "task": "extract", "target": unit["target"],
             "planner": "physics", "sequence": unit["sequence"]}
@@ -98,7 +107,13 @@ def reference_fails(truth_json: dict, unit: dict, engine: str) -> list[bool]:
     for d in range(unit["draws"]):
         ms = drawn_masses(len(truth_json["boxes"]), unit["seed"], d, unit["mass"])
         boxes = [{**b, "mass": m} for b, m in zip(truth_json["boxes"], ms)]
-        out.append(not judge({**truth_json, "boxes": boxes}, plan)["ok"])
+        v = judge({**truth_json, "boxes": boxes}, plan)
+        out.append(not v["ok"])
+        if detail is not None and not v["ok"]:
+            bad = [(i, e) for i, e in enumerate(v.get("steps", [])) if e.get("collapse") or e.get("error")]
+            i, e = bad[0] if bad else (None, {})
+            detail.append({"draw": d, "step": i, "pulled": e.get("id"), "moved": e.get("moved", []),
+                           "error": e.get("error"), "max_disp": e.get("max_disp"), "max_rot_deg": e.get("max_rot_deg")})
     return out
 
 
@@ -135,18 +150,30 @@ def condition_fails(truth, unit: dict, overrides: dict, hide: bool) -> list[bool
         return []
 
 
+GATE_ONLY = ("pinned physics, our masses", "+ depths hidden", "+ lift or drag")
+
+
 def run_unit(unit: dict) -> dict:
-    """One plan: its reference and our conditions' per-world failures."""
+    """One plan: its reference and our conditions' per-world failures. With `gate_only`, the
+    reference's failing draws in detail, the gate's own worlds (seed 0: 0-9 the search's, 10-19 the
+    gate's) and the few conditions that tell physics from priors (GATE_ONLY)."""
     from shelfpick.perception.scene import Scene
 
     warnings.simplefilter("ignore")
     truth_json = json.loads(unit["truth"])
     truth = Scene.from_json(truth_json)
     row = {k: unit[k] for k in ("shelf", "target", "sequence", "draws", "declared_safe")}
-    row["reference"] = {e: reference_fails(truth_json, unit, e) for e in unit["engines"]}
+    detail: list = []
+    row["reference"] = {e: reference_fails(truth_json, unit, e, detail if e == unit["engines"][0] else None)
+                        for e in unit["engines"]}
+    row["reference_detail"] = detail
     row["pinned"] = pinned_fails(truth, unit)
-    row["conditions"] = {name: condition_fails(truth, unit, ov, hide)
-                         for name, (ov, hide) in conditions(tuple(unit["mass"])).items()}
+    conds = conditions(tuple(unit["mass"]))
+    if unit.get("gate_only"):
+        conds = {k: conds[k] for k in GATE_ONLY}
+    row["conditions"] = {name: condition_fails(truth, unit, ov, hide) for name, (ov, hide) in conds.items()}
+    if unit.get("gate_only"):   # 20 worlds at least: the search's ten and the gate's first ten
+        row["conditions"][SEARCH] = condition_fails(truth, {**unit, "seed": 0, "draws": max(20, unit["draws"])}, {}, True)
     return row
 
 
@@ -197,7 +224,7 @@ def plan_units(a: argparse.Namespace) -> list[dict]:
                 units.append({"shelf": f"{kind}-{s}", "target": target, "sequence": list(plan.sequence),
                               "truth": json.dumps(truth.to_json()), "draws": a.draws, "mass": list(a.mass),
                               "seed": s, "engines": a.engines, "judge_dir": a.judge,
-                              "declared_safe": bool(plan.safe)})
+                              "declared_safe": bool(plan.safe), "gate_only": a.gate_only})
     return units
 
 
@@ -236,6 +263,8 @@ def gate_windows(rows: Sequence[dict], max_risk: float = 0.05) -> list[dict]:
     windows = {"the search's own, 0-9": lambda r: r["conditions"][SEARCH][:10],
                "the next ten, 10-19": lambda r: r["conditions"][SEARCH][10:20],
                "20 of another seed": lambda r: r["conditions"]["default cell (all of them)"][:20]}
+    if "default cell (all of them)" not in rows[0]["conditions"]:    # --gate-only rows
+        del windows["20 of another seed"]
     out = []
     for name, pick in windows.items():
         for eng in rows[0]["reference"]:
@@ -253,6 +282,30 @@ def gate_windows(rows: Sequence[dict], max_risk: float = 0.05) -> list[dict]:
             out.append({"window": name, "engine": eng, "plans": len(got), "safe": len(safe),
                         "safe_mean_ref": _mean(safe), "auc": round(auc, 3),
                         "quiet_safe": sum(1 for _, s, ref in got if s and ref <= max_risk), "quiet": len(neg)})
+    return out
+
+
+def by_gate_failures(rows: Sequence[dict]) -> list[dict]:
+    """Rows with the gate's own worlds (`--gate-only`, `--add search`), grouped by how many of the
+    gate's first ten (10-19) failed: plans, declared safe, the shipped map's chance for that count,
+    and the reference's mean failing share (first engine). Does the count still rank the plans the
+    map gives one chance?"""
+    from shelfpick.planning.calibration import calibration_for
+    from shelfpick.planning.uncertainty import Uncertainty
+
+    cal = calibration_for(Uncertainty().pull_modes)
+    groups: dict[int, list[dict]] = {}
+    for r in rows:
+        w = [x for x in r["conditions"][SEARCH][10:20] if x is not None]
+        if w:
+            groups.setdefault(sum(w), []).append(r)
+    out = []
+    for k in sorted(groups):
+        g = groups[k]
+        ref = [sum(r["reference"][next(iter(r["reference"]))]) / len(r["reference"][next(iter(r["reference"]))]) for r in g]
+        out.append({"failed_of_10": k, "plans": len(g), "declared_safe": sum(r["declared_safe"] for r in g),
+                    "map_chance": round(cal.probability(k, 10), 4), "reference_mean": _mean(ref),
+                    "reference_over_5pct": sum(x > 0.05 for x in ref)})
     return out
 
 
@@ -286,6 +339,11 @@ def report(rows: Sequence[dict], png: str | None) -> None:
         for g in gate_windows(rows):
             print(f"| {g['window']} | {g['engine']} | {g['safe']}/{g['plans']} | {g['safe_mean_ref']} | {g['auc']} | "
                   f"{g['quiet_safe']}/{g['quiet']} |")
+        print("\nBy the gate's failing worlds of its first ten (10-19): plans, declared safe, the map's chance for "
+              "that count, the reference's mean failing share, plans it fails in > 5% of draws:")
+        for g in by_gate_failures(rows):
+            print(f"| {g['failed_of_10']} | {g['plans']} | {g['declared_safe']} | {g['map_chance']} | "
+                  f"{g['reference_mean']} | {g['reference_over_5pct']} |")
     if png:
         plot(rows, png)
 
@@ -320,10 +378,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", required=True)
     ap.add_argument("--from-rows", action="store_true")
+    ap.add_argument("--gate-only", action="store_true",
+                    help="the reference in detail, the gate's own worlds and the conditions of GATE_ONLY only "
+                         "(where the gate calls a plan quiet that the reference fails: physics or priors?)")
     ap.add_argument("--png")
-    ap.add_argument("--add", choices=("contact", "mujoco", "search"),
-                    help="merge into the rows in --out: the contact-friction conditions, MuJoCo's reference, or "
-                         "the default cell in the worlds the plan was searched in (seed 0: the first 10 chose it)")
+    ap.add_argument("--add", choices=("contact", "mujoco", "search", "modes"),
+                    help="merge into the rows in --out: the contact-friction conditions, MuJoCo's reference, "
+                         "the default cell in the worlds the plan was searched in (seed 0: the first 10 chose it), "
+                         "or the default cell with its pull known (drag only, lift only)")
     a = ap.parse_args(argv)
     try:
         lo, hi = (int(x) for x in a.seeds.split("-"))
@@ -351,7 +413,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if a.add:
         old = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()]
-        extra = contact_conditions(tuple(a.mass)) if a.add == "contact" else a.add
+        extra = contact_conditions(tuple(a.mass)) if a.add == "contact" else \
+            mode_conditions() if a.add == "modes" else a.add
         units = [{"shelf": r["shelf"], "row": r, "add": extra, "sequence": r["sequence"], "draws": r["draws"],
                   "seed": int(r["shelf"].rsplit("-", 1)[1]), "judge_dir": a.judge, "mass": list(a.mass)} for r in old]
         rows = list(tqdm(iter_rows(units, a.jobs, add_unit), total=len(units), desc="plans", file=sys.stderr))

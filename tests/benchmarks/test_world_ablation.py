@@ -79,3 +79,41 @@ def test_gate_windows_read_the_search_worlds_and_the_ones_after_apart():
     assert got["the search's own, 0-9"]["safe"] == 2          # no failing world among the search's
     assert got["the next ten, 10-19"]["safe"] == 0            # every later one fails
     assert got["the search's own, 0-9"]["safe_mean_ref"] == 0.5 and got["the next ten, 10-19"]["quiet"] == 1
+
+
+def test_by_gate_failures_groups_plans_by_the_failing_worlds_of_the_gates_first_ten():
+    def row(gate_fails: int, ref_fails: int, safe: bool) -> dict:
+        worlds = [False] * 10 + [True] * gate_fails + [False] * (10 - gate_fails)
+        return {"reference": {"pybullet": [True] * ref_fails + [False] * (20 - ref_fails)},
+                "conditions": {wa.SEARCH: worlds}, "declared_safe": safe}
+
+    rows = [row(0, 0, True), row(0, 2, True), row(3, 8, True), row(3, 0, False)]
+    got = {g["failed_of_10"]: g for g in wa.by_gate_failures(rows)}
+    assert set(got) == {0, 3}
+    assert got[0]["plans"] == 2 and got[0]["declared_safe"] == 2 and got[0]["reference_mean"] == 0.05
+    assert got[3]["reference_mean"] == 0.2 and got[3]["reference_over_5pct"] == 1 and got[3]["declared_safe"] == 1
+    assert got[0]["map_chance"] <= got[3]["map_chance"]        # the shipped map, monotone in the count
+
+
+def test_mode_conditions_pin_only_the_pull_of_the_default_cell():
+    c = wa.mode_conditions()
+    assert c["default cell, drag only"] == ({"pull_modes": ("drag",)}, True)
+    assert c["default cell, lift only"] == ({"pull_modes": ("lift",)}, True)
+    assert c["default cell (all of them)"] == wa.conditions((0.5, 3.0))["default cell (all of them)"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (JUDGE / "judge.py").is_file(), reason="the independent judge is not beside the project")
+def test_gate_only_rows_carry_the_gates_worlds_and_the_references_failing_draws(tmp_path: Path, capsys):
+    if str(JUDGE) not in sys.path:
+        sys.path.insert(0, str(JUDGE))
+    out = tmp_path / "rows.jsonl"
+    argv = ["--kinds", "structured", "--seeds", "41000-41000", "--targets", "1", "--draws", "2", "--gate-only",
+            "--mass", "0.5", "3", "--judge", str(JUDGE), "--out", str(out)]
+    assert wa.main(argv) == 0
+    (row,) = [json.loads(x) for x in out.read_text().splitlines()]
+    assert set(row["conditions"]) == set(wa.GATE_ONLY) | {wa.SEARCH}
+    assert len(row["conditions"][wa.SEARCH]) == 20            # the search's ten and the gate's first ten
+    assert len(row["reference_detail"]) == sum(row["reference"]["pybullet"])
+    assert all(d["pulled"] in row["sequence"] for d in row["reference_detail"])
+    assert "By the gate's failing worlds" in capsys.readouterr().out
