@@ -131,6 +131,8 @@ def _truth_model(pull: str, noise: float, seed: int):
 
     if pull == "drag":
         return TruthModel(noise=noise)
+    if pull == "hold":
+        return TruthModel(noise=noise, pull_hold=True)
     return TruthModel(noise=noise, pull_lift=round(random.Random(seed).uniform(0.003, 0.008), 4))
 
 
@@ -218,8 +220,10 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--targets", type=int, default=3, help="plan targets per shelf")
     c.add_argument("--noise", default="0,0.01")
     c.add_argument("--jobs", type=int, default=1)
-    c.add_argument("--truth-pull", choices=("drag", "lift"), default="drag",
-                   help="how the truth's gripper pulls: drag (no lift, the bench's) or lift (3-8 mm first)")
+    c.add_argument("--truth-pull", choices=("drag", "hold", "lift"), default="drag",
+                   help="how the truth's gripper pulls: drag (no lift, the box rides on its support, its height "
+                        "free: the bench's), hold (no lift, the arm holds its height: the worlds' drag) or lift "
+                        "(3-8 mm first)")
     c.add_argument("--pull-modes", default=None,
                    help="the sample worlds' pull modes, comma-separated (default: the planner's, lift,drag)")
     c.add_argument("--kinds", default=",".join(KINDS), help="shelf kinds, comma-separated")

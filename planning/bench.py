@@ -113,7 +113,7 @@ def draw_truth(truth: "Scene", model: TruthModel, seed: int) -> tuple["Scene", "
     config = PhysicsConfig(lateral_friction=float(rng.uniform(*model.friction)),
                            pull_speed=float(rng.uniform(*model.pull_speed)),
                            pull_force=float(rng.uniform(*model.pull_force)),
-                           pull_lift=model.pull_lift)
+                           pull_lift=model.pull_lift, pull_hold=model.pull_hold)
     return truth.with_boxes(boxes), config
 
 

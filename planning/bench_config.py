@@ -27,6 +27,10 @@ class TruthModel:
     pull_speed: tuple[float, float] = (0.15, 0.35)        # m/s (the planner assumes 0.5)
     pull_force: tuple[float, float] = (100.0, 200.0)      # N
     pull_lift: float = 0.0                                # m: a drag, no lift
+    # with no lift: False, the box rides on its support, its height free (the bench's truth since
+    # the start, harsher than the worlds' "drag"); True, the arm holds its height as the worlds'
+    # "drag" does (a stiff suction arm pulling straight out)
+    pull_hold: bool = False
     stand_tolerance: float = 0.015                        # m a true box may move while the truth settles
     draws: int = 6                                        # truth draws tried before a scene is given up
 

@@ -166,6 +166,10 @@ def _quiet_outcomes(rows: Sequence[tuple[int, int, bool, bool]], quiet: Sequence
 # more lenient (-2.11 + 2.55 logit, floor 0.0053): on the judge's engines that map declared safe 9
 # more plans at noise 0, 7 of them failing in a fifth or more of the judge's mass draws, so it is
 # not shipped (docs/results/risk-gate.md, "The lifting map refitted on the gate's worlds").
+# Session 46 fitted the default cell (lift or drag) against a truth that lifts on half the shelves
+# and drags at a held height on the other (-0.40 + 1.92 logit, floor 0.0094): on the judge it
+# declared safe 12 of 41 holding plans where this map declares 27, and ranked no better, so it is
+# not shipped either (docs/results/risk-gate.md, "What the floor hides").
 LIFT = Calibration(intercept=-1.5905, slope=2.9350, not_standing=-0.2324,
                    minimum=0.0086, minimum_high=0.0280,
                    fitted_on="bench, truth lifting: 210 plans on 16 shelf views (docs/results/risk-calibration-lift.json)")

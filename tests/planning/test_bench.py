@@ -252,6 +252,10 @@ def test_truth_draw_is_seeded_keeps_given_masses_and_drags() -> None:
     again, physics2 = draw_truth(scene, model, 7)
     assert again.to_json() == world.to_json() and physics2 == physics
     assert draw_truth(scene, model, 8)[1] != physics
+    # the bench's drag lets the box ride on its support; `pull_hold` holds its height, as the worlds' drag does
+    assert physics.pull_hold is False
+    _, held = draw_truth(scene, TruthModel(pull_hold=True), 7)
+    assert held.pull_hold is True and held.lateral_friction == physics.lateral_friction
 
 
 def test_true_world_refuses_a_shelf_that_cannot_stand() -> None:
