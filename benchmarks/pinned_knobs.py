@@ -1,0 +1,105 @@
+"""Where our pinned worlds fail a plan the judge's engine holds: which physics setting of ours is it?
+
+Reads rows of `world_ablation.py` (`--gate-only` or full) made on OUR OWN shelves. For every plan
+the reference (the judge's engine, imported by world_ablation, never copied) holds in all its mass
+draws, each draw in which our pinned world (the same masses, the reference's pull and friction)
+fails is run again under variants of our physics settings (`VARIANTS`: the time step, the seeded
+vibration, the end-of-step threshold, the force limit, the gripper's body, the speed ramp, ...). A
+variant that turns most of these failures into holds is a difference of our physics from the
+reference's; none doing so says the difference is deeper (the contact model, the shelf, settling).
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/pinned_knobs.py ROWS.jsonl [ROWS.jsonl ...] [--limit 20]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Sequence
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+_JUDGE_LIKE = {"time_step": 1 / 240, "disturbance": 0.0, "disturbance_force": 0.0, "collapse_displacement": 0.03,
+               "pull_force_weights": 1000.0, "pull_margin": 0.05}
+VARIANTS: dict[str, dict] = {
+    "as is": {},
+    "time step 1/240 s": {"time_step": 1 / 240},
+    "no vibration": {"disturbance": 0.0, "disturbance_force": 0.0},
+    "end threshold 3 cm": {"collapse_displacement": 0.03},
+    "force limit 150 N whatever the weight": {"pull_force_weights": 1000.0},
+    "no gripper body": {"gripper_size": (0.001, 0.001, 0.001)},
+    "no speed ramp": {"pull_ramp": 0.0},
+    "all of the above but the body and ramp": _JUDGE_LIKE,
+}
+
+
+def false_alarms(rows: Sequence[dict], limit: int) -> list[tuple[dict, int]]:
+    """(row, draw) for each draw our pinned world fails of a plan the reference holds in every draw."""
+    out = []
+    for r in rows:
+        ref = r["reference"][next(iter(r["reference"]))]
+        if any(ref):
+            continue
+        out += [(r, d) for d, f in enumerate(r["pinned"]) if f]
+    return out[:limit]
+
+
+def run_draw(row: dict, draw: int, mass: tuple[float, float]) -> dict[str, bool]:
+    """Per variant: does our pinned world fail this draw?"""
+    from benchmarks import world_ablation as wa
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.predict import Predictor
+    from shelfpick.planning.shelves import generate
+    from shelfpick.planning.uncertainty import Uncertainty
+
+    ref = wa.REF
+    model = replace(Uncertainty(), mass=(0.0, 0.0), friction=(ref["friction"],) * 2,
+                    pull_speed=(ref["pull_speed"],) * 2, pull_force=(ref["pull_force"],) * 2,
+                    pull_modes=(ref["mode"],), face_error=0.0)
+    kind, seed = row["shelf"].rsplit("-", 1)
+    truth = generate(kind, int(seed), settle=True)
+    ms = wa.drawn_masses(len(truth.boxes), int(seed), draw, mass)
+    scene = replace(truth, boxes=tuple(replace(b, mass=m) for b, m in zip(truth.boxes, ms)))
+    got = {}
+    for name, changes in VARIANTS.items():
+        with Predictor(scene, samples=1, seed=int(seed) + draw, model=model,
+                       config=replace(PhysicsConfig(), **changes)) as p:
+            got[name] = bool(wa._fails_of(p, row["sequence"], 1)[0])
+    return got
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rows", nargs="+")
+    ap.add_argument("--limit", type=int, default=40, help="at most this many failing draws")
+    ap.add_argument("--mass", type=float, nargs=2, default=(0.5, 3.0), metavar=("LOW", "HIGH"),
+                    help="the mass range the rows were made with (world_ablation's --mass)")
+    a = ap.parse_args(argv)
+    rows = []
+    for path in a.rows:
+        try:
+            rows += [json.loads(x) for x in Path(path).read_text().splitlines() if x.strip()]
+        except (OSError, ValueError) as exc:
+            print(f"error: {path}: {exc}", file=sys.stderr)
+            return 2
+    warnings.simplefilter("ignore")
+    todo = false_alarms(rows, a.limit)
+    tally = {name: 0 for name in VARIANTS}
+    for row, draw in todo:
+        got = run_draw(row, draw, tuple(a.mass))
+        for name, failed in got.items():
+            tally[name] += failed
+        print(f"{row['shelf']} {row['target']} draw {draw}: " +
+              "; ".join(f"{n}: {'fails' if f else 'holds'}" for n, f in got.items()), flush=True)
+    print(f"\n{len(todo)} draws our pinned worlds fail of plans the reference holds in every draw; still failing under:")
+    for name, n in tally.items():
+        print(f"| {name} | {n} of {len(todo)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
