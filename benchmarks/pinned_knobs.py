@@ -8,7 +8,10 @@ vibration, the end-of-step threshold, the force limit, the gripper's body, the s
 variant that turns most of these failures into holds is a difference of our physics from the
 reference's; none doing so says the difference is deeper (the contact model, the shelf, settling).
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/pinned_knobs.py ROWS.jsonl [ROWS.jsonl ...] [--limit 20]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/pinned_knobs.py ROWS.jsonl [ROWS.jsonl ...] [--limit 20] [--mujoco]
+
+`--mujoco` also runs each draw on the judge's other engine (MuJoCo, the same masses and pull): a
+draw it fails is one the judge's own two engines disagree on.
 """
 from __future__ import annotations
 
@@ -72,12 +75,31 @@ def run_draw(row: dict, draw: int, mass: tuple[float, float]) -> dict[str, bool]
     return got
 
 
+def mujoco_fails(row: dict, draw: int, mass: tuple[float, float], judge_dir: str) -> bool:
+    """The judge's MuJoCo engine on the true shelf with this draw's masses: does the plan fail?"""
+    from benchmarks import world_ablation as wa
+    from shelfpick.planning.shelves import generate
+
+    if judge_dir not in sys.path:
+        sys.path.insert(0, judge_dir)
+    from benchmarks.judge_rows import judge_fn
+
+    kind, seed = row["shelf"].rsplit("-", 1)
+    truth = generate(kind, int(seed), settle=True).to_json()
+    ms = wa.drawn_masses(len(truth["boxes"]), int(seed), draw, mass)
+    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": row["target"], "planner": "physics",
+            "sequence": row["sequence"]}
+    return not judge_fn("mujoco")({**truth, "boxes": [{**b, "mass": m} for b, m in zip(truth["boxes"], ms)]}, plan)["ok"]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rows", nargs="+")
     ap.add_argument("--limit", type=int, default=40, help="at most this many failing draws")
     ap.add_argument("--mass", type=float, nargs=2, default=(0.5, 3.0), metavar=("LOW", "HIGH"),
                     help="the mass range the rows were made with (world_ablation's --mass)")
+    ap.add_argument("--mujoco", action="store_true", help="also the judge's MuJoCo engine on each draw")
+    ap.add_argument("--judge", default=str(ROOT.parent / "shared" / "judge"))
     a = ap.parse_args(argv)
     rows = []
     for path in a.rows:
@@ -89,8 +111,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.simplefilter("ignore")
     todo = false_alarms(rows, a.limit)
     tally = {name: 0 for name in VARIANTS}
+    if a.mujoco:
+        tally["the judge's MuJoCo engine"] = 0
     for row, draw in todo:
         got = run_draw(row, draw, tuple(a.mass))
+        if a.mujoco:
+            got["the judge's MuJoCo engine"] = mujoco_fails(row, draw, tuple(a.mass), a.judge)
         for name, failed in got.items():
             tally[name] += failed
         print(f"{row['shelf']} {row['target']} draw {draw}: " +

@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import fields
 from pathlib import Path
 
-from bench_scripts import load
+import pytest
+from bench_scripts import JUDGE, load
 
 pk = load("pinned_knobs")
 
@@ -30,3 +31,19 @@ def test_every_variant_changes_settings_our_physics_has():
 def test_a_missing_rows_file_exits_2(tmp_path: Path, capsys):
     assert pk.main([str(tmp_path / "none.jsonl")]) == 2
     assert "none.jsonl" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not (JUDGE / "judge_mujoco.py").is_file(), reason="the independent judge is not beside the project")
+def test_one_draw_on_the_judges_mujoco_engine_uses_that_draws_masses():
+    """The same verdict as world_ablation's reference for that draw (the same masses, the same shelf)."""
+    import sys
+
+    from shelfpick.planning.shelves import generate
+
+    wa = load("world_ablation")
+    if str(JUDGE) not in sys.path:
+        sys.path.insert(0, str(JUDGE))
+    row = {"shelf": "structured-41000", "target": "b0", "sequence": ["b0"]}
+    unit = {"target": "b0", "sequence": ["b0"], "draws": 2, "seed": 41000, "mass": (0.5, 3.0)}
+    ref = wa.reference_fails(generate("structured", 41000, settle=True).to_json(), unit, "mujoco")
+    assert [pk.mujoco_fails(row, d, (0.5, 3.0), str(JUDGE)) for d in (0, 1)] == ref
