@@ -68,6 +68,19 @@ def summary(rows: Sequence[dict], max_risk: float, z: float = 1.2816) -> dict:
             "mean_fail_share_held": round(sum(r["fails"] / r["draws"] for r in held) / max(1, len(held)), 3)}
 
 
+def expected_auc(risks: Sequence[float], shares: Sequence[float]) -> float:
+    """The AUC a risk scores in expectation over the masses, each plan failing with its share p of
+    failing draws: over pairs of plans, the chance that the one that collapses carries more risk."""
+    num = den = 0.0
+    for i, (ri, pi) in enumerate(zip(risks, shares)):
+        for j, (rj, pj) in enumerate(zip(risks, shares)):
+            if i != j:
+                w = pi * (1 - pj)
+                den += w
+                num += w * (1.0 if ri > rj else 0.5 if ri == rj else 0.0)
+    return round(num / den, 3) if den else float("nan")
+
+
 def expected_sides(rows: Sequence[dict], max_rate: float) -> dict:
     """The issue's two gate figures in expectation over the masses, each plan failing with its share
     p of failing draws: the share of "safe" plans that collapse is their mean p, the share of
@@ -77,8 +90,9 @@ def expected_sides(rows: Sequence[dict], max_rate: float) -> dict:
     "ours" is the gate of the judge run the rows carry (`declared_safe`)."""
     ps = sorted(r["fails"] / r["draws"] for r in rows)
     hold = sum(1 - p for p in ps) or float("nan")
-    k = 0
-    while k < len(ps) and sum(ps[:k + 1]) <= max_rate * (k + 1):
+    k, total = 0, 0.0
+    while k < len(ps) and total + ps[k] <= max_rate * (k + 1):
+        total += ps[k]
         k += 1
     ours = [r["fails"] / r["draws"] for r in rows if r["declared_safe"]]
     risks = [r["risk"] for r in rows if r.get("risk") is not None]
@@ -88,13 +102,17 @@ def expected_sides(rows: Sequence[dict], max_rate: float) -> dict:
             "oracle_held_safe_share": round(sum(1 - p for p in ps[:k]) / hold, 3),
             "oracle_largest_share": ps[k - 1] if k else float("nan"),
             "ours_held_safe_share": round(sum(1 - p for p in ours) / hold, 3),
+            "ours_expected_auc": expected_auc([r["risk"] for r in rows if r.get("risk") is not None],
+                                              [r["fails"] / r["draws"] for r in rows if r.get("risk") is not None]),
             # the plans at our risk's lowest value (the map's floor): their mean share of failing draws
             "floor_plans": len(floor), "floor_mean_share": round(sum(floor) / len(floor), 3) if floor else float("nan")}
 
 
-def regate(ceiling: Sequence[dict], rows_path: str) -> list[dict]:
-    """The ceiling rows with the verdicts of another judge run of the same plans (its declared_safe,
-    risk and ok); a UsageError when a plan's sequence differs (then its mass draws are not its own)."""
+def regate(ceiling: Sequence[dict], rows_path: str, verdicts: bool = True) -> list[dict]:
+    """The ceiling rows of the plans another judge run has, with its verdicts (declared_safe, risk
+    and ok; with `verdicts` False, the rows' own: only the plans are taken, to compare two runs over
+    the tasks a shorter one reached); a UsageError when a plan's sequence differs (then its mass
+    draws are not its own)."""
     try:
         rows = {(r["scene"], r["target"]): r for r in map(json.loads, Path(rows_path).read_text().splitlines())}
     except (OSError, json.JSONDecodeError, KeyError) as exc:
@@ -106,7 +124,7 @@ def regate(ceiling: Sequence[dict], rows_path: str) -> list[dict]:
             continue
         if r.get("sequence") != c["sequence"]:
             raise UsageError(f"{rows_path}: {c['scene']}:{c['target']} was planned differently; judge its plans again")
-        out.append({**c, "declared_safe": r["declared_safe"], "risk": r.get("risk"), "ok": r["ok"]})
+        out.append({**c, "declared_safe": r["declared_safe"], "risk": r.get("risk"), "ok": r["ok"]} if verdicts else c)
     return out
 
 
@@ -171,6 +189,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", help="write one row per plan here (JSON lines)")
     ap.add_argument("--from-rows", action="store_true", help="judge nothing: summarize the rows in --out")
     ap.add_argument("--png", help="draw each plan's failing share by gate verdict and judge outcome")
+    ap.add_argument("--plans-of", help="with --from-rows: only the plans this judge run has (verdicts kept)")
     ap.add_argument("--gate-rows", help="with --from-rows: score the gate of this judge run (same plans, e.g. a "
                                         "later run whose sequences are the same) against the mass draws in --out")
     a = ap.parse_args(argv)
@@ -190,6 +209,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not a.out:
                 raise UsageError("--from-rows: needs --out, the rows to summarize")
             got = [json.loads(line) for line in Path(a.out).read_text().splitlines() if line.strip()]
+            if a.plans_of:
+                got = regate(got, a.plans_of, verdicts=False)
             if a.gate_rows:
                 got = regate(got, a.gate_rows)
             return report(got, a)
@@ -243,8 +264,9 @@ def report(got: Sequence[dict], a: argparse.Namespace) -> int:
         print(f"in expectation over the masses: a gate that knew each plan's share calls {s['oracle_safe']} safe, "
               f"{s['oracle_collapse_share']:.1%} of them collapse, {s['oracle_held_safe_share']:.1%} of holding plans "
               f"declared safe (the largest share among them {s['oracle_largest_share']:.0%}); this run's gate: "
-              f"{s['declared_safe_mean_fail_share']:.1%} and {s['ours_held_safe_share']:.1%}; the {s['floor_plans']} "
-              f"plans at its lowest risk fail in {s['floor_mean_share']:.1%} of the draws")
+              f"{s['declared_safe_mean_fail_share']:.1%} and {s['ours_held_safe_share']:.1%}, its risk's expected AUC "
+              f"{s['ours_expected_auc']}; the {s['floor_plans']} plans at its lowest risk fail in "
+              f"{s['floor_mean_share']:.1%} of the draws")
     return 0
 
 

@@ -97,17 +97,25 @@ def _fails_of(predictor, sequence: Sequence[str], worlds: int) -> list[bool]:
     return [any(world_failed(rs[i]) for rs in runs) for i in range(n)]
 
 
+def masses_of(boxes: Sequence, seed: int, draw: int, mass: tuple[float, float]) -> list[float]:
+    """The masses of draw `draw` for these boxes (the same for the reference and our pinned world)."""
+    return drawn_masses(len(boxes), seed, draw, mass)
+
+
+def reference_verdict(truth_json: dict, unit: dict, engine: str, draw: int) -> dict:
+    """The judge's verdict (`engine`) on the plan of `unit` on the true shelf with draw `draw`'s masses."""
+    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": unit["target"],
+            "planner": "physics", "sequence": unit["sequence"]}
+    ms = masses_of(truth_json["boxes"], unit["seed"], draw, unit["mass"])
+    return judge_fn(engine)({**truth_json, "boxes": [{**b, "mass": m} for b, m in zip(truth_json["boxes"], ms)]}, plan)
+
+
 def reference_fails(truth_json: dict, unit: dict, engine: str, detail: list | None = None) -> list[bool]:
     """Per mass draw: did the plan fail on the reference? With `detail`, each failing draw's first
     failing step is appended to it (step index, the pulled box, the boxes that moved, an error)."""
-    judge = judge_fn(engine)
-    plan = {"format": "shelfpick.plan/1", "task": "extract", "target": unit["target"],
-            "planner": "physics", "sequence": unit["sequence"]}
     out = []
     for d in range(unit["draws"]):
-        ms = drawn_masses(len(truth_json["boxes"]), unit["seed"], d, unit["mass"])
-        boxes = [{**b, "mass": m} for b, m in zip(truth_json["boxes"], ms)]
-        v = judge({**truth_json, "boxes": boxes}, plan)
+        v = reference_verdict(truth_json, unit, engine, d)
         out.append(not v["ok"])
         if detail is not None and not v["ok"]:
             bad = [(i, e) for i, e in enumerate(v.get("steps", [])) if e.get("collapse") or e.get("error")]
@@ -117,24 +125,32 @@ def reference_fails(truth_json: dict, unit: dict, engine: str, detail: list | No
     return out
 
 
-def pinned_fails(truth, unit: dict) -> list[bool | None]:
-    """Our worlds, one per reference draw: the true shelf with that draw's masses, all else pinned."""
-    from shelfpick.planning.predict import Predictor
+def pinned_model():
+    """Our worlds pinned to the reference: its friction and pull, no face error, the masses given."""
     from shelfpick.planning.uncertainty import Uncertainty
 
-    model = replace(Uncertainty(), mass=(0.0, 0.0), friction=(REF["friction"],) * 2,
-                    pull_speed=(REF["pull_speed"],) * 2, pull_force=(REF["pull_force"],) * 2,
-                    pull_modes=(REF["mode"],), face_error=0.0)
-    out = []
-    for d in range(unit["draws"]):
-        ms = drawn_masses(len(truth.boxes), unit["seed"], d, unit["mass"])
-        scene = replace(truth, boxes=tuple(replace(b, mass=m) for b, m in zip(truth.boxes, ms)))
-        try:
-            with Predictor(scene, samples=1, seed=unit["seed"] + d, model=model) as p:
-                out.append(_fails_of(p, unit["sequence"], 1)[0])
-        except SceneError:     # this draw's shelf does not come to rest in our world: no verdict
-            out.append(None)
-    return out
+    return replace(Uncertainty(), mass=(0.0, 0.0), friction=(REF["friction"],) * 2,
+                   pull_speed=(REF["pull_speed"],) * 2, pull_force=(REF["pull_force"],) * 2,
+                   pull_modes=(REF["mode"],), face_error=0.0)
+
+
+def pinned_fail(truth, unit: dict, draw: int, config=None) -> bool | None:
+    """Our pinned world of draw `draw` (the true shelf with that draw's masses; `config`: our physics
+    settings, default ours): did the plan fail? None when the shelf does not come to rest there."""
+    from shelfpick.planning.predict import Predictor
+
+    ms = masses_of(truth.boxes, unit["seed"], draw, unit["mass"])
+    scene = replace(truth, boxes=tuple(replace(b, mass=m) for b, m in zip(truth.boxes, ms)))
+    try:
+        with Predictor(scene, samples=1, seed=unit["seed"] + draw, model=pinned_model(), config=config) as p:
+            return _fails_of(p, unit["sequence"], 1)[0]
+    except SceneError:     # this draw's shelf does not come to rest in our world: no verdict
+        return None
+
+
+def pinned_fails(truth, unit: dict) -> list[bool | None]:
+    """Our worlds, one per reference draw: the true shelf with that draw's masses, all else pinned."""
+    return [pinned_fail(truth, unit, d) for d in range(unit["draws"])]
 
 
 def condition_fails(truth, unit: dict, overrides: dict, hide: bool) -> list[bool]:
@@ -309,6 +325,37 @@ def by_gate_failures(rows: Sequence[dict]) -> list[dict]:
     return out
 
 
+def in_expectation(rows: Sequence[dict]) -> dict:
+    """Over the reference's mass draws (first engine), each plan failing with its share p: the
+    expected AUC of each risk (a condition's failing share of worlds, the pinned worlds', the gate's
+    first ten, the shipped gate's verdict); the shipped gate's "safe" plans, their mean p and the
+    share of holding plans they make up; of the reference's failing draws on "safe" plans with p
+    over 5 %, how many our pinned world also fails; and per draw, where the two disagree."""
+    from benchmarks.gate_mass_ceiling import expected_auc
+
+    def share(f: Sequence[bool | None]) -> float:
+        got = [x for x in f if x is not None]
+        return sum(got) / len(got) if got else 1.0      # no world built: the gate refuses, the worst risk
+
+    ref = [r["reference"][next(iter(r["reference"]))] for r in rows]
+    ps = [sum(f) / len(f) for f in ref]
+    risks = {"pinned (same masses)": [share(r["pinned"]) for r in rows]}
+    risks.update({name: [share(r["conditions"][name]) for r in rows] for name in (rows[0]["conditions"] if rows else ())})
+    if rows and SEARCH in rows[0]["conditions"]:
+        risks["the gate's first ten worlds (10-19)"] = [share(r["conditions"][SEARCH][10:20]) for r in rows]
+    risks["the shipped gate's verdict"] = [0.0 if r["declared_safe"] else 1.0 for r in rows]
+    safe = [p for r, p in zip(rows, ps) if r["declared_safe"]]
+    hold = sum(1 - p for p in ps)
+    missed = [(r, f) for r, f, p in zip(rows, ref, ps) if r["declared_safe"] and p > 0.05]
+    pairs = [(a, b) for r, f in zip(rows, ref) for a, b in zip(r["pinned"], f) if a is not None]
+    return {"auc": {k: expected_auc(v, ps) for k, v in risks.items()},
+            "safe": len(safe), "safe_mean_share": _mean(safe),
+            "held_safe_share": round(sum(1 - p for p in safe) / hold, 3) if hold else float("nan"),
+            "risky_safe_plans": len(missed), "their_failing_draws": sum(sum(f) for _, f in missed),
+            "also_failing_pinned": sum(1 for r, f in missed for a, b in zip(r["pinned"], f) if a and b),
+            "only_ours_fail": sum(1 for a, b in pairs if a and not b), "only_reference_fails": sum(1 for a, b in pairs if b and not a)}
+
+
 def _mean(xs) -> float:
     xs = [x for x in xs if x is not None]
     return round(sum(xs) / len(xs), 3) if xs else float("nan")
@@ -344,6 +391,14 @@ def report(rows: Sequence[dict], png: str | None) -> None:
         for g in by_gate_failures(rows):
             print(f"| {g['failed_of_10']} | {g['plans']} | {g['declared_safe']} | {g['map_chance']} | "
                   f"{g['reference_mean']} | {g['reference_over_5pct']} |")
+    e = in_expectation(rows)
+    print(f"\nIn expectation over the reference's draws: the gate calls {e['safe']} safe, failing in "
+          f"{e['safe_mean_share']:.1%} of draws, {e['held_safe_share']:.0%} of the holding plans; of the "
+          f"{e['their_failing_draws']} failing draws of its {e['risky_safe_plans']} 'safe' plans over 5 %, our pinned "
+          f"worlds fail {e['also_failing_pinned']}; per draw, only ours fail {e['only_ours_fail']}, only the "
+          f"reference {e['only_reference_fails']}. Expected AUC of each risk:")
+    for name, auc in e["auc"].items():
+        print(f"| {name} | {auc} |")
     if png:
         plot(rows, png)
 

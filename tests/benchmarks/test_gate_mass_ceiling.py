@@ -99,3 +99,25 @@ def test_another_run_of_the_same_plans_is_scored_on_the_same_draws(tmp_path: Pat
                                  "declared_safe": True, "risk": 0.01}) + "\n")
     with pytest.raises(gm.UsageError, match="planned differently"):
         gm.regate(ceiling, str(later))
+
+
+def test_expected_auc_weighs_each_pair_by_the_chance_that_one_collapses_and_the_other_holds():
+    # a plan that always fails above one that never does: 1; the same risk: a tie, 0.5; reversed: 0
+    assert gm.expected_auc([0.9, 0.1], [1.0, 0.0]) == 1.0
+    assert gm.expected_auc([0.5, 0.5], [1.0, 0.0]) == 0.5
+    assert gm.expected_auc([0.1, 0.9], [1.0, 0.0]) == 0.0
+    # two plans that never fail: no pair to score
+    assert gm.expected_auc([0.1, 0.2], [0.0, 0.0]) != gm.expected_auc([0.1, 0.2], [0.0, 0.0])
+    # shares 0.5 and 0: the pair counts with weight 0.5 * 1 one way, 0 * 0.5 the other
+    assert gm.expected_auc([0.2, 0.1], [0.5, 0.0]) == 1.0
+
+
+def test_plans_of_keeps_the_rows_own_verdicts_for_the_plans_another_run_reached(tmp_path: Path):
+    ceiling = [{"scene": "s00", "target": t, "sequence": [t], "ok": True, "declared_safe": True, "risk": 0.01,
+                "fails": 0, "draws": 20} for t in ("b0", "b1", "b2")]
+    other = tmp_path / "partial.jsonl"
+    other.write_text(json.dumps({"scene": "s00", "target": "b1", "sequence": ["b1"], "ok": False,
+                                 "declared_safe": False, "risk": 0.3}) + "\n")
+    kept = gm.regate(ceiling, str(other), verdicts=False)
+    assert kept == [ceiling[1]]
+    assert gm.regate(ceiling, str(other))[0]["declared_safe"] is False

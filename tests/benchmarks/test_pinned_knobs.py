@@ -34,8 +34,9 @@ def test_a_missing_rows_file_exits_2(tmp_path: Path, capsys):
 
 
 @pytest.mark.skipif(not (JUDGE / "judge_mujoco.py").is_file(), reason="the independent judge is not beside the project")
-def test_one_draw_on_the_judges_mujoco_engine_uses_that_draws_masses():
-    """The same verdict as world_ablation's reference for that draw (the same masses, the same shelf)."""
+def test_one_draw_runs_our_variants_and_the_judges_mujoco_engine_on_that_draws_masses():
+    """The pinned world as world_ablation builds it (its 'as is' variant gives world_ablation's pinned
+    verdict), and MuJoCo's verdict for each draw in turn equals world_ablation's reference over all."""
     import sys
 
     from shelfpick.planning.shelves import generate
@@ -43,7 +44,10 @@ def test_one_draw_on_the_judges_mujoco_engine_uses_that_draws_masses():
     wa = load("world_ablation")
     if str(JUDGE) not in sys.path:
         sys.path.insert(0, str(JUDGE))
+    truth = generate("structured", 41000, settle=True)
     row = {"shelf": "structured-41000", "target": "b0", "sequence": ["b0"]}
     unit = {"target": "b0", "sequence": ["b0"], "draws": 2, "seed": 41000, "mass": (0.5, 3.0)}
-    ref = wa.reference_fails(generate("structured", 41000, settle=True).to_json(), unit, "mujoco")
-    assert [pk.mujoco_fails(row, d, (0.5, 3.0), str(JUDGE)) for d in (0, 1)] == ref
+    ref = wa.reference_fails(truth.to_json(), unit, "mujoco")
+    assert [pk.mujoco_fails(truth.to_json(), row, d, (0.5, 3.0), str(JUDGE)) for d in (0, 1)] == ref
+    got = pk.run_draw(truth, row, 1, (0.5, 3.0))
+    assert set(got) == set(pk.VARIANTS) and got["as is"] == wa.pinned_fails(truth, unit)[1]

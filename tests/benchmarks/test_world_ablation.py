@@ -117,3 +117,16 @@ def test_gate_only_rows_carry_the_gates_worlds_and_the_references_failing_draws(
     assert len(row["reference_detail"]) == sum(row["reference"]["pybullet"])
     assert all(d["pulled"] in row["sequence"] for d in row["reference_detail"])
     assert "By the gate's failing worlds" in capsys.readouterr().out
+
+
+def test_in_expectation_scores_each_risk_and_the_gates_both_sides_over_the_references_draws():
+    never, half = [False] * 4, [True, True, False, False]
+    rows = [{"reference": {"pybullet": never}, "pinned": [False, True, False, False], "declared_safe": True,
+             "conditions": {"x": [False] * 4}},
+            {"reference": {"pybullet": half}, "pinned": [True, False, None, False], "declared_safe": True,
+             "conditions": {"x": [True] * 4}}]
+    e = wa.in_expectation(rows)
+    assert e["safe"] == 2 and e["safe_mean_share"] == 0.25 and e["held_safe_share"] == 1.0
+    assert e["risky_safe_plans"] == 1 and e["their_failing_draws"] == 2 and e["also_failing_pinned"] == 1
+    assert e["only_ours_fail"] == 1 and e["only_reference_fails"] == 1        # the draw without a world is left out
+    assert e["auc"]["x"] == 1.0 and e["auc"]["the shipped gate's verdict"] == 0.5
