@@ -24,6 +24,9 @@ def test_the_table_shows_the_calibrated_risk_and_the_threshold():
                                        "heuristic": PlanEntry(old, old.content_hash())}))
     row = _rows(md)["chance of a collapse (calibrated)"]
     assert row == ["1.2% (up to 3.1%; threshold 5.0%); failed in 0 of 20 sample worlds", "—"]
+    # the gate's 20 worlds came after the search's 10: not "10 searched, 10 more"
+    assert _rows(md)["sample worlds behind the risks"] == ["20 (fresh: asked after the 10 the search chose the plan in)",
+                                                           "—"]
 
 
 def test_the_table_shows_worlds_that_failed_behind_a_safe_verdict():
