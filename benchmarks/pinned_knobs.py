@@ -12,6 +12,12 @@ reference's; none doing so says the difference is deeper (the contact model, the
 
 `--mujoco` also runs each draw on the judge's other engine (MuJoCo, the same masses and pull): a
 draw it fails is one the judge's own two engines disagree on.
+
+A variant that clears false alarms may also miss real failures. `--both-sides VARIANT` runs every
+draw of every plan under one variant and scores it against the reference beside the rows' own
+pinned worlds: both fail, misses, false alarms, both hold (`--out` keeps the per-plan rows):
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/pinned_knobs.py ROWS.jsonl ... --both-sides "VARIANT" --jobs 2 [--out F]
 """
 from __future__ import annotations
 
@@ -36,6 +42,10 @@ VARIANTS: dict[str, dict] = {
     "force limit 150 N whatever the weight": {"pull_force_weights": 1000.0},
     "no gripper body": {"gripper_size": (0.001, 0.001, 0.001)},
     "no speed ramp": {"pull_ramp": 0.0},
+    "the box may turn, its centre held": {"pull_turn": True},
+    "a cup soft in height (hold_spring)": {"hold_spring": True},
+    "the same, carrying a dragged box's weight": {"hold_spring": True, "hold_carry": 1.0},
+    "the same, carrying 0.6 of it (the rigid hold's share)": {"hold_spring": True, "hold_carry": 0.6},
     "all of the above but the body and ramp": _JUDGE_LIKE,
 }
 
@@ -79,6 +89,59 @@ def _said(failed: bool | None) -> str:
     return "no rest" if failed is None else "fails" if failed else "holds"
 
 
+def both_sides_unit(unit: dict) -> dict:
+    """Every draw of one plan in our pinned world under the variant `unit["variant"]`: did it fail?"""
+    from shelfpick.planning.physics import PhysicsConfig
+    from shelfpick.planning.shelves import generate
+
+    from benchmarks import world_ablation as wa
+
+    warnings.simplefilter("ignore")
+    row = unit["row"]
+    kind, seed = row["shelf"].rsplit("-", 1)
+    truth = generate(kind, int(seed), settle=True)
+    config = replace(PhysicsConfig(), **VARIANTS[unit["variant"]])
+    fails = [wa.pinned_fail(truth, _unit(row, unit["mass"]), d, config) for d in range(row["draws"])]
+    return {"shelf": row["shelf"], "target": row["target"], "sequence": row["sequence"],
+            "variant": unit["variant"], "fails": fails}
+
+
+def confusion(rows: Sequence[dict], fails_of) -> dict[str, int]:
+    """Per draw against the reference: hits (both fail), misses, false alarms, quiet (both hold)."""
+    out = {"both fail": 0, "reference fails, ours holds": 0, "reference holds, ours fails": 0,
+           "both hold": 0, "no rest": 0}
+    for r in rows:
+        ref = r["reference"][next(iter(r["reference"]))]
+        for a, b in zip(ref, fails_of(r)):
+            key = ("no rest" if b is None else "both fail" if a and b else "reference fails, ours holds" if a
+                   else "reference holds, ours fails" if b else "both hold")
+            out[key] += 1
+    return out
+
+
+def both_sides(rows: Sequence[dict], variant: str, jobs: int, mass: tuple[float, float], out: Path | None) -> None:
+    """Both sides of a variant: every draw of every plan, scored against the reference beside the rows'
+    own pinned worlds (our settings as they were when the rows were made)."""
+    from tqdm import tqdm
+
+    from benchmarks.judge_rows import iter_rows
+
+    judge = str(ROOT.parent / "shared" / "judge")
+    units = [{"row": r, "variant": variant, "mass": list(mass), "judge_dir": judge} for r in rows]
+    got: dict[tuple, list] = {}
+    with (out.open("w") if out else open("/dev/null", "w")) as f:
+        for res in tqdm(iter_rows(units, jobs, both_sides_unit), total=len(units), desc="plans", file=sys.stderr):
+            got[(res["shelf"], res["target"], tuple(res["sequence"]))] = res["fails"]
+            f.write(json.dumps(res) + "\n")
+            f.flush()
+    print(f"per draw, {len(rows)} plans, against the reference:")
+    print(f"| | as the rows were made | {variant} |\n|---|---:|---:|")
+    before = confusion(rows, lambda r: r["pinned"])
+    after = confusion(rows, lambda r: got[(r["shelf"], r["target"], tuple(r["sequence"]))])
+    for key in before:
+        print(f"| {key} | {before[key]} | {after[key]} |")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rows", nargs="+")
@@ -87,6 +150,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="the mass range the rows were made with (world_ablation's --mass)")
     ap.add_argument("--mujoco", action="store_true", help="also the judge's MuJoCo engine on each draw")
     ap.add_argument("--judge", default=str(ROOT.parent / "shared" / "judge"))
+    ap.add_argument("--both-sides", metavar="VARIANT", choices=list(VARIANTS),
+                    help="run every draw of every plan under this variant and score both sides")
+    ap.add_argument("--jobs", type=int, default=1, help="processes for --both-sides")
+    ap.add_argument("--out", type=Path, help="--both-sides: per-plan rows (JSON lines)")
     a = ap.parse_args(argv)
     rows = []
     for path in a.rows:
@@ -96,6 +163,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"error: {path}: {exc}", file=sys.stderr)
             return 2
     warnings.simplefilter("ignore")
+    if a.both_sides:
+        both_sides(rows, a.both_sides, a.jobs, tuple(a.mass), a.out)
+        return 0
     todo = false_alarms(rows, a.limit)
     tally = {name: 0 for name in VARIANTS}
     if a.mujoco:

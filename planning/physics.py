@@ -37,6 +37,9 @@ class PhysicsConfig:
     lift_time: float = 0.05             # s the lift takes
     pull_hold: bool = False             # with no lift: the arm holds the box's height instead of
                                         # letting it ride on its support
+    pull_turn: bool = False             # a held box (lift, `pull_hold`) may turn about its centre, which
+                                        # the arm holds (a cup soft in rotation); off: the arm holds the
+                                        # face and its orientation (docs/results/risk-gate.md, session 47)
     # with `hold_spring` the held height (lift, or `pull_hold`) is a spring on the box's height whose
     # force is bounded by what a compliant suction cup on a vertical face can exert: it carries the
     # box (up to `hold_up_weights` of its weight) but presses it down at most `hold_down_weights`.
@@ -44,6 +47,8 @@ class PhysicsConfig:
     # weights once the box below tips into it, but the spring did not make the gate better on our
     # bench (docs/physics.md, "Removing a box"; docs/results/risk-gate.md)
     hold_spring: bool = False
+    hold_carry: float = 0.0             # with `hold_spring`: the share of a dragged box's weight the drive
+                                        # carries (a lifted one's: all of it)
     hold_stiffness: float = 1000.0      # 1/s^2 per kg of the box (about 5 Hz)
     hold_damping: float = 45.0          # 1/s per kg
     hold_up_weights: float = 1.5        # most upward force, in weights of the pulled box

@@ -129,7 +129,7 @@ def _tipping_angle(half: tuple[float, float, float], orn: Quat) -> float:
 
 
 class _SetPoint:
-    """Where the drive holds the front face at each step: up by the lift first, then out along -y
+    """Where the drive holds the front face (with `pull_turn` the centre) at each step: up by the lift first, then out along -y
     (speed ramped up over `pull_ramp`), plus the seeded, smoothed vibration of a real arm
     (a sideways offset `jx`, and a vertical force `jz` the caller applies)."""
 
@@ -166,10 +166,11 @@ class _Height:
     compliant suction cup on a vertical face can do: carry the box, but press it down at most
     `hold_down_weights` (a rigid hold pressed a top box into the one below with 5-17 weights)."""
 
-    def __init__(self, cfg: PhysicsConfig, mass: float, carry: bool) -> None:
+    def __init__(self, cfg: PhysicsConfig, mass: float, carry: float) -> None:
+        """`carry`: the share of the box's weight the drive carries (1 lifted; `hold_carry` dragged)."""
         self.k, self.c = cfg.hold_stiffness * mass, cfg.hold_damping * mass
         weight = mass * cfg.gravity
-        self.carry = weight if carry else 0.0
+        self.carry = carry * weight
         self.low, self.high = -cfg.hold_down_weights * weight, cfg.hold_up_weights * weight
 
     def force(self, error: float, vz: float, extra: float) -> float:
@@ -275,20 +276,23 @@ class PullTrial:
         held = self.lift > 0 or cfg.pull_hold
         # the held height as a bounded spring (`hold_spring`), or as the joint itself (rigid)
         spring = held and cfg.hold_spring
-        joint = p.JOINT_FIXED if held and not spring else p.JOINT_PRISMATIC
+        # `pull_turn` (off by default): the box may turn, the arm holds its centre (point to point)
+        turn = held and not spring and cfg.pull_turn
+        joint = p.JOINT_POINT2POINT if turn else p.JOINT_FIXED if held and not spring else p.JOINT_PRISMATIC
         axis = list(self.up_local) if spring else [0, 0, 1]
-        cid = p.createConstraint(self.body, -1, -1, -1, joint, axis, list(self.front_local),
-                                 list(self.front0), [0, 0, 0, 1], list(self.orn0))
-        p.changeConstraint(cid, list(self.front0), jointChildFrameOrientation=list(self.orn0),
+        local, start = ((0.0, 0.0, 0.0), self.pos0) if turn else (self.front_local, self.front0)
+        cid = p.createConstraint(self.body, -1, -1, -1, joint, axis, list(local),
+                                 list(start), [0, 0, 0, 1], list(self.orn0))
+        p.changeConstraint(cid, list(start), jointChildFrameOrientation=list(self.orn0),
                            maxForce=self.max_force)
         p.setCollisionFilterPair(self.sim.gripper_body, self.body, -1, -1, 0)
         try:
             if self.record:
                 self.record_frame(True)
             self._place_gripper()
-            set_point = _SetPoint(self.front0, self.lift, self.lift_steps, self.travel_needed, cfg,
+            set_point = _SetPoint(start, self.lift, self.lift_steps, self.travel_needed, cfg,
                                   self.rng, self.weight)
-            height = _Height(cfg, self.mass, self.lift > 0) if spring else None
+            height = _Height(cfg, self.mass, 1.0 if self.lift > 0 else cfg.hold_carry) if spring else None
             dz = self.front0[2] - self.pos0[2]   # the face's height above the centre (orientation held)
             free_steps = 0
             pos = self.pos0

@@ -7,6 +7,9 @@
   `peak_tipping` (off by default, for the same reason) judges it at the end of the step.
 - A box resting on a few mm of a neighbour's top edge is thrown off the shelf when that
   neighbour is lifted: `edge_perch` (off by default) moves it off the edge first.
+- Two drives tried against the judge's engine on our shelves (session 47), off by default:
+  `pull_turn` holds the box's centre and lets it turn; `hold_carry` (with `hold_spring`) carries a
+  dragged box's weight, as the drive carries a lifted one.
 
 Each test fails with its setting off (the rigid hold: 0.42 and 9.6 weights; the peak rule: a
 collapse at 25 deg; no perch repair: the box thrown 1.14 m).
@@ -30,11 +33,11 @@ def _sim(boxes: tuple[Box, ...], cfg: PhysicsConfig) -> ShelfSim:
         return ShelfSim(Scene(Shelf(width=1.0, depth=0.35, height=1.0), boxes), cfg)
 
 
-def _held_drag(top: float, low: float, friction: float) -> list[float]:
+def _held_drag(top: float, low: float, friction: float, carry: float = 0.0) -> list[float]:
     """The normal force (in the top box's weights) on the box below at every step of dragging the top
-    box off it, the drive holding its height."""
+    box off it, the drive holding its height (and with `carry` its weight)."""
     cfg = PhysicsConfig(lateral_friction=friction, pull_force=172.0, pull_force_weights=1e6,
-                        pull_lift=0.0, pull_hold=True, hold_spring=True)
+                        pull_lift=0.0, pull_hold=True, hold_spring=True, hold_carry=carry)
     sim = _sim((Box("low", CARTON, (0.0, 0.16, 0.125), mass=low),
                 Box("top", CARTON, (0.0, 0.16, 0.375), mass=top)), cfg)
     p, tb, lb = sim.client, sim.body("top"), sim.body("low")
@@ -61,6 +64,13 @@ def test_a_held_height_leaves_the_weight_on_the_box_below_and_never_presses_it_d
     # percentile); the bounded spring adds at most half a weight and the vibration's tenth
     wedge = sorted(_held_drag(2.0, 0.34, 0.88))
     assert wedge[int(0.9 * len(wedge))] < 1.6
+
+
+def test_hold_carry_takes_a_dragged_boxs_weight_off_the_box_below():
+    # off by default: on our shelves it cleared 220 of 240 draws our worlds failed and the judge's
+    # engine held, and missed 240 more that the engine failed (docs/results/risk-gate.md, session 47)
+    carried = _held_drag(1.12, 1.0, 0.65, carry=1.0)
+    assert sum(carried) / len(carried) < 0.3
 
 
 def _monitor_one_box() -> tuple[ShelfSim, CollapseMonitor, int]:
@@ -120,3 +130,36 @@ def test_a_box_on_a_few_mm_of_a_lifted_neighbours_edge_is_moved_off_it_and_stays
         assert r.displacement["top"] < 0.005
     finally:
         sim.close()
+
+
+def _drive_joints(cfg: PhysicsConfig) -> list[tuple]:
+    """(joint type, the box's pivot, where the world holds it) of each constraint the pull makes."""
+    sim = _sim((Box("low", CARTON, (0.0, 0.16, 0.125), mass=1.0),
+                Box("top", CARTON, (0.0, 0.16, 0.375), mass=1.0)), cfg)
+    made: list[tuple] = []
+    create = sim.client.createConstraint
+
+    def watched(*args, **kw):
+        made.append((args[4], tuple(args[6]), tuple(args[7])))
+        return create(*args, **kw)
+
+    sim.client.createConstraint = watched   # type: ignore[method-assign]
+    try:
+        assert sim.remove("top", seed=1).extracted
+        return made
+    finally:
+        sim.close()
+
+
+def test_pull_turn_holds_the_centre_and_leaves_the_orientation_free():
+    import pybullet
+
+    drag = dict(pull_lift=0.0, pull_hold=True)
+    (kind, pivot, at), = _drive_joints(PhysicsConfig(**drag))
+    assert kind == pybullet.JOINT_FIXED and pivot == (0.0, -CARTON[1] / 2, 0.0)
+    (kind, pivot, at), = _drive_joints(PhysicsConfig(**drag, pull_turn=True))
+    assert kind == pybullet.JOINT_POINT2POINT and pivot == (0.0, 0.0, 0.0)
+    assert abs(at[1] - 0.16) < 0.01 and abs(at[2] - 0.375) < 0.01   # the box's centre, where it stood
+    # a box dragged with its height free is not held, whatever the setting
+    (kind, _, _), = _drive_joints(PhysicsConfig(pull_lift=0.0, pull_hold=False, pull_turn=True))
+    assert kind == pybullet.JOINT_PRISMATIC
