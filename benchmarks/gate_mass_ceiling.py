@@ -102,8 +102,7 @@ def expected_sides(rows: Sequence[dict], max_rate: float) -> dict:
             "oracle_held_safe_share": round(sum(1 - p for p in ps[:k]) / hold, 3),
             "oracle_largest_share": ps[k - 1] if k else float("nan"),
             "ours_held_safe_share": round(sum(1 - p for p in ours) / hold, 3),
-            "ours_expected_auc": expected_auc([r["risk"] for r in rows if r.get("risk") is not None],
-                                              [r["fails"] / r["draws"] for r in rows if r.get("risk") is not None]),
+            "ours_expected_auc": expected_auc(risks, [r["fails"] / r["draws"] for r in rows if r.get("risk") is not None]),
             # the plans at our risk's lowest value (the map's floor): their mean share of failing draws
             "floor_plans": len(floor), "floor_mean_share": round(sum(floor) / len(floor), 3) if floor else float("nan")}
 

@@ -32,6 +32,8 @@ from typing import Sequence
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from benchmarks import world_ablation as wa  # noqa: E402
+
 _JUDGE_LIKE = {"time_step": 1 / 240, "disturbance": 0.0, "disturbance_force": 0.0, "collapse_displacement": 0.03,
                "pull_force_weights": 1000.0, "pull_margin": 0.05}
 VARIANTS: dict[str, dict] = {
@@ -54,8 +56,7 @@ def false_alarms(rows: Sequence[dict], limit: int) -> list[tuple[dict, int]]:
     """(row, draw) for each draw our pinned world fails of a plan the reference holds in every draw."""
     out = []
     for r in rows:
-        ref = r["reference"][next(iter(r["reference"]))]
-        if any(ref):
+        if any(wa.reference_of(r)):
             continue
         out += [(r, d) for d, f in enumerate(r["pinned"]) if f]
     return out[:limit]
@@ -68,7 +69,6 @@ def _unit(row: dict, mass: tuple[float, float]) -> dict:
 
 def run_draw(truth, row: dict, draw: int, mass: tuple[float, float]) -> dict[str, bool | None]:
     """Per variant: does our pinned world (world_ablation's) fail this draw of `row` on `truth`?"""
-    from benchmarks import world_ablation as wa
     from shelfpick.planning.physics import PhysicsConfig
 
     unit = _unit(row, mass)
@@ -78,8 +78,6 @@ def run_draw(truth, row: dict, draw: int, mass: tuple[float, float]) -> dict[str
 
 def mujoco_fails(truth_json: dict, row: dict, draw: int, mass: tuple[float, float], judge_dir: str) -> bool:
     """The judge's MuJoCo engine on the true shelf with this draw's masses: does the plan fail?"""
-    from benchmarks import world_ablation as wa
-
     if judge_dir not in sys.path:
         sys.path.insert(0, judge_dir)
     return not wa.reference_verdict(truth_json, _unit(row, mass), "mujoco", draw)["ok"]
@@ -89,55 +87,47 @@ def _said(failed: bool | None) -> str:
     return "no rest" if failed is None else "fails" if failed else "holds"
 
 
-def both_sides_unit(unit: dict) -> dict:
-    """Every draw of one plan in our pinned world under the variant `unit["variant"]`: did it fail?"""
+def both_sides_unit(unit: dict) -> list[dict]:
+    """Every draw of the plans of one shelf (`unit["rows"]`) in our pinned world under the variant
+    `unit["variant"]`: did it fail? The shelf is generated once for all its plans."""
     from shelfpick.planning.physics import PhysicsConfig
     from shelfpick.planning.shelves import generate
 
-    from benchmarks import world_ablation as wa
-
     warnings.simplefilter("ignore")
-    row = unit["row"]
-    kind, seed = row["shelf"].rsplit("-", 1)
+    kind, seed = unit["shelf"].rsplit("-", 1)
     truth = generate(kind, int(seed), settle=True)
     config = replace(PhysicsConfig(), **VARIANTS[unit["variant"]])
-    fails = [wa.pinned_fail(truth, _unit(row, unit["mass"]), d, config) for d in range(row["draws"])]
-    return {"shelf": row["shelf"], "target": row["target"], "sequence": row["sequence"],
-            "variant": unit["variant"], "fails": fails}
-
-
-def confusion(rows: Sequence[dict], fails_of) -> dict[str, int]:
-    """Per draw against the reference: hits (both fail), misses, false alarms, quiet (both hold)."""
-    out = {"both fail": 0, "reference fails, ours holds": 0, "reference holds, ours fails": 0,
-           "both hold": 0, "no rest": 0}
-    for r in rows:
-        ref = r["reference"][next(iter(r["reference"]))]
-        for a, b in zip(ref, fails_of(r)):
-            key = ("no rest" if b is None else "both fail" if a and b else "reference fails, ours holds" if a
-                   else "reference holds, ours fails" if b else "both hold")
-            out[key] += 1
-    return out
+    return [{"shelf": row["shelf"], "target": row["target"], "sequence": row["sequence"], "variant": unit["variant"],
+             "fails": [wa.pinned_fail(truth, _unit(row, unit["mass"]), d, config) for d in range(row["draws"])]}
+            for row in unit["rows"]]
 
 
 def both_sides(rows: Sequence[dict], variant: str, jobs: int, mass: tuple[float, float], out: Path | None) -> None:
     """Both sides of a variant: every draw of every plan, scored against the reference beside the rows'
     own pinned worlds (our settings as they were when the rows were made)."""
+    from contextlib import nullcontext
+
     from tqdm import tqdm
 
     from benchmarks.judge_rows import iter_rows
 
     judge = str(ROOT.parent / "shared" / "judge")
-    units = [{"row": r, "variant": variant, "mass": list(mass), "judge_dir": judge} for r in rows]
+    shelves: dict[str, list[dict]] = {}
+    for r in rows:
+        shelves.setdefault(r["shelf"], []).append(r)
+    units = [{"shelf": s, "rows": rs, "variant": variant, "mass": list(mass), "judge_dir": judge}
+             for s, rs in shelves.items()]
     got: dict[tuple, list] = {}
-    with (out.open("w") if out else open("/dev/null", "w")) as f:
-        for res in tqdm(iter_rows(units, jobs, both_sides_unit), total=len(units), desc="plans", file=sys.stderr):
-            got[(res["shelf"], res["target"], tuple(res["sequence"]))] = res["fails"]
-            f.write(json.dumps(res) + "\n")
-            f.flush()
+    with out.open("w") if out else nullcontext() as f:
+        for res in tqdm(iter_rows(units, jobs, both_sides_unit), total=len(units), desc="shelves", file=sys.stderr):
+            for plan in res:
+                got[(plan["shelf"], plan["target"], tuple(plan["sequence"]))] = plan["fails"]
+                if f:
+                    f.write(json.dumps(plan) + "\n")
     print(f"per draw, {len(rows)} plans, against the reference:")
     print(f"| | as the rows were made | {variant} |\n|---|---:|---:|")
-    before = confusion(rows, lambda r: r["pinned"])
-    after = confusion(rows, lambda r: got[(r["shelf"], r["target"], tuple(r["sequence"]))])
+    before = wa.confusion(rows, lambda r: r["pinned"])
+    after = wa.confusion(rows, lambda r: got[(r["shelf"], r["target"], tuple(r["sequence"]))])
     for key in before:
         print(f"| {key} | {before[key]} | {after[key]} |")
 

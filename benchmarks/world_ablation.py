@@ -251,7 +251,7 @@ def summary(rows: Sequence[dict], quiet: float = 0.05) -> list[dict]:
         got = [x for x in f if x is not None]
         return sum(got) / len(got) if got else None
 
-    ref = [r["reference"][next(iter(r["reference"]))] for r in rows]
+    ref = [reference_of(r) for r in rows]
     quiet_rows = [r for r, f in zip(rows, ref) if share(f) <= quiet]
     out = [{"condition": f"reference ({e})", "quiet": _mean(share(r["reference"][e]) for r in quiet_rows),
             "all": _mean(share(r["reference"][e]) for r in rows)} for e in rows[0]["reference"]] if rows else []
@@ -318,7 +318,7 @@ def by_gate_failures(rows: Sequence[dict]) -> list[dict]:
     out = []
     for k in sorted(groups):
         g = groups[k]
-        ref = [sum(r["reference"][next(iter(r["reference"]))]) / len(r["reference"][next(iter(r["reference"]))]) for r in g]
+        ref = [sum(reference_of(r)) / len(reference_of(r)) for r in g]
         out.append({"failed_of_10": k, "plans": len(g), "declared_safe": sum(r["declared_safe"] for r in g),
                     "map_chance": round(cal.probability(k, 10), 4), "reference_mean": _mean(ref),
                     "reference_over_5pct": sum(x > 0.05 for x in ref)})
@@ -337,7 +337,7 @@ def in_expectation(rows: Sequence[dict]) -> dict:
         got = [x for x in f if x is not None]
         return sum(got) / len(got) if got else 1.0      # no world built: the gate refuses, the worst risk
 
-    ref = [r["reference"][next(iter(r["reference"]))] for r in rows]
+    ref = [reference_of(r) for r in rows]
     ps = [sum(f) / len(f) for f in ref]
     risks = {"pinned (same masses)": [share(r["pinned"]) for r in rows]}
     risks.update({name: [share(r["conditions"][name]) for r in rows] for name in (rows[0]["conditions"] if rows else ())})
@@ -347,13 +347,32 @@ def in_expectation(rows: Sequence[dict]) -> dict:
     safe = [p for r, p in zip(rows, ps) if r["declared_safe"]]
     hold = sum(1 - p for p in ps)
     missed = [(r, f) for r, f, p in zip(rows, ref, ps) if r["declared_safe"] and p > 0.05]
-    pairs = [(a, b) for r, f in zip(rows, ref) for a, b in zip(r["pinned"], f) if a is not None]
+    per_draw = confusion(rows, lambda r: r["pinned"])
     return {"auc": {k: expected_auc(v, ps) for k, v in risks.items()},
             "safe": len(safe), "safe_mean_share": _mean(safe),
             "held_safe_share": round(sum(1 - p for p in safe) / hold, 3) if hold else float("nan"),
             "risky_safe_plans": len(missed), "their_failing_draws": sum(sum(f) for _, f in missed),
             "also_failing_pinned": sum(1 for r, f in missed for a, b in zip(r["pinned"], f) if a and b),
-            "only_ours_fail": sum(1 for a, b in pairs if a and not b), "only_reference_fails": sum(1 for a, b in pairs if b and not a)}
+            "only_ours_fail": per_draw["reference holds, ours fails"],
+            "only_reference_fails": per_draw["reference fails, ours holds"]}
+
+
+def reference_of(row: dict) -> list[bool]:
+    """A row's per-draw failures on its first reference engine (the one the detail is kept for)."""
+    return row["reference"][next(iter(row["reference"]))]
+
+
+def confusion(rows: Sequence[dict], fails_of) -> dict[str, int]:
+    """Per draw against the reference (`reference_of`): both fail, misses, false alarms, both hold, and
+    draws where ours did not come to rest; `fails_of(row)` gives our per-draw verdicts."""
+    out = {"both fail": 0, "reference fails, ours holds": 0, "reference holds, ours fails": 0,
+           "both hold": 0, "no rest": 0}
+    for r in rows:
+        for a, b in zip(reference_of(r), fails_of(r)):
+            key = ("no rest" if b is None else "both fail" if a and b else "reference fails, ours holds" if a
+                   else "reference holds, ours fails" if b else "both hold")
+            out[key] += 1
+    return out
 
 
 def _mean(xs) -> float:
@@ -362,7 +381,7 @@ def _mean(xs) -> float:
 
 
 def report(rows: Sequence[dict], png: str | None) -> None:
-    ref = [r["reference"][next(iter(r["reference"]))] for r in rows]
+    ref = [reference_of(r) for r in rows]
     nq = sum(sum(f) <= 0.05 * len(f) for f in ref)
     print(f"{len(rows)} plans on {len({r['shelf'] for r in rows})} shelves; {nq} quiet on the reference "
           f"(fail in <= 5% of its mass draws)")

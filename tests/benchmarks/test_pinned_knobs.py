@@ -56,10 +56,10 @@ def test_one_draw_runs_our_variants_and_the_judges_mujoco_engine_on_that_draws_m
 def test_confusion_puts_each_draw_on_one_side_of_the_reference():
     rows = [{"reference": {"pybullet": [True, True, False, False, False]},
              "pinned": [True, False, True, False, None]}]
-    got = pk.confusion(rows, lambda r: r["pinned"])
+    got = pk.wa.confusion(rows, lambda r: r["pinned"])
     assert got == {"both fail": 1, "reference fails, ours holds": 1, "reference holds, ours fails": 1,
                    "both hold": 1, "no rest": 1}
-    flipped = pk.confusion(rows, lambda r: [not f if f is not None else None for f in r["pinned"]])
+    flipped = pk.wa.confusion(rows, lambda r: [not f if f is not None else None for f in r["pinned"]])
     assert flipped["both fail"] == 1 and flipped["reference holds, ours fails"] == 1
     assert flipped["reference fails, ours holds"] == 1 and flipped["both hold"] == 1
 
@@ -68,8 +68,10 @@ def test_both_sides_as_is_gives_world_ablations_pinned_verdicts():
     wa = load("world_ablation")
     from shelfpick.planning.shelves import generate
 
-    row = {"shelf": "structured-41000", "target": "b0", "sequence": ["b0"], "draws": 2}
-    got = pk.both_sides_unit({"row": row, "variant": "as is", "mass": [0.5, 3.0]})
-    unit = {"target": "b0", "sequence": ["b0"], "draws": 2, "seed": 41000, "mass": (0.5, 3.0)}
-    assert got["fails"] == wa.pinned_fails(generate("structured", 41000, settle=True), unit)
-    assert got["variant"] == "as is" and got["sequence"] == ["b0"]
+    rows = [{"shelf": "structured-41000", "target": t, "sequence": [t], "draws": 2} for t in ("b0", "b1")]
+    got = pk.both_sides_unit({"shelf": "structured-41000", "rows": rows, "variant": "as is", "mass": [0.5, 3.0]})
+    truth = generate("structured", 41000, settle=True)
+    for plan, t in zip(got, ("b0", "b1")):
+        unit = {"target": t, "sequence": [t], "draws": 2, "seed": 41000, "mass": (0.5, 3.0)}
+        assert plan["fails"] == wa.pinned_fails(truth, unit)
+        assert plan["variant"] == "as is" and plan["sequence"] == [t]
