@@ -115,14 +115,16 @@ def _plan_risk(plan: Plan) -> str:
 
 def _worlds(plan: Plan) -> str:
     """How many sample worlds the plan's risks are over, and why the gate asked more. A gated plan's
-    risks are over the gate's own worlds, asked after the ones the search chose the plan in."""
+    risks are over the gate's own worlds, asked after the ones the search chose the plan in (the
+    baseline chooses in none: its steps were first predicted there)."""
     search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
     n, v = search.get("worlds"), search.get("verified_worlds")
     if not (isinstance(n, int) and not isinstance(n, bool)):
         return "—"
     counted = isinstance(v, int) and not isinstance(v, bool)
     if counted and isinstance(search.get("plan_risk"), dict):
-        return f"{v} (fresh: asked after the {n} the search chose the plan in)"
+        first = "the search chose the plan in" if plan.planner == "physics" else "its steps were first predicted in"
+        return f"{v} (fresh: asked after the {n} {first})"
     if counted and v > n:
         return f"{v} ({n} searched; {v - n} more asked to decide whether it is safe)"
     return f"{n} (searched)"

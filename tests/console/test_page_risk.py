@@ -46,3 +46,20 @@ def test_the_table_shows_worlds_that_failed_behind_a_safe_verdict():
                                        "heuristic": PlanEntry(odd, odd.content_hash())}))
     assert _rows(md)["chance of a collapse (calibrated)"] == [
         "0.9% (up to 2.8%; threshold 5.0%); failed in 3 of 20 sample worlds", "0.9% (up to 2.8%; threshold 5.0%)"]
+
+
+def test_the_baselines_gated_worlds_do_not_claim_a_search_chose_it():
+    """Highest-first chooses its order in no world; the gate's fresh worlds came after the ten its
+    steps were first predicted in (seen in Chromium: both columns said the search chose the plan)."""
+    from shelfpick.console.web.markdown import results_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
+
+    gate = {"probability": 0.0086, "low": 0.0086, "high": 0.028, "failed_worlds": 0, "worlds": 10,
+            "max_plan_risk": 0.05}
+    plans = {name: Plan("extract", "b0", name, ("b0",), (StepPrediction("b0"),), True, {"planning_s": 1.0}, 0,
+                        {"search": {"worlds": 10, "verified_worlds": 10, "max_plan_risk": 0.05, "plan_risk": gate}})
+             for name in ("physics", "heuristic")}
+    md = results_markdown(State(plans={k: PlanEntry(p, p.content_hash()) for k, p in plans.items()}))
+    assert _rows(md)["sample worlds behind the risks"] == [
+        "10 (fresh: asked after the 10 the search chose the plan in)",
+        "10 (fresh: asked after the 10 its steps were first predicted in)"]
