@@ -204,8 +204,8 @@ class ClientView:
             return self.replay.scene
         return self._shelf_now(self.wf.state)
 
-    def _draw_scene(self, scene: Scene | None, camera: Camera | None) -> None:
-        self.drawing.draw(scene, camera, self.shown_scene is None, self._click_box)
+    def _draw_scene(self, scene: Scene | None, camera: Camera | None, caption: str = "") -> None:
+        self.drawing.draw(scene, camera, self.shown_scene is None, self._click_box, caption)
 
     def _highlight(self) -> None:
         target = self.replay.target if self.replay is not None else self.wf.state.target
@@ -262,6 +262,7 @@ class ClientView:
             self.shown_scene = scene
             self.shown_plans = None
             op.show_targets(state.scene)
+        self.drawing.set_base(shelf_caption(state, scene))
         op.follow_target(state.target)
         offered = previewable(state)
         if offered is not self.shown_plans:
@@ -309,7 +310,7 @@ class ClientView:
                 return
             self.replay, self.shown_look = rec, None
             self.operator.show_images(rec.rgb, rec.overlay)
-            self._draw_scene(rec.scene, rec.camera)
+            self._draw_scene(rec.scene, rec.camera, f"Replayed session {v}: the shelf as captured")
             self.shown_scene = None
             self.shown_capture = None
             self.shown_plans = None
@@ -327,9 +328,10 @@ class ClientView:
             look = next((lk for lk in self.replay.looks if lk.label == label), None)
             self.shown_look = look
             if look is None or look.observed is None:
-                self._draw_scene(self.replay.scene, self.replay.camera)
+                self._draw_scene(self.replay.scene, self.replay.camera, "Replayed session: the shelf as captured")
             else:
-                self._draw_scene(look.observed, self.replay.camera)
+                self._draw_scene(look.observed, self.replay.camera,
+                                 f"Replayed session: the shelf seen after {look.label}; outlines: as predicted")
                 self.sessions.show_look(self.client.scene, look.predicted, look.md)
             self._highlight()
 
@@ -356,6 +358,16 @@ def previewable(state: State) -> Mapping[str, PlanEntry] | None:
     shelf that is gone, and replaying one would draw its boxes back where they stood); after a
     hold, the `continue` plan."""
     return NOTHING_TO_PREVIEW if state.run_end is not None and state.needs_recapture else state.plans
+
+
+def shelf_caption(state: State, drawn: Scene | None) -> str:
+    """What the live 3D view's shelf is: the capture's, a look's after a robot step, or a capture
+    the robot has since changed."""
+    if drawn is not None and state.verifications and (drawn is not state.scene or state.observed is state.scene):
+        return f"The shelf as seen after robot step {len(state.verifications)}"
+    if state.run_end is not None and state.needs_recapture:
+        return "The shelf as captured before the run: capture again to see it now"
+    return "The shelf as seen"
 
 
 def plans_markdown(state: State) -> str:

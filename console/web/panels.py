@@ -99,10 +99,14 @@ class ShelfDrawing:
         self.aside_nodes: list[viser.SceneNodeHandle] = []
         self.aside_key: tuple | None = None     # (scene, set-aside boxes) drawn
         self.hidden: set[str] = set()           # boxes drawn as set-aside matter instead
+        self.caption_node: viser.LabelHandle | None = None
+        self.base_caption = SHELF_AS_SEEN       # what the view shows when no preview frame is drawn
+        self.caption = ""                       # the caption's text now
 
     def draw(self, scene: Scene | None, camera: Camera | None, forget_shelf: bool,
-             on_click: Callable[[str], None]) -> None:
-        """Replace the drawn shelf by `scene`; forget_shelf: the old shelf handles were already replaced."""
+             on_click: Callable[[str], None], caption: str = "") -> None:
+        """Replace the drawn shelf by `scene`; forget_shelf: the old shelf handles were already
+        replaced. `caption`: what the drawn shelf is (default: the shelf as seen)."""
         sc = self.client.scene
         for n in self.nodes.values():
             n.box.remove()
@@ -112,9 +116,13 @@ class ShelfDrawing:
         for h in self.shelf_nodes + ([] if forget_shelf else self.aside_nodes):
             h.remove()
         self.shelf_nodes, self.aside_nodes, self.aside_key, self.hidden = [], [], None, set()
+        self.caption_node, self.base_caption = None, caption or SHELF_AS_SEEN
         if scene is None:
             return
         self.shelf_nodes = sv.draw_shelf(sc, scene.shelf)
+        self.caption = self.base_caption
+        self.caption_node = sv.draw_caption(sc, scene.shelf, self.caption)
+        self.shelf_nodes.append(self.caption_node)
         cam = camera or scene.camera
         if cam is not None:
             self.shelf_nodes.append(sv.draw_camera(sc, cam))
@@ -122,6 +130,20 @@ class ShelfDrawing:
         self.shelf_nodes.extend(sv.draw_unexplained(sc, scene))   # matter no box explains (issue 31)
         for bid, n in self.nodes.items():
             n.box.on_click(lambda ev, bid=bid: on_click(bid))
+
+    def set_base(self, caption: str) -> None:
+        """What the drawn shelf is changed (a run ended, a look came); shown unless a preview frame is."""
+        showing_base = self.caption == self.base_caption
+        self.base_caption = caption or SHELF_AS_SEEN
+        if showing_base:
+            self.say(None)
+
+    def say(self, text: str | None) -> None:
+        """Caption the view: `text` while a preview frame is drawn, None when the shelf is drawn again."""
+        text = text or self.base_caption
+        if self.caption_node is not None and text != self.caption:
+            self.caption_node.text = text
+            self.caption = text
 
     def mark(self, target: str | None, risk: set[str], dev: Deviation | None,
              scene: Scene | None = None, aside: Sequence[Mapping[str, Any]] = ()) -> None:
@@ -168,6 +190,17 @@ class ShelfDrawing:
         differ = {d.predicted for d in dev.verification.boxes if d.status in ("moved", "missing")}
         self.predicted_nodes = sv.draw_outlines(self.client.scene, [b for b in dev.predicted.boxes
                                                                     if b.id in differ])
+
+
+SHELF_AS_SEEN = "The shelf as seen"
+
+
+def preview_caption(planner: str, frame: sv.Keyframe, nsteps: int) -> str:
+    """The 3D view's caption while it draws a preview frame: a prediction, not the shelf."""
+    where = f", {frame.world}" if frame.world else ""
+    fell = f"; collapsed: {', '.join(frame.collapsed)}" if frame.collapsed else ""
+    return (f"Preview of the {planner} plan, step {frame.step + 1}/{nsteps}{where}{fell}"
+            " (predicted, not the shelf as seen)")
 
 
 class PreviewPlayer:
@@ -225,6 +258,7 @@ class PreviewPlayer:
                 scene = self.scene()
                 if scene is not None:
                     sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene, self.drawing.hidden)
+                self.drawing.say(None)
             self.after_load()
 
     def show_plans(self, plans: Mapping[str, Any] | None) -> None:
@@ -253,6 +287,7 @@ class PreviewPlayer:
             if fr.collapsed:
                 txt += f" · **collapsed: {', '.join(md(b) for b in fr.collapsed)}**"
             self.prev_info.content = txt
+            self.drawing.say(preview_caption(self.prev_plan.value, fr, nsteps))
 
     def play(self) -> None:
         """Play from the slider's frame at the recorded pace (simulated seconds = wall seconds)."""

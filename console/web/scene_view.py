@@ -56,6 +56,14 @@ def draw_shelf(scene_api: Any, shelf: Any, prefix: str = "/shelf") -> list:
     return out
 
 
+def draw_caption(scene_api: Any, shelf: Any, text: str, name: str = "/caption") -> Any:
+    """A line above the shelf's front left corner saying what the 3D view shows (the shelf as seen,
+    or a preview's predicted frame): every tab sees the one view, and a preview's last frame, boxes
+    gone, looks like a shelf. Plain text (a label, never markup)."""
+    return scene_api.add_label(name, text, position=(-shelf.width / 2, 0.0, shelf.height + 0.06),
+                               anchor="bottom-left", font_screen_scale=1.0)
+
+
 def draw_camera(scene_api: Any, camera: Any, image: np.ndarray | None = None,
                 name: str = "/camera") -> Any:
     """The camera frustum at its pose in the shelf frame (OpenCV convention, like viser's)."""
@@ -268,5 +276,5 @@ def reset_boxes(server: Any, nodes: Mapping[str, BoxNodes], scene: Any,
             n.box.visible = b.id not in hidden
 
 
-__all__ = ["box_color", "colors_for", "draw_shelf", "draw_camera", "draw_boxes", "draw_outlines", "draw_set_aside", "BoxNodes",
+__all__ = ["box_color", "colors_for", "draw_shelf", "draw_caption", "draw_camera", "draw_boxes", "draw_outlines", "draw_set_aside", "BoxNodes",
            "risky_boxes", "Keyframe", "timeline", "frame_at", "label_position", "apply_keyframe", "reset_boxes", "visible_pose"]

@@ -151,6 +151,8 @@ def test_console_replay_draws_a_look_with_predicted_outlines(tmp_path: Path) -> 
             assert len(view.look_nodes) == 1  # b2's predicted pose
             assert tuple(view.look_nodes[0].position) == pytest.approx((0.3, 0.12, 0.1))
             assert "moved" in view.look_md.content
+            assert view.drawing.caption_node.text == (f"Replayed session: the shelf seen after {labels[1]}; "
+                                                      "outlines: as predicted")
             view._show_look("—")
             assert set(view.nodes) == {"b0", "b1", "b2"} and view.look_nodes == []
     finally:
@@ -178,3 +180,41 @@ def test_a_replay_opens_its_preview_at_the_first_frame_even_for_the_plan_already
             assert int(view.preview.slider.value) == 0
     finally:
         store.close()
+
+
+def test_the_3d_view_says_whether_it_draws_the_shelf_or_a_predicted_preview_frame(stored) -> None:
+    """One 3D view serves every tab: a preview played to its end (boxes pulled or fallen) looked
+    like the shelf to a supervisor on the Supervisor tab. A caption above the shelf says which."""
+    db, sid, _ = stored
+    store = SessionStore(db, readonly=True)
+    try:
+        with replaying(store, sid) as view:
+            drawing = view.drawing
+            assert drawing.caption == f"Replayed session {sid}: the shelf as captured"
+            assert drawing.caption_node is not None and drawing.caption_node.text == drawing.caption
+            view.preview.prev_plan.value = "heuristic"
+            view.preview.load(force=True)
+            last = int(view.preview.slider.max)
+            view.preview.slider.value = last
+            view.preview.show_frame(last)
+            fr = view.preview.frames[last]
+            nsteps = max(k.step for k in view.preview.frames) + 1
+            assert drawing.caption_node.text.startswith(f"Preview of the heuristic plan, step {nsteps}/{nsteps}")
+            assert drawing.caption_node.text.endswith("(predicted, not the shelf as seen)")
+            assert fr.world and fr.world in drawing.caption_node.text
+            view.preview.prev_plan.value = "physics"            # no recorded preview: the shelf again
+            view.preview.load(force=True)
+            assert not view.preview.frames
+            assert drawing.caption_node.text == f"Replayed session {sid}: the shelf as captured"
+    finally:
+        store.close()
+
+
+def test_a_preview_caption_names_what_collapsed_as_plain_text() -> None:
+    from shelfpick.console.web.panels import preview_caption
+    from shelfpick.console.web.scene_view import Keyframe
+
+    fr = Keyframe(1, "b*2", 0.4, {}, ("<b>x</b>",), "collapses in 3 worlds of 20: shown in world 2")
+    cap = preview_caption("physics", fr, 3)
+    assert cap == ("Preview of the physics plan, step 2/3, collapses in 3 worlds of 20: shown in world 2; "
+                   "collapsed: <b>x</b> (predicted, not the shelf as seen)")

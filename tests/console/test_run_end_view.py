@@ -127,6 +127,8 @@ def test_after_a_run_the_plan_is_shown_executed_and_the_answers_say_how_it_ended
     # draw the boxes it took out back where they stood
     assert view.preview.source("physics") == ((), None) and view.preview.frames == []
     assert "No preview" in view.preview.prev_info.content
+    # the 3D view says it draws the shelf as captured, which the run has changed (no look here)
+    assert view.drawing.caption_node.text == "The shelf as captured before the run: capture again to see it now"
     # nothing approvable twice: the supervisor is offered nothing and told why
     assert tuple(view.approve_plan.options) == ("—",)
     assert "Pending plans" not in sup.sup_info.content and "Nothing to decide" in sup.sup_info.content
@@ -141,6 +143,7 @@ def test_after_a_run_the_plan_is_shown_executed_and_the_answers_say_how_it_ended
     wf.capture()
     settle(wf, view)
     assert "Executed" not in op.results.content and "No plans yet" in op.results.content
+    assert view.drawing.caption_node.text == "The shelf as seen"
 
 
 def test_a_failed_run_and_a_held_run_say_where_they_stopped(console):
@@ -170,6 +173,9 @@ def test_a_failed_run_and_a_held_run_say_where_they_stopped(console):
     assert f"offered below as “continue”, in the ids of the capture the look made (session {st.session_id})" \
         in plans
     assert entry.hash not in view.supervisor.sup_info.content.split("Pending plans")[1]
+    # the 3D view draws the shelf the look saw, and on it the offered plan's first predicted frame
+    assert view.drawing.base_caption == "The shelf as seen after robot step 1"
+    assert view.drawing.caption_node.text.startswith("Preview of the continue plan, step 1/")
 
 
 def test_the_decisions_table_names_the_planner_and_shows_outside_text_literally(console):
