@@ -74,6 +74,7 @@ import os
 import resource
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -179,13 +180,17 @@ def inputs(folder: Path) -> dict[str, Path]:
 # stage timing in process
 class Taps:
     """Wraps the functions of `STAGES` to add up wall and CPU time per stage, each exclusive of the
-    tapped stages it calls (a stack of open calls)."""
+    tapped stages it calls (a stack of open calls per thread; CPU is the calling thread's). A stage
+    run on another thread (the depth rules, beside the network's pass) overlaps the main thread's
+    stages: its time is also added to `beside`, and `other` leaves it out."""
 
     def __init__(self) -> None:
         self.wall: dict[str, float] = {}
         self.cpu: dict[str, float] = {}
-        self.stack: list[list[float]] = []        # per open call: [child wall, child cpu]
+        self.beside: dict[str, float] = {}        # stage -> wall seconds on other threads
+        self.local = threading.local()            # .stack: per open call [child wall, child cpu]
         self.undo: list[Callable[[], None]] = []
+        self.lock = threading.Lock()
         for stage, mod, attr in STAGES:
             self._wrap(stage, importlib.import_module(mod), attr)
 
@@ -198,24 +203,28 @@ class Taps:
         taps = self
 
         def tapped(*a, **k):
-            taps.stack.append([0.0, 0.0])
-            w, c = time.perf_counter(), time.process_time()
+            stack = taps.local.__dict__.setdefault("stack", [])
+            stack.append([0.0, 0.0])
+            w, c = time.perf_counter(), time.thread_time()
             try:
                 return inner(*a, **k)
             finally:
-                dw, dc = time.perf_counter() - w, time.process_time() - c
-                kw, kc = taps.stack.pop()
-                taps.wall[stage] = taps.wall.get(stage, 0.0) + dw - kw
-                taps.cpu[stage] = taps.cpu.get(stage, 0.0) + dc - kc
-                if taps.stack:
-                    taps.stack[-1][0] += dw
-                    taps.stack[-1][1] += dc
+                dw, dc = time.perf_counter() - w, time.thread_time() - c
+                kw, kc = stack.pop()
+                with taps.lock:
+                    taps.wall[stage] = taps.wall.get(stage, 0.0) + dw - kw
+                    taps.cpu[stage] = taps.cpu.get(stage, 0.0) + dc - kc
+                    if not stack and threading.current_thread() is not threading.main_thread():
+                        taps.beside[stage] = taps.beside.get(stage, 0.0) + dw - kw
+                if stack:
+                    stack[-1][0] += dw
+                    stack[-1][1] += dc
 
         setattr(owner, name, tapped)
         self.undo.append(lambda: setattr(owner, name, inner))
 
     def reset(self) -> None:
-        self.wall, self.cpu = {}, {}
+        self.wall, self.cpu, self.beside = {}, {}, {}
 
     def close(self) -> None:
         for u in reversed(self.undo):
@@ -250,7 +259,10 @@ def inproc_frame(folder: Path, seg: Any, taps: Taps, out: Path) -> tuple[dict, A
     write_outputs(res, out)
     fw, fc = time.perf_counter() - w, time.process_time() - c
     wall, cpu = dict(taps.wall), dict(taps.cpu)
-    wall["other"], cpu["other"] = pw - sum(wall.values()), pc - sum(cpu.values())
+    # other: perceive's time outside the tapped stages, on the main thread (CPU: the process's,
+    # less every stage's, so a stage on another thread is not counted twice)
+    wall["other"] = pw - (sum(wall.values()) - sum(taps.beside.values()))
+    cpu["other"] = pc - sum(cpu.values())
     wall.update(perceive=pw, writing=fw - pw, frame=fw)
     cpu.update(perceive=pc, writing=fc - pc, frame=fc)
     return {"wall": wall, "cpu": cpu, "boxes": len(res.scene.boxes)}, res

@@ -26,8 +26,11 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -421,6 +424,30 @@ def load_net(weights: str | Path, threads: int | None = 1) -> tuple[OnnxNet | To
     return TorchNet(model, threads), config
 
 
+class Beside:
+    """`fn(*args)` on a thread of its own, started now; `result()` waits for it (and raises what
+    it raised). Owned by the call that makes it: that call always waits for it."""
+
+    def __init__(self, fn: Callable[..., Any], *args: Any) -> None:
+        self._out: list[Any] = []
+        self._err: list[BaseException] = []
+        self._thread = threading.Thread(target=self._run, args=(fn, args), name="shelfpick-depth-rules",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, fn: Callable[..., Any], args: tuple) -> None:
+        try:
+            self._out.append(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            self._err.append(exc)
+
+    def result(self) -> Any:
+        self._thread.join()
+        if self._err:
+            raise self._err[0]
+        return self._out[0]
+
+
 class LearnedSegmenter:
     """`segment(rgb, depth) -> list[HxW bool]`; holds its network (create once, reuse)."""
 
@@ -455,14 +482,16 @@ class LearnedSegmenter:
         return out
 
     def snap(self, masks: list[np.ndarray], rgb: np.ndarray, depth: np.ndarray,
-             seen: np.ndarray | None = None) -> list[np.ndarray]:
+             seen: np.ndarray | None = None, rules: list[np.ndarray] | None = None) -> list[np.ndarray]:
         """Each instance that a depth-and-edge mask matches (IoU >= snap_iou, one to one) takes
         that mask's outline; an instance lying inside an unused mask that holds no other instance
         grows to it (`grow_partial`); instances holding several such masks are split into them; masks
         where the network saw nothing are added when the depth makes them faces (`seen`: the
         network's instances before the gate; needs `bind`: the depth is judged in the shelf
-        frame); later masks lose pixels already taken."""
-        rules = DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
+        frame); later masks lose pixels already taken. `rules`: the depth-and-edge masks when
+        already made (`segment` makes them beside the network's pass)."""
+        if rules is None:
+            rules = self.depth_rules(rgb, depth)
         out = list(masks)
         pairs = match(rules, masks, self.config.snap_iou)
         for i, j, _ in pairs:
@@ -526,9 +555,23 @@ class LearnedSegmenter:
         out.threads = threads
         return out
 
+    def depth_rules(self, rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
+        """The depth-and-edge masks the instances snap to (`segment_depth`)."""
+        return DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
+
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
         h, w = rgb.shape[:2]
-        prob = self.probabilities(rgb)
+        # the depth-and-edge masks do not depend on the network: made on a thread of their own
+        # while the network runs (ONNX Runtime, OpenCV and numpy's large operations let go of the
+        # GIL), so the two stages share the 2 cores instead of taking turns on one
+        beside = Beside(self.depth_rules, rgb, depth) if (
+            depth is not None and self.depth_ok and self.config.snap_iou > 0) else None
+        try:
+            prob = self.probabilities(rgb)
+        except BaseException:
+            if beside is not None:
+                beside.result()
+            raise
         if self.config.full_res:
             ph, pw = prob.shape[1:]
             prob = np.stack([cv2.resize(c, (w, h), interpolation=cv2.INTER_LINEAR) for c in prob])
@@ -538,6 +581,7 @@ class LearnedSegmenter:
         else:
             labels = instances(prob, self.config)
             full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
+        rules = beside.result() if beside is not None else None
         if full.max() == 0:
             return []
         masks = [m for m in (full == k for k in range(1, int(full.max()) + 1)) if m.any()]
@@ -547,5 +591,5 @@ class LearnedSegmenter:
         if self.config.depth_gate and self.camera is not None and self.shelf is not None:
             masks = keep_faces(masks, depth, self.camera, self.shelf)
         if self.config.snap_iou > 0:
-            masks = self.snap(masks, rgb, depth, seen)
+            masks = self.snap(masks, rgb, depth, seen, rules)
         return masks

@@ -123,3 +123,39 @@ def test_with_and_without_the_bytecode_cache_needs_the_cache_folder(capsys, tmp_
     (tmp_path / "judge" / "scenes").mkdir(parents=True)
     assert ps.main(["--judge-dir", str(tmp_path / "judge"), "--mode", "cli", "--ab-pycache"]) == 2
     assert "--ab-pycache needs --pycache DIR" in capsys.readouterr().err
+
+
+def test_a_stage_on_another_thread_is_timed_on_it_and_left_out_of_other(monkeypatch):
+    """The depth rules run beside the network (a thread of their own): their time is theirs, their
+    stack is their thread's, and `other` (perceive's untapped rest) does not subtract it again."""
+    import threading
+    import time
+    import types
+
+    ps = load("perceive_speed")
+    mod = types.ModuleType("fake_stages")
+
+    def rules():
+        time.sleep(0.05)
+
+    def net():
+        t = threading.Thread(target=mod.rules)
+        t.start()
+        time.sleep(0.05)
+        t.join()
+
+    mod.rules, mod.net = rules, net
+    monkeypatch.setitem(__import__("sys").modules, "fake_stages", mod)
+    monkeypatch.setattr(ps, "STAGES", (("forward", "fake_stages", "net"), ("depth_rules", "fake_stages", "rules")))
+    taps = ps.Taps()
+    try:
+        w = time.perf_counter()
+        mod.net()
+        pw = time.perf_counter() - w
+    finally:
+        taps.close()
+    assert taps.wall["depth_rules"] >= 0.045 and taps.wall["forward"] >= 0.045
+    assert set(taps.beside) == {"depth_rules"} and taps.beside["depth_rules"] == taps.wall["depth_rules"]
+    other = pw - (sum(taps.wall.values()) - sum(taps.beside.values()))
+    assert 0 <= other < 0.03            # the two stages overlap: not 0.05 s below zero
+    assert mod.net is net and mod.rules is rules

@@ -183,6 +183,48 @@ def test_rgbd_instances_take_the_depth_edge_outline_photos_do_not(rendered, segm
     assert len(photo) == len(off) and all(np.array_equal(a, b) for a, b in zip(photo, off))
 
 
+def test_the_depth_rules_made_beside_the_network_give_the_masks_made_after_it(rendered, segmenter, monkeypatch):
+    """`segment` makes the depth-and-edge masks on a thread while the network runs: the masks are
+    those of making them after the network's pass (as before), and their error reaches the caller."""
+    import threading
+
+    from shelfpick.perception import segment_learned as sl
+
+    scene, cap = rendered
+    seg = segmenter.bind(cap.camera, scene.shelf)
+    real = sl.LearnedSegmenter.depth_rules
+    threads = []
+
+    def recorded(self, rgb, depth):
+        threads.append(threading.current_thread().name)
+        return real(self, rgb, depth)
+
+    class After:
+        """The rules made when asked for, on the caller's thread: after the network's pass."""
+
+        def __init__(self, fn, *args):
+            self.fn, self.args = fn, args
+
+        def result(self):
+            return self.fn(*self.args)
+
+    with monkeypatch.context() as m:
+        m.setattr(sl.LearnedSegmenter, "depth_rules", recorded)
+        beside = seg.segment(cap.rgb, cap.depth)
+        m.setattr(sl, "Beside", After)
+        after = seg.segment(cap.rgb, cap.depth)
+    assert threads == ["shelfpick-depth-rules", threading.current_thread().name]
+    assert len(beside) == len(after) >= 2 and all(np.array_equal(a, b) for a, b in zip(beside, after))
+
+    def broken(self, rgb, depth):
+        raise MemoryError("depth rules")
+
+    monkeypatch.setattr(sl.LearnedSegmenter, "depth_rules", broken)
+    with pytest.raises(MemoryError, match="depth rules"):
+        seg.segment(cap.rgb, cap.depth)
+    assert not [t for t in threading.enumerate() if t.name == "shelfpick-depth-rules"]
+
+
 def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
     """Issue 14: `auto` takes the learned segmenter for RGB-D (segment.RGBD) and, since its second
     training round, for photos (segment.RGB_ONLY: unsnapped, its `rgb_only()` copy of the same
