@@ -441,6 +441,9 @@ class Beside:
         except BaseException as exc:  # noqa: BLE001 - handed to the caller
             self._err.append(exc)
 
+    def join(self) -> None:
+        self._thread.join()
+
     def result(self) -> Any:
         self._thread.join()
         if self._err:
@@ -570,7 +573,7 @@ class LearnedSegmenter:
             prob = self.probabilities(rgb)
         except BaseException:
             if beside is not None:
-                beside.result()
+                beside.join()             # the network's error is the one raised; the thread ends first
             raise
         if self.config.full_res:
             ph, pw = prob.shape[1:]

@@ -224,6 +224,14 @@ def test_the_depth_rules_made_beside_the_network_give_the_masks_made_after_it(re
         seg.segment(cap.rgb, cap.depth)
     assert not [t for t in threading.enumerate() if t.name == "shelfpick-depth-rules"]
 
+    def no_network(self, rgb):       # the network fails too: its error is the one the caller gets
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sl.LearnedSegmenter, "probabilities", no_network)
+    with pytest.raises(KeyboardInterrupt):
+        seg.segment(cap.rgb, cap.depth)
+    assert not [t for t in threading.enumerate() if t.name == "shelfpick-depth-rules"]
+
 
 def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
     """Issue 14: `auto` takes the learned segmenter for RGB-D (segment.RGBD) and, since its second
