@@ -563,18 +563,21 @@ class LearnedSegmenter:
         return DepthEdgeSegmenter(self.camera, self.shelf).segment(rgb, depth)
 
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[np.ndarray]:
-        h, w = rgb.shape[:2]
         # the depth-and-edge masks do not depend on the network: made on a thread of their own
         # while the network runs (ONNX Runtime, OpenCV and numpy's large operations let go of the
         # GIL), so the two stages share the 2 cores instead of taking turns on one
         beside = Beside(self.depth_rules, rgb, depth) if (
             depth is not None and self.depth_ok and self.config.snap_iou > 0) else None
         try:
-            prob = self.probabilities(rgb)
-        except BaseException:
+            return self._segment(rgb, depth, beside)
+        finally:
             if beside is not None:
-                beside.join()             # the network's error is the one raised; the thread ends first
-            raise
+                beside.join()         # never left running; the caller's own error (the network's) is raised
+
+    def _segment(self, rgb: np.ndarray, depth: np.ndarray | None, beside: Beside | None) -> list[np.ndarray]:
+        """`segment`'s work; `beside`: the depth-and-edge masks on their way (asked for at the snap)."""
+        h, w = rgb.shape[:2]
+        prob = self.probabilities(rgb)
         if self.config.full_res:
             ph, pw = prob.shape[1:]
             prob = np.stack([cv2.resize(c, (w, h), interpolation=cv2.INTER_LINEAR) for c in prob])
@@ -584,7 +587,6 @@ class LearnedSegmenter:
         else:
             labels = instances(prob, self.config)
             full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
-        rules = beside.result() if beside is not None else None
         if full.max() == 0:
             return []
         masks = [m for m in (full == k for k in range(1, int(full.max()) + 1)) if m.any()]
@@ -594,5 +596,5 @@ class LearnedSegmenter:
         if self.config.depth_gate and self.camera is not None and self.shelf is not None:
             masks = keep_faces(masks, depth, self.camera, self.shelf)
         if self.config.snap_iou > 0:
-            masks = self.snap(masks, rgb, depth, seen, rules)
+            masks = self.snap(masks, rgb, depth, seen, beside.result() if beside is not None else None)
         return masks

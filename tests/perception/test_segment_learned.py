@@ -208,6 +208,9 @@ def test_the_depth_rules_made_beside_the_network_give_the_masks_made_after_it(re
         def result(self):
             return self.fn(*self.args)
 
+        def join(self):
+            pass
+
     with monkeypatch.context() as m:
         m.setattr(sl.LearnedSegmenter, "depth_rules", recorded)
         beside = seg.segment(cap.rgb, cap.depth)
