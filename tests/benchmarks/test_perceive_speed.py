@@ -128,6 +128,7 @@ def test_with_and_without_the_bytecode_cache_needs_the_cache_folder(capsys, tmp_
 def test_a_stage_on_another_thread_is_timed_on_it_and_left_out_of_other(monkeypatch):
     """The depth rules run beside the network (a thread of their own): their time is theirs, their
     stack is their thread's, and `other` (perceive's untapped rest) does not subtract it again."""
+    import sys
     import threading
     import time
     import types
@@ -145,7 +146,7 @@ def test_a_stage_on_another_thread_is_timed_on_it_and_left_out_of_other(monkeypa
         t.join()
 
     mod.rules, mod.net = rules, net
-    monkeypatch.setitem(__import__("sys").modules, "fake_stages", mod)
+    monkeypatch.setitem(sys.modules, "fake_stages", mod)
     monkeypatch.setattr(ps, "STAGES", (("forward", "fake_stages", "net"), ("depth_rules", "fake_stages", "rules")))
     taps = ps.Taps()
     try:
