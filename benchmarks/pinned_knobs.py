@@ -91,11 +91,9 @@ def both_sides_unit(unit: dict) -> list[dict]:
     """Every draw of the plans of one shelf (`unit["rows"]`) in our pinned world under the variant
     `unit["variant"]`: did it fail? The shelf is generated once for all its plans."""
     from shelfpick.planning.physics import PhysicsConfig
-    from shelfpick.planning.shelves import generate
 
     warnings.simplefilter("ignore")
-    kind, seed = unit["shelf"].rsplit("-", 1)
-    truth = generate(kind, int(seed), settle=True)
+    truth = wa.truth_of(unit["shelf"])
     config = replace(PhysicsConfig(), **VARIANTS[unit["variant"]])
     return [{"shelf": row["shelf"], "target": row["target"], "sequence": row["sequence"], "variant": unit["variant"],
              "fails": [wa.pinned_fail(truth, _unit(row, unit["mass"]), d, config) for d in range(row["draws"])]}
@@ -111,12 +109,10 @@ def both_sides(rows: Sequence[dict], variant: str, jobs: int, mass: tuple[float,
 
     from benchmarks.judge_rows import iter_rows
 
-    judge = str(ROOT.parent / "shared" / "judge")
     shelves: dict[str, list[dict]] = {}
     for r in rows:
         shelves.setdefault(r["shelf"], []).append(r)
-    units = [{"shelf": s, "rows": rs, "variant": variant, "mass": list(mass), "judge_dir": judge}
-             for s, rs in shelves.items()]
+    units = [{"shelf": s, "rows": rs, "variant": variant, "mass": list(mass)} for s, rs in shelves.items()]
     got: dict[tuple, list] = {}
     with out.open("w") if out else nullcontext() as f:
         for res in tqdm(iter_rows(units, jobs, both_sides_unit), total=len(units), desc="shelves", file=sys.stderr):
@@ -160,13 +156,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     tally = {name: 0 for name in VARIANTS}
     if a.mujoco:
         tally["the judge's MuJoCo engine"] = 0
-    from shelfpick.planning.shelves import generate
-
     truths: dict = {}      # shelf -> its truth, generated (and settled) once
     for row, draw in todo:
         if row["shelf"] not in truths:
-            kind, seed = row["shelf"].rsplit("-", 1)
-            truths[row["shelf"]] = generate(kind, int(seed), settle=True)
+            truths[row["shelf"]] = wa.truth_of(row["shelf"])
         truth = truths[row["shelf"]]
         got = run_draw(truth, row, draw, tuple(a.mass))
         if a.mujoco:

@@ -152,12 +152,11 @@ def pinned(shelf: str, box: str, below: Sequence[str], draw: int, seeds: int, ov
 
     from benchmarks import world_ablation as wa
     from shelfpick.planning.physics import PhysicsConfig
-    from shelfpick.planning.shelves import generate
     from shelfpick.planning.sim import ShelfSim
     from shelfpick.planning.uncertainty import draw_config
 
-    kind, seed = shelf.rsplit("-", 1)
-    truth = generate(kind, int(seed), settle=True)
+    seed = shelf.rsplit("-", 1)[1]
+    truth = wa.truth_of(shelf)
     masses = wa.masses_of(truth.boxes, int(seed), draw, (0.5, 3.0))
     scene = replace(truth, boxes=tuple(replace(b, mass=m) for b, m in zip(truth.boxes, masses)))
     cfg = draw_config(PhysicsConfig().replace(**overrides).for_prediction(), int(seed) + draw, 0, wa.pinned_model())

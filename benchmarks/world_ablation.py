@@ -193,13 +193,18 @@ def run_unit(unit: dict) -> dict:
     return row
 
 
-def add_unit(unit: dict) -> dict:
-    """The conditions of `unit["add"]` for a row made before: the row with them merged in."""
+def truth_of(shelf: str):
+    """The true shelf of a row's `shelf` name ("kind-seed"), generated and settled as the rows' were."""
     from shelfpick.planning.shelves import generate
 
+    kind, seed = shelf.rsplit("-", 1)
+    return generate(kind, int(seed), settle=True)
+
+
+def add_unit(unit: dict) -> dict:
+    """The conditions of `unit["add"]` for a row made before: the row with them merged in."""
     warnings.simplefilter("ignore")
-    kind, seed = unit["shelf"].rsplit("-", 1)
-    truth = generate(kind, int(seed), settle=True)
+    truth = truth_of(unit["shelf"])
     row = dict(unit["row"])
     if unit["add"] == "mujoco":
         unit = {**unit, "target": row["target"], "mass": unit["mass"]}
