@@ -123,6 +123,7 @@ class ClientView:
         self.shown_plans: Mapping[str, PlanEntry] | None = None
         self.replay: ReplayView | None = None      # a stored session drawn instead of the live state
         self.shown_look: LookView | None = None    # the replayed look after a step that is drawn
+        self.was_running = False                   # the robot was running at the last live render
         self.client_key = f"browser-{getattr(client, 'client_id', id(client))}"   # for the throttle
         self.wf.throttle.connected(self.client_key)      # a browser open before a flood keeps its say
         self.drawing = drawing = ShelfDrawing(client)
@@ -263,6 +264,10 @@ class ClientView:
             self.shown_plans = None
             op.show_targets(state.scene)
         self.drawing.set_base(shelf_caption(state, scene))
+        running = state.robot == "running"
+        if running and not self.was_running:
+            self.preview.show_shelf()          # the robot is working on the shelf: not a preview's frame
+        self.was_running = running
         op.follow_target(state.target)
         offered = previewable(state)
         if offered is not self.shown_plans:

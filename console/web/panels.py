@@ -318,6 +318,16 @@ class PreviewPlayer:
         with self.lock:
             self.playing = False
 
+    def show_shelf(self) -> None:
+        """Stop playing and draw the shelf again, not a predicted frame (a run started: the robot is
+        taking boxes out of the real shelf, which the view then follows look by look)."""
+        with self.lock:
+            self.playing = False
+            scene = self.scene()
+            if scene is not None:
+                sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene, self.drawing.hidden)
+            self.drawing.say(None)
+
 
 class OperatorPanel:
     """The `Operator` tab: capture, target, plan, the preview player, stop, robot progress, camera images."""

@@ -210,3 +210,27 @@ def test_the_decisions_table_names_the_planner_and_shows_outside_text_literally(
         assert literal(text, f"stopped by {MARKUP} at step 2 of 2 ({MARKUP}), 1 of 2 steps done"), text
     row = decisions_table([{"decision": "approve", "planner": "a|b", "plan": "h", "who": "x|y", "reason": "|"}])
     assert row.splitlines()[2].count("|") == 7 and "a|b" in shown(row)     # six cells, the bars are text
+
+
+def test_when_a_run_starts_the_3d_view_leaves_the_preview_for_the_shelf(console):
+    """A preview played to its end drew the boxes the plan takes out as gone; when the robot started,
+    the view stayed on that predicted frame until the first look came. It goes back to the shelf."""
+    import dataclasses
+
+    import numpy as np
+
+    app, wf, view, peer = console()
+    wf.capture()
+    view.operator.press(None, "Plan clearance")
+    until(lambda: not wf.state.planning and wf.state.plans.get("physics"), 60, "plans")
+    settle(wf, view)
+    view.preview.load(force=True)
+    last = len(view.preview.frames) - 1
+    view.preview.show_frame(last)
+    gone = [b for b in wf.state.scene.ids if not view.drawing.nodes[b].box.visible]
+    assert last > 0 and gone and view.drawing.caption_node.text.startswith("Preview of the physics plan")
+    view.render(dataclasses.replace(wf.state, robot="running"))
+    assert view.drawing.caption_node.text == "The shelf as seen"
+    for b in wf.state.scene.boxes:
+        assert view.drawing.nodes[b.id].box.visible
+        assert np.allclose(view.drawing.nodes[b.id].box.position, b.position)
