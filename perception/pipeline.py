@@ -38,6 +38,8 @@ from shelfpick.perception.unexplained import EXPLAIN_TOL, Found, candidates, des
 
 
 DEFAULT_CATALOGUE = Catalogue()
+# an unexplained region that is one flat box front no mask covered is perceived as a box (missed_fronts.py)
+FIND_MISSED_FRONTS = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,12 +243,31 @@ def _explained_boxes(masks: list[np.ndarray], measured: Any, depth: np.ndarray, 
     t = time.perf_counter()
     offered = masks
     boxes, masks, faces, said, notes = _boxes(masks, measured, depth, capture, shelf, catalogue, placeholder)
-    warnings.extend(said)
     timing["boxes"] = time.perf_counter() - t
     labels = to_label_image(masks, capture.shape)
     boxes, found, valid_notes = _valid_and_explained(boxes, capture, shelf, labels, offered, masks, timing)
+    missed = _missed(found, boxes, capture, shelf) if FIND_MISSED_FRONTS else []
+    if missed:      # fronts the segmenter missed, seen in the matter: perceived again with them as masks
+        t = time.perf_counter()
+        offered = list(offered) + [m.mask for m in missed]
+        again = None if measured is None else list(measured) + [m.face for m in missed]
+        boxes, masks, faces, said, notes = _boxes(offered, again, depth, capture, shelf, catalogue, placeholder)
+        notes = [m.note for m in missed] + notes
+        timing["boxes"] += time.perf_counter() - t
+        labels = to_label_image(masks, capture.shape)
+        boxes, found, valid_notes = _valid_and_explained(boxes, capture, shelf, labels, offered, masks, timing)
+    warnings.extend(said)
     warnings += [n for n in valid_notes if CONTRADICTION in n]   # faces that cannot all be right: said, not only moved
     return boxes, labels, faces, notes + valid_notes, found
+
+
+def _missed(found: Found | None, boxes: list[Box], capture: Capture, shelf: Shelf) -> list:
+    """The unexplained regions that are box fronts the segmenter missed (`missed_fronts`)."""
+    if found is None or not found.regions:
+        return []
+    from shelfpick.perception.missed_fronts import missed_fronts
+
+    return missed_fronts([u.id for u in found.regions], found.labels, boxes, capture.depth, capture.camera, shelf)
 
 
 def _overlay(capture: Capture, labels: np.ndarray, boxes: list[Box], found: Found | None,
