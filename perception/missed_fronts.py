@@ -9,18 +9,19 @@ perceived as a box instead, with a note saying so; every other region stays unex
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from shelfpick.perception.faces import FrontFace, measure_front
+from shelfpick.perception.geometry import point_map
 from shelfpick.perception.scene import Box, Camera, Shelf
 
 MIN_FILL = 0.85       # the region fills its min-area rectangle at least this much (a face, not a band or an L)
 MIN_SIDE = 0.10       # each side of the face at least this (m): the repeat cuts' smallest front
 MIN_FACING = 0.80     # cos of the angle between its plane's normal and shelf +y (the depth gate's)
+MIN_ON_PLANE = 0.85   # share of its points within the depth gate's 12 mm of that plane: one face, not two
 MAX_OVERLAP = 0.10    # at most this share of it lies within a perceived box's front, seen from the front
 
 
@@ -67,8 +68,20 @@ def missed_fronts(region_ids: Sequence[str], labels: np.ndarray, boxes: Sequence
         if q is None or not_a_front(q, shelf) or not_a_face(q, sel) or min(q.width, q.height) < MIN_SIDE:
             continue
         fill = rect_fill(sel)
-        facing = math.cos(math.radians(q.yaw)) * math.cos(math.radians(q.tilt))
-        if fill < MIN_FILL or facing < MIN_FACING or _front_overlap(q, boxes) > MAX_OVERLAP:
+        if fill < MIN_FILL or _front_overlap(q, boxes) > MAX_OVERLAP or not _one_facing_plane(sel, depth, camera, shelf):
             continue
         out.append(MissedFront(rid, sel, q, fill))
     return out
+
+
+def _one_facing_plane(sel: np.ndarray, depth: np.ndarray, camera: Camera, shelf: Shelf) -> bool:
+    """Most of the region's points lie on one plane (RANSAC, seeded: the depth gate's) that faces the
+    camera: a box front, not the two faces of a turned carton (whose mean plane may face it)."""
+    from shelfpick.perception.face_gate import GateConfig, evidence, inside_shelf
+
+    cfg = GateConfig()
+    d = np.asarray(depth, np.float32)
+    valid = d > 0
+    pts = point_map(camera, np.where(valid, d, 0.0).astype(np.float32))
+    ev = evidence(sel, pts, valid, inside_shelf(pts, shelf, 0.0), cfg, np.random.default_rng(0))
+    return ev.normal_cos is not None and ev.normal_cos >= MIN_FACING and (ev.on_plane or 0.0) >= MIN_ON_PLANE
