@@ -67,11 +67,17 @@ class AutoSegmenter:
 
     name = "auto"
 
-    def __init__(self, rgb_only: str = RGB_ONLY, rgbd: str = RGBD, learned_weights: str | Path | None = None):
+    def __init__(self, rgb_only: str = RGB_ONLY, rgbd: str = RGBD, learned_weights: str | Path | None = None,
+                 photo_weights: str | Path | None = None):
+        """`learned_weights`: the learned network for RGB-D (default the shipped `.onnx`); `photo_weights`:
+        for photos (default `learned_weights` when given, else the shipped photo network)."""
         self.rgb_only_kind = rgb_only
         self.rgbd_kind = rgbd
         self.learned_weights = Path(learned_weights) if learned_weights is not None else None
+        given = photo_weights if photo_weights is not None else learned_weights
+        self.photo_weights = Path(given) if given is not None else None
         self._learned: Segmenter | None = None
+        self._photo: Segmenter | None = None
 
     def learned_available(self) -> bool:
         """The learned segmenter's weights file is there and its runtime is installed
@@ -93,13 +99,31 @@ class AutoSegmenter:
             self._learned = load_segmenter(self.learned_weights, "learned")
         return self._learned
 
+    def _photo_learned_or_rules(self) -> Segmenter:
+        """The learned segmenter photos use (`photo_weights`, loaded once; the RGB-D one when it is the
+        same file), or the rules where its weights or runtime are missing."""
+        from shelfpick.perception.segment_depth import DepthEdgeSegmenter
+        from shelfpick.perception.segment_learned import LEARNED_PHOTO_ONNX
+
+        if self.photo_weights is None:
+            self.photo_weights = LEARNED_PHOTO_ONNX
+        self.learned_available()                  # settles learned_weights
+        if self.photo_weights == self.learned_weights:
+            return self._learned_or_rules()
+        runtime = "onnxruntime" if self.photo_weights.suffix.lower() == ".onnx" else "torch"
+        if not (self.photo_weights.is_file() and importlib.util.find_spec(runtime) is not None):
+            return DepthEdgeSegmenter()
+        if self._photo is None:
+            self._photo = load_segmenter(self.photo_weights, "learned")
+        return self._photo
+
     def choose(self, has_depth: bool) -> Segmenter:
         from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
         if has_depth:
             return self._learned_or_rules() if self.rgbd_kind == "learned" else DepthEdgeSegmenter()
         if self.rgb_only_kind == "learned":
-            return self._learned_or_rules()   # for_capture then takes its rgb_only() copy
+            return self._photo_learned_or_rules()   # for_capture then takes its rgb_only() copy
         if self.rgb_only_kind == "photo":
             from shelfpick.perception.segment_photo import PhotoSegmenter
 

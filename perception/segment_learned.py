@@ -46,6 +46,9 @@ from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 ROOT = Path(__file__).resolve().parent.parent
 LEARNED_WEIGHTS = ROOT / "static" / "weights" / "shelfpick-learned.pt"   # the checkpoint (torch, training)
 LEARNED_ONNX = LEARNED_WEIGHTS.with_suffix(".onnx")      # the same network exported: what inference runs
+# photos (no depth) keep the second training round's network: the sixth round (issue 31) was trained
+# and decided on RGB-D shelves, and the photo sets that could judge it are spent (docs/perception.md)
+LEARNED_PHOTO_ONNX = LEARNED_WEIGHTS.parent / "shelfpick-learned-photo.onnx"
 
 # EfficientNet-Lite0 blocks: (kernel, stride, expand ratio, in, out, repeats)
 LITE0_STAGES = ((3, 1, 1, 32, 16, 1), (3, 2, 6, 16, 24, 2), (5, 2, 6, 24, 40, 2), (3, 2, 6, 40, 80, 3),

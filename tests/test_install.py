@@ -56,7 +56,8 @@ def wheel(tmp_path_factory) -> Path:
 
 def test_the_wheel_carries_weights_demo_shelves_and_the_license(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    assert {"shelfpick/static/weights/shelfpick-seg.pt", "shelfpick/static/weights/shelfpick-learned.onnx"} <= names
+    assert {"shelfpick/static/weights/shelfpick-seg.pt", "shelfpick/static/weights/shelfpick-learned.onnx",
+            "shelfpick/static/weights/shelfpick-learned-photo.onnx"} <= names
     assert {f"shelfpick/static/demo/{p.name}" for p in (ROOT / "static" / "demo").glob("*.json")} <= names
     assert any(n.endswith("licenses/LICENSE") for n in names)
     assert not any(n.startswith(("tests/", "benchmarks/")) for n in names)

@@ -18,6 +18,7 @@ from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.perception.segment_learned import (
     LEARNED_ONNX,
+    LEARNED_PHOTO_ONNX,
     LEARNED_WEIGHTS,
     LearnedConfig,
     LearnedSegmenter,
@@ -250,7 +251,11 @@ def test_auto_takes_the_learned_segmenter_when_it_can(monkeypatch, tmp_path):
     assert isinstance(rgbd, LearnedSegmenter) and for_capture(seg, has_depth=True) is rgbd
     photo = for_capture(seg, has_depth=False)
     assert isinstance(photo, LearnedSegmenter) and not photo.depth_ok and rgbd.depth_ok
-    assert photo.model is rgbd.model                    # one network for both kinds of capture
+    # the sixth training round (issue 31) is RGB-D's; photos keep the second round's network
+    assert rgbd.weights == str(LEARNED_ONNX) and photo.weights == str(LEARNED_PHOTO_ONNX)
+    assert for_capture(seg, has_depth=False).model is photo.model        # each loaded once
+    same = AutoSegmenter(learned_weights=LEARNED_PHOTO_ONNX)               # weights given: both kinds
+    assert for_capture(same, False).model is for_capture(same, True).model
     assert isinstance(for_capture(AutoSegmenter(rgbd="depth"), True), DepthEdgeSegmenter)
     assert isinstance(for_capture(AutoSegmenter(rgb_only="depth"), False), DepthEdgeSegmenter)
     missing = AutoSegmenter(learned_weights=tmp_path / "none.pt")
