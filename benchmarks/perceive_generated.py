@@ -93,6 +93,32 @@ def sample_check(scene, samples: int = 3, seed: int = 0) -> list[str]:
     return out
 
 
+def tuning_look(look: str) -> str:
+    """`look` when it is a tuning look; ValueError naming it otherwise (held-out looks are camera_to_plan's)."""
+    if look not in TUNE_LOOKS:
+        raise ValueError(f"--look: {look!r} is not a tuning look ({', '.join(TUNE_LOOKS)}); held-out looks "
+                         "are measured by camera_to_plan.py only")
+    return look
+
+
+def tuning_seeds(text: str) -> list[int]:
+    """The tuning shelves of `--seeds` (a range A-B or a comma list); ValueError naming the value when it
+    is not one or a seed lies outside the tuning role."""
+    try:
+        if "-" in text:
+            lo, hi = (int(x) for x in text.split("-", 1))
+            seeds = list(range(lo, hi + 1))
+        else:
+            seeds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"--seeds: expected A-B or a comma list, got {text!r}") from None
+    bad = [s for s in seeds if s not in TUNE_SEEDS]
+    if bad or not seeds:
+        raise ValueError(f"--seeds: {bad[0] if bad else text!r} is not a tuning shelf "
+                         f"(only the tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]})")
+    return seeds
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--look", default="flat")
@@ -103,14 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=3,
                     help="sample worlds the planner must be able to build from each perceived scene (0: skip)")
     a = ap.parse_args(argv)
-    if a.look not in TUNE_LOOKS:
-        print(f"perceive_generated: --look: {a.look!r} is not a tuning look ({', '.join(TUNE_LOOKS)}); "
-              "held-out looks are measured by camera_to_plan.py only", file=sys.stderr)
-        return 2
-    seeds = ([*range(int(a.seeds.split("-")[0]), int(a.seeds.split("-")[1]) + 1)] if "-" in a.seeds
-             else [int(s) for s in a.seeds.split(",")])
-    if any(s not in TUNE_SEEDS for s in seeds):
-        print(f"perceive_generated: --seeds: only the tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}", file=sys.stderr)
+    try:
+        tuning_look(a.look)
+        seeds = tuning_seeds(a.seeds)
+    except ValueError as exc:
+        print(f"perceive_generated: {exc}", file=sys.stderr)
         return 2
     rows = []
     for s in seeds:

@@ -38,7 +38,7 @@ from benchmarks.camera_to_plan import VISIBLE_PX, match_fronts, plan_from_image,
 from benchmarks.judge_rows import (UsageError, cli_plan_settings, init_worker, judged, kept_rows,  # noqa: E402
                                    make_timed_plan, print_report)
 from benchmarks.judge_summary import engine_summary  # noqa: E402
-from benchmarks.perceive_generated import TUNE_LOOKS, TUNE_SEEDS, tune_scene  # noqa: E402
+from benchmarks.perceive_generated import TUNE_LOOKS, tune_scene, tuning_look, tuning_seeds  # noqa: E402
 
 TRUE_NOISE = 0.01
 
@@ -53,23 +53,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--out", required=True, help="rows (JSONL); frames go to <out>.frames, the summary to <out>.md")
     ap.add_argument("--resume", action="store_true", help="keep rows already in --out made with the same settings")
     return ap.parse_args(argv)
-
-
-def seeds_of(text: str) -> list[int]:
-    """The tuning seeds asked for; UsageError naming the value when one lies outside the tuning role."""
-    try:
-        if "-" in text:
-            lo, hi = (int(x) for x in text.split("-", 1))
-            seeds = list(range(lo, hi + 1))
-        else:
-            seeds = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise UsageError(f"--seeds: expected A-B or a comma list, got {text!r}") from None
-    bad = [s for s in seeds if s not in TUNE_SEEDS]
-    if bad or not seeds:
-        raise UsageError(f"--seeds: {bad[0] if bad else text!r} is not a tuning shelf "
-                         f"({TUNE_SEEDS.start}-{TUNE_SEEDS.stop - 1})")
-    return seeds
 
 
 def targets_of(truth: dict, seen: set[str], seed: int, n: int) -> list[str]:
@@ -166,10 +149,11 @@ def to_markdown(s: dict, header: str) -> str:
 
 def run(a: argparse.Namespace) -> dict:
     """Keep the rows `--resume` allows, run the other shelves here, summarize them all."""
-    if a.look not in TUNE_LOOKS:
-        raise UsageError(f"--look: {a.look!r} is not a tuning look ({', '.join(TUNE_LOOKS)}); held-out looks "
-                         "are measured only by camera_to_plan.py")
-    seeds = seeds_of(a.seeds)
+    try:
+        tuning_look(a.look)
+        seeds = tuning_seeds(a.seeds)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     a.judge_dir = str(Path(a.judge_dir).resolve())
     settings = cli_plan_settings({})
     sid = json.dumps({"plan": settings, "engine": a.engine, "targets": a.targets, "look": a.look,

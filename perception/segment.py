@@ -76,54 +76,46 @@ class AutoSegmenter:
         self.learned_weights = Path(learned_weights) if learned_weights is not None else None
         given = photo_weights if photo_weights is not None else learned_weights
         self.photo_weights = Path(given) if given is not None else None
-        self._learned: Segmenter | None = None
-        self._photo: Segmenter | None = None
+        self._nets: dict[Path, Segmenter] = {}    # learned segmenters by weights file, each loaded once
 
     def learned_available(self) -> bool:
-        """The learned segmenter's weights file is there and its runtime is installed
-        (onnxruntime for the shipped `.onnx`, in the `perception` extra; torch for a `.pt`)."""
+        """The RGB-D learned segmenter's weights file is there and its runtime is installed."""
+        return _usable(self._rgbd_weights())
+
+    def _rgbd_weights(self) -> Path:
         if self.learned_weights is None:
             from shelfpick.perception.segment_learned import LEARNED_ONNX
 
             self.learned_weights = LEARNED_ONNX
-        runtime = "onnxruntime" if self.learned_weights.suffix.lower() == ".onnx" else "torch"
-        return self.learned_weights.is_file() and importlib.util.find_spec(runtime) is not None
+        return self.learned_weights
 
-    def _learned_or_rules(self) -> Segmenter:
-        """The learned segmenter (loaded once), or the rules where its weights or runtime are missing."""
+    def _learned_or_rules(self, weights: Path) -> Segmenter:
+        """The learned segmenter on `weights` (loaded once, shared by both kinds of capture when
+        they name one file), or the rules where the file or its runtime is missing."""
         from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
-        if not self.learned_available():
+        if not _usable(weights):
             return DepthEdgeSegmenter()
-        if self._learned is None:
-            self._learned = load_segmenter(self.learned_weights, "learned")
-        return self._learned
+        if weights not in self._nets:
+            self._nets[weights] = load_segmenter(weights, "learned")
+        return self._nets[weights]
 
-    def _photo_learned_or_rules(self) -> Segmenter:
-        """The learned segmenter photos use (`photo_weights`, loaded once; the RGB-D one when it is the
-        same file), or the rules where its weights or runtime are missing."""
-        from shelfpick.perception.segment_depth import DepthEdgeSegmenter
-        from shelfpick.perception.segment_learned import LEARNED_PHOTO_ONNX
-
+    def _photo_weights(self) -> Path:
         if self.photo_weights is None:
+            from shelfpick.perception.segment_learned import LEARNED_PHOTO_ONNX
+
             self.photo_weights = LEARNED_PHOTO_ONNX
-        self.learned_available()                  # settles learned_weights
-        if self.photo_weights == self.learned_weights:
-            return self._learned_or_rules()
-        runtime = "onnxruntime" if self.photo_weights.suffix.lower() == ".onnx" else "torch"
-        if not (self.photo_weights.is_file() and importlib.util.find_spec(runtime) is not None):
-            return DepthEdgeSegmenter()
-        if self._photo is None:
-            self._photo = load_segmenter(self.photo_weights, "learned")
-        return self._photo
+        return self.photo_weights
 
     def choose(self, has_depth: bool) -> Segmenter:
         from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
         if has_depth:
-            return self._learned_or_rules() if self.rgbd_kind == "learned" else DepthEdgeSegmenter()
+            if self.rgbd_kind != "learned":
+                return DepthEdgeSegmenter()
+            return self._learned_or_rules(self._rgbd_weights())
         if self.rgb_only_kind == "learned":
-            return self._photo_learned_or_rules()   # for_capture then takes its rgb_only() copy
+            return self._learned_or_rules(self._photo_weights())   # for_capture then takes its rgb_only() copy
         if self.rgb_only_kind == "photo":
             from shelfpick.perception.segment_photo import PhotoSegmenter
 
@@ -135,6 +127,13 @@ class AutoSegmenter:
     def segment(self, rgb: np.ndarray, depth: np.ndarray | None) -> list[np.ndarray]:
         # a photo asked of `auto` directly is read as the pipeline reads it (`for_capture`)
         return for_capture(self, depth is not None).segment(rgb, depth)
+
+
+def _usable(weights: Path) -> bool:
+    """A learned segmenter's weights file is there and its runtime is installed (onnxruntime for the
+    shipped `.onnx`, in the `perception` extra; torch for a `.pt`)."""
+    runtime = "onnxruntime" if weights.suffix.lower() == ".onnx" else "torch"
+    return weights.is_file() and importlib.util.find_spec(runtime) is not None
 
 
 def for_capture(seg: Segmenter, has_depth: bool) -> Segmenter:

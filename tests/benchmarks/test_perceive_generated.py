@@ -24,4 +24,5 @@ def test_held_out_looks_and_other_seeds_are_refused(capsys):
     pg = load("perceive_generated")
     assert pg.main(["--look", "stereo", "--out", "/nonexistent"]) == 2
     assert pg.main(["--seeds", "31060", "--out", "/nonexistent"]) == 2
+    assert pg.main(["--seeds", "31a", "--out", "/nonexistent"]) == 2     # a one-line refusal, no traceback
     assert "tuning" in capsys.readouterr().err
