@@ -388,12 +388,16 @@ def _rest_on_supports(boxes: list[Box], snap: float, min_contact: float,
                 notes.append(f"{out[k].id}: top edge hidden, grown {-delta * 100:.1f} cm up to {out[i].id} above it")
                 delta = 0.0
         if abs(delta) > 1e-3:
+            # as sideways (`_part_sideways`): a move past `snap` is no measurement error, so the
+            # faces it names cannot all be right, and it is said (planning does not call a plan
+            # touching them safe)
+            why = f"; their perceived faces {CONTRADICTION}" if abs(delta) > snap else ""
             if delta > 0:
-                notes.append(f"{out[i].id}: pushed up {delta * 100:.1f} cm out of {under}")
+                notes.append(f"{out[i].id}: pushed up {delta * 100:.1f} cm out of {under}{why}")
             elif -delta <= snap:
                 notes.append(f"{out[i].id}: lowered {-delta * 100:.1f} cm onto {under} (gap closed)")
             else:
-                notes.append(f"{out[i].id}: hung {-delta * 100:.1f} cm in the air; dropped onto {under}")
+                notes.append(f"{out[i].id}: hung {-delta * 100:.1f} cm in the air; dropped onto {under}{why}")
         if delta != 0:
             out[i] = _moved(out[i], np.array([0.0, 0.0, delta]))
         placed.append(i)

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from shelfpick.perception.boxes import boxes_from_masks, distance_from_box_size, make_valid
+from shelfpick.perception.boxes import CONTRADICTION, boxes_from_masks, distance_from_box_size, flag_contradicted, make_valid
 from shelfpick.perception.faces import _rect_long_edge, measure_front
 from shelfpick.perception.evaluation.truth import front_face_masks
 from shelfpick.perception.scene import Box, Scene, Shelf
@@ -389,3 +389,21 @@ def test_a_face_behind_another_closer_than_any_box_is_deep_is_reported():
     far = replace(corner, position=(0.19, 0.12 + 0.125, 0.1))
     boxes, notes = make_valid([front, far], shelf)
     assert not any("cannot all be right" in n for n in notes) and _refusal(boxes, shelf) == ""
+
+
+def test_a_box_moved_up_or_down_past_snap_is_a_contradiction_naming_both_faces():
+    """A face measured 5 cm into the box under it, or 6 cm above any support, is no measurement
+    error: make_valid still moves it so the shelf can stand, but says the faces cannot all be
+    right, and flag_contradicted marks the boxes named (planning does not call a plan touching
+    them safe). Within `snap` (3 cm) a move is a note only."""
+    boxes = [_b("low", 0.0, 0.0), _b("into", 0.0, 0.15),          # 5 cm into 'low'
+             _b("low2", -0.3, 0.0), _b("near", -0.3, 0.18),       # 2 cm into 'low2': a note only
+             _b("hang", 0.3, 0.06)]                               # 6 cm above the floor
+    out, notes = make_valid(boxes, Shelf())
+    said = [n for n in notes if CONTRADICTION in n]
+    assert any(n.startswith("into: pushed up 5.0 cm out of low") for n in said), notes
+    assert any(n.startswith("hang: hung 6.0 cm in the air; dropped onto the floor") for n in said), notes
+    assert any(n.startswith("near: pushed up 2.0 cm") for n in notes)
+    assert not any(n.startswith("near:") for n in said)
+    marked = {b.id for b in flag_contradicted(out, notes) if b.contradicted}
+    assert marked == {"into", "low", "hang"}
