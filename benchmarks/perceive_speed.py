@@ -145,6 +145,25 @@ def load_avg() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def shelf_names(which: str, judge_dir: Path, shelves: str) -> list:
+    """The shelves `--shelves` names: tuning seeds (a range A-B or a comma list) or the judge's
+    shelves; ValueError naming the value otherwise."""
+    if which == "tune":
+        from benchmarks.perceive_generated import tuning_seeds
+
+        try:
+            return list(TUNE_SEEDS) if shelves == "all" else tuning_seeds(shelves)
+        except ValueError as exc:
+            raise ValueError(str(exc).replace("--seeds", "--shelves", 1)) from None
+    have = sorted(p.stem for p in (judge_dir / "scenes").glob("*.json"))
+    names = have if shelves == "all" else [n for n in shelves.split(",") if n.strip()]
+    bad = [n for n in names if n not in have]
+    if bad or (shelves != "all" and not names):
+        raise ValueError(f"--shelves: {bad[0] if bad else shelves!r} is not one of the judge's shelves"
+                         + (f" ({have[0]}..{have[-1]})" if have else " (it has none)"))
+    return names
+
+
 def frame_list(which: str, judge_dir: Path, shelves: str, tune_look: str = "flat") -> list[tuple[str, str, dict]]:
     """(look, shelf name, true scene dict) of every frame of the set (`tune_look`: the tuning look,
     `flat` or `labels`, docs/perception.md "Roles")."""
@@ -152,10 +171,9 @@ def frame_list(which: str, judge_dir: Path, shelves: str, tune_look: str = "flat
         from benchmarks.perceive_generated import tune_scene
 
         cache = Path(os.environ.get("TMPDIR", "/tmp")) / "perceive_speed_shelves"
-        names = [str(s) for s in TUNE_SEEDS] if shelves == "all" else shelves.split(",")
-        return [(tune_look, n, tune_scene(int(n), cache)) for n in names]
+        return [(tune_look, str(n), tune_scene(n, cache)) for n in shelf_names(which, judge_dir, shelves)]
     scenes = judge_dir / "scenes"
-    names = sorted(p.stem for p in scenes.glob("*.json")) if shelves == "all" else shelves.split(",")
+    names = shelf_names(which, judge_dir, shelves)
     docs = {n: json.loads((scenes / f"{n}.json").read_text(encoding="utf-8")) for n in names}
     return [(look, n, docs[n]) for look in HELD_OUT for n in names]
 
@@ -715,6 +733,11 @@ def main(argv: list[str] | None = None) -> int:
         import shelfpick.perception.pipeline as pipeline
 
         pipeline.one_blas_thread = contextlib.nullcontext   # type: ignore[attr-defined]
+    try:
+        shelf_names(a.set, Path(a.judge_dir), a.shelves)
+    except ValueError as exc:
+        print(f"perceive_speed: {exc}", file=sys.stderr)
+        return 2
     frames_dir = Path(a.frames)
     t = time.perf_counter()
     frames = [(look, n, frame_folder(frames_dir, look, n, truth))

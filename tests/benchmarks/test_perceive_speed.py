@@ -53,6 +53,22 @@ def test_held_out_frames_are_never_profiled(capsys, tmp_path):
     assert "--profile: only on --set tune" in err and "has no scenes/" in err
 
 
+def test_shelves_that_are_not_in_the_set_are_refused_in_one_line(capsys, tmp_path):
+    ps = load("perceive_speed")
+    judge = tmp_path / "judge"
+    (judge / "scenes").mkdir(parents=True)
+    (judge / "scenes" / "s00.json").write_text("{}")
+    frames = str(tmp_path / "frames")
+    assert ps.main(["--set", "tune", "--shelves", "31000-31001x", "--frames", frames]) == 2
+    assert ps.main(["--set", "tune", "--shelves", "29999", "--frames", frames]) == 2
+    assert ps.main(["--judge-dir", str(judge), "--shelves", "s00,zz", "--frames", frames]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["perceive_speed: --shelves: expected A-B or a comma list, got '31000-31001x'",
+                   "perceive_speed: --shelves: 29999 is not a tuning shelf (only the tuning seeds 31000-31059)",
+                   "perceive_speed: --shelves: 'zz' is not one of the judge's shelves (s00..s00)"]
+    assert not (tmp_path / "frames").exists()
+
+
 def test_paired_gives_the_median_of_each_frames_after_over_before():
     ps = load("perceive_speed")
 
