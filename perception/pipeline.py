@@ -187,7 +187,7 @@ def _perceive(capture: Capture, segmenter: Segmenter | None, shelf: Shelf | None
     boxes, labels, faces, notes, found = _explained_boxes(masks, measured, depth, capture, shelf, catalogue,
                                                           placeholder, timing, warnings)
     notes = catalogue_notes + notes
-    if found is not None and found.regions:    # first: the console shows a capture's first three warnings
+    if found is not None and found.regions:    # first: what the shelf holds that no box explains
         warnings.insert(0, describe(found.regions))
     overlay = _overlay(capture, labels, boxes, found, timing)
     if not boxes:

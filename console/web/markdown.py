@@ -213,7 +213,7 @@ def status_markdown(state: State, viewer: str = "") -> str:
     if state.target:
         head += f" · target **{md(state.target)}**"
     parts.append(head + (f" · {viewer}" if viewer else ""))
-    for w in state.warnings[:3]:
+    for w in state.warnings:        # every one: a "cannot all be right" marks boxes the plans avoid calling safe
         parts.append(f"_perception: {md(w)}_")
     return "\n\n".join(parts)
 

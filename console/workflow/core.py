@@ -69,6 +69,8 @@ class WorkflowCore:
         self._live_stops: set[threading.Event] = set()   # Stop sets every one of them
         self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
         self._clients: ClientPool | None = None    # Bullet clients reused by every plan
+        self._planning_pool: ClientPool | None = None   # the pool a running plan worker took its clients from
+        self._close_after_plan: list[ClientPool] = []   # pools close() left to that worker to close
         # the last plan's Predictor and its capture's generation, kept for the next plan of that
         # capture: its sample worlds are the same, so the plans are too
         self._kept: tuple[int, Predictor, Any] | None = None   # gen, predictor, its SetAside
@@ -81,13 +83,24 @@ class WorkflowCore:
         self._recover()
 
     def _client_pool(self) -> ClientPool:
-        """The Bullet clients the plans of this console reuse (made at the first plan)."""
+        """The Bullet clients the plans of this console reuse (made at the first plan); taken by the
+        plan worker, which hands it back with `_plan_pool_done` (close() never disconnects the
+        clients a running plan holds: it leaves that pool to the worker)."""
         from shelfpick.planning.bullet_clients import ClientPool
 
         with self._lock:
             if self._clients is None:
                 self._clients = ClientPool()
+            self._planning_pool = self._clients
             return self._clients
+
+    def _plan_pool_done(self) -> None:
+        """The plan worker is done with its clients: a pool close() left to it is closed now."""
+        with self._lock:
+            self._planning_pool = None
+            pools, self._close_after_plan = self._close_after_plan, []
+        for pool in pools:
+            pool.close()
 
     def close(self) -> None:
         """Close the kept Predictor (and its worker processes), disconnect the Bullet clients the
@@ -98,6 +111,9 @@ class WorkflowCore:
             pool, self._clients = self._clients, None
             kept, self._kept = self._kept, None
             self._epoch += 1
+            if pool is not None and pool is self._planning_pool:
+                self._close_after_plan.append(pool)   # a plan still simulates with its clients
+                pool = None
         if kept is not None:
             close_quietly(kept[1])
         if pool is not None:

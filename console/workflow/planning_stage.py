@@ -103,6 +103,8 @@ class PlanningStage(WorkflowCore):
 
     def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
         predictor, epoch, ok, aside = None, 0, False, None
+        with self._lock:
+            self._planning_pool = self._clients       # a kept predictor's clients come from it too
         try:
             t_setup = time.perf_counter()
             predictor, epoch, aside = self._predictor_for(gen, scene, target)
@@ -129,6 +131,7 @@ class PlanningStage(WorkflowCore):
                 self._keep(gen, epoch, predictor, aside)
             elif predictor is not None:      # a predictor a failure went through is not trusted again
                 close_quietly(predictor)
+            self._plan_pool_done()
             with self._lock:
                 if self._state.planning and gen != self._generation:
                     self._state = replace(self._state, planning=False)

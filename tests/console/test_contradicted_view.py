@@ -29,3 +29,19 @@ def test_the_plan_table_says_what_touches_a_doubted_face_and_escapes_it():
     assert "pulling b&#95;0 touches b&#42;1" in row and "not touched" in row   # outside text, escaped
     plain = Plan("extract", "b0", "physics", ("b0",), (StepPrediction("b0"),), True, {}, 0, {})
     assert "cannot all be right" not in results_markdown(State(plans={"physics": PlanEntry(plain, plain.content_hash())}))
+
+
+def test_the_status_shows_every_perception_warning_not_only_the_first_three():
+    """The "cannot all be right" warnings that mark boxes "?" came after the unexplained matter, a
+    mask cut in two and a box at the image border on the demo shelf demo-unstructured-6, and the
+    status showed the first three only: the reason the plans were not safe was not on the page."""
+    from shelfpick.console.web.markdown import status_markdown
+    from shelfpick.console.workflow.machine import State
+
+    said = ("2 regions of matter inside the shelf that no perceived box explains", "mask 1 is 2 fronts",
+            "b7 touches the top image border", "b2: pushed up 15.7 cm out of b1; their perceived faces cannot all be right",
+            "b5: pushed up 13.6 cm out of b2; their perceived faces cannot all be right")
+    md = status_markdown(State(warnings=said))
+    lines = [ln for ln in md.split("\n\n") if ln.startswith("_perception: ")]
+    assert len(lines) == 5
+    assert "b5&#58; pushed up 13&#46;6 cm out of b2" in lines[-1]     # escaped, as all text from perception

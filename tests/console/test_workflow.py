@@ -401,3 +401,20 @@ def test_close_releases_the_sources_camera_even_when_the_camera_is_already_gone(
         finally:
             wf.close()
             store.close()
+
+
+def test_close_while_a_plan_runs_leaves_its_clients_to_it_and_closes_them_after(make_wf):
+    """close() (the console's shutdown) disconnected every Bullet client of the pool, also those a
+    plan worker was simulating with: the worker then failed with "Not connected to physics server"
+    (seen driving the console in Chromium). Now the running plan finishes on its clients and the
+    worker closes the pool when it is done."""
+    wf = make_wf()
+    wf.capture()
+    planned(wf)                                 # the pool exists; its clients are reused below
+    pool = wf._clients
+    wf.plan("extract")                          # a second plan, in the background
+    wf.close()
+    st = wf.wait_planning(120)
+    assert st.error is None and not st.planning, st.error
+    assert set(st.plans) >= {"physics", "heuristic"}
+    assert pool._closed and not pool._all       # closed after the plan, every client disconnected
