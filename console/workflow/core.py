@@ -83,15 +83,14 @@ class WorkflowCore:
         self._recover()
 
     def _client_pool(self) -> ClientPool:
-        """The Bullet clients the plans of this console reuse (made at the first plan); taken by the
-        plan worker, which hands it back with `_plan_pool_done` (close() never disconnects the
-        clients a running plan holds: it leaves that pool to the worker)."""
+        """The Bullet clients the plans of this console reuse (made at the first plan). The plan
+        worker takes it once (`_planning_pool`) and hands it back with `_plan_pool_done`: close()
+        never disconnects the clients a running plan holds, it leaves that pool to the worker."""
         from shelfpick.planning.bullet_clients import ClientPool
 
         with self._lock:
             if self._clients is None:
                 self._clients = ClientPool()
-            self._planning_pool = self._clients
             return self._clients
 
     def _plan_pool_done(self) -> None:

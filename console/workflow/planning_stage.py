@@ -15,6 +15,7 @@ from shelfpick.console.workflow.run_json import step_json
 from shelfpick.console.workflow.state import PlanEntry, State, problem_text, scene_problems
 
 if TYPE_CHECKING:
+    from shelfpick.planning.bullet_clients import ClientPool
     from shelfpick.planning.predict import Predictor
     from shelfpick.planning.set_aside import SetAside
 
@@ -67,7 +68,8 @@ class PlanningStage(WorkflowCore):
             if gen == self._generation:
                 self._set(progress=frac, progress_text=text)
 
-    def _predictor_for(self, gen: int, scene: Scene, target: str | None) -> tuple[Predictor, int, SetAside]:
+    def _predictor_for(self, gen: int, scene: Scene, target: str | None,
+                       clients: ClientPool) -> tuple[Predictor, int, SetAside]:
         """The Predictor of this capture: the one the last plan of it used (its sample worlds built,
         its answers known: the same plans, sooner), else a new one; with the epoch it was taken in
         and the faces set aside for it (planning/set_aside.py: faces no world can hold become
@@ -89,7 +91,7 @@ class PlanningStage(WorkflowCore):
             close_quietly(kept[1])
         self._progress(gen, 0.05, f"building {self.samples} depth samples")
         predictor, aside = build_setting_aside(scene, target, lambda sc: Predictor(
-            sc, samples=self.samples, seed=self.seed, workers=self.workers, clients=self._client_pool(),
+            sc, samples=self.samples, seed=self.seed, workers=self.workers, clients=clients,
             model=self.priors.model()))
         return predictor, epoch, aside
 
@@ -103,11 +105,11 @@ class PlanningStage(WorkflowCore):
 
     def _plan_worker(self, gen: int, scene: Scene, sid: int | None, task: str, target: str | None) -> None:
         predictor, epoch, ok, aside = None, 0, False, None
-        with self._lock:
-            self._planning_pool = self._clients       # a kept predictor's clients come from it too
+        with self._lock:     # this plan's clients, whatever close() does meanwhile (_plan_pool_done)
+            pool = self._planning_pool = self._client_pool()
         try:
             t_setup = time.perf_counter()
-            predictor, epoch, aside = self._predictor_for(gen, scene, target)
+            predictor, epoch, aside = self._predictor_for(gen, scene, target, pool)
             t_setup = time.perf_counter() - t_setup     # shared by both planners; charged to physics
             repairs = tuple(str(r) for r in getattr((predictor.sims or [None])[0], "repairs", ()) or ())
             entries = {p: self._one_plan(gen, i, p, aside, task, target, predictor, t_setup, repairs)
