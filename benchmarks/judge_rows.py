@@ -135,6 +135,10 @@ def make_timed_plan(obs: dict, target: str | None, planner: str, settings: dict)
     search = plan.extra.get("search") if isinstance(plan.extra, dict) else None
     if isinstance(search, dict) and "success_prob" in search:   # the plan's chance that nothing goes wrong
         fields["success_prob"] = round(float(search["success_prob"]), 4)
+    gated = search.get("plan_risk") if isinstance(search, dict) else None
+    if isinstance(gated, dict) and "worlds" in gated:   # the gate's evidence: failing worlds of those asked
+        fields["gate"] = {k: gated[k] for k in ("failed_worlds", "worlds", "probability", "high", "max_plan_risk")
+                         if k in gated}
     return fields, plan.to_json()
 
 

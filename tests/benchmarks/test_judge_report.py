@@ -127,3 +127,8 @@ def test_a_physics_row_records_the_plans_predicted_success(tmp_path: Path) -> No
     assert 0.0 < row["success_prob"] < 1.0
     if all(r == 0.0 for r in row["step_risk"]):
         assert row["success_prob"] > 0.5
+    # and the gate's evidence behind it: how many of the worlds it asked failed (issue 32's reliability)
+    g = row["gate"]
+    assert 0 <= g["failed_worlds"] <= g["worlds"] and g["worlds"] >= 1
+    assert g["probability"] == pytest.approx(1.0 - row["success_prob"], abs=1e-3)
+    assert row["declared_safe"] == (g["high"] < g["max_plan_risk"])
