@@ -71,6 +71,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
+def judge_shelves(judge: Path, text: str) -> list[str]:
+    """The judge's shelves `--shelves` names (`all`, or a comma list); UsageError naming one it lacks."""
+    have = sorted(p.stem for p in (judge / "scenes").glob("*.json"))
+    shelves = have if text == "all" else [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in shelves if s not in have]
+    if unknown or not shelves and text != "all":
+        raise UsageError(f"--shelves: unknown shelf {unknown[0] if unknown else text!r} (the judge has "
+                         + (f"{have[0]}..{have[-1]})" if have else "none)"))
+    return shelves
+
+
 def check_args(a: argparse.Namespace) -> tuple[list[str], list[str], Path]:
     """(looks, shelves, frames folder); UsageError naming a bad option and its value."""
     from benchmarks.generators import LOOK_NAMES
@@ -83,11 +94,7 @@ def check_args(a: argparse.Namespace) -> tuple[list[str], list[str], Path]:
     for f in ("judge.py", "observe.py", "tasks.json", "scenes"):
         if not (judge / f).exists():
             raise UsageError(f"--judge-dir: {judge} has no {f} (the independent judge's folder)")
-    have = sorted(p.stem for p in (judge / "scenes").glob("*.json"))
-    shelves = have if a.shelves == "all" else [s.strip() for s in a.shelves.split(",") if s.strip()]
-    unknown = [s for s in shelves if s not in have]
-    if unknown:
-        raise UsageError(f"--shelves: unknown shelf {unknown[0]!r} (the judge has {have[0]}..{have[-1]})")
+    shelves = judge_shelves(judge, a.shelves)
     for name in ("plan_shelves", "max_tasks"):
         v = getattr(a, name)
         if v is not None and v < 0:

@@ -101,9 +101,9 @@ def tuning_look(look: str) -> str:
     return look
 
 
-def tuning_seeds(text: str) -> list[int]:
-    """The tuning shelves of `--seeds` (a range A-B or a comma list); ValueError naming the value when it
-    is not one or a seed lies outside the tuning role."""
+def tuning_seeds(text: str, flag: str = "--seeds") -> list[int]:
+    """The tuning shelves of `flag` (a range A-B or a comma list); ValueError naming the flag and the
+    value when it is not one or a seed lies outside the tuning role."""
     try:
         if "-" in text:
             lo, hi = (int(x) for x in text.split("-", 1))
@@ -111,10 +111,10 @@ def tuning_seeds(text: str) -> list[int]:
         else:
             seeds = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise ValueError(f"--seeds: expected A-B or a comma list, got {text!r}") from None
+        raise ValueError(f"{flag}: expected A-B or a comma list, got {text!r}") from None
     bad = [s for s in seeds if s not in TUNE_SEEDS]
     if bad or not seeds:
-        raise ValueError(f"--seeds: {bad[0] if bad else text!r} is not a tuning shelf "
+        raise ValueError(f"{flag}: {bad[0] if bad else text!r} is not a tuning shelf "
                          f"(only the tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]})")
     return seeds
 

@@ -86,6 +86,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from benchmarks.judge_rows import UsageError  # noqa: E402
 from benchmarks.judge_summary import percentile  # noqa: E402
 
 HELD_OUT = ("printed", "stereo")      # docs/perception.md, "Roles": timed only, never tuned on
@@ -147,33 +148,25 @@ def load_avg() -> str:
 
 def shelf_names(which: str, judge_dir: Path, shelves: str) -> list:
     """The shelves `--shelves` names: tuning seeds (a range A-B or a comma list) or the judge's
-    shelves; ValueError naming the value otherwise."""
+    shelves (`camera_to_plan.judge_shelves`); ValueError or UsageError naming the value otherwise."""
     if which == "tune":
         from benchmarks.perceive_generated import tuning_seeds
 
-        try:
-            return list(TUNE_SEEDS) if shelves == "all" else tuning_seeds(shelves)
-        except ValueError as exc:
-            raise ValueError(str(exc).replace("--seeds", "--shelves", 1)) from None
-    have = sorted(p.stem for p in (judge_dir / "scenes").glob("*.json"))
-    names = have if shelves == "all" else [n for n in shelves.split(",") if n.strip()]
-    bad = [n for n in names if n not in have]
-    if bad or (shelves != "all" and not names):
-        raise ValueError(f"--shelves: {bad[0] if bad else shelves!r} is not one of the judge's shelves"
-                         + (f" ({have[0]}..{have[-1]})" if have else " (it has none)"))
-    return names
+        return list(TUNE_SEEDS) if shelves == "all" else tuning_seeds(shelves, "--shelves")
+    from benchmarks.camera_to_plan import judge_shelves
+
+    return judge_shelves(judge_dir, shelves)
 
 
-def frame_list(which: str, judge_dir: Path, shelves: str, tune_look: str = "flat") -> list[tuple[str, str, dict]]:
-    """(look, shelf name, true scene dict) of every frame of the set (`tune_look`: the tuning look,
-    `flat` or `labels`, docs/perception.md "Roles")."""
+def frame_list(which: str, judge_dir: Path, names: list, tune_look: str = "flat") -> list[tuple[str, str, dict]]:
+    """(look, shelf name, true scene dict) of every frame of the set, on the shelves `names`
+    (`shelf_names`; `tune_look`: the tuning look, `flat` or `labels`, docs/perception.md "Roles")."""
     if which == "tune":
         from benchmarks.perceive_generated import tune_scene
 
         cache = Path(os.environ.get("TMPDIR", "/tmp")) / "perceive_speed_shelves"
-        return [(tune_look, str(n), tune_scene(n, cache)) for n in shelf_names(which, judge_dir, shelves)]
+        return [(tune_look, str(n), tune_scene(n, cache)) for n in names]
     scenes = judge_dir / "scenes"
-    names = shelf_names(which, judge_dir, shelves)
     docs = {n: json.loads((scenes / f"{n}.json").read_text(encoding="utf-8")) for n in names}
     return [(look, n, docs[n]) for look in HELD_OUT for n in names]
 
@@ -734,14 +727,14 @@ def main(argv: list[str] | None = None) -> int:
 
         pipeline.one_blas_thread = contextlib.nullcontext   # type: ignore[attr-defined]
     try:
-        shelf_names(a.set, Path(a.judge_dir), a.shelves)
-    except ValueError as exc:
+        names = shelf_names(a.set, Path(a.judge_dir), a.shelves)
+    except (ValueError, UsageError) as exc:
         print(f"perceive_speed: {exc}", file=sys.stderr)
         return 2
     frames_dir = Path(a.frames)
     t = time.perf_counter()
     frames = [(look, n, frame_folder(frames_dir, look, n, truth))
-              for look, n, truth in frame_list(a.set, Path(a.judge_dir), a.shelves, a.tune_look)]
+              for look, n, truth in frame_list(a.set, Path(a.judge_dir), names, a.tune_look)]
     print(f"{len(frames)} frames ready in {time.perf_counter() - t:.1f} s (not counted)", file=sys.stderr)
     if a.profile:
         import cProfile

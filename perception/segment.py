@@ -78,16 +78,12 @@ class AutoSegmenter:
         self.photo_weights = Path(given) if given is not None else None
         self._nets: dict[Path, Segmenter] = {}    # learned segmenters by weights file, each loaded once
 
-    def learned_available(self) -> bool:
-        """The RGB-D learned segmenter's weights file is there and its runtime is installed."""
-        return _usable(self._rgbd_weights())
+    def _weights(self, photo: bool) -> Path:
+        """The weights file for photos or for RGB-D captures: the one given, else the shipped one."""
+        from shelfpick.perception.segment_learned import LEARNED_ONNX, LEARNED_PHOTO_ONNX
 
-    def _rgbd_weights(self) -> Path:
-        if self.learned_weights is None:
-            from shelfpick.perception.segment_learned import LEARNED_ONNX
-
-            self.learned_weights = LEARNED_ONNX
-        return self.learned_weights
+        given = self.photo_weights if photo else self.learned_weights
+        return given if given is not None else (LEARNED_PHOTO_ONNX if photo else LEARNED_ONNX)
 
     def _learned_or_rules(self, weights: Path) -> Segmenter:
         """The learned segmenter on `weights` (loaded once, shared by both kinds of capture when
@@ -100,22 +96,15 @@ class AutoSegmenter:
             self._nets[weights] = load_segmenter(weights, "learned")
         return self._nets[weights]
 
-    def _photo_weights(self) -> Path:
-        if self.photo_weights is None:
-            from shelfpick.perception.segment_learned import LEARNED_PHOTO_ONNX
-
-            self.photo_weights = LEARNED_PHOTO_ONNX
-        return self.photo_weights
-
     def choose(self, has_depth: bool) -> Segmenter:
         from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
         if has_depth:
             if self.rgbd_kind != "learned":
                 return DepthEdgeSegmenter()
-            return self._learned_or_rules(self._rgbd_weights())
+            return self._learned_or_rules(self._weights(photo=False))
         if self.rgb_only_kind == "learned":
-            return self._learned_or_rules(self._photo_weights())   # for_capture then takes its rgb_only() copy
+            return self._learned_or_rules(self._weights(photo=True))   # for_capture then takes its rgb_only() copy
         if self.rgb_only_kind == "photo":
             from shelfpick.perception.segment_photo import PhotoSegmenter
 

@@ -70,7 +70,7 @@ class WorkflowCore:
         self._recorded: set[tuple[int, str]] = set()      # (session, plan hash) committed to the store
         self._clients: ClientPool | None = None    # Bullet clients reused by every plan
         self._planning_pool: ClientPool | None = None   # the pool a running plan worker took its clients from
-        self._close_after_plan: list[ClientPool] = []   # pools close() left to that worker to close
+        self._close_after_plan: ClientPool | None = None  # that pool, when close() left it to the worker
         # the last plan's Predictor and its capture's generation, kept for the next plan of that
         # capture: its sample worlds are the same, so the plans are too
         self._kept: tuple[int, Predictor, Any] | None = None   # gen, predictor, its SetAside
@@ -97,8 +97,8 @@ class WorkflowCore:
         """The plan worker is done with its clients: a pool close() left to it is closed now."""
         with self._lock:
             self._planning_pool = None
-            pools, self._close_after_plan = self._close_after_plan, []
-        for pool in pools:
+            pool, self._close_after_plan = self._close_after_plan, None
+        if pool is not None:
             pool.close()
 
     def close(self) -> None:
@@ -111,7 +111,7 @@ class WorkflowCore:
             kept, self._kept = self._kept, None
             self._epoch += 1
             if pool is not None and pool is self._planning_pool:
-                self._close_after_plan.append(pool)   # a plan still simulates with its clients
+                self._close_after_plan = pool    # a plan still simulates with its clients
                 pool = None
         if kept is not None:
             close_quietly(kept[1])

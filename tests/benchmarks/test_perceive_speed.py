@@ -65,7 +65,7 @@ def test_shelves_that_are_not_in_the_set_are_refused_in_one_line(capsys, tmp_pat
     err = capsys.readouterr().err.splitlines()
     assert err == ["perceive_speed: --shelves: expected A-B or a comma list, got '31000-31001x'",
                    "perceive_speed: --shelves: 29999 is not a tuning shelf (only the tuning seeds 31000-31059)",
-                   "perceive_speed: --shelves: 'zz' is not one of the judge's shelves (s00..s00)"]
+                   "perceive_speed: --shelves: unknown shelf 'zz' (the judge has s00..s00)"]
     assert not (tmp_path / "frames").exists()
 
 
