@@ -65,12 +65,23 @@ class Calibration:
         s = min(max(share, self.floor), 1.0 - self.floor)
         return _sigmoid(self.intercept + self.slope * _logit(s) + (0.0 if stands else self.not_standing))
 
+    def _with_unseen(self, p: float) -> float:
+        """A chance the worlds see, `p`, and the bench's rate of failures they never see (`minimum`),
+        as two independent causes: 1 - (1 - minimum)(1 - p). Never below `minimum`, and still
+        growing with `p` where a clamp at `minimum` would make 0, 1 and 2 failing worlds one chance
+        (docs/results/risk-gate.md, "What the floor hides")."""
+        return 1.0 - (1.0 - self.minimum) * (1.0 - p)
+
     def probability(self, k: int, n: int, stands: bool = True) -> float:
-        """The calibrated chance of a collapse for a plan that failed in `k` of `n` worlds."""
-        return max(self.minimum, self._map((k + 0.5) / (n + 1.0), stands))
+        """The calibrated chance of a collapse for a plan that failed in `k` of `n` worlds (never
+        above the interval's upper end)."""
+        p = self._with_unseen(self._map((k + 0.5) / (n + 1.0), stands))
+        return min(p, self.interval(k, n, stands)[1])
 
     def interval(self, k: int, n: int, stands: bool = True) -> tuple[float, float]:
-        """(low, high) of that chance, from how many worlds stand behind it."""
+        """(low, high) of that chance, from how many worlds stand behind it. The upper end, which
+        decides "safe", is the larger of the map's and what the bench cannot rule out; the lower end
+        is never below `minimum`."""
         lo, hi = wilson(k, n, self.z)
         return max(self.minimum, self._map(lo, stands)), max(self.minimum_high, self._map(hi, stands))
 

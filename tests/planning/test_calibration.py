@@ -37,6 +37,19 @@ def test_the_calibrated_chance_rises_with_the_failing_worlds_and_sits_in_its_int
     assert cal.interval(0, 40)[1] < cal.interval(0, 10)[1]
 
 
+def test_below_the_benchs_floor_more_failing_worlds_still_mean_a_higher_chance():
+    """The shipped lifting map puts 0, 1 and 2 failing worlds of 20 far below what its bench cannot
+    rule out (`minimum`); clamped there they were one chance, so the plans with failing worlds were
+    not told from the plans without any (docs/results/risk-gate.md, "What the floor hides")."""
+    from shelfpick.planning.calibration import LIFT
+    for n in (10, 20):
+        probs = [round(LIFT.probability(k, n), 4) for k in range(4)]
+        assert probs[0] >= LIFT.minimum and probs == sorted(set(probs)), probs
+        for k in range(4):      # the point estimate moves, the verdict's upper end does not
+            assert LIFT.interval(k, n)[1] == max(LIFT.minimum_high, LIFT._map(wilson(k, n, LIFT.z)[1], True))
+            assert LIFT.interval(k, n)[0] <= LIFT.probability(k, n) <= LIFT.interval(k, n)[1]
+
+
 def test_decided_means_the_interval_is_wholly_on_one_side():
     cal = Calibration(intercept=-2.0, slope=1.0)
     t = 0.05
