@@ -611,7 +611,8 @@ def supervisor_markdown(state: State) -> str:
     for name, e in state.plans.items():
         mark = " ✅ approved" if state.approved == e.hash else ""
         lines.append(f"- **{md(name)}** `{md(e.hash)}`: {' → '.join(md(b) for b in e.plan.sequence)} "
-                     f"(max risk {pct(e.plan.risk)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}")
+                     f"(max risk {pct(e.plan.risk)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}"
+                     + "".join(f"\n  - {w}" for w in why_unsafe(e.plan)))
     if state.scene_problems:
         lines.append("\n**⚠ The shelf does not stand as seen:** " + "; ".join(
             md(problem_text(p)) for p in state.scene_problems)
@@ -620,13 +621,36 @@ def supervisor_markdown(state: State) -> str:
     return "\n".join(lines)
 
 
+def why_unsafe(plan: Plan) -> list[str]:
+    """Why the planner did not call `plan` safe, as the supervisor should read before accepting
+    the risk: the calibrated chance against the cell's threshold, and the boxes it touches that
+    perception doubts or cannot explain (the reasons the plan JSON records). [] for a safe plan."""
+    if plan.safe:
+        return []
+    extra = plan.extra if isinstance(plan.extra, dict) else {}
+    out = []
+    g = (extra.get("search") or {}).get("plan_risk") if isinstance(extra.get("search"), dict) else None
+    try:
+        hi, limit = float(g["high"]), float(g["max_plan_risk"])
+        if hi >= limit:
+            out.append(f"calibrated chance of a collapse up to {100 * hi:.1f}%, not below the "
+                       f"threshold {100 * limit:.1f}%")
+    except (KeyError, TypeError, ValueError):
+        pass
+    for key in ("contradicted", "unexplained"):      # each a sentence: "step 1: pulling b6 touches ..."
+        doc = extra.get(key)
+        out += [md(t) for t in (doc.get("touched") or []) if isinstance(t, str)] if isinstance(doc, dict) else []
+    return out
+
+
 def review_markdown(name: str, entry: PlanEntry | None) -> str:
     """The plan `Approve` and `Reject` decide on in this browser: planner, hash and sequence."""
     if entry is None:
         return ""
     return (f"\n\n**Deciding on:** the **{md(name)}** plan `{md(entry.hash)}`: "
             f"{' → '.join(md(b) for b in entry.plan.sequence)} (max risk {pct(entry.plan.risk)}"
-            f"{'' if entry.plan.safe else ', predicted UNSAFE'})")
+            f"{'' if entry.plan.safe else ', predicted UNSAFE'})"
+            + "".join(f"\n- {w}" for w in why_unsafe(entry.plan)))
 
 
 def decisions_table(decisions: Iterable[Mapping[str, Any]]) -> str:

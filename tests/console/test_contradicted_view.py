@@ -45,3 +45,24 @@ def test_the_status_shows_every_perception_warning_not_only_the_first_three():
     lines = [ln for ln in md.split("\n\n") if ln.startswith("_perception: ")]
     assert len(lines) == 5
     assert "b5&#58; pushed up 13&#46;6 cm out of b2" in lines[-1]     # escaped, as all text from perception
+
+
+def test_the_supervisor_reads_why_a_plan_is_not_safe_before_accepting_its_risk():
+    """The pending plans and the plan under review say why it is not safe: the calibrated chance
+    against the threshold, and what it touches that perception doubts; outside text escaped."""
+    from shelfpick.console.web.panels import review_markdown, supervisor_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
+    from shelfpick.planning.plan import Plan, StepPrediction
+
+    why = "step 1: pulling b_0 touches b*1, a box whose perceived face cannot be right as seen"
+    risk = {"probability": 0.09, "low": 0.03, "high": 0.21, "max_plan_risk": 0.05, "failed_worlds": 3, "worlds": 20}
+    risky = Plan("extract", "b_0", "physics", ("b_0",), (StepPrediction("b_0"),), False, {}, 0,
+                 {"contradicted": {"boxes": ["b*1"], "touched": [why]}, "search": {"plan_risk": risk}})
+    safe = Plan("extract", "b_0", "heuristic", ("b_0",), (StepPrediction("b_0"),), True, {}, 0,
+                {"search": {"plan_risk": {**risk, "high": 0.03}}})
+    entry = PlanEntry(risky, risky.content_hash())
+    text = supervisor_markdown(State(plans={"physics": entry, "heuristic": PlanEntry(safe, safe.content_hash())}))
+    assert "up to 21.0%, not below the threshold 5.0%" in text
+    assert "pulling b&#95;0 touches b&#42;1" in text and "b_0 touches" not in text
+    assert text.count("threshold") == 1          # the safe plan gives no reason
+    assert "up to 21.0%" in review_markdown("physics", entry) and "b&#42;1" in review_markdown("physics", entry)
