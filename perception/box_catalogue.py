@@ -28,6 +28,7 @@ import numpy as np
 
 from shelfpick.perception.catalogue import REFERENCE_TYPES, Catalogue  # noqa: F401 - re-exported
 from shelfpick.perception.faces import FrontFace
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.bands import take_bridging_parts
 from shelfpick.perception.repairs.enclosed import absorb_enclosed
 from shelfpick.perception.repairs.joins import join_pieces
@@ -95,7 +96,7 @@ def _applies(measured: list[Measured | None], cat: Catalogue) -> bool:
     """Whether at least `min_share` of the measured faces are type faces, by count or by area
     (a face cut into many pieces by a tape cross must not outvote the faces around it)."""
     ok = [f for f in measured if f is not None]
-    area = [float(f.mask.sum()) for f in ok]
+    area = [float(count(f.mask)) for f in ok]
     share = max(sum(f.err <= cat.tol for f in ok) / max(len(ok), 1),
                 sum(a for f, a in zip(ok, area) if f.err <= cat.tol) / max(sum(area), 1.0))
     return share >= cat.min_share

@@ -4,6 +4,7 @@ Each repair is a step `(masks, RepairContext) -> (masks, notes)`; `perception.bo
 runs them in order (`apply_catalogue`). Modules:
 
 - `measure`: `RepairContext` (the capture, the catalogue, a `FaceCache`), `Measured`
+- `crop`: a mask's bounding box and `Near` (the pixels within the join gap), so pixel tests run on crops
 - `planes`: pixels on a face's plane; two pieces joined with the on-plane pixels between them
 - `seams`: where a seam (colour line or step, depth step) runs across a face
 - `joins`: `join_pieces` (a label, tape end or flap cut off a face; a face cut by a tape cross)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.measure import Measured, RepairContext, neighbour_pieces
 from shelfpick.perception.repairs.parts import Handover, give_parts, one_part, part_to_pieces
 from shelfpick.perception.repairs.planes import min_area_rect
@@ -40,7 +41,7 @@ def _bridge(m: np.ndarray, i: int, pieces: list[int], out: list[np.ndarray], ctx
         grp |= out[j]
     part = m & (min_area_rect(grp) > 0)
     rest = m & ~part
-    if part.sum() < 0.05 * m.sum() or rest.sum() < 0.3 * m.sum():
+    if count(part) < 0.05 * count(m) or count(rest) < 0.3 * count(m):
         return None
     # what is left must stay one piece (drop a thin fringe along the rectangle's edge)
     kept = one_part(rest)

@@ -9,6 +9,7 @@ import numpy as np
 
 from shelfpick.perception.faces import FrontFace, face_axes
 from shelfpick.perception.masks import border_pixels, border_sides
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.planes import coords
 from shelfpick.perception.scene import Camera
 
@@ -24,7 +25,7 @@ def cut_directions(face: FrontFace, mask: np.ndarray, camera: Camera, sides: tup
     out: set[str] = set()
     for side in (border_sides(mask, margin) if sides is None else sides):
         px = border_pixels(mask, side, margin)
-        if int(px.sum()) < 3:
+        if count(px) < 3:
             continue
         _, _, cx, cz = coords(face, px, camera)
         if not len(cx):

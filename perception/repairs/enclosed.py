@@ -5,6 +5,7 @@ import cv2
 import numpy as np
 
 from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.measure import Measured, RepairContext
 from shelfpick.perception.repairs.planes import on_plane, plane_dist
 
@@ -53,7 +54,7 @@ def _host(i: int, f: Measured, out: list[np.ndarray], ctx: RepairContext, kernel
         if j != i:
             claimed |= ring & o
     for j, o in enumerate(out):
-        if j == i or not (ring & o).any() or o.sum() < 2 * m.sum():
+        if j == i or not (ring & o).any() or count(o) < 2 * count(m):
             continue
         fo = ctx.measure(o)
         if fo is None or plane_dist(fo.face, m, ctx) > ctx.cat.plane_tol:
@@ -63,8 +64,8 @@ def _host(i: int, f: Measured, out: list[np.ndarray], ctx: RepairContext, kernel
         # must lie all round it (a part of a face at its edge, beside the mask on one side
         # only, is no label)
         n = int((claimed | (ring & on_plane(fo.face, ring, ctx, ctx.cat.plane_tol))).sum())
-        hit = int((ring & o).sum())
-        if n == 0 or hit < enclosed * n or hit < surround * int(ring.sum()):
+        hit = count(ring & o)
+        if n == 0 or hit < enclosed * n or hit < surround * count(ring):
             continue
         return j
     return None

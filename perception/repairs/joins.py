@@ -8,7 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.border_cut import cut_directions
+from shelfpick.perception.repairs.crop import Near
 from shelfpick.perception.repairs.measure import Measured, RepairContext
 from shelfpick.perception.repairs.planes import band_trim, join_on_plane, plane_dist
 
@@ -93,7 +95,7 @@ def _join_a_piece(p: _Pieces) -> str | None:
     its neighbouring pieces, else with a neighbour that is a type face by chance."""
     cat = p.cat
     order = sorted((i for i in range(len(p.masks)) if p.alive[i] and p.errs[i] > cat.tol),
-                   key=lambda i: int(p.masks[i].sum()))
+                   key=lambda i: count(p.masks[i]))
     for i in order:
         near = p.ctx.near(p.masks[i])
         best = _pair_join(p, i, near)
@@ -113,7 +115,7 @@ def _join_a_cross(p: _Pieces) -> str | None:
     """The largest type face that joins all its neighbouring pieces (a tape cross measured as
     the whole face, its quarters as pieces)."""
     for i in sorted((i for i in range(len(p.masks)) if p.alive[i] and p.errs[i] <= p.cat.tol),
-                    key=lambda i: -int(p.masks[i].sum())):
+                    key=lambda i: -count(p.masks[i])):
         g = _group_join(p, i)
         if g is None:
             continue
@@ -122,14 +124,14 @@ def _join_a_cross(p: _Pieces) -> str | None:
     return None
 
 
-def _pair_join(p: _Pieces, i: int, near: np.ndarray) -> _Join | None:
+def _pair_join(p: _Pieces, i: int, near: Near) -> _Join | None:
     """The best neighbour j of piece i on j's plane whose union with it is a type face, or
     (both being pieces) still fits inside one: a face cut into several pieces by tape and
     labels is joined step by step."""
     cat, masks = p.cat, p.masks
     best = None
     for j in range(len(masks)):
-        if j == i or not p.alive[j] or not (near & masks[j]).any() or not p.same_border(i, j):
+        if j == i or not p.alive[j] or not near.touches(masks[j]) or not p.same_border(i, j):
             continue
         if plane_dist(p.faces[j].face, masks[i], p.ctx) > cat.plane_tol:
             continue
@@ -150,10 +152,10 @@ def _pair_join(p: _Pieces, i: int, near: np.ndarray) -> _Join | None:
     return best
 
 
-def _chance_join(p: _Pieces, i: int, near: np.ndarray) -> _Join | None:
+def _chance_join(p: _Pieces, i: int, near: Near) -> _Join | None:
     """A group join of piece i with a neighbour on its plane that is a type face by chance."""
     for t in range(len(p.masks)):
-        if t == i or not p.alive[t] or p.errs[t] > p.cat.tol or not (near & p.masks[t]).any() \
+        if t == i or not p.alive[t] or p.errs[t] > p.cat.tol or not near.touches(p.masks[t]) \
                 or not p.same_border(i, t) \
                 or plane_dist(p.faces[i].face, p.masks[t], p.ctx) > p.cat.plane_tol:
             continue
@@ -174,7 +176,7 @@ def _group_join(p: _Pieces, i: int, extra: int | None = None) -> _Join | None:
     cat, masks = p.cat, p.masks
     near = p.ctx.near(masks[i])
     group = [j for j in range(len(masks))
-             if j != i and p.alive[j] and p.errs[j] > cat.tol and (near & masks[j]).any()
+             if j != i and p.alive[j] and p.errs[j] > cat.tol and near.touches(masks[j])
              and p.same_border(i, j) and plane_dist(p.faces[i].face, masks[j], p.ctx) <= cat.plane_tol]
     if extra is not None:
         group.append(extra)

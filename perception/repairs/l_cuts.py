@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shelfpick.perception.masks import border_sides
-from shelfpick.perception.pixels import nonzero
+from shelfpick.perception.repairs.crop import box_nonzero
 from shelfpick.perception.repairs.measure import Measured, RepairContext
 from shelfpick.perception.repairs.planes import join_on_plane, plane_dist, rect_fill
 
@@ -65,7 +65,7 @@ def _l_cut(m: np.ndarray, others: list[np.ndarray], ctx: RepairContext, max_fill
            angles: tuple[float, ...]) -> tuple[float, _LJoin] | None:
     """(the line's angle, the join) of the first line (best fill, then the L's corner, at 0 deg
     then at `angles`) whose part joins a neighbour; None if none does."""
-    ys, xs = nonzero(m)
+    ys, xs = box_nonzero(m)
     for deg, step in ((0.0, False),) + tuple((a, True) for a in (0.0,) + tuple(angles)):
         if deg != 0.0 and _fill_at(ys, xs, deg) >= max_fill:
             continue          # a rectangle at this angle: not an L
@@ -89,7 +89,7 @@ def _l_join(cuts: list[tuple[np.ndarray, np.ndarray]], others: list[np.ndarray],
     for piece, rest in cuts:
         near = ctx.near(piece)
         for j, o in enumerate(others):
-            if not (near & o).any():
+            if not near.touches(o):
                 continue
             fo = ctx.measure(o)
             if fo is None or plane_dist(fo.face, piece, ctx) > cat.plane_tol:

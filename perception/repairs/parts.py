@@ -9,6 +9,7 @@ import numpy as np
 
 from shelfpick.perception.faces import FrontFace
 from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.measure import Measured, RepairContext
 from shelfpick.perception.repairs.planes import join_on_plane, largest_component, rect_fill
 
@@ -56,7 +57,7 @@ def one_part(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     big, several = largest_component(rest)
     if not several:
         return rest, np.zeros_like(rest)
-    if big.sum() < 0.95 * rest.sum():
+    if count(big) < 0.95 * count(rest):
         return None
     return big, rest & ~big
 

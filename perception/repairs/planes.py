@@ -9,7 +9,8 @@ from shelfpick.perception.faces import FrontFace, face_axes
 from shelfpick.perception.geometry import backproject, ray_plane
 # plane_dist lives with RepairContext (neighbour_pieces measures with it); named here too, beside
 # the other on-plane measures, for the steps that import it from here
-from shelfpick.perception.pixels import hull_candidates, nonzero
+from shelfpick.perception.pixels import count, hull_candidates, nonzero
+from shelfpick.perception.repairs.crop import Window, box_nonzero
 from shelfpick.perception.repairs.measure import RepairContext, plane_dist
 from shelfpick.perception.scene import Camera
 
@@ -19,7 +20,7 @@ def coords(face: FrontFace, mask: np.ndarray,
     """Pixels of the mask and their (x, z) on the measured face plane, centred on the face."""
     rot = face_axes(face)
     c = np.asarray(face.center, float)
-    ys, xs = nonzero(mask)
+    ys, xs = box_nonzero(mask)
     hit = ray_plane(camera, xs.astype(np.float64), ys.astype(np.float64), c, rot[:, 1])
     rel = hit - c
     return ys, xs, rel @ rot[:, 0], rel @ rot[:, 2]
@@ -33,16 +34,18 @@ def extent(v: np.ndarray, q: float = 0.02) -> float:
     return float(hi - lo) / (1 - 2 * q)
 
 
-def plane_res(face: FrontFace, where: np.ndarray, ctx: RepairContext) -> np.ndarray:
+def plane_res(face: FrontFace, where: np.ndarray, ctx: RepairContext, win: Window | None = None) -> np.ndarray:
     """Per pixel of `where`, the distance (m) of its depth point to the plane of `face`
-    (inf where there is no depth or outside `where`)."""
+    (inf where there is no depth or outside `where`); of the frame's window `win` only (one
+    holding `where`: the rest is all inf), None: of the whole frame."""
     depth = ctx.depth
-    out = np.full(where.shape, np.inf)
-    ys, xs = nonzero(where & ctx.valid)
+    out = np.full(where.shape if win is None else where[win].shape, np.inf)
+    ys, xs = box_nonzero(where, ctx.valid)
     if len(xs):
         p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
                         depth[ys, xs].astype(np.float64))
-        out[ys, xs] = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1])
+        at = (ys, xs) if win is None else (ys - win[0].start, xs - win[1].start)
+        out[at] = np.abs((p - np.asarray(face.center)) @ face_axes(face)[:, 1])
     return out
 
 
@@ -50,7 +53,7 @@ def on_plane(face: FrontFace, where: np.ndarray, ctx: RepairContext, tol: float)
     """The pixels of `where` whose depth point lies within `tol` of the plane of `face`."""
     depth = ctx.depth
     out = np.zeros_like(where)
-    ys, xs = nonzero(where & ctx.valid)
+    ys, xs = box_nonzero(where, ctx.valid)
     if len(xs):
         p = backproject(ctx.camera, xs.astype(np.float64), ys.astype(np.float64),
                         depth[ys, xs].astype(np.float64))
@@ -65,7 +68,7 @@ def rect_fill(m: np.ndarray) -> float:
     cols = np.flatnonzero(m.any(axis=0))
     if len(rows) == 0:
         return 0.0
-    return float(m.sum()) / float((rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1))
+    return float(count(m)) / float((rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1))
 
 
 def largest_component(m: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -101,10 +104,10 @@ def join_on_plane(a: np.ndarray, b: np.ndarray, face: FrontFace, taken: np.ndarr
     rect = min_area_rect(sub) > 0
     cand = uc & rect
     _add_on_plane(cand, rect & ~uc & ~taken[y0:y1, x0:x1], face, ctx, y0, x0)
-    fill = float(cand.sum()) / max(float(rect.sum()), 1.0)
+    fill = float(count(cand)) / max(float(count(rect)), 1.0)
     cand, _ = largest_component(cand)
     ac, bc = a[y0:y1, x0:x1], b[y0:y1, x0:x1]
-    if (cand & ac).sum() < 0.9 * ac.sum() or (cand & bc).sum() < 0.9 * bc.sum():
+    if count(cand & ac) < 0.9 * count(ac) or count(cand & bc) < 0.9 * count(bc):
         return u, 0.0          # the pieces do not connect on their plane
     out = np.zeros_like(u)
     out[y0:y1, x0:x1] = cand | (uc & ~rect)
@@ -136,7 +139,7 @@ def band_trim(pieces: np.ndarray, other: np.ndarray, face: FrontFace, camera: Ca
     for p, o in ((pz, oz), (px, ox)):
         lo, hi = np.quantile(p, (0.01, 0.99))
         keep = (o >= lo - margin) & (o <= hi + margin)
-        if 0.02 * len(o) <= (~keep).sum() <= len(o) / 3 and (best is None or keep.sum() > best.sum()):
+        if 0.02 * len(o) <= count(~keep) <= len(o) / 3 and (best is None or count(keep) > count(best)):
             best = keep
     if best is None:
         return None

@@ -9,6 +9,7 @@ import numpy as np
 
 from shelfpick.perception.faces import FrontFace, face_axes
 from shelfpick.perception.geometry import backproject
+from shelfpick.perception.pixels import count
 
 if TYPE_CHECKING:
     from shelfpick.perception.catalogue import Catalogue
@@ -51,7 +52,7 @@ def _colour_score(bi: np.ndarray, col: np.ndarray, nb: int, cat: "Catalogue", sc
     r, w = _LINE_R, _STEP_W
     cnt = np.bincount(bi, minlength=nb).astype(float)
     good = cnt >= 5
-    if good.sum() <= 4 * w:
+    if count(good) <= 4 * w:
         return score
     for c in range(3):
         prof = np.bincount(bi, weights=col[:, c], minlength=nb) / np.maximum(cnt, 1)
@@ -78,7 +79,7 @@ def _depth_score(bi: np.ndarray, ys: np.ndarray, xs: np.ndarray, inner: np.ndarr
     d = ctx.depth[ys, xs].astype(np.float64)
     ok = np.isfinite(d) & (d > 0) & inner
     dscore = np.zeros(nb)
-    if ok.sum() <= 50:
+    if count(ok) <= 50:
         return dscore
     p = backproject(ctx.camera, xs[ok].astype(np.float64), ys[ok].astype(np.float64), d[ok])
     res = (p - np.asarray(face.center)) @ face_axes(face)[:, 1]

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shelfpick.perception.pixels import count
 from shelfpick.perception.repairs.measure import Measured, RepairContext
 from shelfpick.perception.repairs.planes import coords, extent, join_on_plane, plane_dist
 from shelfpick.perception.repairs.seams import line_evidence, peak_near
@@ -120,7 +121,7 @@ def _judge(axis: int, p2: float, score: float, step: bool, t: np.ndarray, cx: np
     three flush boxes is cut one seam at a time), straight or a staircase."""
     cat = ctx.cat
     a = t < p2
-    if a.sum() < 50 or (~a).sum() < 50:
+    if count(a) < 50 or count(~a) < 50:
         return None
     wa, ha = (extent(cx[a]), extent(cz[a]))
     wb, hb = (extent(cx[~a]), extent(cz[~a]))
@@ -195,7 +196,7 @@ def _piece_joins(piece: np.ndarray, rest: np.ndarray, others: list[np.ndarray], 
     cat = ctx.cat
     near = ctx.near(piece)
     for m in others:
-        if (m & piece).any() or not (near & m).any():
+        if (m & piece).any() or not near.touches(m):
             continue
         fm = ctx.measure(m)
         if fm is None or (pieces_only and fm.err <= cat.tol) or plane_dist(fm.face, piece, ctx) > cat.plane_tol:

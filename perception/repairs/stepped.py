@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 
 from shelfpick.perception.masks import border_sides
+from shelfpick.perception.pixels import count
+from shelfpick.perception.repairs.crop import Window, box
 from shelfpick.perception.repairs.measure import Measured, RepairContext, neighbour_pieces
 from shelfpick.perception.repairs.parts import Handover, give_parts, one_part, part_to_pieces
 from shelfpick.perception.repairs.planes import coords, join_on_plane, on_plane, plane_dist, plane_res
@@ -99,7 +101,7 @@ def _step_join(p: np.ndarray, rest: np.ndarray, i: int, pieces: list[int], out: 
     nearp = ctx.near(p)
     cand = None
     for j in pieces:
-        if not (nearp & out[j]).any() or plane_dist(fp.face, out[j], ctx) > cat.plane_tol:
+        if not nearp.touches(out[j]) or plane_dist(fp.face, out[j], ctx) > cat.plane_tol:
             continue
         taken = rest.copy()
         for q, oq in enumerate(out):
@@ -149,18 +151,18 @@ def _stepped_part(m: np.ndarray, i: int, pieces: list[int], out: list[np.ndarray
                   plane_tol: float):
     """(rest of m, joined face mask, piece indices, their faces, depth step) or None; see
     `take_stepped_parts`."""
-    fa = max((ctx.measure(out[j]) for j in pieces), key=lambda q: int(q.mask.sum()))
+    fa = max((ctx.measure(out[j]) for j in pieces), key=lambda q: count(q.mask))
     grp, gm = _face_group(m, i, fa, pieces, out, ctx)
     on = _on_pieces_plane(m, fa, ctx, plane_tol)
     if on is None:
         return None
     near = ctx.near(gm)
     n, lbl = cv2.connectedComponents(on.astype(np.uint8), connectivity=4)
-    touch = np.unique(lbl[near & on])
+    touch = np.unique(lbl[near.full() & on])
     part = np.isin(lbl, touch[touch > 0])
     part = m & (cv2.morphologyEx(part.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0)
     rest = m & ~part
-    if part.sum() < 0.05 * m.sum() or rest.sum() < 0.3 * m.sum():
+    if count(part) < 0.05 * count(m) or count(rest) < 0.3 * count(m):
         return None
     kept = one_part(rest)
     if kept is None:
@@ -195,7 +197,7 @@ def _face_group(m: np.ndarray, i: int, fa: Measured, pieces: list[int], out: lis
         grown = False
         near = ctx.near(gm)
         for q, oq in enumerate(out):
-            if q == i or q in grp or border_sides(oq) or not (near & oq).any():
+            if q == i or q in grp or not near.touches(oq) or border_sides(oq):
                 continue
             fq = ctx.measure(oq)
             if fq is None or fq.err <= cat.tol or plane_dist(fa.face, oq, ctx) > cat.plane_tol:
@@ -215,12 +217,26 @@ def _on_pieces_plane(m: np.ndarray, fa: Measured, ctx: RepairContext, plane_tol:
     fr0 = ctx.measure_once(m & ~on)
     if fr0 is None:
         return None
-    dp, dr = plane_res(fa.face, m, ctx), plane_res(fr0.face, m, ctx)
-    on = m & (dp <= plane_tol) & (dp + 0.003 < dr)
-    off = m & (dr + 0.003 < dp)
-    amb = m & ~on & ~off
+    # on m's box (2 px round it), where the opening is the full frame's and outside which
+    # nothing is on; the distances on the full frame (on a crop they may differ in the last bit)
+    win = box(m, 2)
+    mw = m[win]
+    dp, dr = plane_res(fa.face, m, ctx, win), plane_res(fr0.face, m, ctx, win)
+    on = mw & (dp <= plane_tol) & (dp + 0.003 < dr)
+    off = mw & (dr + 0.003 < dp)
+    amb = mw & ~on & ~off
     if amb.any() and on.any() and off.any():
-        d_on = cv2.distanceTransform((~on).astype(np.uint8), cv2.DIST_L2, 3)
-        d_off = cv2.distanceTransform((~off).astype(np.uint8), cv2.DIST_L2, 3)
+        d_on, d_off = (cv2.distanceTransform(_framed_off(~p, m.shape, win), cv2.DIST_L2, 3)[win]
+                       for p in (on, off))
         on = on | (amb & (d_on < d_off))
-    return cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    out = np.zeros_like(m)
+    out[win] = cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    return out
+
+
+def _framed_off(off_set: np.ndarray, shape: tuple[int, ...], win: Window) -> np.ndarray:
+    """The full frame's 0/1 image (uint8) of the pixels off a set of pixels held in the crop
+    `win`, given that crop's `off_set` (everywhere outside the crop is off the set)."""
+    out = np.ones(shape, np.uint8)
+    out[win] = off_set
+    return out
