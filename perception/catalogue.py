@@ -32,6 +32,8 @@ class Catalogue:
     join_fill: float = 0.85          # a joined union fills its min-area rectangle this well ...
     join_fill_loose: float = 0.75    # ... or this well when it is a type face within `tol`
     plane_tol: float = 0.012         # m: a joined piece lies this close to its neighbour's plane
+    gap_off: float = 0.04            # m: a band across a union whose pixels mostly lie this far off
+    gap_share: float = 0.5           # its plane (more than this share) is a gap: no join across it
     row_margin: float = 0.05         # m: a mask this far off every type face may be a row of 3+
     weak_evidence: float = 0.5       # seam score enough to split such a mask into exactly two type faces
     max_depth: float | None = None   # m: a face whose box is deeper than this cannot face the front

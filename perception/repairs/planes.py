@@ -109,9 +109,38 @@ def join_on_plane(a: np.ndarray, b: np.ndarray, face: FrontFace, taken: np.ndarr
     ac, bc = a[y0:y1, x0:x1], b[y0:y1, x0:x1]
     if count(cand & ac) < 0.9 * count(ac) or count(cand & bc) < 0.9 * count(bc):
         return u, 0.0          # the pieces do not connect on their plane
+    if through_gap(u, face, ctx, (slice(y0, y1), slice(x0, x1))):
+        return u, 0.0          # they connect only across a gap: two things, not one face
     out = np.zeros_like(u)
     out[y0:y1, x0:x1] = cand | (uc & ~rect)
     return out, fill
+
+
+def through_gap(u: np.ndarray, face: FrontFace, ctx: RepairContext, win: Window,
+                bin_m: float = 0.01) -> bool:
+    """Whether a band across `u` (1 cm wide, along either axis of the face, not at its ends) has
+    most of its pixels with depth lying more than `gap_off` off the face's plane. A carton's face
+    is flat, and tape or a label lies on it; a band of the union that the depth sees far behind
+    it is the gap between two boxes (a mask that had covered both, cut and offered to be joined
+    again), seen through to the shelf behind. `win`: a window of the frame holding `u`."""
+    res = plane_res(face, u, ctx, win)
+    ys, xs, px, pz = coords(face, u, ctx.camera)
+    r = res[ys - win[0].start, xs - win[1].start]
+    has = np.isfinite(r)
+    if count(has) < 50:
+        return False
+    far = has & (r > ctx.cat.gap_off)
+    for v in (px, pz):
+        b = np.floor((v - v.min()) / bin_m).astype(np.int64)
+        nb = int(b.max()) + 1
+        if nb < 5:
+            continue
+        tot = np.bincount(b[has], minlength=nb)
+        off = np.bincount(b[far], minlength=nb)
+        inner = (np.arange(nb) >= 2) & (np.arange(nb) < nb - 2) & (tot >= 10)
+        if np.any(inner & (off > ctx.cat.gap_share * tot)):
+            return True
+    return False
 
 
 def _add_on_plane(cand: np.ndarray, free: np.ndarray, face: FrontFace, ctx: RepairContext,

@@ -464,3 +464,25 @@ def test_faces_of_boxes_deeper_than_the_shelf_are_no_type_faces():
     # every box shape allowed (a deep shelf): the three 17x17 "end faces" stay three boxes
     out, _, _ = apply_catalogue(pieces + [side], cap.depth, cap.camera, cap.rgb, Catalogue())
     assert len(out) == 4
+
+
+def test_two_pieces_are_not_joined_across_a_gap_the_depth_sees_through():
+    """Two 20x17 cm fronts side by side 4 cm apart, the right one's mask holding the gap (a mask
+    that had covered both, cut): joined they would be a 44x17 face that fits inside a 50x17 one,
+    but the gap's pixels lie on the back wall, far behind their plane. Flush, they are joined."""
+    def pieces(gap: float):
+        scene = Scene(Shelf(), (box("l", -0.10 - gap / 2, 0.0, 0.20, 0.17),
+                                box("r", 0.10 + gap / 2, 0.0, 0.20, 0.17)))
+        cap = cast(scene)
+        left, right = _front(cap, 1), _front(cap, 2)
+        rows, cols = np.flatnonzero(right.any(axis=1)), np.flatnonzero(left.any(axis=0))
+        between = np.zeros_like(right)
+        between[rows[0]:rows[-1] + 1, cols[-1] + 1:np.flatnonzero(right.any(axis=0))[0]] = True
+        return cap, left, right | (between & ~left)
+
+    cap, left, right = pieces(0.04)
+    out, notes = join_pieces([left, right], RepairContext(cap.depth, cap.camera, Catalogue()))
+    assert len(out) == 2, notes
+    cap, left, right = pieces(0.0)
+    out, notes = join_pieces([left, right], RepairContext(cap.depth, cap.camera, Catalogue()))
+    assert len(out) == 1 and any("joined" in n for n in notes), notes
