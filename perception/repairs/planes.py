@@ -118,8 +118,9 @@ def join_on_plane(a: np.ndarray, b: np.ndarray, face: FrontFace, taken: np.ndarr
 
 def through_gap(u: np.ndarray, face: FrontFace, ctx: RepairContext, win: Window,
                 bin_m: float = 0.01) -> bool:
-    """Whether a band across `u` (1 cm wide, along either axis of the face, not at its ends) has
-    most of its pixels with depth lying more than `gap_off` off the face's plane. A carton's face
+    """Whether a band across `u` (1 cm wide, along either axis of the face) with most of its
+    pixels with depth lying more than `gap_off` off the face's plane has bands of the face on both
+    sides (a band at one end is the box's top or side, seen with it). A carton's face
     is flat, and tape or a label lies on it; a band of the union that the depth sees far behind
     it is the gap between two boxes (a mask that had covered both, cut and offered to be joined
     again), seen through to the shelf behind. `win`: a window of the frame holding `u`."""
@@ -133,12 +134,15 @@ def through_gap(u: np.ndarray, face: FrontFace, ctx: RepairContext, win: Window,
     for v in (px, pz):
         b = np.floor((v - v.min()) / bin_m).astype(np.int64)
         nb = int(b.max()) + 1
-        if nb < 5:
+        if nb < 3:
             continue
         tot = np.bincount(b[has], minlength=nb)
         off = np.bincount(b[far], minlength=nb)
-        inner = (np.arange(nb) >= 2) & (np.arange(nb) < nb - 2) & (tot >= 10)
-        if np.any(inner & (off > ctx.cat.gap_share * tot)):
+        gap = (tot >= 10) & (off > ctx.cat.gap_share * tot)
+        face_ = (tot >= 10) & ~gap
+        on_before = np.cumsum(face_) > 0                    # some face band at or before it
+        on_after = np.cumsum(face_[::-1])[::-1] > 0          # ... and at or after it
+        if np.any(gap & on_before & on_after):
             return True
     return False
 
