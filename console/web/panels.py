@@ -50,7 +50,7 @@ def md(value: Any) -> str:
     if len(s) > MAX_SHOWN:
         s = s[:MAX_SHOWN] + "..."
     s = _AUTOLINK.sub(lambda m: m.group(0) + WORD_JOINER, s).replace("@", WORD_JOINER + "@")
-    out = []
+    out: list[str] = []
     for ch in s:
         o = ord(ch)
         if o < 32 or o == 127 or 0x2028 <= o <= 0x2029:
@@ -628,7 +628,7 @@ def why_unsafe(plan: Plan) -> list[str]:
     if plan.safe:
         return []
     extra = plan.extra if isinstance(plan.extra, dict) else {}
-    out = []
+    out: list[str] = []
     g = (extra.get("search") or {}).get("plan_risk") if isinstance(extra.get("search"), dict) else None
     try:
         hi, limit = float(g["high"]), float(g["max_plan_risk"])
