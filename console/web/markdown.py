@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from shelfpick.console.web.panels import md, ours, pct
+from shelfpick.console.web.panels import md, ours, pct, plan_risk, touched
 from shelfpick.console.workflow.machine import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
 from shelfpick.planning.plan import Plan
 
@@ -44,11 +44,11 @@ def results_markdown(state: State) -> str:
     row("sample worlds behind the risks", lambda e: _worlds(e.plan))
     row("scene check", lambda e: "; ".join(md(problem_text(p)) for p in e.scene_problems)
         if e.scene_problems else "stands as seen")
-    if any(_touched(state.plans[c].plan) is not None for c in cols):    # issue 31: matter no box explains
-        row("unexplained matter", lambda e: "<br>".join(md(t) for t in _touched(e.plan) or ()) or "not touched")
-    if any(_touched(state.plans[c].plan, "contradicted") is not None for c in cols):   # faces perception doubts
+    if any(touched(state.plans[c].plan) is not None for c in cols):    # issue 31: matter no box explains
+        row("unexplained matter", lambda e: "<br>".join(md(t) for t in touched(e.plan) or ()) or "not touched")
+    if any(touched(state.plans[c].plan, "contradicted") is not None for c in cols):   # faces perception doubts
         row("faces that cannot all be right", lambda e: "<br>".join(
-            md(t) for t in _touched(e.plan, "contradicted") or ()) or "not touched")
+            md(t) for t in touched(e.plan, "contradicted") or ()) or "not touched")
     if any(state.plans[c].plan.extra.get("set_aside") for c in cols):    # faces no world can hold
         row("faces set aside as unexplained matter", lambda e: "<br>".join(
             md(f"{' and '.join(map(str, a.get('boxes', ())))}: {a.get('why', '')}")
@@ -83,30 +83,16 @@ def _planning_seconds(plan: Plan) -> float:
     return own + float(t.get("setup_s", 0.0))
 
 
-def _touched(plan: Plan, key: str = "unexplained") -> list[str] | None:
-    """Why the plan touches unexplained matter (planning/unexplained.py), or with `key`
-    "contradicted" a face perception doubts (planning/contradicted.py); [] when it does not, None
-    when its scene had none."""
-    doc = (plan.extra or {}).get(key)
-    if not isinstance(doc, dict):
-        return None
-    return [str(t) for t in doc.get("touched") or [] if isinstance(t, str)]
-
-
 def _plan_risk(plan: Plan) -> str:
     """The plan's calibrated chance of a collapse, its interval and the cell's threshold (issue 32):
     the plan is safe when the interval's upper end is below the threshold. Then the evidence behind
     it, the gate's worlds in which some step failed: the map can call a plan safe that collapsed in
     a few of them (it is fitted on a gripper that lifts), and the supervisor should see that."""
-    search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
-    g = search.get("plan_risk")
-    if not isinstance(g, dict):
+    risk = plan_risk(plan)
+    if risk is None:
         return "—"
-    try:
-        p, hi, limit = (100.0 * float(g[k]) for k in ("probability", "high", "max_plan_risk"))
-    except (KeyError, TypeError, ValueError):
-        return "—"
-    text = f"{p:.1f}% (up to {hi:.1f}%; threshold {limit:.1f}%)"
+    g, p, hi, limit = risk
+    text = f"{100 * p:.1f}% (up to {100 * hi:.1f}%; threshold {100 * limit:.1f}%)"
     k, n = g.get("failed_worlds"), g.get("worlds")
     if all(isinstance(x, int) and not isinstance(x, bool) for x in (k, n)) and 0 <= k <= n and n > 0:
         text += f"; failed in {k} of {n} sample worlds"

@@ -621,25 +621,43 @@ def supervisor_markdown(state: State) -> str:
     return "\n".join(lines)
 
 
+def touched(plan: Plan, key: str = "unexplained") -> list[str] | None:
+    """Why the plan touches unexplained matter (planning/unexplained.py), or with `key`
+    "contradicted" a face perception doubts (planning/contradicted.py), one sentence a step; []
+    when it does not, None when its scene had none."""
+    doc = (plan.extra or {}).get(key)
+    if not isinstance(doc, dict):
+        return None
+    return [str(t) for t in doc.get("touched") or [] if isinstance(t, str)]
+
+
+def plan_risk(plan: Plan) -> tuple[dict[str, Any], float, float, float] | None:
+    """The gate's record of the plan (`search.plan_risk`) with its calibrated chance, the upper end
+    of its interval and the cell's threshold as numbers; None for a plan without a readable one."""
+    search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
+    g = search.get("plan_risk") if isinstance(search, dict) else None
+    if not isinstance(g, dict):
+        return None
+    try:
+        return (g, *(float(g[k]) for k in ("probability", "high", "max_plan_risk")))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def why_unsafe(plan: Plan) -> list[str]:
     """Why the planner did not call `plan` safe, as the supervisor should read before accepting
-    the risk: the calibrated chance against the cell's threshold, and the boxes it touches that
-    perception doubts or cannot explain (the reasons the plan JSON records). [] for a safe plan."""
+    the risk: the calibrated chance against the cell's threshold, and the steps that touch a face
+    perception doubts or matter it cannot explain (the reasons the plan JSON records). [] for a
+    safe plan."""
     if plan.safe:
         return []
-    extra = plan.extra if isinstance(plan.extra, dict) else {}
     out: list[str] = []
-    g = (extra.get("search") or {}).get("plan_risk") if isinstance(extra.get("search"), dict) else None
-    try:
-        hi, limit = float(g["high"]), float(g["max_plan_risk"])
-        if hi >= limit:
-            out.append(f"calibrated chance of a collapse up to {100 * hi:.1f}%, not below the "
-                       f"threshold {100 * limit:.1f}%")
-    except (KeyError, TypeError, ValueError):
-        pass
-    for key in ("contradicted", "unexplained"):      # each a sentence: "step 1: pulling b6 touches ..."
-        doc = extra.get(key)
-        out += [md(t) for t in (doc.get("touched") or []) if isinstance(t, str)] if isinstance(doc, dict) else []
+    risk = plan_risk(plan)
+    if risk is not None and risk[2] >= risk[3]:
+        out.append(f"calibrated chance of a collapse up to {100 * risk[2]:.1f}%, not below the "
+                   f"threshold {100 * risk[3]:.1f}%")
+    for key in ("contradicted", "unexplained"):
+        out += [md(t) for t in touched(plan, key) or ()]
     return out
 
 

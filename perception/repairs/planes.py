@@ -139,9 +139,9 @@ def through_gap(u: np.ndarray, face: FrontFace, ctx: RepairContext, win: Window,
         tot = np.bincount(b[has], minlength=nb)
         off = np.bincount(b[far], minlength=nb)
         gap = (tot >= 10) & (off > ctx.cat.gap_share * tot)
-        face_ = (tot >= 10) & ~gap
-        on_before = np.cumsum(face_) > 0                    # some face band at or before it
-        on_after = np.cumsum(face_[::-1])[::-1] > 0          # ... and at or after it
+        on_face = (tot >= 10) & ~gap
+        on_before = np.cumsum(on_face) > 0                   # some face band at or before it
+        on_after = np.cumsum(on_face[::-1])[::-1] > 0        # ... and at or after it
         if np.any(gap & on_before & on_after):
             return True
     return False
