@@ -101,6 +101,8 @@ def _join_a_piece(p: _Pieces) -> str | None:
         best = _pair_join(p, i, near)
         if best is None:
             best = _group_join(p, i)
+        if best is None:       # a face cut into a row of pieces, i at one end
+            best = _chain_join(p, i)
         if best is None:       # a piece of the cross that measures as a type face by chance
             best = _chance_join(p, i, near)
         if best is None:
@@ -165,19 +167,41 @@ def _chance_join(p: _Pieces, i: int, near: Near) -> _Join | None:
     return None
 
 
-def _group_join(p: _Pieces, i: int, extra: int | None = None) -> _Join | None:
+def _on_plane_pieces(p: _Pieces, i: int, of: int) -> list[int]:
+    """The pieces (no type face) still there that touch mask `of` and lie on piece i's plane."""
+    near = p.ctx.near(p.masks[of])
+    return [j for j in range(len(p.masks))
+            if j != i and p.alive[j] and p.errs[j] > p.cat.tol and near.touches(p.masks[j])
+            and p.same_border(i, j) and plane_dist(p.faces[i].face, p.masks[j], p.ctx) <= p.cat.plane_tol]
+
+
+def _chain_join(p: _Pieces, i: int) -> _Join | None:
+    """The group join over every piece reachable from piece i through touching pieces on its
+    plane: a 50x17 face cut by its tape and a label into a row, whose end piece touches only
+    its neighbour (labels 31004: without it the end piece took the flush cube beside it as a
+    chance type face). Tried only where the chain reaches past i's own neighbours."""
+    chain, todo = [], [i]
+    while todo:
+        for j in _on_plane_pieces(p, i, todo.pop()):
+            if j not in chain:
+                chain.append(j)
+                todo.append(j)
+    if len(chain) <= len(_on_plane_pieces(p, i, i)):
+        return None
+    return _group_join(p, i, chain=chain)
+
+
+def _group_join(p: _Pieces, i: int, extra: int | None = None,
+                chain: list[int] | None = None) -> _Join | None:
     """A face cut into 3+ pieces (a wide tape cross): no two of them fill a rectangle, but
     mask i (a piece, or the cross itself, which may measure as the whole face) and ALL its
     on-plane neighbouring pieces do, and make a type face. `extra`: one more neighbour that
     measures as a type face by chance (a quarter of a 50x17 face cut by a tape cross can
     measure 20x20), counted only within the band the pieces span across it (it may hold a
     strip of the flush box beside the cut face); the union must then be a type face within
-    `tol`, and one piece is enough."""
+    `tol`, and one piece is enough. `chain`: the pieces to join instead of i's neighbours."""
     cat, masks = p.cat, p.masks
-    near = p.ctx.near(masks[i])
-    group = [j for j in range(len(masks))
-             if j != i and p.alive[j] and p.errs[j] > cat.tol and near.touches(masks[j])
-             and p.same_border(i, j) and plane_dist(p.faces[i].face, masks[j], p.ctx) <= cat.plane_tol]
+    group = list(chain) if chain is not None else _on_plane_pieces(p, i, i)
     if extra is not None:
         group.append(extra)
     if len(group) < (1 if extra is not None else 2):

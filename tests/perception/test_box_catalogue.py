@@ -486,3 +486,25 @@ def test_two_pieces_are_not_joined_across_a_gap_the_depth_sees_through():
     cap, left, right = pieces(0.0)
     out, notes = join_pieces([left, right], RepairContext(cap.depth, cap.camera, Catalogue()))
     assert len(out) == 1 and any("joined" in n for n in notes), notes
+
+
+def test_a_face_cut_into_a_row_of_pieces_is_joined_as_a_chain_not_with_the_cube_beside_it():
+    """A 50x17 face cut by its tape and a label into a row (labels 31004): a left part, the tape
+    (reaching over the right part's top left), an upper and a lower right piece, and a 20x20 cube
+    flush beside it. The upper piece (the smallest) makes no type face with either neighbour, nor
+    with both; it used to take the cube as a chance type face, a 49x17 face across the seam. The
+    whole row, reached through the tape, is one type face: joined as a chain, the cube stays."""
+    scene = Scene(Shelf(), (box("long", -0.10, 0.0, 0.50, 0.17), box("cube", 0.254, 0.0, 0.20, 0.20)))
+    cap = cast(scene)
+    face, cube = _front(cap, 1), _front(cap, 2)
+    ys, xs = np.nonzero(face)
+    cols, rows = np.arange(face.shape[1])[None, :], np.arange(face.shape[0])[:, None]
+    x0, w, top = xs.min(), np.ptp(xs) + 1, rows < ys.min() + 0.45 * (np.ptp(ys) + 1)
+    left = face & (cols < x0 + 0.42 * w)
+    upper = face & (cols >= x0 + 0.70 * w) & top
+    lower = face & (cols >= x0 + 0.50 * w) & ~top
+    tape = face & ~left & ~upper & ~lower
+    out, notes = join_pieces([left, tape, upper, lower, cube], RepairContext(cap.depth, cap.camera, Catalogue()))
+    assert len(out) == 2, notes
+    assert max(mask_iou(m, face) for m in out) > 0.95, notes
+    assert max(mask_iou(m, cube) for m in out) > 0.95, notes
