@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from shelfpick.perception.geometry import point_map
-from shelfpick.perception.pixels import nonzero
+from shelfpick.perception.pixels import count
+from shelfpick.perception.repairs.crop import box_nonzero
 from shelfpick.perception.scene import Camera, Shelf
 
 
@@ -76,20 +77,23 @@ def dominant_plane(pts: np.ndarray, tol: float, tries: int,
     if not ok.any():
         return np.array([0.0, 0.0, 1.0]), 0.0
     n, o = n[ok] / nn[ok, None], s[ok, 0]
-    dist = np.abs(pts @ n.T - np.einsum("ij,ij->i", o, n))         # points x draws
-    best = int(np.argmax((dist < tol).sum(axis=0)))
+    dist = pts @ n.T                                                # points x draws, then
+    dist -= np.einsum("ij,ij->i", o, n)                             # their distances, in place
+    np.abs(dist, out=dist)
+    best = int(np.argmax((dist < tol).view(np.uint8).sum(axis=0)))  # inliers per draw
     inl = dist[:, best] < tol
     normal = n[best]
-    if inl.sum() >= 3:
-        c = pts[inl].mean(axis=0)
-        normal = np.linalg.svd(pts[inl] - c, full_matrices=False)[2][2]
+    if count(inl) >= 3:
+        on = np.compress(inl, pts, axis=0)                          # pts[inl], 4x faster for rows
+        c = on.mean(axis=0)
+        normal = np.linalg.svd(on - c, full_matrices=False)[2][2]
     return normal, float(inl.mean())
 
 
 def evidence(mask: np.ndarray, points: np.ndarray, valid: np.ndarray, inside: np.ndarray,
              cfg: GateConfig, rng: np.random.Generator) -> FaceEvidence:
     """The depth's evidence on one instance (`points`: HxWx3 shelf frame)."""
-    ys, xs = nonzero(mask)
+    ys, xs = box_nonzero(mask)
     have = valid[ys, xs]
     n = int(have.sum())
     if n == 0:

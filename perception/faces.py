@@ -8,7 +8,10 @@ OpenCV's angle convention.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -92,6 +95,36 @@ def measure_front(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px:
             return None
         (rx, ry), rs, ra = f.rect_px
         return replace(f, rect_px=((rx + x0, ry + y0), rs, ra))
+    memo = _MEASURED.get()
+    if memo is None:
+        return _measure(mask, depth, camera, erode_px, angle_snap, tilt_snap)
+    key = (mask.shape, mask.tobytes(), depth.dtype.str, depth.tobytes(), camera, erode_px, angle_snap, tilt_snap)
+    if key not in memo:
+        memo[key] = _measure(mask, depth, camera, erode_px, angle_snap, tilt_snap)
+    f = memo[key]
+    return None if f is None else replace(f)       # a face object of its own, as measuring gives
+
+
+# the faces measured in the `perceive` call running in this context (None outside one): its
+# repairs and box building measure one mask on one depth again and again (~9% of the calls)
+_MEASURED: contextvars.ContextVar[dict | None] = contextvars.ContextVar("shelfpick_measured_faces", default=None)
+
+
+@contextlib.contextmanager
+def faces_cached() -> Iterator[dict]:
+    """Within the body (one `perceive`), `measure_front` of a mask and depth (every value equal)
+    already measured returns what it measured then: the same numbers, measured once."""
+    memo: dict = {}
+    token = _MEASURED.set(memo)
+    try:
+        yield memo
+    finally:
+        _MEASURED.reset(token)
+
+
+def _measure(mask: np.ndarray, depth: np.ndarray, camera: Camera, erode_px: int, angle_snap: float,
+             tilt_snap: float) -> FrontFace | None:
+    """`measure_front` of a mask cropped to its bounding box (see there)."""
     m = mask.astype(np.uint8)
     if count(m) < 20:                    # m: the bool mask as 0/1
         return None
@@ -164,8 +197,8 @@ def _vertical_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         cut = max(0.006, 3.0 * float(np.median(res)))
         inl = res < cut
         if count(inl) >= 10:
-            centre = np.median(pts[inl], axis=0)
-            pts = pts[inl]
+            pts = np.compress(inl, pts, axis=0)     # pts[inl], 4x faster for rows
+            centre = np.median(pts, axis=0)
     return centre, normal, pts
 
 
@@ -203,7 +236,7 @@ def _extents(m: np.ndarray, camera: Camera, centre: np.ndarray, normal: np.ndarr
     fin = np.isfinite(allp)
     okp = fin[:, 0] & fin[:, 1] & fin[:, 2]      # np.all(fin, axis=1), without its reduction set-up
     if not okp.all():
-        allp = allp[okp]
+        allp = np.compress(okp, allp, axis=0)
     rel = allp - centre
     cam_t = np.asarray(camera.position, dtype=np.float64)
     wts = np.linalg.norm(allp - cam_t, axis=1) ** 3
@@ -228,14 +261,15 @@ def _tilt(pts: np.ndarray, centre: np.ndarray, rounds: int = 3) -> tuple[float, 
         if len(p) < 10:
             break
         c = p.mean(axis=0)
-        n = np.linalg.svd(p - c, full_matrices=False)[2][2]
+        q = p - c
+        n = np.linalg.svd(q, full_matrices=False)[2][2]
         if n[1] < 0:
             n = -n
-        res = np.abs((p - c) @ n)
+        res = np.abs(q @ n)
         keep = res < max(0.004, 3.0 * float(np.median(res)))
         if keep.all():
             break
-        p = p[keep]
+        p = np.compress(keep, p, axis=0)
     tilt = math.degrees(math.asin(max(-1.0, min(1.0, float(n[2])))))
     return tilt, math.degrees(math.atan2(-n[0], n[1]))
 
@@ -251,7 +285,8 @@ def _wquant(x: np.ndarray, w: np.ndarray, qs: tuple[float, float]) -> tuple[floa
     order = np.argsort(x)
     cw = np.cumsum(w[order])
     cw /= cw[-1]
-    return tuple(float(x[order][min(np.searchsorted(cw, q), len(x) - 1)]) for q in qs)  # type: ignore[return-value]
+    xs = x[order]
+    return tuple(float(xs[min(np.searchsorted(cw, q), len(x) - 1)]) for q in qs)  # type: ignore[return-value]
 
 
 def _cross(a, b) -> np.ndarray:

@@ -43,14 +43,29 @@ def pixel_rays(camera: Camera, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
     """Camera-frame rays (z = 1) through pixel coordinates."""
     x = (np.asarray(us, dtype=np.float64) - camera.cx) / camera.fx
     y = (np.asarray(vs, dtype=np.float64) - camera.cy) / camera.fy
-    return np.stack([x, y, np.ones_like(x)], axis=-1)
+    if x.shape != y.shape:
+        return np.stack([x, y, np.ones_like(x)], axis=-1)     # numpy's error
+    out = np.empty(x.shape + (3,))      # np.stack's array, written a column at a time (2x faster)
+    out[..., 0], out[..., 1], out[..., 2] = x, y, 1.0
+    return out
+
+
+def _columns_op(a: np.ndarray, op: np.ufunc, b: np.ndarray) -> np.ndarray:
+    """`op(a, b[..., None])` for an (..., 3) array `a`, in place in `a`: the same products or sums
+    a column at a time, where numpy's broadcast of a last axis of 3 is ~3x slower."""
+    for j in range(3):
+        op(a[..., j], b, out=a[..., j])
+    return a
 
 
 def backproject(camera: Camera, us: np.ndarray, vs: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Shelf-frame points (N,3) of pixels (us, vs) at camera z-depth z."""
     rot, t = pose_matrix(camera)
-    pc = pixel_rays(camera, us, vs) * np.asarray(z, dtype=np.float64)[..., None]
-    return pc @ rot.T + t
+    rays, z = pixel_rays(camera, us, vs), np.asarray(z, dtype=np.float64)
+    pc = _columns_op(rays, np.multiply, z) if z.shape == rays.shape[:-1] else rays * z[..., None]
+    out = pc @ rot.T
+    out += t
+    return out
 
 
 class PointCache:
@@ -108,10 +123,18 @@ def _points(camera: Camera, depth: np.ndarray) -> np.ndarray:
     vs, us = np.arange(h)[:, None], np.arange(w)[None, :]    # as np.mgrid's, broadcast
     rot, t = pose_matrix(camera)
     rot = rot.astype(np.float32)
-    x = ((us - camera.cx) / camera.fx).astype(np.float32) * depth
-    y = ((vs - camera.cy) / camera.fy).astype(np.float32) * depth
-    pc = np.stack([x, y, depth.astype(np.float32)], axis=-1)
-    return pc @ rot.T + t.astype(np.float32)
+    ku = ((us - camera.cx) / camera.fx).astype(np.float32)
+    kv = ((vs - camera.cy) / camera.fy).astype(np.float32)
+    if depth.dtype == np.float32:       # np.stack's HxWx3 array, its columns written in place
+        pc = np.empty((h, w, 3), np.float32)
+        np.multiply(ku, depth, out=pc[..., 0])
+        np.multiply(kv, depth, out=pc[..., 1])
+        pc[..., 2] = depth
+    else:
+        pc = np.stack([ku * depth, kv * depth, depth.astype(np.float32)], axis=-1)
+    out = pc @ rot.T
+    out += t.astype(np.float32)
+    return out
 
 
 def project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +157,9 @@ def ray_plane(camera: Camera, us: np.ndarray, vs: np.ndarray, point: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore"):
         s = ((point - t) @ normal) / denom
     s = np.where(np.abs(denom) < 1e-9, np.nan, s)
-    return t + dirs * s[:, None]
+    out = _columns_op(dirs, np.multiply, s)          # dirs * s[:, None]
+    out += t
+    return out
 
 
 def matrix_to_quat(m: np.ndarray) -> tuple[float, float, float, float]:

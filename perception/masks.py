@@ -10,7 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from shelfpick.perception.pixels import count, nonzero
+from shelfpick.perception.pixels import count
+from shelfpick.perception.repairs.crop import box, box_nonzero
 
 REF_DEPTH = 1.2      # m: the face distance the pixel thresholds were tuned at (default camera)
 
@@ -38,16 +39,22 @@ def scaled_px(px: float, scale: float, least: int = 1) -> int:
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
-    """The mask with every hole that does not touch the image border filled."""
-    m = mask.astype(np.uint8)
+    """The mask with every hole that does not touch the image border filled.
+
+    Flooded within the mask's bounding box grown by a pixel (all the image outside it reaches the
+    border, and so does that ring): the same holes as flooding the frame, ~10x faster a mask."""
+    out = mask.astype(bool)
+    win = box(out, 1)
+    if win is None:
+        return out
+    m = mask[win].astype(np.uint8)
     h, w = m.shape
-    pad = np.zeros((h + 2, w + 2), np.uint8)
-    pad[1:-1, 1:-1] = m
-    flood = pad.copy()
+    flood = np.zeros((h + 2, w + 2), np.uint8)
+    flood[1:-1, 1:-1] = m
     ff = np.zeros((h + 4, w + 4), np.uint8)
     cv2.floodFill(flood, ff, (0, 0), 1)
-    holes = flood[1:-1, 1:-1] == 0
-    return mask.astype(bool) | holes
+    out[win] |= flood[1:-1, 1:-1] == 0
+    return out
 
 
 def drop_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
@@ -184,7 +191,10 @@ def to_label_image(masks: list[np.ndarray], shape: tuple[int, int] | None = None
         shape = masks[0].shape
     out = np.zeros(shape, np.uint16)
     for i, m in enumerate(masks, start=1):
-        out[(out == 0) & m.astype(bool)] = i
+        win = box(m)                    # only the mask's own rows and columns change
+        if win is not None:
+            sub = out[win]
+            sub[(sub == 0) & m[win].astype(bool)] = i
     return out
 
 
@@ -252,22 +262,24 @@ def grow_on_plane(masks: list[np.ndarray], depth: np.ndarray | None, camera, ste
     out = []
     for m in masks:
         m = m.astype(bool)
-        plane = _face_plane(m & valid, depth, camera, tol)
+        plane = _face_plane(*box_nonzero(m, valid), depth, camera, tol)
         if plane is None:
             out.append(m)
             continue
         out.append(_grow_one(m, plane, depth, camera, free, edge, steps, tol))
     # pixels claimed by two grown masks go to neither (they were a boundary)
-    claims = np.sum([o.astype(np.uint8) for o in out], axis=0)
-    return [o & ((claims == 1) | m) for o, m in zip(out, masks)]
+    claims = np.zeros((h, w), np.int32)
+    for o in out:
+        claims += o
+    once = claims == 1
+    return [o & (once | m) for o, m in zip(out, masks)]
 
 
-def _face_plane(sel: np.ndarray, depth: np.ndarray, camera,
+def _face_plane(ys: np.ndarray, xs: np.ndarray, depth: np.ndarray, camera,
                 tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """(centre, normal, rows, cols) of the plane fitted (SVD, outliers beyond `tol` or 3x the
-    median residual dropped) to a sample of at most ~3000 of the selected pixels, the
-    sample's rows and columns; None with fewer than 30 pixels."""
-    ys, xs = nonzero(sel)
+    median residual dropped) to a sample of at most ~3000 of the pixels (rows `ys`, columns `xs`,
+    row by row), the sample's rows and columns; None with fewer than 30 pixels."""
     if len(xs) < 30:
         return None
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
@@ -276,13 +288,15 @@ def _face_plane(sel: np.ndarray, depth: np.ndarray, camera,
     z = depth[ys, xs].astype(np.float64)
     p = np.stack([(xs - cx) / fx * z, (ys - cy) / fy * z, z], axis=1)
     c = np.median(p, axis=0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    q = p - c
+    _, _, vt = np.linalg.svd(q, full_matrices=False)
     n = vt[2]
-    res = np.abs((p - c) @ n)
+    res = np.abs(q @ n)
     inl = res < max(tol, 3 * float(np.median(res)))
-    if inl.sum() > 20:
-        c = p[inl].mean(axis=0)
-        _, _, vt = np.linalg.svd(p[inl] - c, full_matrices=False)
+    if count(inl) > 20:
+        p = np.compress(inl, p, axis=0)            # p[inl], 4x faster for rows
+        c = p.mean(axis=0)
+        _, _, vt = np.linalg.svd(p - c, full_matrices=False)
         n = vt[2]
     return c, n, ys, xs
 

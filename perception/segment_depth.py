@@ -27,7 +27,7 @@ import numpy as np
 from shelfpick.perception.depth_edge_config import DepthEdgeConfig
 from shelfpick.perception.masks import pixel_scale, scaled_px
 from shelfpick.perception.piece_merge import merge_pieces, merge_tape
-from shelfpick.perception.pixels import label_sums
+from shelfpick.perception.pixels import label_masks, label_sums
 from shelfpick.perception.face_gate import inside_shelf_xyz
 from shelfpick.perception.scene import Camera, Shelf, quat_to_matrix
 
@@ -68,7 +68,7 @@ class DepthEdgeSegmenter:
     def segment(self, rgb: np.ndarray, depth: np.ndarray) -> list[np.ndarray]:
         labels = self.segment_labels(rgb, depth)
         n = int(labels.max())
-        return [labels == k for k in range(1, n + 1)]
+        return label_masks(labels, n)
 
     def segment_labels(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """HxW uint16 labels 1..n of the faces (steps 1-6 of the module docstring)."""

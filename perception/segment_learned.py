@@ -40,7 +40,7 @@ from shelfpick.perception.errors import PerceptionError
 from shelfpick.perception.face_gate import keep_faces, plausible_faces
 from shelfpick.perception.mask_match import match
 from shelfpick.perception.onnx_net import OnnxNet
-from shelfpick.perception.pixels import count
+from shelfpick.perception.pixels import count, label_masks
 from shelfpick.perception.segment_depth import DepthEdgeSegmenter
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -328,8 +328,10 @@ def instances(prob: np.ndarray, cfg: LearnedConfig) -> np.ndarray:
     seeds = remap[seeds]
     if not keep.any():
         return seeds
-    _, (iy, ix) = ndi.distance_transform_edt(seeds == 0, return_indices=True)
-    grown = seeds[iy, ix]
+    # the nearest seed pixel of each pixel (its distance is not needed: not computed), its label
+    # read by flat index (a 2-D fancy index of the frame is ~3x slower)
+    iy, ix = ndi.distance_transform_edt(seeds == 0, return_distances=False, return_indices=True)
+    grown = seeds.ravel().take(iy * seeds.shape[1] + ix)
     return np.where(fg | (seeds > 0), grown, 0).astype(np.int32)
 
 
@@ -592,7 +594,7 @@ class LearnedSegmenter:
             full = cv2.resize(labels.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int32)
         if full.max() == 0:
             return []
-        masks = [m for m in (full == k for k in range(1, int(full.max()) + 1)) if m.any()]
+        masks = [m for m in label_masks(full, int(full.max())) if m.any()]
         if depth is None or not self.depth_ok:
             return masks
         seen = full > 0
