@@ -116,3 +116,33 @@ def test_perceive_makes_two_boxes_of_two_stacked_printed_cartons_a_segmenter_mer
     assert len(res.scene.boxes) == 2
     assert any("2 fronts of one print stacked" in n for n in res.adjustments)
     assert all(abs(b.size[2] - 130 / 600 * 1.04) <= 0.015 for b in res.scene.boxes)
+
+
+def _paint_taped(rgb: np.ndarray, y0: int, y1: int, x0: int, x1: int) -> None:
+    """A carton front of the `labels` kind: a tape down one side, a label and a tag: little that
+    runs across the face, so where the tape falls in a row weighs most."""
+    vs, us = np.mgrid[y0:y1, x0:x1]
+    u, v = (us - x0) / (x1 - x0), 1 - (vs - y0) / (y1 - y0)
+    face = np.zeros(u.shape + (3,), np.uint8)
+    face[:] = BOARD
+    face[(u > 0.1) & (u < 0.25)] = (40, 160, 120)
+    face[(u > 0.35) & (u < 0.7) & (v > 0.6) & (v < 0.85)] = (235, 235, 235)
+    face[(u > 0.45) & (u < 0.55) & (v > 0.45) & (v < 0.6)] = (170, 40, 70)
+    rgb[y0:y1, x0:x1] = face
+
+
+def test_a_stack_of_cartons_not_aligned_in_the_image_is_cut_carton_by_carton() -> None:
+    """Stacked cartons of one print pushed a little left or right of each other (labels 31028's
+    column): each row's strips follow the row's own extent, so the print repeats; on the mask's
+    bounding box the tape fell in other strips in every carton and the stack was not cut, or cut
+    in two where it is three."""
+    for offsets in ((0, 12, -8, 6), (0, -10, 8)):
+        rgb = np.full((480, 640, 3), 90, np.uint8)
+        m = np.zeros((480, 640), bool)
+        for k, o in enumerate(offsets):
+            _paint_taped(rgb, 60 + 70 * k, 130 + 70 * k, 250 + o, 330 + o)
+            m[60 + 70 * k:130 + 70 * k, 250 + o:330 + o] = True
+        parts, axis, _ = repeat_parts(m, _lab(rgb))
+        assert axis == 0 and len(parts) == len(offsets), offsets
+        tops = sorted(int(np.flatnonzero(p.any(1))[0]) for p in parts)
+        assert all(abs(t - (60 + 70 * k)) <= 3 for k, t in enumerate(tops)), (offsets, tops)
