@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from shelfpick.perception.geometry import backproject, ray_plane
+from shelfpick.perception.geometry import backproject, offsets, ray_plane
 from shelfpick.perception.pixels import count, nonzero
 from shelfpick.perception.scene import Camera
 
@@ -186,7 +186,7 @@ def _vertical_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     centre = np.median(pts, axis=0)
     normal = np.array([0.0, 1.0, 0.0])
     for _ in range(2):
-        q = pts - centre
+        q = offsets(pts, centre)
         cov = q[:, :2].T @ q[:, :2]
         w, v = np.linalg.eigh(cov)
         n2 = v[:, 0]                          # smallest spread in x-y = normal direction
@@ -213,7 +213,8 @@ def _in_plane_axes(outline: np.ndarray, camera: Camera, centre: np.ndarray, norm
     u_ax = _cross(normal, (0.0, 0.0, 1.0))
     u_ax /= np.linalg.norm(u_ax)
     v_ax = _cross(u_ax, normal)
-    ab = np.stack([(hit - centre) @ u_ax, (hit - centre) @ v_ax], axis=1)
+    rel = offsets(hit, centre)
+    ab = np.stack([rel @ u_ax, rel @ v_ax], axis=1)
     _, _, _, angle = _rect_long_edge(ab * 1000.0)   # orientation from the outline (mm precision)
     if abs(angle) < angle_snap:
         angle = 0.0
@@ -237,9 +238,9 @@ def _extents(m: np.ndarray, camera: Camera, centre: np.ndarray, normal: np.ndarr
     okp = fin[:, 0] & fin[:, 1] & fin[:, 2]      # np.all(fin, axis=1), without its reduction set-up
     if not okp.all():
         allp = np.compress(okp, allp, axis=0)
-    rel = allp - centre
+    rel = offsets(allp, centre)
     cam_t = np.asarray(camera.position, dtype=np.float64)
-    wts = np.linalg.norm(allp - cam_t, axis=1) ** 3
+    wts = np.linalg.norm(offsets(allp, cam_t), axis=1) ** 3
     q = 0.02
     (x_lo, x_hi), (z_lo, z_hi) = (_wquant(rel @ ax, wts, (q, 1 - q)) for ax in (ex, ez))
     width = (x_hi - x_lo) / (1 - 2 * q)
@@ -261,7 +262,7 @@ def _tilt(pts: np.ndarray, centre: np.ndarray, rounds: int = 3) -> tuple[float, 
         if len(p) < 10:
             break
         c = p.mean(axis=0)
-        q = p - c
+        q = offsets(p, c)
         n = np.linalg.svd(q, full_matrices=False)[2][2]
         if n[1] < 0:
             n = -n

@@ -181,9 +181,15 @@ def load_backbone(model, path: str | Path) -> None:
 
 
 def to_array(rgb: np.ndarray) -> np.ndarray:
-    """HxWx3 uint8 RGB -> 1x3xHxW float32 array scaled as the Lite backbone expects."""
-    x = (np.ascontiguousarray(rgb, np.float32) - MEAN) / STD
-    return np.ascontiguousarray(x.transpose(2, 0, 1))[None]
+    """HxWx3 uint8 RGB -> 1x3xHxW float32 array scaled as the Lite backbone expects: (x - MEAN) /
+    STD in float32, a channel at a time into its plane (numpy's broadcast over a last axis of 3,
+    then the transposed copy, took ~5x as long)."""
+    img = np.asarray(rgb)
+    x = np.empty((1, 3) + img.shape[:2], np.float32)
+    for c in range(3):
+        np.subtract(img[..., c], MEAN[c], out=x[0, c], dtype=np.float32)
+        x[0, c] /= STD[c]
+    return x
 
 
 def to_tensor(rgb: np.ndarray):

@@ -20,7 +20,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from shelfpick.perception.geometry import point_map
+from shelfpick.perception.geometry import offsets, point_map
 from shelfpick.perception.scene import (EXPLAIN_TOL, FRONT_REACH, Box, Camera, Shelf, Unexplained,  # noqa: F401
                               quat_to_matrix)
 
@@ -68,7 +68,7 @@ def explained_by(points: np.ndarray, box: Box, tol: float = EXPLAIN_TOL) -> np.n
     unknown; the shelf volume bounds it); behind the face (not on it) up to `TOP_SLACK` higher
     still (the box's own top, seen from above, of a face measured short)."""
     r = np.asarray(quat_to_matrix(box.orientation), np.float32)
-    q = points - np.asarray(box.front_center, np.float32)
+    q = offsets(points, np.asarray(box.front_center, np.float32))
     loc = q @ r                     # the box's own x, y (depth), z of every point
     h = box.size[2] / 2 + tol
     top = (loc[:, 1] >= tol) & (loc[:, 2] > h) & (loc[:, 2] <= h + TOP_SLACK)

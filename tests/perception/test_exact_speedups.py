@@ -144,3 +144,34 @@ def test_a_face_measured_again_inside_a_call_is_measured_once_and_its_own_object
     assert first == again == outside and first is not again and other != first
     faces.measure_front(mask, depth, CAM)        # outside a call: measured, nothing remembered
     assert len(calls) == 3
+
+
+def test_freed_pages_are_kept_where_malloc_is_glibcs_and_setting_it_again_is_harmless():
+    import platform
+
+    from shelfpick.perception.heap_pages import keep_freed_pages
+
+    took = keep_freed_pages()
+    assert took == (platform.system() == "Linux" and platform.libc_ver()[0] == "glibc")
+    assert keep_freed_pages() == took
+    assert np.array_equal(np.ones((600, 600)).sum(axis=0), np.full(600, 600.0))   # arrays as before
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_offsets_and_columnwise_are_numpys_broadcasts(dtype):
+    from shelfpick.perception.geometry import columnwise, offsets
+
+    rng = np.random.default_rng(7)
+    pts, origin, per_row = (rng.random(s).astype(dtype) for s in ((300, 3), 3, 300))
+    _same(offsets(pts, origin), pts - origin)
+    _same(columnwise(pts.copy(), np.add, origin), pts + origin)
+    _same(columnwise(pts.copy(), np.multiply, per_row, by_row=True), pts * per_row[:, None])
+
+
+def test_the_networks_input_planes_are_the_broadcast_scaling():
+    from shelfpick.perception.segment_learned import MEAN, STD, to_array
+
+    rng = np.random.default_rng(8)
+    for rgb in (rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), rng.random((9, 7, 3)) * 255):
+        want = (np.ascontiguousarray(rgb, np.float32) - MEAN) / STD
+        _same(to_array(rgb), np.ascontiguousarray(want.transpose(2, 0, 1))[None])
