@@ -196,7 +196,7 @@ def _vertical_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         res = np.abs(q @ normal)
         cut = max(0.006, 3.0 * float(np.median(res)))
         inl = res < cut
-        if count(inl) >= 10:
+        if 10 <= count(inl) < len(pts):             # (all inliers, 4 rounds in 5: the same points and centre)
             pts = np.compress(inl, pts, axis=0)     # pts[inl], 4x faster for rows
             centre = np.median(pts, axis=0)
     return centre, normal, pts

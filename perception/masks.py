@@ -62,7 +62,7 @@ def drop_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
     n, lbl, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     keep = np.zeros(n, bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_pixels
-    return keep[lbl]
+    return keep.take(lbl)
 
 
 def largest_component(mask: np.ndarray) -> np.ndarray:

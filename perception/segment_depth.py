@@ -39,7 +39,7 @@ def _small_holes(valid: np.ndarray, max_px: int) -> np.ndarray:
     n, lab, stats, _ = cv2.connectedComponentsWithStats((~valid).astype(np.uint8), connectivity=8)
     small = stats[:, cv2.CC_STAT_AREA] <= max_px
     small[0] = False
-    return small[lab]
+    return small.take(lab)              # small[lab]: a table read at every pixel, by take (~2x faster)
 
 
 class DepthEdgeSegmenter:
@@ -94,13 +94,14 @@ class DepthEdgeSegmenter:
         # pixel scale (m per px) for metric sizes
         mpp = np.where(vs, ds / np.sqrt(camera.fx * camera.fy), 0.0).astype(np.float32)
         keep = _big_pieces(core, piece, npiece, mpp, cfg)
-        assigned = np.where(keep[piece], piece, 0)
+        kept = keep.take(piece)         # keep[piece], by take
+        assigned = np.where(kept, piece, 0)
         # ---- pixels of a patch not in a big piece go to the nearest big piece of that patch
         assigned = _grow_within(assigned, patch, fg)
         # ---- merge pieces of one patch with matching colour and a rectangular union
         lab = lab8.astype(np.float32)
         # ---- tape: a band (or cross) of another colour between pieces of one colour
-        kcore = core & keep[piece]
+        kcore = core & kept
         merged = merge_tape(assigned, kcore, lab, mpp, cfg)
         merged = merge_pieces(merged, kcore, patch, lab, cfg, edges)
         merged = merge_tape(merged, kcore, lab, mpp, cfg)
@@ -216,7 +217,7 @@ def _colour_edges(rgb: np.ndarray, fg: np.ndarray, depth: np.ndarray, cfg: Depth
     lab8 = cv2.GaussianBlur(lab8, (3, 3), 0)
     gain = _chroma_lut(cfg.chroma_gain)
     for c in (1, 2) if cfg.chroma_gain > 0 else ():
-        edges |= cv2.Canny(gain[lab8[..., c]], cfg.canny_low, cfg.canny_high) > 0
+        edges |= cv2.Canny(gain.take(lab8[..., c]), cfg.canny_low, cfg.canny_high) > 0
     edges = _extend_lines(edges, fg, _scaled(cfg, depth, fg))
     return cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
@@ -257,7 +258,9 @@ def label_max(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
     `ndimage.maximum(values, labels, range(1, n))` gives, without its sort of the whole image
     (57 ms of a frame's CPU)."""
     out = np.full(n, -np.inf, values.dtype)
-    np.maximum.at(out, labels.ravel(), values.ravel())
+    lab, vals = labels.ravel(), values.ravel()
+    on = lab != 0                       # label 0 (most of the frame) is not asked for
+    np.maximum.at(out, lab[on], vals[on])
     return out[1:]
 
 
@@ -322,10 +325,10 @@ def _grow_within(assigned: np.ndarray, patch: np.ndarray, fg: np.ndarray) -> np.
     seeds = assigned != 0
     lut = np.zeros(int(lbl.max()) + 1, np.int32)
     lut[lbl[seeds]] = assigned[seeds]
-    nearest = lut[lbl]
+    nearest = lut.take(lbl)
     patch_of = np.zeros(int(assigned.max()) + 1, np.int32)
     patch_of[assigned[seeds]] = patch[seeds]
-    ok = todo & (patch_of[nearest] == patch) & (nearest > 0)
+    ok = todo & (patch_of.take(nearest) == patch) & (nearest > 0)
     out = assigned.copy()
     out[ok] = nearest[ok]
     return out
@@ -341,4 +344,4 @@ def _finish(merged: np.ndarray, mpp: np.ndarray, cfg: DepthEdgeConfig) -> np.nda
     lut = np.zeros(int(labels[-1]) + 1, np.uint16)
     kept = labels[~(area < cfg.min_face_m2)]
     lut[kept] = np.arange(1, len(kept) + 1)
-    return lut[merged]
+    return lut.take(merged)

@@ -331,7 +331,7 @@ def instances(prob: np.ndarray, cfg: LearnedConfig) -> np.ndarray:
     keep[0] = False
     remap = np.zeros(n + 1, np.int32)
     remap[keep] = np.arange(1, int(keep.sum()) + 1)
-    seeds = remap[seeds]
+    seeds = remap.take(seeds)
     if not keep.any():
         return seeds
     # the nearest seed pixel of each pixel (its distance is not needed: not computed), its label
@@ -522,7 +522,9 @@ class LearnedSegmenter:
             out = split_merged(out, rules, snapped, used, self.config.split_inside)
             used |= {j for j, r in enumerate(rules) if any(m is r for m in out)}
         if self.config.add_unseen > 0 and rules and self.camera is not None and self.shelf is not None:
-            covered = np.logical_or.reduce([*out, seen if seen is not None else np.zeros(rgb.shape[:2], bool)])
+            covered = np.zeros(rgb.shape[:2], bool) if seen is None else np.array(seen, bool)
+            for m in out:                   # np.logical_or.reduce of them all, without stacking them first
+                np.logical_or(covered, m, out=covered)
             cand = unseen_faces(rules, used, covered, self.config.add_unseen)
             out.extend(plausible_faces([rules[j] for j in cand], depth, self.camera, self.shelf))
         taken = np.zeros(rgb.shape[:2], bool)
