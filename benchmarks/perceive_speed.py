@@ -283,6 +283,9 @@ def run_inproc(frames: list[tuple[str, str, Path]], out: Path) -> list[dict]:
     """Every frame in this process after one warm-up frame (not counted)."""
     from shelfpick.perception.segment import load_segmenter
 
+    from shelfpick.perception.heap_pages import keep_freed_pages
+
+    keep_freed_pages()        # as the console does at its start
     w, c = time.perf_counter(), time.process_time()
     seg = load_segmenter(None, "auto")
     seg.choose(True)          # the learned network loaded once, as the console holds it

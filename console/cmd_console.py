@@ -305,8 +305,10 @@ def serve(parts: tuple, args: argparse.Namespace) -> int:
 
     C code's printf() is kept off stdout once for the whole run (perception.stdio): a per-connect
     redirection of fd 1 and 2 would swallow what other threads print or log meanwhile."""
+    from shelfpick.perception.heap_pages import keep_freed_pages
     from shelfpick.perception.stdio import c_output_detached
 
+    keep_freed_pages()        # the console perceives capture after capture (perception.heap_pages)
     with c_output_detached():
         return _serve(parts, args)
 

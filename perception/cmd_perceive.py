@@ -105,11 +105,13 @@ def run(args: argparse.Namespace) -> int:
     import cv2
 
     from shelfpick.perception.capture import check_depth_structure, load_capture
+    from shelfpick.perception.heap_pages import keep_freed_pages
     from shelfpick.perception.pipeline import perceive
     from shelfpick.perception.scene import Shelf, output_path, write_json
     from shelfpick.perception.segment import load_segmenter
 
     _check_numbers(args)
+    keep_freed_pages()        # this process perceives: freed arrays' pages kept (heap_pages)
     for flag in ("out", "overlay", "masks", "report"):       # before any work: never onto a device or FIFO
         if getattr(args, flag):
             output_path(getattr(args, flag), f"--{flag}")

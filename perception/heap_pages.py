@@ -10,7 +10,9 @@ frames, its peak memory ~30 MB more).
 What is computed does not change (the same values land in memory elsewhere). The settings are the
 process's (glibc's mallopt; it has no call to read them back, so they are set, never restored): the
 process keeps up to `TRIM_AT` of freed heap instead of returning it at once. Where malloc is not
-glibc's, nothing changes.
+glibc's, nothing changes. So the process's owner sets them, at its start: `shelfpick perceive`
+and the console do; `perceive()` itself does not (a library call changes no process-wide setting
+behind its caller's back), and a program that calls it frame after frame may.
 """
 from __future__ import annotations
 

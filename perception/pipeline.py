@@ -29,7 +29,6 @@ from shelfpick.perception.boxes import (
 from shelfpick.perception.capture import Capture
 from shelfpick.perception.faces import FrontFace, faces_cached, measure_front
 from shelfpick.perception.geometry import check_intrinsics, point_map, points_cached, pose_matrix
-from shelfpick.perception.heap_pages import keep_freed_pages
 from shelfpick.perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from shelfpick.perception.overlay import box_names, draw_overlay, draw_unexplained
 from shelfpick.perception.repairs.border_cut import complete_cut_face
@@ -154,8 +153,9 @@ def perceive(capture: Capture, segmenter: Segmenter | None = None, shelf: Shelf 
     An image over `max_pixels` is perceived scaled down; its masks and overlay are full size
     (the faces' `rect_px` stay in the scaled image). Runs with one BLAS thread (`blas_threads`), the
     frame's points computed once (`geometry.points_cached`), each mask's face measured once
-    (`faces.faces_cached`), freed arrays' pages kept for the next (`heap_pages`, process-wide)."""
-    keep_freed_pages()
+    (`faces.faces_cached`). A process that perceives frame after frame may keep freed arrays'
+    pages (`heap_pages.keep_freed_pages`, process-wide): its caller's choice, the CLI's and the
+    console's, not this function's."""
     with one_blas_thread(), points_cached(), faces_cached():
         return _perceive(capture, segmenter, shelf, front_distance=front_distance, box_size=box_size,
                          placeholder=placeholder, origin=origin, catalogue=catalogue, max_pixels=max_pixels)
