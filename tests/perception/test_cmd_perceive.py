@@ -117,3 +117,26 @@ def test_realsense_errors_are_clear_without_the_library_or_a_camera(tmp_path):
             realsense.capture_live(timeout_ms=200)
         with pytest.raises(PerceptionError, match="not found"):
             realsense.capture_bag(tmp_path / "x.bag")
+
+
+def test_the_heap_setting_is_the_processs_owners_not_perceives(capture_dir, tmp_path, monkeypatch):
+    """glibc's malloc kept for reuse (`heap_pages`) is a process-wide setting never undone: the CLI
+    sets it at its start, `perceive()` itself does not (a library call changes no process-wide
+    setting behind its caller's back)."""
+    import shelfpick.perception.heap_pages as heap
+    from shelfpick.perception.capture import load_capture
+    from shelfpick.perception.pipeline import perceive
+    from shelfpick.perception.segment import load_segmenter
+
+    import shelfpick.perception.pipeline as pipeline
+
+    calls: list[int] = []
+    keep = lambda: calls.append(1) or True          # noqa: E731
+    monkeypatch.setattr(heap, "keep_freed_pages", keep)
+    monkeypatch.setattr(pipeline, "keep_freed_pages", keep, raising=False)   # a name imported there
+    cap = load_capture(capture_dir / "rgb.png", capture_dir / "depth.png", capture_dir / "camera.json")
+    perceive(cap, load_segmenter(None, "depth"))
+    assert calls == []
+    rc = main(["perceive", "--rgb", str(capture_dir / "rgb.png"), "--depth", str(capture_dir / "depth.png"),
+               "--camera", str(capture_dir / "camera.json"), "--segmenter", "depth", "--out", str(tmp_path / "s.json")])
+    assert rc == 0 and calls == [1]
