@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from shelfpick.perception.depth_edge_config import DepthEdgeConfig
-from shelfpick.perception.pixels import hull_candidates, label_percentiles, label_sums
+from shelfpick.perception.pixels import hull_candidates, label_percentiles
 
 
 def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab: np.ndarray,
@@ -26,10 +27,8 @@ def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab:
     n = int(assigned.max())
     if n <= 1:
         return assigned
-    idx = np.arange(1, n + 1)
-    src = np.where(core, assigned, 0)
-    cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)   # ndimage.sum of ones, 6x faster
-    mean = np.stack([label_sums(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
+    _, mean = _colours(assigned, core, lab, n)
+    union = _Unions(assigned, n)
     # neighbouring pieces (one pixel apart after growing)
     pairs = set()
     for a, b in ((assigned[:, :-1], assigned[:, 1:]), (assigned[:-1, :], assigned[1:, :])):
@@ -59,17 +58,55 @@ def merge_pieces(assigned: np.ndarray, core: np.ndarray, patch: np.ndarray, lab:
         if ra == rb:
             continue
         if seam.get((a, b), 0.0) > cfg.seam_veto and \
-                min(rect_fill(np.isin(assigned, members[r])) for r in (ra, rb)) >= cfg.seam_rect:
+                min(rect_fill(union(members[r])[0]) for r in (ra, rb)) >= cfg.seam_rect:
             continue        # two rectangles with an edge line all along their border: two boxes
-        union = np.isin(assigned, members[ra] + members[rb])
-        if rect_fill(union) < cfg.rect_fill:
+        if rect_fill(union(members[ra] + members[rb])[0]) < cfg.rect_fill:
             continue
         parent[rb] = ra
         members[ra] = members[ra] + members.pop(rb)
     lut = np.zeros(n + 1, np.int32)
     for i in range(1, n + 1):
         lut[i] = find(i)
-    return lut[assigned]
+    return lut.take(assigned)           # lut[assigned], by take
+
+
+def _colours(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(pixel count, at least 1; mean Lab colour) of pieces 1..n over `core`: one selection of
+    the core's labelled pixels for the count and the three channels' sums, the very numbers of
+    `label_sums(lab[..., c], np.where(core, labels, 0), 1..n)` (bincount adds each label's values
+    in pixel order, and the order and values are the same) without selecting them four times."""
+    on = np.flatnonzero(core & (labels != 0))
+    keys = labels.ravel().take(on)
+    cnt = np.maximum(np.bincount(keys, minlength=n + 1)[1:n + 1], 1)
+    px = lab.reshape(-1, lab.shape[-1]).take(on, axis=0)
+    mean = np.stack([np.bincount(keys, weights=px[:, c], minlength=n + 1)[1:n + 1] / cnt for c in range(3)], axis=1)
+    return cnt, mean
+
+
+class _Unions:
+    """`np.isin(labels, ids)` worked out in the ids' joint bounding box only (their boxes found
+    once, when first asked: `ndimage.find_objects`), with that box: outside it no pixel is one
+    of them, and `rect_fill` and a median over it see the same pixels in the same order."""
+
+    def __init__(self, labels: np.ndarray, n: int) -> None:
+        self.labels, self.n = labels, n
+        self.boxes: list | None = None
+
+    def __call__(self, ids: list[int]) -> tuple[np.ndarray, tuple[slice, slice]]:
+        if self.boxes is None:
+            self.boxes = ndimage.find_objects(self.labels, max_label=self.n)
+        got = [self.boxes[i - 1] for i in ids if 0 < i <= self.n and self.boxes[i - 1] is not None]
+        if not got:                      # none of them is in the image: one pixel that is not one
+            win = (slice(0, 1), slice(0, 1))
+        else:
+            win = tuple(slice(min(w[k].start for w in got), max(w[k].stop for w in got)) for k in (0, 1))
+        return np.isin(self.labels[win], ids), win
+
+    def full(self, part: np.ndarray, win: tuple[slice, slice]) -> np.ndarray:
+        """A mask of the box `win` put back in a frame-sized one."""
+        out = np.zeros(self.labels.shape, bool)
+        out[win] = part
+        return out
 
 
 def contacts(labels: np.ndarray) -> dict[tuple[int, int], int]:
@@ -104,10 +141,9 @@ def merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.nd
         return labels
     idx = np.arange(1, n + 1)
     thick = _thickness(labels, mpp, idx)
-    src = np.where(core, labels, 0)
-    cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)
-    mean = np.stack([label_sums(lab[..., c], src, idx) / cnt for c in range(3)], axis=1)
+    cnt, mean = _colours(labels, core, lab, n)
     touch = contacts(labels)
+    union = _Unions(labels, n)
     nbrs: dict[int, set[int]] = {i: set() for i in idx}
     for (a, b), c in touch.items():
         if c >= 3:
@@ -126,14 +162,14 @@ def merge_tape(labels: np.ndarray, core: np.ndarray, lab: np.ndarray, mpp: np.nd
         best = _same_colour(cand, cnt, mean, cfg.tape_colour)
         if best is None:
             continue
-        best = _tape_group(labels, p, best, touch, thick[p - 1], mpp, cfg)
+        best = _tape_group(union, p, best, touch, thick[p - 1], mpp, cfg)
         if best is None:
             continue
         for q in best:
             lut[q] = p
             done.add(q)
         done.add(p)
-    return lut[labels]
+    return lut.take(labels)             # lut[labels], by take
 
 
 def _thickness(labels: np.ndarray, mpp: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -164,7 +200,7 @@ def _same_colour(cand: list[int], cnt: np.ndarray, mean: np.ndarray, tol: float)
     return None
 
 
-def _tape_group(labels: np.ndarray, p: int, best: list[int], touch: dict[tuple[int, int], int],
+def _tape_group(unions: _Unions, p: int, best: list[int], touch: dict[tuple[int, int], int],
                 thick_p: float, mpp: np.ndarray, cfg: DepthEdgeConfig) -> list[int] | None:
     """The pieces tape `p` joins: those along its long sides first (not one it only touches
     with its end), else all of `best`; when tape and pieces fill a rectangle and the tape
@@ -172,10 +208,10 @@ def _tape_group(labels: np.ndarray, p: int, best: list[int], touch: dict[tuple[i
     side = [q for q in best if touch[(min(p, q), max(p, q))]
             >= 0.3 * max(touch[(min(p, r), max(p, r))] for r in best)]
     for group in ([side, best] if len(side) >= 2 and len(side) < len(best) else [best]):
-        union = np.isin(labels, [p] + group)
+        union, win = unions([p] + group)
         if rect_fill(union) >= cfg.rect_fill and spans(
-                labels == p, union, cfg.tape_span, thick_p / max(float(np.median(mpp[union])), 1e-6),
-                cfg.tape_frac, cfg.tape_centre):
+                unions.full(unions.labels[win] == p, win), unions.full(union, win), cfg.tape_span,
+                thick_p / max(float(np.median(mpp[win][union])), 1e-6), cfg.tape_frac, cfg.tape_centre):
             return group
     return None
 

@@ -79,30 +79,30 @@ def regroup_halves(masks: list[np.ndarray], faces: list[FrontFace | None], lab: 
 def _first_pair(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.ndarray, frame: _Frame,
                 front: Callable[[np.ndarray], FrontFace | None], made: set[int], tried: set[frozenset[int]]):
     """(i, j, parts, their faces, axis, score) of the first pair that re-cuts, else None."""
-    kernel = np.ones((2 * GAP_PX + 1, 2 * GAP_PX + 1), np.uint8)
-    near = [cv2.dilate(m.astype(np.uint8), kernel).astype(bool) for m in masks]
-    cover = np.sum(masks, axis=0, dtype=np.uint8)       # how many masks claim each pixel
     boxes = [_bbox(m) for m in masks]
+    near = [_near(m, b) for m, b in zip(masks, boxes)]
+    cover = _cover(masks, boxes)
     for i in range(len(masks)):
         for j in range(i + 1, len(masks)):
             key = frozenset((id(masks[i]), id(masks[j])))
             if key in tried or faces[i] is None or faces[j] is None or id(masks[i]) in made \
                     or id(masks[j]) in made or not _overlap(boxes[i], boxes[j]) \
-                    or int((near[i] & masks[j]).sum()) < MIN_TOUCH_PX:
+                    or _touch(near[i], masks[j], boxes[i], boxes[j]) < MIN_TOUCH_PX:
                 continue
             tried.add(key)
-            done = _recut(i, j, masks, faces, near, cover, lab, frame, front)
+            done = _recut(i, j, masks, faces, near, cover, boxes, lab, frame, front)
             if done is not None:
                 return (i, j) + done
     return None
 
 
 def _recut(i: int, j: int, masks: list[np.ndarray], faces: list[FrontFace | None], near: list[np.ndarray],
-           cover: np.ndarray, lab: np.ndarray, frame: _Frame, front: Callable[[np.ndarray], FrontFace | None]):
+           cover: np.ndarray, boxes: list[tuple[int, int, int, int]], lab: np.ndarray, frame: _Frame,
+           front: Callable[[np.ndarray], FrontFace | None]):
     """(parts, faces, axis, score) when masks i and j re-cut into other box fronts, else None.
-    `cover`: how many masks claim each pixel (the gap pixels joined are nobody else's). Works on
-    the pair's bounding box; the parts come back full size."""
-    (y0, y1, x0, x1), (v0, v1, u0, u1) = _bbox(masks[i]), _bbox(masks[j])
+    `cover`: how many masks claim each pixel (the gap pixels joined are nobody else's); `boxes`:
+    the masks' `_bbox`. Works on the pair's bounding box; the parts come back full size."""
+    (y0, y1, x0, x1), (v0, v1, u0, u1) = boxes[i], boxes[j]
     box = (slice(max(min(y0, v0) - GAP_PX, 0), max(y1, v1) + GAP_PX),
            slice(max(min(x0, u0) - GAP_PX, 0), max(x1, u1) + GAP_PX))
     a, b = masks[i][box], masks[j][box]
@@ -146,6 +146,40 @@ def _bbox(m: np.ndarray) -> tuple[int, int, int, int]:
     if not len(rows):
         return 0, 0, 0, 0
     return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def _grown(b: tuple[int, int, int, int]) -> tuple[slice, slice]:
+    """A `_bbox` grown by GAP_PX (cut at the image's top and left: slicing cuts the rest)."""
+    return slice(max(b[0] - GAP_PX, 0), b[1] + GAP_PX), slice(max(b[2] - GAP_PX, 0), b[3] + GAP_PX)
+
+
+def _near(mask: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """The mask dilated by a (2 GAP_PX + 1) square, dilated within its box grown by GAP_PX
+    (`box`: its `_bbox`): outside that the whole frame's dilation is empty and inside it sees
+    the same pixels, so the same mask, without dilating the whole frame a mask at a time."""
+    win = _grown(box)
+    out = np.zeros(mask.shape, bool)
+    kernel = np.ones((2 * GAP_PX + 1, 2 * GAP_PX + 1), np.uint8)
+    out[win] = cv2.dilate(mask[win].astype(np.uint8), kernel).astype(bool)
+    return out
+
+
+def _cover(masks: list[np.ndarray], boxes: list[tuple[int, int, int, int]]) -> np.ndarray:
+    """How many masks claim each pixel: `np.sum(masks, axis=0, dtype=np.uint8)`, each mask added
+    in its box (`boxes`: their `_bbox`) instead of stacking them all."""
+    cover = np.zeros(masks[0].shape if masks else (0, 0), np.uint8)
+    for m, (y0, y1, x0, x1) in zip(masks, boxes):
+        cover[y0:y1, x0:x1] += m[y0:y1, x0:x1]
+    return cover
+
+
+def _touch(near: np.ndarray, mask: np.ndarray, near_box: tuple[int, int, int, int],
+           box: tuple[int, int, int, int]) -> int:
+    """`int((near & mask).sum())`, counted where the two can both be set: `near` (a `_near`) in
+    its mask's box grown by GAP_PX, `mask` in its own box."""
+    rows, cols = _grown(near_box)
+    win = (slice(max(rows.start, box[0]), min(rows.stop, box[1])), slice(max(cols.start, box[2]), min(cols.stop, box[3])))
+    return int(np.count_nonzero(near[win] & mask[win]))
 
 
 def _overlap(p: tuple[int, int, int, int], q: tuple[int, int, int, int]) -> bool:

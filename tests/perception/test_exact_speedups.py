@@ -175,3 +175,181 @@ def test_the_networks_input_planes_are_the_broadcast_scaling():
     for rgb in (rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), rng.random((9, 7, 3)) * 255):
         want = (np.ascontiguousarray(rgb, np.float32) - MEAN) / STD
         _same(to_array(rgb), np.ascontiguousarray(want.transpose(2, 0, 1))[None])
+
+
+# --- session 52, second helper: the print repairs, the depth rules' piece merges, the box sweep
+
+
+def _sweep_per_axis(a, b, direction):
+    """contact.sweep as it was: each axis's projections and their ends taken in the loop."""
+    from shelfpick.perception.contact import _axes, box_corners
+
+    d = np.asarray(direction, float)
+    ca, cb = box_corners(a), box_corners(b)
+    lo, hi = -np.inf, np.inf
+    for n in _axes(a, b):
+        pa, pb = ca @ n, cb @ n
+        a0, a1, b0, b1 = pa.min(), pa.max(), pb.min(), pb.max()
+        nd = float(n @ d)
+        if abs(nd) < 1e-9:
+            if a0 >= b1 - 1e-9 or b0 >= a1 - 1e-9:
+                return None
+            continue
+        t0, t1 = sorted(((b0 - a1) / nd, (b1 - a0) / nd))
+        lo, hi = max(lo, t0), min(hi, t1)
+        if lo >= hi:
+            return None
+    return float(lo), float(hi)
+
+
+def test_the_sweep_from_remembered_extents_is_the_per_axis_sweep():
+    from shelfpick.perception.contact import _cross, pose_memo, sweep
+    from shelfpick.perception.scene import Box
+
+    rng = np.random.default_rng(9)
+    for u, v in rng.normal(size=(50, 2, 3)):
+        _same(_cross(u, v), np.cross(u, v))
+    boxes = []
+    for k in range(12):
+        q = rng.normal(size=4) * [1, 0.1, 0.1, 0.3] if k % 3 else np.array([1.0, 0, 0, 0])
+        boxes.append(Box(str(k), tuple(rng.uniform(0.1, 0.4, 3)), tuple(rng.uniform(-0.3, 0.3, 3)),
+                         tuple(q / np.linalg.norm(q))))
+    for d in ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.3, 0.0, 0.9)):
+        want = [_sweep_per_axis(a, b, d) for a in boxes for b in boxes]
+        assert [sweep(a, b, d) for a in boxes for b in boxes] == want          # outside a memo
+        with pose_memo():
+            assert [sweep(a, b, d) for a in boxes for b in boxes] == want
+            assert [sweep(a, b, d) for a in boxes for b in boxes] == want      # remembered
+
+
+def _profile_transposed(mask, lab, axis):
+    """repeats.profile as it was: the strips' pixels read through the transposed image."""
+    from shelfpick.perception.repairs.repeats import L_WEIGHT, STRIPS
+
+    m = mask if axis == 0 else mask.T
+    im = lab if axis == 0 else lab.transpose(1, 0, 2)
+    width = m.sum(axis=1)
+    idx = np.flatnonzero(width >= 0.5 * np.median(width[width > 0]))
+    lo, hi = int(idx[0]), int(idx[-1]) + 1
+    sub = m[lo:hi]
+    first = np.argmax(sub, axis=1)
+    span = np.maximum(sub.shape[1] - np.argmax(sub[:, ::-1], axis=1) - first, 1)
+    rr, cc = np.nonzero(sub)
+    key = rr * STRIPS + np.minimum((cc - first[rr]) * STRIPS // span[rr], STRIPS - 1)
+    nb = (hi - lo) * STRIPS
+    n = np.bincount(key, minlength=nb).reshape(hi - lo, STRIPS).astype(float)
+    vals = im[lo:hi][rr, cc]
+    tot = np.stack([np.bincount(key, weights=vals[:, k], minlength=nb) for k in range(3)], -1)
+    out = np.where((n >= 2)[..., None], tot.reshape(hi - lo, STRIPS, 3) / np.maximum(n, 1)[..., None], np.nan)
+    out[..., 0] *= L_WEIGHT
+    flat = out.reshape(hi - lo, -1)
+    for c in range(flat.shape[1]):
+        col = flat[:, c]
+        bad = np.isnan(col)
+        if bad.all():
+            flat[:, c] = 0.0
+        elif bad.any():
+            col[bad] = np.interp(np.flatnonzero(bad), np.flatnonzero(~bad), col[~bad])
+    return lo, flat
+
+
+def _alike_apart(prof, a, c, b):
+    """repeats._alike_two as it was: each part resampled and its spread taken on its own."""
+    from shelfpick.perception.repairs.repeats import MIN_SPREAD, SAMPLES
+
+    n, t = len(prof), np.linspace(0.0, 1.0, SAMPLES)
+
+    def gather(lo, hi):
+        x = np.clip(lo[:, None] + (hi - 1 - lo)[:, None] * t, 0, n - 1)
+        i = np.minimum(x.astype(int), max(n - 2, 0))
+        w = (x - i)[..., None]
+        return prof[i] * (1 - w) + prof[np.minimum(i + 1, n - 1)] * w
+
+    p, q = gather(a, c), gather(c, b)
+    sp = ((p - p.mean(1, keepdims=True)) ** 2).sum(2).mean(1)
+    sq = ((q - q.mean(1, keepdims=True)) ** 2).sum(2).mean(1)
+    out = 1 - ((p - q) ** 2).sum(2).mean(1) / np.maximum(sp + sq, 1e-9)
+    return np.where(np.minimum(sp, sq) < MIN_SPREAD ** 2, -1.0, out)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_print_profile_and_scores_are_the_transposed_and_per_part_ones(seed):
+    from shelfpick.perception.repairs import repeats
+
+    rng = np.random.default_rng(seed)
+    lab = (rng.random((60, 70, 3)) * [100, 60, 60]).astype(np.float32)
+    lab[:, :, 1] += np.sin(np.arange(70) / 3.0)[None, :].astype(np.float32) * 20     # a print to repeat
+    mask = np.zeros((60, 70), bool)
+    mask[5:55, 8:64] = True
+    mask[rng.integers(0, 60, 300), rng.integers(0, 70, 300)] = False               # gaps in rows
+    mask[5:12, 8:20] = False
+    for axis in (0, 1):
+        lo, prof = repeats.profile(mask, lab, axis)
+        want_lo, want = _profile_transposed(mask, lab, axis)
+        assert lo == want_lo
+        _same(prof, want)
+        n = len(prof)
+        cs = np.arange(12, n - 11, 2, dtype=float)
+        for kind in (0, 1, 2):
+            win = repeats._windows(n, cs, kind)
+            _same(repeats._alike_two(prof, *win), _alike_apart(prof, *win))
+    px = lab[mask]
+    assert repeats._spread(px) == float((px * np.array([repeats.L_WEIGHT, 1.0, 1.0])).var(axis=0).sum())
+
+
+def test_the_best_coarse_cut_of_all_kinds_at_once_is_the_kind_by_kind_one():
+    from shelfpick.perception.repairs.repeats import _coarse, _windows
+
+    rng = np.random.default_rng(10)
+    for n in (24, 40, 77):
+        prof = np.repeat(rng.normal(0, 20, (n // 4 + 1, 9)), 4, axis=0)[:n] + rng.normal(0, 3, (n, 9))
+        ranges = ((max(12, int(0.2 * n)), min(n - 12, int(0.8 * n))), (12, n // 2 - 1), (n - n // 2 + 1, n - 12))
+        for step in (1, 3):
+            best = (-1.0, 0, 0.0)
+            for kind, (lo, hi) in enumerate(ranges):
+                cs = np.arange(lo, hi + 1, step, dtype=float)
+                if len(cs):
+                    sc = _alike_apart(prof, *_windows(n, cs, kind))
+                    j = int(np.argmax(sc))
+                    if sc[j] > best[0]:
+                        best = (float(sc[j]), kind, float(cs[j]))
+            assert _coarse(prof, ranges, step) == best
+
+
+def test_the_halves_dilations_touches_and_cover_in_boxes_are_the_whole_frames():
+    from shelfpick.perception.repairs.halves import GAP_PX, _bbox, _cover, _near, _touch
+
+    labels = _blobs(np.random.default_rng(11), 9)
+    labels[0:5, 0:6] = 10                                     # at the image's corner
+    masks = [labels == k for k in range(1, 11)] + [np.zeros(labels.shape, bool)]
+    boxes = [_bbox(m) for m in masks]
+    kernel = np.ones((2 * GAP_PX + 1, 2 * GAP_PX + 1), np.uint8)
+    near = [_near(m, b) for m, b in zip(masks, boxes)]
+    for m, nm in zip(masks, near):
+        _same(nm, cv2.dilate(m.astype(np.uint8), kernel).astype(bool))
+    for i in range(len(masks)):
+        for j in range(len(masks)):
+            assert _touch(near[i], masks[j], boxes[i], boxes[j]) == int((near[i] & masks[j]).sum())
+    masks[2] = masks[2] | masks[3]                              # masks overlap: pixels claimed twice
+    _same(_cover(masks, [_bbox(m) for m in masks]), np.sum(masks, axis=0, dtype=np.uint8))
+
+
+def test_piece_colours_and_unions_in_boxes_are_label_sums_and_whole_frame_isin():
+    from shelfpick.perception.piece_merge import _colours, _Unions, rect_fill
+
+    rng = np.random.default_rng(12)
+    labels = _blobs(rng, 9).astype(np.int32)
+    labels[labels == 4] = 0                                   # a label that is not there
+    core = rng.random(labels.shape) > 0.2
+    lab = (rng.random((48, 64, 3)) * 255).astype(np.float32)
+    n, idx = 9, np.arange(1, 10)
+    src = np.where(core, labels, 0)
+    cnt = np.maximum(np.bincount(src.ravel(), minlength=n + 1)[1:n + 1], 1)
+    got_cnt, got_mean = _colours(labels, core, lab, n)
+    _same(got_cnt, cnt)
+    _same(got_mean, np.stack([label_sums(lab[..., c], src, idx) / cnt for c in range(3)], axis=1))
+    unions = _Unions(labels, n)
+    for ids in ([1], [2, 3], [4], [4, 7, 9], [5, 6, 8, 1]):
+        part, win = unions(ids)
+        _same(unions.full(part, win), np.isin(labels, ids))
+        assert rect_fill(part) == rect_fill(np.isin(labels, ids))
