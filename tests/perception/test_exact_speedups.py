@@ -353,3 +353,32 @@ def test_piece_colours_and_unions_in_boxes_are_label_sums_and_whole_frame_isin()
         part, win = unions(ids)
         _same(unions.full(part, win), np.isin(labels, ids))
         assert rect_fill(part) == rect_fill(np.isin(labels, ids))
+
+
+def test_piece_borders_found_once_are_each_rules_own_comparisons():
+    from shelfpick.perception.piece_merge import _borders, _thickness, contacts, seam_fraction
+    from shelfpick.perception.pixels import label_percentiles
+
+    rng = np.random.default_rng(13)
+    labels = _blobs(rng, 12).astype(np.int32)
+    edges = rng.random(labels.shape) > 0.6
+    mpp = (rng.random(labels.shape) * 0.002).astype(np.float32)
+    n, touch, tot, hit = 12, {}, {}, {}
+    for a, b, ea, eb in ((labels[:, :-1], labels[:, 1:], edges[:, :-1], edges[:, 1:]),
+                         (labels[:-1, :], labels[1:, :], edges[:-1, :], edges[1:, :])):
+        for y, x in zip(*np.nonzero((a != b) & (a > 0) & (b > 0))):
+            key = (int(min(a[y, x], b[y, x])), int(max(a[y, x], b[y, x])))
+            touch[key] = touch.get(key, 0) + 1
+            hit[key] = hit.get(key, 0) + int(ea[y, x] | eb[y, x])
+    borders = _borders(labels)
+    assert contacts(labels, borders) == touch
+    assert seam_fraction(labels, edges, borders) == {k: hit[k] / v for k, v in touch.items() if v >= 10}
+    border = ~(cv2.morphologyEx((labels > 0).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0)
+    for a, b, sl_a, sl_b in ((labels[:, 1:], labels[:, :-1], np.s_[:, 1:], np.s_[:, :-1]),
+                             (labels[1:, :], labels[:-1, :], np.s_[1:, :], np.s_[:-1, :])):
+        diff = (a != b) & (a > 0) & (b > 0)
+        border[sl_a] |= diff
+        border[sl_b] |= diff
+    dist = cv2.distanceTransform((~border).astype(np.uint8), cv2.DIST_L2, 3)
+    idx = np.arange(1, n + 1)
+    _same(_thickness(labels, mpp, idx, borders), 2 * label_percentiles(dist * mpp, labels, idx, 90))
