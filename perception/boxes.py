@@ -462,7 +462,6 @@ def _clamp(b: Box, shelf: Shelf, notes: list[str]) -> Box:
 
 # a face may stick out of the shelf by this much (boxes overhang the front, masks bleed a little)
 FRONT_MARGIN = 0.10
-WALL_FACE = 0.015       # m: a face this close to the back wall is the wall (< EXPLAIN_TOL)
 # and stand this far in front of the shelf's front plane before it cannot be on the shelf
 MAX_PROTRUSION = 0.50
 
@@ -472,10 +471,7 @@ def not_a_front(f: FrontFace, shelf: Shelf) -> str:
 
     A mask of the floor, a wall, a neighbouring bay or (in a photo with a flat stand-in depth) a
     region near the horizon back-projects to faces metres wide or far away; kept, `make_valid`
-    would stack every other box on top of them. The back wall seen through a gap between boxes
-    measures as a face on it: within `WALL_FACE` of the wall (inside the `EXPLAIN_TOL` where the
-    unexplained-matter count puts points to the shelf) a face is the wall's; a box there would be
-    under 1.5 cm deep (2 cm deep boxes flush with the wall stay boxes).
+    would stack every other box on top of them.
     """
     x, y, z = (float(v) for v in f.center)
     m = FRONT_MARGIN
@@ -487,8 +483,6 @@ def not_a_front(f: FrontFace, shelf: Shelf) -> str:
         return f"larger than the {shelf.width:.2f}x{shelf.height:.2f} m shelf"
     if y > shelf.depth + 0.05:
         return "behind the shelf's back wall"
-    if y > shelf.depth - WALL_FACE:
-        return "on the shelf's back wall"     # the wall seen through a gap: the shelf explains it
     if y < -MAX_PROTRUSION:
         return f"more than {MAX_PROTRUSION:.2f} m in front of the shelf"
     if abs(x) - f.width / 2 > shelf.width / 2 + m or z - f.height / 2 > shelf.height + m \

@@ -407,24 +407,3 @@ def test_a_box_moved_up_or_down_past_snap_is_a_contradiction_naming_both_faces()
     assert not any(n.startswith("near:") for n in said)
     marked = {b.id for b in flag_contradicted(out, notes) if b.contradicted}
     assert marked == {"into", "low", "hang"}
-
-
-def test_a_mask_on_the_back_wall_seen_between_boxes_is_no_box_front():
-    """The back wall seen through a gap between boxes, masked by the segmenter (labels 31003:
-    two such masks became boxes 1 cm deep, pushed forward off the wall, hung 53-66 cm in the air).
-    A face within `WALL_FACE` (1.5 cm) of the back wall is the wall, which the unexplained-matter
-    count already puts to the shelf; a face 2 cm in front of it can still be a thin carton's."""
-    from shelfpick.perception.boxes import WALL_FACE, not_a_front
-
-    shelf = Shelf()
-    cap = cast(Scene(shelf, (box("a", -0.25, 0.0, 0.20, 0.20),)))
-    ys, xs = np.nonzero(cap.masks == 1)
-    wall = np.zeros(cap.masks.shape, bool)
-    wall[ys.min():ys.max() + 1, xs.max() + 10:xs.max() + 40] = True     # beside the box: the back wall
-    assert not (wall & (cap.masks > 0)).any()
-    f = measure_front(wall, cap.depth, cap.camera)
-    assert f is not None and abs(f.center[1] - shelf.depth) < 0.01
-    assert "on the shelf's back wall" in not_a_front(f, shelf)
-    assert not_a_front(measure_front(cap.masks == 1, cap.depth, cap.camera), shelf) == ""
-    near = replace(f, center=(f.center[0], shelf.depth - WALL_FACE - 0.005, f.center[2]))
-    assert not_a_front(near, shelf) == ""
