@@ -653,9 +653,11 @@ def why_unsafe(plan: Plan) -> list[str]:
         return []
     out: list[str] = []
     risk = plan_risk(plan)
-    if risk is not None and risk[2] >= risk[3]:
-        out.append(f"calibrated chance of a collapse up to {100 * risk[2]:.1f}%, not below the "
-                   f"threshold {100 * risk[3]:.1f}%")
+    if risk is not None:
+        _, _, hi, limit = risk
+        if hi >= limit:
+            out.append(f"calibrated chance of a collapse up to {100 * hi:.1f}%, not below the "
+                       f"threshold {100 * limit:.1f}%")
     for key in ("contradicted", "unexplained"):
         out += [md(t) for t in touched(plan, key) or ()]
     return out

@@ -180,15 +180,14 @@ def _chain_join(p: _Pieces, i: int) -> _Join | None:
     plane: a 50x17 face cut by its tape and a label into a row, whose end piece touches only
     its neighbour (labels 31004: without it the end piece took the flush cube beside it as a
     chance type face). Tried only where the chain reaches past i's own neighbours."""
-    chain, todo = [], [i]
+    own = _on_plane_pieces(p, i, i)
+    chain, todo = list(own), list(own)
     while todo:
         for j in _on_plane_pieces(p, i, todo.pop()):
             if j not in chain:
                 chain.append(j)
                 todo.append(j)
-    if len(chain) <= len(_on_plane_pieces(p, i, i)):
-        return None
-    return _group_join(p, i, chain=chain)
+    return _group_join(p, i, chain=chain) if len(chain) > len(own) else None
 
 
 def _group_join(p: _Pieces, i: int, extra: int | None = None,

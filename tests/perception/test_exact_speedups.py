@@ -294,7 +294,8 @@ def test_the_print_profile_and_scores_are_the_transposed_and_per_part_ones(seed)
             win = repeats._windows(n, cs, kind)
             _same(repeats._alike_two(prof, *win), _alike_apart(prof, *win))
     px = lab[mask]
-    assert repeats._spread(px) == float((px * np.array([repeats.L_WEIGHT, 1.0, 1.0])).var(axis=0).sum())
+    assert repeats._spread(px) == pytest.approx(float((px * np.array([repeats.L_WEIGHT, 1.0, 1.0])).var(axis=0).sum()),
+                                                rel=1e-12)
 
 
 def test_the_best_coarse_cut_of_all_kinds_at_once_is_the_kind_by_kind_one():
