@@ -2,6 +2,9 @@
 # `make run` installs what the console needs (`.[console]`: no torch, ~0.9 GB); `make test` adds
 # every extra and the dev tools (`.[all,dev]`, torch and its CUDA libraries: ~7 GB).
 PY ?= python3.11
+# no wheel cache: `make test` installs ~7.2 GB (torch's CUDA libraries alone 4 GB), and a cache would
+# keep a second copy of every wheel fetched from PyPI (CI ran out of disk once, at the torch step)
+PIP_FLAGS := --quiet --no-cache-dir
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
@@ -42,17 +45,20 @@ test test-all: export MALLOC_ARENA_MAX := 2
 # the console and what it imports (pyproject.toml's `console` extra) at the versions in constraints.txt
 $(RUN_STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[console]"
+	$(BIN)/python -m pip install $(PIP_FLAGS) --upgrade pip
+	$(BIN)/python -m pip install $(PIP_FLAGS) -c constraints.txt -e ".[console]"
 	touch $(RUN_STAMP)
 
 # every extra (pyproject.toml) at the versions in constraints.txt
 $(STAMP): pyproject.toml constraints.txt
+	@free=$$(df -Pk . | awk 'NR==2 {print int($$4 / 1048576)}'); if [ "$$free" -lt 9 ]; then \
+	  echo "make: warning: $$free GB free here; 'make test' installs ~7.2 GB into $(VENV) (torch with its CUDA libraries)" \
+	       "and pip needs room for the wheels while it installs" >&2; fi
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install $(PIP_FLAGS) --upgrade pip
 	# torch and torchvision must be this pair (both come from local disk here)
-	$(BIN)/python -m pip install --quiet -c constraints.txt "torch==2.14.1" "torchvision==0.29.1"
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[all,dev]"
+	$(BIN)/python -m pip install $(PIP_FLAGS) -c constraints.txt "torch==2.14.1" "torchvision==0.29.1"
+	$(BIN)/python -m pip install $(PIP_FLAGS) -c constraints.txt -e ".[all,dev]"
 	touch $(STAMP)
 
 # after changing dependencies: install them (make test), then freeze the working .venv
