@@ -472,6 +472,21 @@ def executed_markdown(end: RunEnd) -> str:
             f"**{run_end_words(end)}**.")
 
 
+_UUID = re.compile(r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}")
+
+
+def hide_typed(gui: viser.GuiApi, field: Any) -> Any:
+    """Show what is typed into a text field as dots, as a password field does: viser has no such
+    field, so a style rule masks the input in the row whose label points at the field's id (the
+    only handle on it a page has). A supervisor's passphrase is not left on the screen for
+    whoever stands behind them. Returns the style's handle."""
+    uuid = field._impl.uuid        # viser's id of the field: its label's `for` in the page
+    if not _UUID.fullmatch(uuid):
+        raise ValueError(f"viser field id {uuid!r} is not a uuid: the style rule would not be safe to write")
+    row = f'.mantine-Flex-root:has(> div > p > label[for="{uuid}"])'
+    return gui.add_html(f"<style>{row} input {{ -webkit-text-security: disc; }}</style>")
+
+
 class SupervisorPanel:
     """The `Supervisor` tab: the pending plans, approve (and run) or reject with a passphrase."""
 
@@ -483,6 +498,7 @@ class SupervisorPanel:
         self.sup_info = g.add_markdown("")
         self.who = g.add_text("Name", "supervisor")
         self.passphrase = g.add_text("Passphrase", "")
+        self.passphrase_mask = hide_typed(g, self.passphrase)
         self.approve_plan = g.add_dropdown("Plan", PLANNERS + ("continue",), initial_value=PLANNERS[0])
         self.accept_risk = g.add_checkbox("Accept predicted risk", False,
                                           hint="needed to approve a plan predicted unsafe")

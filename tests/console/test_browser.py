@@ -203,6 +203,12 @@ def fill_text(page, label: str, value: str) -> None:
     field.evaluate("e => e.blur()")
 
 
+def text_security(page, label: str) -> str:
+    """How the browser draws the text of the input in the label's row (`disc`: dots)."""
+    field = page.locator(f'xpath=//label[text()="{label}"]/ancestor::div[contains(@class,"mantine-Flex-root")][1]//input')
+    return field.evaluate("e => getComputedStyle(e).webkitTextSecurity || getComputedStyle(e).getPropertyValue('-webkit-text-security')")
+
+
 def tick(page, label: str) -> None:
     """Tick a checkbox found, like fill_text's input, in its label's row."""
     page.bring_to_front()
@@ -313,6 +319,9 @@ def test_operator_cannot_approve_supervisor_sees_plan_live(browser, console):
         press(op, "Supervisor", role="tab")
         fill_text(op, "Passphrase", "let me in")
         until(lambda: op_view.passphrase.value == "let me in", 10, "operator typed")
+        # what is typed shows as dots in the passphrase field, and only there
+        assert text_security(op, "Passphrase") == "disc"
+        assert text_security(op, "Name") == text_security(op, "Reject reason") == "none"
         if not phys.plan.safe:  # else the refusal is about the risk, before any passphrase check
             tick(op, "Accept predicted risk")
             until(lambda: op_view.accept_risk.value, 10, "risk accepted")
