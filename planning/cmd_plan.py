@@ -80,32 +80,43 @@ def _warn(msg: str) -> None:
 
 
 def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
+    for msg in plan_warnings(plan, args.budget, args.risk):
+        _warn(msg)
+
+
+def plan_warnings(plan: Plan, budget: float, risk: float) -> list[str]:
     """What the user must know before trusting the plan: a budget that ran out, a shelf that
-    does not stand as seen, no safe plan (and the least risky one's risk)."""
+    does not stand as seen, each reason the plan is not safe (doubted faces, unexplained matter,
+    a calibrated chance not below the threshold: only the reasons that hold), and the least
+    risky plan's worst step. `budget`, `risk`: the options as given."""
+    out: list[str] = []
     search = plan.extra.get("search", {})
     if search.get("timed_out"):
-        _warn(f"the planning budget of {args.budget:g} s ran out; the plan is the best "
-              "found so far, not a complete search")
+        out.append(f"the planning budget of {budget:g} s ran out; the plan is the best "
+                   "found so far, not a complete search")
     check = plan.extra.get("scene_check", {})
     for prob in check.get("problems", []):
         who = f"box {prob['box']}" if prob.get("box") else "the scene"
-        _warn(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
+        out.append(f"the shelf does not stand as observed: {who} {prob['what']}; no plan on it is safe")
     for why in (plan.extra.get("unexplained") or {}).get("touched", []):
-        _warn(f"{why} (matter no perceived box explains); the plan is not safe")
+        out.append(f"{why} (matter no perceived box explains); the plan is not safe")
     for why in (plan.extra.get("contradicted") or {}).get("touched", []):
-        _warn(f"{why} (perception said its faces cannot all be right); the plan is not safe")
+        out.append(f"{why} (perception said its faces cannot all be right); the plan is not safe")
     gate = search.get("plan_risk")
     if not plan.safe and plan.predicted and isinstance(gate, dict):
-        _warn(f"the plan's calibrated chance of a collapse is {gate['probability']:.3f} (up to {gate['high']:.3f}; "
-              f"it failed in {gate['failed_worlds']} of {gate['worlds']} sample worlds): not below the "
-              f"threshold {gate['max_plan_risk']:g}; it is not safe")
+        below = gate["high"] < gate["max_plan_risk"]
+        out.append(f"the plan's calibrated chance of a collapse is {gate['probability']:.3f} (up to {gate['high']:.3f}; "
+                   f"it failed in {gate['failed_worlds']} of {gate['worlds']} sample worlds): "
+                   + (f"below the threshold {gate['max_plan_risk']:g}, but the plan is not safe for the reasons above"
+                      if below else f"not below the threshold {gate['max_plan_risk']:g}; it is not safe"))
     if not plan.safe and plan.predicted:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
         step = plan.predicted[worst]
         moved = ", ".join(step.moved) or "nothing named"
-        _warn(f"no safe plan found (risk threshold {args.risk:g}); the least risky plan found has "
-              f"risk {plan.risk:.2f} (chance that nothing collapses {search.get('success_prob', 0):.2f}): "
-              f"step {worst + 1} (pull {step.box}) may move {moved}")
+        out.append(f"no safe plan found; the least risky plan found has risk {plan.risk:.2f} (its worst step's "
+                   f"share of failing sample worlds, --risk {risk:g}; chance that nothing collapses "
+                   f"{search.get('success_prob', 0):.2f}): step {worst + 1} (pull {step.box}) may move {moved}")
+    return out
 
 
 def _model(args: argparse.Namespace, priors: "CellPriors | None") -> "Uncertainty | None":

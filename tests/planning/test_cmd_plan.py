@@ -298,3 +298,30 @@ def test_face_error_sets_what_the_worlds_draw_of_the_faces_and_bad_values_exit_2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "--face-error" in err[0] and bad in err[0]
     assert not (tmp_path / "nan").exists()
+
+
+def _unsafe_plan(high: float):
+    """A plan the planner did not call safe: it touches a doubted face, and its gate says `high`."""
+    from types import SimpleNamespace
+
+    gate = {"probability": 0.013, "high": high, "failed_worlds": 4, "worlds": 20, "max_plan_risk": 0.05}
+    return SimpleNamespace(
+        safe=False, risk=0.15, predicted=[SimpleNamespace(risk=0.15, box="b9", moved=("b6", "b3"))],
+        extra={"search": {"plan_risk": gate, "success_prob": 0.99},
+               "contradicted": {"touched": ["step 1: pulling b9 touches b7"]}})
+
+
+def test_warnings_name_only_the_reasons_that_hold():
+    """A plan unsafe because it touches a doubted face, whose calibrated chance is below the
+    threshold, is not said to be over the threshold (the CLI said "up to 0.028 ... not below the
+    threshold 0.05")."""
+    from shelfpick.planning.cmd_plan import plan_warnings
+
+    warn = plan_warnings(_unsafe_plan(0.028), None, 0.0)
+    assert any("b7" in w and "cannot all be right" in w for w in warn)
+    gate = [w for w in warn if "calibrated chance" in w]
+    assert len(gate) == 1 and "up to 0.028" in gate[0] and "not below" not in gate[0]
+    assert "below the threshold 0.05, but the plan is not safe for the reasons above" in gate[0]
+    assert "risk threshold" not in warn[-1] and "risk 0.15" in warn[-1] and "--risk 0" in warn[-1]
+    over = [w for w in plan_warnings(_unsafe_plan(0.06), None, 0.0) if "calibrated chance" in w]
+    assert len(over) == 1 and "not below the threshold 0.05; it is not safe" in over[0]
