@@ -250,6 +250,7 @@ class ClientView:
         op.target.disabled = not live
         op.robot_md.content = robot_markdown(state) if live else self.replay.robot_md
         op.deviation_md.content = deviation_markdown(state) if self.replay is None else ""
+        op.answers.replays(None if live else self.replay.id)
         op.answers.show(state)
         self.supervisor.render(state)
         self.sessions.render(state)

@@ -406,6 +406,7 @@ class AnswerLine:
         self.text = ""
         self.since: RunEnd | None = None     # the run end the answer already accounts for
         self.closed = False                  # the browser went away: a click's late answer is not sent
+        self.replayed: int | None = None     # the stored session this browser replays, if it does
 
     def close(self) -> None:
         with self.lock:
@@ -430,6 +431,13 @@ class AnswerLine:
             self.text = text
         self.show(self.wf.state)
 
+    def replays(self, session: int | None) -> None:
+        """This browser replays stored `session` (None: it is live again). The answer stays the live
+        console's (a "Stop robot" click still gets one), and says so: above a replayed session's
+        plans and robot, "Run: stopped at step 3" would read as how that session ended."""
+        with self.lock:
+            self.replayed = session
+
     def show(self, state: State) -> None:
         """The answer as of `state`: a run end the click did not know of replaces it."""
         with self.lock:
@@ -438,8 +446,11 @@ class AnswerLine:
             end = state.run_end
             if end is not None and end is not self.since:
                 self.since, self.text = end, run_end_answer(end)
-            if self.handle.content != self.text:
-                self.handle.content = self.text
+            text = self.text
+            if text and self.replayed is not None:
+                text = f"_Live console, not the replayed session {md(self.replayed)}:_ {text}"
+            if self.handle.content != text:
+                self.handle.content = text
 
 
 def run_end_words(end: RunEnd) -> str:

@@ -234,3 +234,27 @@ def test_when_a_run_starts_the_3d_view_leaves_the_preview_for_the_shelf(console)
     for b in wf.state.scene.boxes:
         assert view.drawing.nodes[b.id].box.visible
         assert np.allclose(view.drawing.nodes[b.id].box.position, b.position)
+
+
+def test_while_a_session_is_replayed_the_answer_line_says_it_is_the_live_consoles(console):
+    """A replay draws a stored session's plans and robot in the Operator tab, but the answer line
+    stays the live console's: "Run: done, 3 of 3 steps." above a replayed session that never ran
+    read as that session's end. It says whose it is, and a click made meanwhile is still answered."""
+    app, wf, view, peer = console()
+    wf.capture()
+    replayed = wf.state.session_id                      # captured, nothing planned or run
+    wf.capture()
+    st, entry = approve_and_run(wf, view)
+    n = len(entry.plan.sequence)
+    live = f"_Run: done, {n} of {n} steps._"
+    assert st.robot == "done" and view.operator.answer.content == live, (st.robot, st.error)
+    until(lambda: str(replayed) in view.session_pick.options, 10, "the session listed")
+    view.session_pick.value = str(replayed)
+    view._replay(None)
+    assert view.replay is not None and view.replay.id == replayed
+    whose = f"_Live console, not the replayed session {replayed}:_ "
+    assert view.operator.answer.content == whose + live
+    view.operator.press(None, "Stop robot")
+    assert view.operator.answer.content == whose + "_Stop robot: done._"
+    view._live(None)
+    assert view.operator.answer.content == "_Stop robot: done._"
