@@ -390,6 +390,11 @@ class OperatorPanel:
             self.target.value = want
 
 
+# clicks whose work is over when the call returns (a rejection is recorded then); the others
+# start something that goes on: a plan being computed, a run
+DONE_WHEN_RETURNED = frozenset({"Capture", "Stop robot", "Reject"})
+
+
 class AnswerLine:
     """A panel's answer line: what became of its last click, or of a run that ended since.
 
@@ -421,7 +426,7 @@ class AnswerLine:
             except Exception as exc:
                 self._say(f"**{what}: not done.** {ours(exc)}")
                 raise
-            self._say(f"_{what}: done._" if what in ("Capture", "Stop robot") else f"_{what}: started._")
+            self._say(f"_{what}: done._" if what in DONE_WHEN_RETURNED else f"_{what}: started._")
         return go
 
     def _say(self, text: str, fresh: bool = False) -> None:

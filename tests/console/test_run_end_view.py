@@ -258,3 +258,18 @@ def test_while_a_session_is_replayed_the_answer_line_says_it_is_the_live_console
     assert view.operator.answer.content == whose + "_Stop robot: done._"
     view._live(None)
     assert view.operator.answer.content == "_Stop robot: done._"
+
+
+def test_a_rejection_is_answered_done_not_started(console):
+    """A rejection is recorded when Reject's call returns: nothing goes on after it. Its answer
+    said "Reject: started." under the decisions table that already listed it."""
+    app, wf, view, peer = console()
+    wf.capture()
+    wf.plan("clear", wait=True)
+    heur = wf.state.plans["heuristic"]
+    choose(view, "heuristic", heur.hash)
+    view.passphrase.value = PASS
+    view.reason.value = "b1 would fall"
+    view._reject(None)
+    assert [d["decision"] for d in wf.state.decisions] == ["reject"]
+    assert view.supervisor.answer.content == "_Reject: done._"
