@@ -315,6 +315,7 @@ class ClientView:
             if self.closed:
                 return
             self.replay, self.shown_look = rec, None
+            self.drawing.replayed = rec.id
             self.operator.show_images(rec.rgb, rec.overlay)
             self._draw_scene(rec.scene, rec.camera, f"Replayed session {v}: the shelf as captured")
             self.shown_scene = None
@@ -350,6 +351,7 @@ class ClientView:
             if self.closed:                   # the click came as the browser went away
                 return
             self.replay, self.shown_look = None, None
+            self.drawing.replayed = None
             self.sessions.end_replay()
             self.shown_scene = None       # draw the live shelf again
             self.preview.load(force=True)     # the live plan from its first frame, not where the replay was

@@ -102,6 +102,7 @@ class ShelfDrawing:
         self.caption_node: viser.LabelHandle | None = None
         self.base_caption = SHELF_AS_SEEN       # what the view shows when no preview frame is drawn
         self.caption = ""                       # the caption's text now
+        self.replayed: int | None = None        # the stored session drawn, if a replay is
 
     def draw(self, scene: Scene | None, camera: Camera | None, forget_shelf: bool,
              on_click: Callable[[str], None], caption: str = "") -> None:
@@ -139,7 +140,11 @@ class ShelfDrawing:
             self.say(None)
 
     def say(self, text: str | None) -> None:
-        """Caption the view: `text` while a preview frame is drawn, None when the shelf is drawn again."""
+        """Caption the view: `text` while a preview frame is drawn, None when the shelf is drawn again.
+        A replay's preview is said to be the replayed session's: the 3D view is shared by all tabs,
+        and on the Supervisor tab (live) "Preview of the physics plan" read as the live plan."""
+        if text and self.replayed is not None:
+            text = f"Replayed session {self.replayed}: {text[:1].lower()}{text[1:]}"
         text = text or self.base_caption
         if self.caption_node is not None and text != self.caption:
             self.caption_node.text = text

@@ -199,7 +199,8 @@ def test_the_3d_view_says_whether_it_draws_the_shelf_or_a_predicted_preview_fram
             view.preview.show_frame(last)
             fr = view.preview.frames[last]
             nsteps = max(k.step for k in view.preview.frames) + 1
-            assert drawing.caption_node.text.startswith(f"Preview of the heuristic plan, step {nsteps}/{nsteps}")
+            assert drawing.caption_node.text.startswith(      # the replayed session's, not the live plan
+                f"Replayed session {sid}: preview of the heuristic plan, step {nsteps}/{nsteps}")
             assert drawing.caption_node.text.endswith("(predicted, not the shelf as seen)")
             assert fr.world and fr.world in drawing.caption_node.text
             view.preview.prev_plan.value = "physics"            # no recorded preview: the shelf again

@@ -273,3 +273,22 @@ def test_a_rejection_is_answered_done_not_started(console):
     view._reject(None)
     assert [d["decision"] for d in wf.state.decisions] == ["reject"]
     assert view.supervisor.answer.content == "_Reject: done._"
+
+
+def test_a_replayed_preview_is_captioned_as_the_replayed_sessions(console):
+    """The 3D view is shared by every tab; while a replay drew a stored plan's preview its caption
+    read "Preview of the physics plan, step 1/n", the words of the live preview, also on the
+    Supervisor tab (live) beside the live physics plan. It names the replayed session."""
+    app, wf, view, peer = console()
+    wf.capture()
+    wf.plan("clear", wait=True)
+    settle(wf, view)
+    sid = wf.state.session_id
+    until(lambda: str(sid) in view.session_pick.options, 10, "the session listed")
+    view.session_pick.value = str(sid)
+    view._replay(None)
+    assert view.drawing.caption_node.text.startswith(f"Replayed session {sid}: preview of the physics plan, step 1/")
+    view.preview.follow("heuristic")              # the supervisor picks a plan: this view previews it
+    assert view.drawing.caption_node.text.startswith(f"Replayed session {sid}: preview of the heuristic plan")
+    view._live(None)
+    assert view.drawing.caption_node.text.startswith("Preview of the heuristic plan, step 1/")
