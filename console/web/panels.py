@@ -646,7 +646,7 @@ def supervisor_markdown(state: State) -> str:
     lines = [executed_markdown(end) + "\n"] if end is not None else []
     lines.append("Pending plans for this capture:")
     for name, e in state.plans.items():
-        mark = " ✅ approved" if state.approved == e.hash else ""
+        mark = " ✅ approved" if state.approved == e.hash else rejected_mark(state.decisions, name, e.hash)
         lines.append(f"- **{md(name)}** `{md(e.hash)}`: {' → '.join(md(b) for b in e.plan.sequence)} "
                      f"(max risk {pct(e.plan.risk)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}"
                      + "".join(f"\n  - {w}" for w in why_unsafe(e.plan)))
@@ -656,6 +656,14 @@ def supervisor_markdown(state: State) -> str:
             + ". Approving needs `Accept predicted risk`.")
     lines.append("\n`Approve` sends the chosen plan to the robot at once.")
     return "\n".join(lines)
+
+
+def rejected_mark(decisions: Iterable[Mapping[str, Any]], planner: str, plan_hash: str) -> str:
+    """" ❌ rejected by X" for a plan of this capture a supervisor rejected ('' if none did): listed
+    as pending like a plan nobody decided on, it read as still waiting for a decision."""
+    who = [d.get("who") for d in decisions if d.get("decision") == "reject" and d.get("plan") == plan_hash
+           and d.get("planner", planner) == planner]
+    return f" ❌ rejected by {md(who[-1])}" if who else ""
 
 
 def touched(plan: Plan, key: str = "unexplained") -> list[str] | None:

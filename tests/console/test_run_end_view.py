@@ -292,3 +292,23 @@ def test_a_replayed_preview_is_captioned_as_the_replayed_sessions(console):
     assert view.drawing.caption_node.text.startswith(f"Replayed session {sid}: preview of the heuristic plan")
     view._live(None)
     assert view.drawing.caption_node.text.startswith("Preview of the heuristic plan, step 1/")
+
+
+def test_a_rejected_plan_is_marked_rejected_among_the_pending_plans(console):
+    """The supervisor's list of pending plans marked an approved plan but showed a rejected one like
+    a plan nobody had decided on. It says who rejected it (a name is outside text)."""
+    app, wf, view, peer = console()
+    wf.capture()
+    wf.plan("clear", wait=True)
+    heur = wf.state.plans["heuristic"]
+    choose(view, "heuristic", heur.hash)
+    view.who.value = MARKUP[:80]
+    view.passphrase.value = PASS
+    view.reason.value = "b1 would fall"
+    view._reject(None)
+    settle(wf, view)
+    pending = view.supervisor.sup_info.content.split("Deciding on")[0]
+    lines = {ln.split("**")[1]: ln for ln in pending.splitlines() if ln.startswith("- **")}
+    assert set(lines) == {"physics", "heuristic"}, pending
+    assert "rejected" not in lines["physics"]
+    assert " ❌ rejected by " in lines["heuristic"] and literal(lines["heuristic"], MARKUP[:80])
