@@ -653,8 +653,8 @@ def supervisor_markdown(state: State) -> str:
     if state.scene_problems:
         lines.append("\n**⚠ The shelf does not stand as seen:** " + "; ".join(
             md(problem_text(p)) for p in state.scene_problems)
-            + ". Approving needs `Accept predicted risk`.")
-    lines.append("\n`Approve` sends the chosen plan to the robot at once.")
+            + ". Approving needs “Accept predicted risk”.")
+    lines.append("\n“Approve” sends the chosen plan to the robot at once.")
     return "\n".join(lines)
 
 

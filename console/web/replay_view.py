@@ -90,7 +90,7 @@ def record_view(rec: SessionRecord) -> ReplayView:
         lines.append(f"- {len(refused)} attempt(s) refused: wrong supervisor passphrase")
     stops = [e for e in rec.robot_events if e["kind"] == "stop"]
     for e in stops:
-        lines.append(f"- `Stop robot` pressed by {md((e.get('detail') or {}).get('who'))} at {md(e['at'])}")
+        lines.append(f"- “Stop robot” pressed by {md((e.get('detail') or {}).get('who'))} at {md(e['at'])}")
     out = rec.outcome
     if out:
         lines += _outcome_lines(out, plans, set(rec.scene.ids))
@@ -102,7 +102,7 @@ def record_view(rec: SessionRecord) -> ReplayView:
     cap = rec.capture
     looks = tuple(look_view(v) for v in rec.verifications)
     if looks:
-        lines.append("\n**Looks after each step** (pick one in `Look after step`)")
+        lines.append("\n**Looks after each step** (pick one in “Look after step”)")
         lines += [f"- {'✓' if lk.within else '⚠'} {md(lk.summary)}" for lk in looks]
     overlay = segmentation_image(cap.rgb if cap is not None else None, rec.overlay, rec.labels, rec.matter,
                                  rec.scene, set_aside_boxes([p.plan for p in plans.values()]))

@@ -312,3 +312,26 @@ def test_a_rejected_plan_is_marked_rejected_among_the_pending_plans(console):
     assert set(lines) == {"physics", "heuristic"}, pending
     assert "rejected" not in lines["physics"]
     assert " ❌ rejected by " in lines["heuristic"] and literal(lines["heuristic"], MARKUP[:80])
+
+
+def test_button_names_in_the_supervisor_list_and_the_replay_are_quoted_not_code(console):
+    """Button names the page quotes are in quotes (“Approve”), as in every other message: a few
+    fixed lines wrote them in backticks, shown as code (`Approve`, `Stop robot`, `Look after step`)."""
+    import re
+
+    code_name = re.compile(r"`(Approve|Reject|Stop robot|Look after step|Accept predicted risk|Capture)`")
+    app, wf, view, peer = console(held=True)
+    wf.capture()
+    ran = wf.state.session_id
+    wf.plan("clear", wait=True)
+    settle(wf, view)
+    sup = view.supervisor.sup_info.content
+    assert "“Approve” sends the chosen plan" in sup and not code_name.search(sup), sup
+    st, _ = approve_and_run(wf, view)                   # held after step 1, with the look after it
+    assert st.robot == "held", (st.robot, st.error)
+    cont = st.plans["continue"]
+    wf.approve(cont.hash, PASS, accept_risk=True, planner="continue")
+    wf.stop("operator")                                 # withdraws it: a stop event in the look's session
+    for sid, words in ((ran, "(pick one in “Look after step”)"), (st.session_id, "“Stop robot” pressed by")):
+        summary = app.load_replay(sid).summary_md
+        assert words in summary and not code_name.search(summary), summary
