@@ -648,7 +648,7 @@ def supervisor_markdown(state: State) -> str:
     for name, e in state.plans.items():
         mark = " ✅ approved" if state.approved == e.hash else rejected_mark(state.decisions, name, e.hash)
         lines.append(f"- **{md(name)}** `{md(e.hash)}`: {' → '.join(md(b) for b in e.plan.sequence)} "
-                     f"(max risk {pct(e.plan.risk)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}"
+                     f"({risk_words(e.plan)}{'' if e.plan.safe else ', predicted UNSAFE'}){mark}"
                      + "".join(f"\n  - {w}" for w in why_unsafe(e.plan)))
     if state.scene_problems:
         lines.append("\n**⚠ The shelf does not stand as seen:** " + "; ".join(
@@ -689,6 +689,19 @@ def plan_risk(plan: Plan) -> tuple[dict[str, Any], float, float, float] | None:
         return None
 
 
+def risk_words(plan: Plan) -> str:
+    """The plan's risk as a supervisor reads it: the gate's calibrated chance of a collapse (what
+    "safe" is decided on) and, apart, the worst step's share of sample worlds in which it collapsed
+    or collided (collisions do not enter the chance: a plan can be safe with a step that knocks
+    a neighbour in half the worlds, and then this says so)."""
+    risk = plan_risk(plan)
+    worst = f"worst step collapses or collides in {pct(plan.risk)} of sample worlds"
+    if risk is None:
+        return worst
+    _, p, hi, _ = risk
+    return f"chance of a collapse {100 * p:.1f}%, up to {100 * hi:.1f}%; {worst}"
+
+
 def why_unsafe(plan: Plan) -> list[str]:
     """Why the planner did not call `plan` safe, as the supervisor should read before accepting
     the risk: the calibrated chance against the cell's threshold, and the steps that touch a face
@@ -713,7 +726,7 @@ def review_markdown(name: str, entry: PlanEntry | None) -> str:
     if entry is None:
         return ""
     return (f"\n\n**Deciding on:** the **{md(name)}** plan `{md(entry.hash)}`: "
-            f"{' → '.join(md(b) for b in entry.plan.sequence)} (max risk {pct(entry.plan.risk)}"
+            f"{' → '.join(md(b) for b in entry.plan.sequence)} ({risk_words(entry.plan)}"
             f"{'' if entry.plan.safe else ', predicted UNSAFE'})"
             + "".join(f"\n- {w}" for w in why_unsafe(entry.plan)))
 

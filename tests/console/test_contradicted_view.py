@@ -66,3 +66,26 @@ def test_the_supervisor_reads_why_a_plan_is_not_safe_before_accepting_its_risk()
     assert "pulling b&#95;0 touches b&#42;1" in text and "b_0 touches" not in text
     assert text.count("threshold") == 1          # the safe plan gives no reason
     assert "up to 21.0%" in review_markdown("physics", entry) and "b&#42;1" in review_markdown("physics", entry)
+
+
+def test_a_safe_plan_whose_step_collides_says_both_numbers():
+    """31011 (labels): a plan declared safe (1 of 10 worlds collapsed: 0.95%, up to 2.8%) whose
+    second step knocked a neighbour in 5 of 10 worlds read "max risk 50%" beside "safe": the
+    supervisor now reads the chance "safe" is decided on and, apart, what the worst step does."""
+    from shelfpick.console.web.panels import review_markdown, supervisor_markdown
+    from shelfpick.console.workflow.machine import PlanEntry, State
+    from shelfpick.planning.plan import Plan, StepPrediction
+
+    risk = {"probability": 0.0095, "low": 0.0086, "high": 0.028, "max_plan_risk": 0.05, "failed_worlds": 1,
+            "worlds": 10}
+    plan = Plan("extract", "b9", "physics", ("b11", "b9"),
+                (StepPrediction("b11"), StepPrediction("b9", 0.1, 0.5, ("b12", "b8"))), True, {}, 0,
+                {"search": {"plan_risk": risk}})
+    entry = PlanEntry(plan, plan.content_hash())
+    words = "chance of a collapse 0.9%, up to 2.8%; worst step collapses or collides in 50% of sample worlds"
+    assert words in review_markdown("physics", entry)
+    assert words in supervisor_markdown(State(plans={"physics": entry}))
+    assert "max risk" not in review_markdown("physics", entry)
+    bare = Plan("extract", "b9", "heuristic", ("b9",), (StepPrediction("b9", 0.2, 0.0),), False, {}, 0, {})
+    assert "(worst step collapses or collides in 20% of sample worlds, predicted UNSAFE)" in \
+        review_markdown("heuristic", PlanEntry(bare, bare.content_hash()))
