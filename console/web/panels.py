@@ -797,7 +797,7 @@ class SessionsPanel:
         rows = sorted(rows, key=lambda r: -int(r["id"]))
         lines = ["| id | started | source | boxes | task | status |", "|---|---|---|---|---|---|"]
         for r in rows[:12]:
-            lines.append(f"| {md(r['id'])} | {md(_fmt_time(r.get('started')))} | {md(r.get('source', ''))} | "
+            lines.append(f"| {md(r['id'])} | {md(start_time_words(r.get('started')))} | {md(r.get('source', ''))} | "
                          f"{md(r.get('n_boxes', ''))} | {md(r.get('task') or '')} | {md(r.get('status') or '')} |")
         self.sessions_md.content = "\n".join(lines) if rows else "_No sessions yet._"
         opts = tuple(str(r["id"]) for r in rows) or ("—",)     # newest first
@@ -855,7 +855,19 @@ def _fmt_clock(t: float | str | None) -> str:
     return str(t or "")
 
 
-def _fmt_time(t: float | str | None) -> str:
+def start_time_words(t: float | str | None) -> str:
+    """A session's start as a person reads it: "2026-11-28 13:18:58 UTC" (the store writes ISO
+    times with milliseconds and an offset; another offset is kept as "+01:00"); text that is no
+    time comes back as it is."""
+    from datetime import datetime, timezone
+
     if isinstance(t, (int, float)):
-        return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
-    return str(t or "")
+        when = datetime.fromtimestamp(t, timezone.utc)
+    else:
+        try:
+            when = datetime.fromisoformat(str(t))
+        except ValueError:
+            return str(t or "")
+    off = when.utcoffset()
+    zone = "" if off is None else " UTC" if not off else " " + when.strftime("%z")[:3] + ":" + when.strftime("%z")[3:]
+    return when.strftime("%Y-%m-%d %H:%M:%S") + zone

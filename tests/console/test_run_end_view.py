@@ -335,3 +335,13 @@ def test_button_names_in_the_supervisor_list_and_the_replay_are_quoted_not_code(
     for sid, words in ((ran, "(pick one in “Look after step”)"), (st.session_id, "“Stop robot” pressed by")):
         summary = app.load_replay(sid).summary_md
         assert words in summary and not code_name.search(summary), summary
+
+
+def test_session_start_times_read_as_times_not_iso_strings():
+    """The Sessions table showed '2026-11-28T13:18:58.136+00:00', the store's ISO text, as it was."""
+    from shelfpick.console.web.panels import start_time_words
+
+    assert start_time_words("2026-11-28T13:18:58.136+00:00") == "2026-11-28 13:18:58 UTC"
+    assert start_time_words("2026-11-28T14:18:58.136+01:00") == "2026-11-28 14:18:58 +01:00"
+    assert start_time_words(0.0) == "1970-01-01 00:00:00 UTC"
+    assert start_time_words("not a time") == "not a time" and start_time_words(None) == ""
