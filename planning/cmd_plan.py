@@ -87,7 +87,7 @@ def _warn_about(plan: Plan, args: argparse.Namespace) -> None:
 def plan_warnings(plan: Plan, budget: float, risk: float) -> list[str]:
     """What the user must know before trusting the plan: a budget that ran out, a shelf that
     does not stand as seen, each reason the plan is not safe (doubted faces, unexplained matter,
-    a calibrated chance not below the threshold: only the reasons that hold), and the least
+    a calibrated chance not below the threshold: only those that hold), and the least
     risky plan's worst step. `budget`, `risk`: the options as given."""
     out: list[str] = []
     search = plan.extra.get("search", {})
@@ -103,18 +103,16 @@ def plan_warnings(plan: Plan, budget: float, risk: float) -> list[str]:
     for why in (plan.extra.get("contradicted") or {}).get("touched", []):
         out.append(f"{why} (perception said its faces cannot all be right); the plan is not safe")
     gate = search.get("plan_risk")
-    if not plan.safe and plan.predicted and isinstance(gate, dict):
-        below = gate["high"] < gate["max_plan_risk"]
+    if not plan.safe and plan.predicted and isinstance(gate, dict) and gate["high"] >= gate["max_plan_risk"]:
         out.append(f"the plan's calibrated chance of a collapse is {gate['probability']:.3f} (up to {gate['high']:.3f}; "
-                   f"it failed in {gate['failed_worlds']} of {gate['worlds']} sample worlds): "
-                   + (f"below the threshold {gate['max_plan_risk']:g}, but the plan is not safe for the reasons above"
-                      if below else f"not below the threshold {gate['max_plan_risk']:g}; it is not safe"))
+                   f"it failed in {gate['failed_worlds']} of {gate['worlds']} sample worlds): not below the "
+                   f"threshold {gate['max_plan_risk']:g}; it is not safe")
     if not plan.safe and plan.predicted:
         worst = max(range(len(plan.predicted)), key=lambda i: plan.predicted[i].risk)
         step = plan.predicted[worst]
         moved = ", ".join(step.moved) or "nothing named"
-        out.append(f"no safe plan found; the least risky plan found has risk {plan.risk:.2f} (its worst step's "
-                   f"share of failing sample worlds, --risk {risk:g}; chance that nothing collapses "
+        out.append(f"no safe plan found; the least risky plan found has risk {plan.risk:.2f} (the share of sample "
+                   f"worlds its worst step collapses or collides in, --risk {risk:g}; chance that nothing collapses "
                    f"{search.get('success_prob', 0):.2f}): step {worst + 1} (pull {step.box}) may move {moved}")
     return out
 

@@ -868,6 +868,6 @@ def start_time_words(t: float | str | None) -> str:
             when = datetime.fromisoformat(str(t))
         except ValueError:
             return str(t or "")
-    off = when.utcoffset()
-    zone = "" if off is None else " UTC" if not off else " " + when.strftime("%z")[:3] + ":" + when.strftime("%z")[3:]
+    off, z = when.utcoffset(), when.strftime("%z")
+    zone = "" if off is None else " UTC" if not off else f" {z[:3]}:{z[3:]}"
     return when.strftime("%Y-%m-%d %H:%M:%S") + zone
