@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
 from shelfpick.console.web.markdown import results_markdown
-from shelfpick.console.web.panels import decisions_markdown, md, pct
+from shelfpick.console.web.panels import decisions_markdown, md, pct, start_time_words
 from shelfpick.console.web.replay import decided_planner, shown_worlds
 from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
 from shelfpick.console.workflow.machine import PlanEntry, State
@@ -78,7 +78,7 @@ def record_view(rec: SessionRecord) -> ReplayView:
                           if pr.plan.planner == "physics"), ()))
     plans_md = results_markdown(State(plans=entries, scene_problems=problems, repairs=repairs)) \
         if entries else "_No plans in this session._"
-    lines = [f"### Session {md(rec.id)}", f"started {md(rec.started)} · source {md(rec.source)} · "
+    lines = [f"### Session {md(rec.id)}", f"started {md(start_time_words(rec.started))} · source {md(rec.source)} · "
              f"status **{md(rec.status)}** · {rec.n_boxes} boxes" + (f" · {md(rec.task)}" if rec.task else "")]
     if rec.missing_files:
         lines.append(f"**⚠ missing files:** {', '.join(md(f) for f in rec.missing_files)}")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import html
+import re
 import urllib.request
 
 import numpy as np
@@ -104,6 +105,7 @@ def test_app_serves_and_replays_a_stored_session(tmp_path):
     md = html.unescape(view.summary_md)      # what the browser shows (outside text is entity-escaped)
     assert f"approve `{h}` by sue" in md and "completed: b1" in md and "collapsed: b3" in md
     assert "| 2 | b0 | 0% |" in md
+    assert re.search(r"started \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC ·", md), md  # not the raw ISO text
 
     wf = Workflow(None, store, lambda truth, seed: None, "pw")
     app = ConsoleApp(wf, port=0)
