@@ -236,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--json")
     f.add_argument("--png")
     f.add_argument("--md")
+    f.add_argument("--collisions", action="store_true",
+                   help="a world fails also where a neighbour was knocked (collided), not only collapsed or stuck")
     a = ap.parse_args(argv)
     if a.cmd == "collect":
         collect(a.out, a.scenes, a.seed, a.worlds, a.targets, tuple(float(v) for v in a.noise.split(",")), a.jobs,
@@ -247,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from benchmarks.risk_fit import run_fit
 
-    return run_fit(a.rows, a.json, a.png, a.md)
+    return run_fit(a.rows, a.json, a.png, a.md, a.collisions)
 
 
 if __name__ == "__main__":

@@ -28,11 +28,14 @@ PREFIXES = (10, 20, 30)
 BINS = (0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.7, 1.0001)
 
 
-def _fails(row: dict) -> list[int]:
-    return [int(c or s) for c, s in zip(row["c"], row["s"])]
+def _fails(row: dict, collisions: bool = False) -> list[int]:
+    """Per world: did this step fail (a collapse or a stuck box; with `collisions`, also a neighbour
+    the box or the gripper touched that then moved)."""
+    xs = row["x"] if collisions else [0] * len(row["c"])
+    return [int(c or s or x) for c, s, x in zip(row["c"], row["s"], xs)]
 
 
-def plans(rows: Iterable[dict]) -> list[dict]:
+def plans(rows: Iterable[dict], collisions: bool = False) -> list[dict]:
     """One record per plan: per-world failure flags (union over its steps), stands, truth failed."""
     out = []
     groups: dict[tuple, list[dict]] = defaultdict(list)
@@ -40,13 +43,13 @@ def plans(rows: Iterable[dict]) -> list[dict]:
         if r["source"] == "alone":
             out.append({"scene": r["scene"], "noise": r["noise"], "kind": r["kind"], "source": "alone",
                         "truth_pull": r.get("truth_pull", "drag"),
-                        "fails": _fails(r), "stands": r["stands"],
+                        "fails": _fails(r, collisions), "stands": r["stands"],
                         "failed": bool(r["collapse"] or not r["extracted"]), "steps": 1})
         else:
             groups[(r["scene"], r["noise"], r["target"], r.get("truth_pull", "drag"))].append(r)
     for (scene, noise, _, pull), steps in groups.items():
         steps.sort(key=lambda r: r["step"])
-        per = [_fails(r) for r in steps]
+        per = [_fails(r, collisions) for r in steps]
         union = [int(any(f[i] for f in per)) for i in range(min(len(f) for f in per))]
         failed = not steps[0]["plan_ok"]
         out.append({"scene": scene, "noise": noise, "kind": steps[0]["kind"], "source": "plan", "fails": union,
@@ -138,10 +141,11 @@ def _plot(path: str, panels: list[tuple[str, dict]]) -> None:
     fig.savefig(path, dpi=110)
 
 
-def run_fit(rows_path: str, json_out: str | None, png: str | None, md: str | None) -> int:
+def run_fit(rows_path: str, json_out: str | None, png: str | None, md: str | None,
+            collisions: bool = False) -> int:
     rows = [json.loads(line) for p in rows_path.split(",") for line in Path(p).read_text().splitlines()
             if line.strip()]
-    ps = plans(rows)
+    ps = plans(rows, collisions)
     pulls = {p["truth_pull"] for p in ps}
     if len(pulls) > 1:   # a mixture of truths: only the shelf views every truth was run on, each once per truth
         views = [{(p["scene"], p["noise"]) for p in ps if p["truth_pull"] == t} for t in sorted(pulls)]
