@@ -398,6 +398,7 @@ class OperatorPanel:
 # clicks whose work is over when the call returns (a rejection is recorded then); the others
 # start something that goes on: a plan being computed, a run
 DONE_WHEN_RETURNED = frozenset({"Capture", "Stop robot", "Reject"})
+DONE_WHEN_PLANNED = frozenset({"Plan extraction", "Plan clearance"})   # started, then done when the plans are in
 
 
 class AnswerLine:
@@ -417,6 +418,7 @@ class AnswerLine:
         self.since: RunEnd | None = None     # the run end the answer already accounts for
         self.closed = False                  # the browser went away: a click's late answer is not sent
         self.replayed: int | None = None     # the stored session this browser replays, if it does
+        self.planning: str | None = None     # a planning click answered "started" whose plans are not in yet
 
     def close(self) -> None:
         with self.lock:
@@ -431,14 +433,16 @@ class AnswerLine:
             except Exception as exc:
                 self._say(f"**{what}: not done.** {ours(exc)}")
                 raise
-            self._say(f"_{what}: done._" if what in DONE_WHEN_RETURNED else f"_{what}: started._")
+            self._say(f"_{what}: done._" if what in DONE_WHEN_RETURNED else f"_{what}: started._",
+                      planning=what if what in DONE_WHEN_PLANNED else None)
         return go
 
-    def _say(self, text: str, fresh: bool = False) -> None:
+    def _say(self, text: str, fresh: bool = False, planning: str | None = None) -> None:
         with self.lock:
             if fresh:                        # a run that ended before this click is not its answer
                 self.since = self.wf.state.run_end
             self.text = text
+            self.planning = planning
         self.show(self.wf.state)
 
     def replays(self, session: int | None) -> None:
@@ -455,7 +459,13 @@ class AnswerLine:
                 return
             end = state.run_end
             if end is not None and end is not self.since:
-                self.since, self.text = end, run_end_answer(end)
+                self.since, self.text, self.planning = end, run_end_answer(end), None
+            elif self.planning is not None and not state.planning:
+                # "Plan extraction: started." stayed above the plans it had started
+                n = len(state.plans)
+                self.text = (f"_{self.planning}: done, {n} plan{'s' if n != 1 else ''}._" if n
+                             else f"**{self.planning}: no plans.** {md(state.error or state.message or '')}".rstrip())
+                self.planning = None
             text = self.text
             if text and self.replayed is not None:
                 text = f"_Live console, not the replayed session {md(self.replayed)}:_ {text}"

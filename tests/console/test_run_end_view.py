@@ -98,9 +98,11 @@ def shown(markdown: str) -> str:
 def approve_and_run(wf, view, planner: str = "physics"):
     """The operator plans clearance with the button, the supervisor approves `planner`, the robot runs."""
     view.operator.press(None, "Plan clearance")
-    assert view.operator.answer.content == "_Plan clearance: started._"
+    assert view.operator.answer.content in ("_Plan clearance: started._", "_Plan clearance: done, 2 plans._")
     st = until(lambda: not wf.state.planning and wf.state.plans.get(planner) and wf.state, 60, "plans")
     entry = st.plans[planner]
+    # the plans are in: the click's answer no longer says "started." above them
+    until(lambda: view.operator.answer.content == "_Plan clearance: done, 2 plans._", 10, "the answer 'done'")
     choose(view, planner, entry.hash)
     view.passphrase.value = PASS
     view.accept_risk.value = not entry.plan.safe or bool(entry.plan.extra.get("continues"))
