@@ -131,7 +131,7 @@ class ClientView:
         tabs = g.add_tab_group()
         with tabs.add_tab("Operator"):
             self.operator = OperatorPanel(g, self.wf, self._do, lambda gui: PreviewPlayer(
-                gui, self.lock, drawing, self._preview_source, self._scene, self._highlight))
+                gui, self.lock, drawing, self._preview_source, self._scene, self._highlight, self._no_preview))
         self.preview = self.operator.preview
         with tabs.add_tab("Supervisor"):
             self.supervisor = SupervisorPanel(g, self.wf, self._do, lambda: self.client_key)
@@ -197,6 +197,11 @@ class ClientView:
             return (r.preview, r.plan, r.shown) if r else ((), None)
         e = (previewable(self.wf.state) or {}).get(name)
         return (e.preview, e.plan, e.collapse_steps) if e else ((), None)
+
+    def _no_preview(self) -> str:
+        if self.replay is not None:
+            return "_No preview: this session has no plans._"
+        return no_preview_words(self.wf.state)
 
     def _scene(self) -> Scene | None:
         """The shelf the preview starts from and goes back to: the replayed one, or the shelf as
@@ -366,6 +371,15 @@ def previewable(state: State) -> Mapping[str, PlanEntry] | None:
     shelf that is gone, and replaying one would draw its boxes back where they stood); after a
     hold, the `continue` plan."""
     return NOTHING_TO_PREVIEW if state.run_end is not None and state.needs_recapture else state.plans
+
+
+def no_preview_words(state: State) -> str:
+    """Why the live preview has nothing to show: no plans yet, or plans of a shelf a run changed."""
+    if state.run_end is not None and state.needs_recapture:
+        return "_No preview: the run changed the shelf these plans were made for; capture and plan again._"
+    if state.planning:
+        return "_No preview yet: planning…_"
+    return "_No preview: plan first._"
 
 
 def shelf_caption(state: State, drawn: Scene | None) -> str:

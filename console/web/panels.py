@@ -213,8 +213,9 @@ class PreviewPlayer:
 
     def __init__(self, gui: viser.GuiApi, lock: threading.RLock, drawing: ShelfDrawing,
                  source: Callable[[str], tuple[Sequence[Any], Plan | None]], scene: Callable[[], Scene | None],
-                 after_load: Callable[[], None]) -> None:
+                 after_load: Callable[[], None], why_none: Callable[[], str] = lambda: "_No preview: plan first._") -> None:
         self.lock = lock
+        self.why_none = why_none        # why there is nothing to preview, in words
         self.drawing = drawing
         self.source = source            # planner name -> (preview step results, plan)
         self.scene = scene
@@ -259,7 +260,7 @@ class PreviewPlayer:
             elif n:
                 self.show_frame(0)
             if not n:
-                self.prev_info.content = "_No preview: plan first._"
+                self.prev_info.content = self.why_none()
                 scene = self.scene()
                 if scene is not None:
                     sv.reset_boxes(self.drawing.client, self.drawing.nodes, scene, self.drawing.hidden)

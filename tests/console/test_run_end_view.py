@@ -128,7 +128,8 @@ def test_after_a_run_the_plan_is_shown_executed_and_the_answers_say_how_it_ended
     # nor is it offered as a preview: it was planned on a shelf that is gone, and playing it would
     # draw the boxes it took out back where they stood
     assert view.preview.source("physics") == ((), None) and view.preview.frames == []
-    assert "No preview" in view.preview.prev_info.content
+    assert view.preview.prev_info.content == \
+        "_No preview: the run changed the shelf these plans were made for; capture and plan again._"
     # the 3D view says it draws the shelf as captured, which the run has changed (no look here)
     assert view.drawing.caption_node.text == "The shelf as captured before the run: capture again to see it now"
     # nothing approvable twice: the supervisor is offered nothing and told why
