@@ -276,16 +276,23 @@ def decided_planner(d: Mapping[str, Any], rec: SessionRecord) -> str | None:
 
 def approved_plans(rec: SessionRecord) -> set[tuple[str, str]]:
     """(planner, hash) of every approved plan: one card marked even when two planners gave one sequence."""
-    out = set()
+    return set(decided_plans(rec, "approve"))
+
+
+def decided_plans(rec: SessionRecord, decision: str) -> dict[tuple[str, str], list[str]]:
+    """(planner, hash) of every plan given `decision` ("approve" or "reject") -> who gave it."""
+    out: dict[tuple[str, str], list[str]] = {}
     for d in rec.decisions:
-        if d["decision"] == "approve":
-            who = decided_planner(d, rec)
-            out |= {(pr.plan.planner, pr.hash) for pr in rec.plans
-                    if pr.hash == d["plan_hash"] and who in (None, pr.plan.planner)}
+        if d["decision"] == decision:
+            planner = decided_planner(d, rec)
+            for pr in rec.plans:
+                if pr.hash == d["plan_hash"] and planner in (None, pr.plan.planner):
+                    out.setdefault((pr.plan.planner, pr.hash), []).append(str(d.get("who") or "?"))
     return out
 
 
-def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[tuple[str, str]]) -> str:
+def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[tuple[str, str]],
+               rejected: Mapping[tuple[str, str], list[str]] | None = None) -> str:
     plan = pr.plan
     pred = {p.box: p for p in plan.predicted}
     rows = []
@@ -299,6 +306,9 @@ def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[tuple
               timing.get("total", timing.get("planning", sum(v for v in timing.values()
                                                               if isinstance(v, (int, float))))))
     badge = ' <span class="ok">approved</span>' if (plan.planner, pr.hash) in approved else ""
+    by = (rejected or {}).get((plan.planner, pr.hash))
+    if by:
+        badge += f' <span class="err rejected">rejected by {_e(", ".join(dict.fromkeys(by)))}</span>'
     check = _scene_check(plan)
     return (f'<div class="card"><h3>{_e(plan.planner)} plan{badge}</h3>'
             f'<p class="small">hash <code>{_e(pr.hash)}</code> · {_e(plan.task)}'
@@ -505,7 +515,8 @@ def render_html(rec: SessionRecord) -> str:
     if rec.missing_files:
         figs += f'<p class="err">missing files: {_e(", ".join(rec.missing_files))}</p>'
     approved = approved_plans(rec)
-    cards = "".join(_plan_card(pr, rec, i, approved) for i, pr in enumerate(rec.plans)) \
+    rejected = decided_plans(rec, "reject")
+    cards = "".join(_plan_card(pr, rec, i, approved, rejected) for i, pr in enumerate(rec.plans)) \
         or "<p><i>No plans in this session.</i></p>"
     dec_rows = "".join(f'<tr><td>{_e(d["at"])}</td><td>{_e(d["who"])}</td><td>{_e(d["decision"])}</td>'
                        f'<td>{_e(decided_planner(d, rec) or "")} <code>{_e(d["plan_hash"])}</code></td>'

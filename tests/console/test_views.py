@@ -413,6 +413,36 @@ def test_the_export_marks_the_approved_plan_when_two_planners_agree(browser, tmp
         page.close()
 
 
+def test_the_export_marks_a_rejected_plan_and_who_rejected_it(tmp_path):
+    """The exported page marked the approved card only: a plan the supervisor turned down looked
+    like one nobody had looked at. The rejecter's name is outside text: escaped."""
+    from shelfpick.console.web.replay import render_html
+    from shelfpick.console.store.sessions import SessionStore
+    from shelfpick.perception.render import default_camera, render
+    from shelfpick.perception.scene import Box, Scene, Shelf
+    from shelfpick.planning.plan import Plan, StepPrediction
+
+    scene = Scene(Shelf(), (Box("b0", (0.2, 0.2, 0.2), (0.0, 0.1, 0.1)),
+                            Box("b1", (0.2, 0.2, 0.2), (0.3, 0.1, 0.1))), default_camera())
+    store = SessionStore(tmp_path / "s.sqlite")
+    try:
+        sid = store.new_session("test", render(scene, seed=0, noise=False), scene, scene, None, {})
+        phys = store.add_plan(sid, Plan("clear", None, "physics", ("b0", "b1"),
+                                        (StepPrediction("b0", 0.0), StepPrediction("b1", 0.0)), True, {}, 0))
+        heur = store.add_plan(sid, Plan("clear", None, "heuristic", ("b1", "b0"),
+                                        (StepPrediction("b1", 0.2), StepPrediction("b0", 0.0)), False, {}, 0))
+        store.add_decision(sid, heur, "reject", "<b>sue</b>", "b1 would fall")
+        store.add_decision(sid, phys, "approve", "ann")
+        page = render_html(store.load_session(sid))
+    finally:
+        store.close()
+    cards = page.split('<div class="card">')[1:]
+    (h_card,) = [c for c in cards if c.startswith("<h3>heuristic plan")]
+    (p_card,) = [c for c in cards if c.startswith("<h3>physics plan")]
+    assert 'rejected by &lt;b&gt;sue&lt;/b&gt;</span>' in h_card.split("</h3>")[0]
+    assert "rejected" not in p_card.split("</h3>")[0] and "approved" in p_card.split("</h3>")[0]
+
+
 def test_a_collapse_names_the_boxes_the_operator_knows():
     """Item 11: perceived ids, and a box the camera never saw said in words, not the simulator's id."""
     from shelfpick.console.web.replay_view import _actual_text
