@@ -757,7 +757,7 @@ def decisions_markdown(decisions: Iterable[Mapping[str, Any]], key: str = "plan"
     """Supervisors' decisions; names and reasons are outside text."""
     return "\n".join(
         f"- {md(d['decision'])} `{md(d.get(key))}` by {md(d.get('who'))}"
-        + (f" at {md(d['at'])}" if isinstance(d.get("at"), str) else "")
+        + (f" at {md(start_time_words(d['at']))}" if isinstance(d.get("at"), str) else "")
         + (f" (the **{md(d['planner'])}** plan)" if d.get("planner") else "")
         + (f": {md(d['reason'])}" if d.get("reason") else "")
         for d in decisions)

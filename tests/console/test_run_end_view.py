@@ -348,3 +348,11 @@ def test_session_start_times_read_as_times_not_iso_strings():
     assert start_time_words("2026-11-28T14:18:58.136+01:00") == "2026-11-28 14:18:58 +01:00"
     assert start_time_words(0.0) == "1970-01-01 00:00:00 UTC"
     assert start_time_words("not a time") == "not a time" and start_time_words(None) == ""
+
+
+def test_decision_times_read_as_times_too():
+    from shelfpick.console.web.panels import decisions_markdown
+
+    line = shown(decisions_markdown([{"decision": "approve", "plan": "abc", "who": "sue",
+                                      "at": "2026-11-28T13:18:58.136+00:00"}]))
+    assert " at 2026-11-28 13:18:58 UTC" in line and "T13:18" not in line, line
