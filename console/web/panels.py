@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from shelfpick.console.web import scene_view as sv
+from shelfpick.console.web.time_words import start_time_words
 from shelfpick.console.workflow.machine import (PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError,
                                                problem_text)
 from shelfpick.console.workflow.state import RunEnd
@@ -864,21 +865,3 @@ def _fmt_clock(t: float | str | None) -> str:
     if isinstance(t, (int, float)) and not isinstance(t, bool):
         return time.strftime("%H:%M:%S", time.localtime(t))
     return str(t or "")
-
-
-def start_time_words(t: float | str | None) -> str:
-    """A session's start as a person reads it: "2026-11-28 13:18:58 UTC" (the store writes ISO
-    times with milliseconds and an offset; another offset is kept as "+01:00"); text that is no
-    time comes back as it is."""
-    from datetime import datetime, timezone
-
-    if isinstance(t, (int, float)):
-        when = datetime.fromtimestamp(t, timezone.utc)
-    else:
-        try:
-            when = datetime.fromisoformat(str(t))
-        except ValueError:
-            return str(t or "")
-    off, z = when.utcoffset(), when.strftime("%z")
-    zone = "" if off is None else " UTC" if not off else f" {z[:3]}:{z[3:]}"
-    return when.strftime("%Y-%m-%d %H:%M:%S") + zone

@@ -25,6 +25,7 @@ from shelfpick.planning.plan import Plan
 from shelfpick.console.store.sessions import PlanRecord, SessionRecord
 from shelfpick.console.workflow.machine import SECONDS_PER_BOX   # the estimate the console shows, defined once
 from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
+from shelfpick.console.web.time_words import start_time_words
 
 MAX_FRAMES_PER_STEP = 30
 
@@ -434,7 +435,7 @@ def _looks(rec: SessionRecord) -> str:
         out.append(f'<div class="card" data-look="{int(v["step"])}"><p class="{cls}"><b>'
                    f'{"✓" if v.get("within") else "⚠"} {_e(verdict.get("summary", ""))}</b></p>'
                    f'<p class="small">plan <code>{_e(v.get("plan_hash"))}</code> · run {_e(v.get("run") or "")}'
-                   f' · {_e(v.get("at"))}</p>{svg}{table}</div>')
+                   f' · {_e(start_time_words(v.get("at")))}</p>{svg}{table}</div>')
     return ('<p class="small">After each step the console looked again: observed boxes filled (red outline: '
             'differs), the plan\'s predicted poses as dashed blue outlines.</p><div class="row">'
             + "".join(out) + "</div>")
@@ -518,17 +519,17 @@ def render_html(rec: SessionRecord) -> str:
     rejected = decided_plans(rec, "reject")
     cards = "".join(_plan_card(pr, rec, i, approved, rejected) for i, pr in enumerate(rec.plans)) \
         or "<p><i>No plans in this session.</i></p>"
-    dec_rows = "".join(f'<tr><td>{_e(d["at"])}</td><td>{_e(d["who"])}</td><td>{_e(d["decision"])}</td>'
+    dec_rows = "".join(f'<tr><td>{_e(start_time_words(d["at"]))}</td><td>{_e(d["who"])}</td><td>{_e(d["decision"])}</td>'
                        f'<td>{_e(decided_planner(d, rec) or "")} <code>{_e(d["plan_hash"])}</code></td>'
                        f'<td>{_e(d.get("reason") or "")}</td></tr>'
                        for d in rec.decisions)
-    decisions = (f'<table><tr><th>when (UTC)</th><th>who</th><th>decision</th><th>plan</th><th>reason</th></tr>'
+    decisions = (f'<table><tr><th>when</th><th>who</th><th>decision</th><th>plan</th><th>reason</th></tr>'
                  f'{dec_rows}</table>') if dec_rows else "<p><i>No decisions.</i></p>"
     ev_rows = "".join(
-        f'<tr><td>{_e(e["at"])}</td><td>{_e(e["kind"])}</td><td>{"" if e["step"] is None else e["step"] + 1}</td>'
+        f'<tr><td>{_e(start_time_words(e["at"]))}</td><td>{_e(e["kind"])}</td><td>{"" if e["step"] is None else e["step"] + 1}</td>'
         f'<td>{_e(e["box"] or "")}</td><td class="small">{_e(_brief(e["detail"]))}</td></tr>'
         for e in rec.robot_events)
-    events = (f'<table><tr><th>when (UTC)</th><th>event</th><th>step</th><th>box</th><th>detail</th></tr>'
+    events = (f'<table><tr><th>when</th><th>event</th><th>step</th><th>box</th><th>detail</th></tr>'
               f'{ev_rows}</table>') if ev_rows else "<p><i>No robot events.</i></p>"
     perc = ""
     if rec.perception:

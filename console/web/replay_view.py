@@ -90,7 +90,7 @@ def record_view(rec: SessionRecord) -> ReplayView:
         lines.append(f"- {len(refused)} attempt(s) refused: wrong supervisor passphrase")
     stops = [e for e in rec.robot_events if e["kind"] == "stop"]
     for e in stops:
-        lines.append(f"- “Stop robot” pressed by {md((e.get('detail') or {}).get('who'))} at {md(e['at'])}")
+        lines.append(f"- “Stop robot” pressed by {md((e.get('detail') or {}).get('who'))} at {md(start_time_words(e['at']))}")
     out = rec.outcome
     if out:
         lines += _outcome_lines(out, plans, set(rec.scene.ids))

@@ -441,6 +441,9 @@ def test_the_export_marks_a_rejected_plan_and_who_rejected_it(tmp_path):
     (p_card,) = [c for c in cards if c.startswith("<h3>physics plan")]
     assert 'rejected by &lt;b&gt;sue&lt;/b&gt;</span>' in h_card.split("</h3>")[0]
     assert "rejected" not in p_card.split("</h3>")[0] and "approved" in p_card.split("</h3>")[0]
+    # the decisions table says when as the console does, not the store's ISO text
+    assert "<th>when</th>" in page and not re.search(r"<td>\d{4}-\d\d-\d\dT", page)
+    assert re.search(r"<td>\d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC</td><td>&lt;b&gt;sue", page)
 
 
 def test_a_collapse_names_the_boxes_the_operator_knows():
