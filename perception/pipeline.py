@@ -32,6 +32,7 @@ from shelfpick.perception.geometry import check_intrinsics, point_map, points_ca
 from shelfpick.perception.masks import border_sides, grow_on_plane, pixel_scale, refine, to_label_image
 from shelfpick.perception.overlay import box_names, draw_overlay, draw_unexplained
 from shelfpick.perception.repairs.border_cut import complete_cut_face
+from shelfpick.perception.repairs.merged import depth_step_parts
 from shelfpick.perception.scene import Box, Scene, Shelf
 from shelfpick.perception.segment import Segmenter, for_capture, load_segmenter, segmenter_name
 from shelfpick.perception.unexplained import EXPLAIN_TOL, Found, candidates, describe, find_unexplained
@@ -382,25 +383,55 @@ def _repeat_cuts(masks: list[np.ndarray], capture: Capture, shelf: Shelf,
                  lab: np.ndarray | None = None) -> tuple[list[np.ndarray], list[str]]:
     """(masks, notes): a mask that is cartons of one print, stacked or side by side, cut where
     the print repeats (`repairs.repeats`), kept only when every part measures as a box front
-    (RGB-D only: the parts are measured on the depth). Runs before the catalogue, whose joins
-    and splits then see the cut masks."""
-    from shelfpick.perception.repairs.repeats import repeat_parts
-
+    (RGB-D only: the parts are measured on the depth). A mask that does not repeat as a whole is
+    tried again front by front, parted at its depth steps (`_stepped_repeat_cuts`). Runs before
+    the catalogue, whose joins and splits then see the cut masks."""
     lab = _lab(capture) if lab is None else lab
     out: list[np.ndarray] = []
     notes: list[str] = []
     for i, m in enumerate(masks):
-        parts, axis, score = repeat_parts(m, lab)
-        if len(parts) > 1:
-            pf = [_repeat_front(p, capture, shelf) for p in parts]
-            if all(q is not None for q in pf):
-                notes.append(f"mask {i + 1} is {len(parts)} fronts of one print "
-                             f"{'stacked' if axis == 0 else 'side by side'} (alike {score:.2f}): cut into "
-                             + " and ".join(q.size_cm for q in pf if q is not None))
-                out.extend(parts)
-                continue
-        out.append(m)
+        cut = _repeat_cut(m, capture, shelf, lab)
+        if cut is not None:
+            notes.append(f"mask {i + 1} is {cut[1]}")
+            out.extend(cut[0])
+            continue
+        parts, words = _stepped_repeat_cuts(m, capture, shelf, lab)
+        if words:
+            notes.append(f"mask {i + 1} parted at a depth step into {len(words)} fronts, then " + "; ".join(words))
+        out.extend(parts)
     return out, notes
+
+
+def _stepped_repeat_cuts(m: np.ndarray, capture: Capture, shelf: Shelf,
+                         lab: np.ndarray) -> tuple[list[np.ndarray], list[str]]:
+    """(masks, words): fronts at two depths in one mask (a stack of one print beside deeper
+    cartons, an L or a block) repeat in neither direction as one; each front, parted at the depth
+    step as `boxes_from_masks` would part it later, may (`labels` 31028: four cubes stacked in one
+    81 cm mask with the wide cartons beside them). ([m], []) when no front is cut."""
+    if capture.depth is None:
+        return [m], []
+    steps = depth_step_parts(m, capture.depth, _min_pixels(capture.shape))
+    cuts = [_repeat_cut(p, capture, shelf, lab) for p in steps] if len(steps) > 1 else []
+    if all(c is None for c in cuts):
+        return [m], []
+    out: list[np.ndarray] = []
+    for p, c in zip(steps, cuts):
+        out.extend([p] if c is None else c[0])
+    return out, [f"front {k + 1} is {c[1]}" if c else f"front {k + 1} left whole" for k, c in enumerate(cuts)]
+
+
+def _repeat_cut(m: np.ndarray, capture: Capture, shelf: Shelf, lab: np.ndarray) -> tuple[list[np.ndarray], str] | None:
+    """(parts, words) of mask `m` cut where its print repeats, every part a box front; else None."""
+    from shelfpick.perception.repairs.repeats import repeat_parts
+
+    parts, axis, score = repeat_parts(m, lab)
+    if len(parts) < 2:
+        return None
+    pf = [_repeat_front(p, capture, shelf) for p in parts]
+    if any(q is None for q in pf):
+        return None
+    return parts, (f"{len(parts)} fronts of one print {'stacked' if axis == 0 else 'side by side'} "
+                   f"(alike {score:.2f}): cut into " + " and ".join(q.size_cm for q in pf if q is not None))
 
 
 def _boxes(masks: list[np.ndarray], measured: list[FrontFace | None] | None, depth: np.ndarray,

@@ -146,3 +146,24 @@ def test_a_stack_of_cartons_not_aligned_in_the_image_is_cut_carton_by_carton() -
         assert axis == 0 and len(parts) == len(offsets), offsets
         tops = sorted(int(np.flatnonzero(p.any(1))[0]) for p in parts)
         assert all(abs(t - (60 + 70 * k)) <= 3 for k, t in enumerate(tops)), (offsets, tops)
+
+
+def test_a_printed_stack_merged_with_a_deeper_front_is_parted_at_the_step_then_cut() -> None:
+    """One mask over two stacked cartons of one print and, beside them, one tall carton 8 cm deeper
+    printed once: the two depths together repeat in neither direction; parted at the depth step,
+    the stack repeats (`labels` 31028: four cubes and the wide cartons beside them in one mask)."""
+    from shelfpick.perception.pipeline import _repeat_cuts
+
+    rgb = np.full((480, 640, 3), 90, np.uint8)
+    _paint(rgb, 100, 230, 200, 330)
+    _paint(rgb, 230, 360, 200, 330)
+    _paint(rgb, 100, 360, 330, 460)
+    depth = planar_depth(CAM, 1.04)
+    depth[100:360, 330:460] = 1.12
+    merged = _mask(100, 360, 200, 460)
+    assert len(repeat_parts(merged, _lab(rgb))[0]) == 1        # the whole does not repeat
+    masks, notes = _repeat_cuts([merged], Capture(rgb, depth, CAM), Shelf())
+    assert len(masks) == 3, notes
+    assert notes and "parted at a depth step into 2 fronts" in notes[0] and "2 fronts of one print stacked" in notes[0]
+    faces = sorted((f.height for f in (measure_front(m, depth, CAM) for m in masks) if f is not None))
+    assert len(faces) == 3 and abs(faces[0] - 130 / 600 * 1.04) <= 0.015 and abs(faces[1] - faces[0]) <= 0.015
