@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from shelfpick.console.web import scene_view as sv
+from shelfpick.console.web.risk_text import pct, plan_risk, risk_words
 from shelfpick.console.web.time_words import start_time_words
 from shelfpick.console.workflow.machine import (PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError,
                                                problem_text)
@@ -75,10 +76,6 @@ def ours(text: object) -> str:
     """A message of our own that may carry outside text (ids, database errors): escaped like all
     outside text, with the names of buttons it quotes in `backticks` shown in quotes, not as backticks."""
     return md(quoted(text))
-
-
-def pct(p: float) -> str:
-    return f"{100.0 * p:.0f}%"
 
 
 def _worlds_of(plan: Plan | None) -> int | None:
@@ -686,32 +683,6 @@ def touched(plan: Plan, key: str = "unexplained") -> list[str] | None:
     if not isinstance(doc, dict):
         return None
     return [str(t) for t in doc.get("touched") or [] if isinstance(t, str)]
-
-
-def plan_risk(plan: Plan) -> tuple[dict[str, Any], float, float, float] | None:
-    """The gate's record of the plan (`search.plan_risk`) with its calibrated chance, the upper end
-    of its interval and the cell's threshold as numbers; None for a plan without a readable one."""
-    search = plan.extra.get("search", {}) if isinstance(plan.extra, dict) else {}
-    g = search.get("plan_risk") if isinstance(search, dict) else None
-    if not isinstance(g, dict):
-        return None
-    try:
-        return (g, *(float(g[k]) for k in ("probability", "high", "max_plan_risk")))
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
-def risk_words(plan: Plan) -> str:
-    """The plan's risk as a supervisor reads it: the gate's calibrated chance of a collapse (what
-    "safe" is decided on) and, apart, the worst step's share of sample worlds in which it collapsed
-    or collided (collisions do not enter the chance: a plan can be safe with a step that knocks
-    a neighbour in half the worlds, and then this says so)."""
-    risk = plan_risk(plan)
-    worst = f"worst step collapses or collides in {pct(plan.risk)} of sample worlds"
-    if risk is None:
-        return worst
-    _, p, hi, _ = risk
-    return f"chance of a collapse {100 * p:.1f}%, up to {100 * hi:.1f}%; {worst}"
 
 
 def why_unsafe(plan: Plan) -> list[str]:

@@ -25,6 +25,7 @@ from shelfpick.planning.plan import Plan
 from shelfpick.console.store.sessions import PlanRecord, SessionRecord
 from shelfpick.console.workflow.machine import SECONDS_PER_BOX   # the estimate the console shows, defined once
 from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
+from shelfpick.console.web.risk_text import risk_words
 from shelfpick.console.web.time_words import start_time_words
 
 MAX_FRAMES_PER_STEP = 30
@@ -315,7 +316,7 @@ def _plan_card(pr: PlanRecord, rec: SessionRecord, idx: int, approved: set[tuple
             f'<p class="small">hash <code>{_e(pr.hash)}</code> · {_e(plan.task)}'
             f'{(" " + _e(plan.target)) if plan.target else ""} · '
             f'{"safe" if plan.safe else "<b>no safe solution</b>"}</p>'
-            f'<p>boxes removed: <b>{len(plan.sequence)}</b> · max predicted risk: <b>{_pct(plan.risk)}</b><br>'
+            f'<p>boxes removed: <b>{len(plan.sequence)}</b> · {_e(risk_words(plan))}<br>'
             f'estimated execution: <b>{len(plan.sequence) * SECONDS_PER_BOX:.0f} s</b> · '
             f'planning time: <b>{float(plan_s or 0.0):.2f} s</b></p>'
             f'<table><tr><th>step</th><th>box</th><th>collapse</th><th>collision</th><th>expected to move</th></tr>'

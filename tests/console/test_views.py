@@ -427,8 +427,10 @@ def test_the_export_marks_a_rejected_plan_and_who_rejected_it(tmp_path):
     store = SessionStore(tmp_path / "s.sqlite")
     try:
         sid = store.new_session("test", render(scene, seed=0, noise=False), scene, scene, None, {})
+        gate = {"search": {"plan_risk": {"probability": 0.0093, "low": 0.0086, "high": 0.028, "failed_worlds": 1,
+                                         "worlds": 10, "max_plan_risk": 0.05}}}
         phys = store.add_plan(sid, Plan("clear", None, "physics", ("b0", "b1"),
-                                        (StepPrediction("b0", 0.0), StepPrediction("b1", 0.0)), True, {}, 0))
+                                        (StepPrediction("b0", 0.0), StepPrediction("b1", 0.1)), True, {}, 0, gate))
         heur = store.add_plan(sid, Plan("clear", None, "heuristic", ("b1", "b0"),
                                         (StepPrediction("b1", 0.2), StepPrediction("b0", 0.0)), False, {}, 0))
         store.add_decision(sid, heur, "reject", "<b>sue</b>", "b1 would fall")
@@ -441,6 +443,9 @@ def test_the_export_marks_a_rejected_plan_and_who_rejected_it(tmp_path):
     (p_card,) = [c for c in cards if c.startswith("<h3>physics plan")]
     assert 'rejected by &lt;b&gt;sue&lt;/b&gt;</span>' in h_card.split("</h3>")[0]
     assert "rejected" not in p_card.split("</h3>")[0] and "approved" in p_card.split("</h3>")[0]
+    # the risk in the console's words: the calibrated chance, and the worst step's share apart
+    assert "chance of a collapse 0.9%, up to 2.8%; worst step collapses or collides in 10% of sample worlds" in p_card
+    assert "worst step collapses or collides in 20% of sample worlds" in h_card and "chance of" not in h_card
     # the decisions table says when as the console does, not the store's ISO text
     assert "<th>when</th>" in page and not re.search(r"<td>\d{4}-\d\d-\d\dT", page)
     assert re.search(r"<td>\d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC</td><td>&lt;b&gt;sue", page)
