@@ -11,27 +11,20 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Sequence
 
 from shelfpick.perception.errors import SceneError
 from shelfpick.perception.scene import Scene
 from shelfpick.planning.bullet_clients import ClientPool
 from shelfpick.planning.physics import PhysicsConfig
 from shelfpick.planning.plan import StepPrediction
-from shelfpick.planning.sample_worlds import SampleWorlds, not_standing, scene_check
+from shelfpick.planning.sample_worlds import SampleWorlds, scene_check
 from shelfpick.planning.sim import ShelfSim
 from shelfpick.planning.step_result import StepResult
 from shelfpick.planning.uncertainty import Uncertainty
-from shelfpick.planning.worker_pool import Build, Extend, Known, Outbox, Preview, Pull, Worker, WorkerPool
+from shelfpick.planning.worker_pool import Build, Extend, Outbox, Preview, Pull, Worker, WorkerPool
 
 _EXTEND = "extend"   # the Outbox tag of an Extend (a pull's tag is its (removed, box) key)
-
-
-def needs_redraw(rejected: Sequence[Mapping[str, str]], known: frozenset[str]) -> bool:
-    """Whether a world drawn without `known` differs from one drawn with it: one of its rejected
-    attempts contradicted the image only in boxes of `known`, so a build knowing them would have
-    accepted that attempt (`build_sample`; an attempt that raised, "*", is never accepted)."""
-    return any(off and "*" not in off and set(off) <= known for off in rejected)
 
 
 class Predictor:
@@ -99,24 +92,17 @@ class Predictor:
                       "screens": 0, "pulls": 0, "trial_s": 0.0, "workers": workers}
 
     def _start_workers(self, workers: int, clients: ClientPool | None) -> None:
-        # What does not stand in sample 0 (`known`) is what the other samples need not redraw for
-        # (`build_sample`). Each worker first builds one world, the others as if nothing were known;
-        # the one holding sample 0 learns `known` from it, the others build theirs again only if
-        # `known` would have changed it, and then all build the rest of their share knowing it:
-        # the same worlds for every worker count, no world built twice in the usual case (sample 0
-        # used to be built in this process first), at most one per worker otherwise.
+        # Each worker builds one world first and the rest of its share after (an Extend each, so
+        # the first answers come back while the rest are built): the same worlds for every worker
+        # count, as each world is a function of its sample index alone.
         shares = [list(range(k, self._n, workers)) for k in range(workers)]
         assert self._pool is not None
         for w, share in zip(self._pool.lease(workers), shares):
             self._workers.append((w, share))
             self._owner.update((i, w) for i in share)
-            w.send(Build(self.scene, self.seed, self.config, tuple(share[:1]), self.model, frozenset()))
+            w.send(Build(self.scene, self.seed, self.config, tuple(share[:1]), self.model))
         draws = self._gather([w for w, _ in self._workers])
-        known = frozenset() if self.scene.depth_known else not_standing(draws[0])
         for w, share in self._workers:
-            if known and 0 not in share:
-                redo = tuple(i for i in share[:1] if needs_redraw(draws[i].rejected, known))
-                self._outbox.send(w, Known(known, redo), "known")
             if share[1:]:
                 self._outbox.send(w, Extend(tuple(share[1:])), _EXTEND)
         draws.update(self._gather_pending())

@@ -35,7 +35,6 @@ class Build:
     config: PhysicsConfig
     indices: tuple[int, ...]
     model: Uncertainty
-    known: frozenset[str]
 
 
 @dataclass(frozen=True)
@@ -43,15 +42,6 @@ class Extend:
     """Build these sample worlds as well, beside the ones held."""
 
     indices: tuple[int, ...]
-
-
-@dataclass(frozen=True)
-class Known:
-    """What does not stand in sample 0 (`known`), found after this worker built its share without it:
-    keep it for later worlds, and build `rebuild` again with it (the worlds it would have changed)."""
-
-    known: frozenset[str]
-    rebuild: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -82,18 +72,7 @@ class Reply:
     error: BaseException | None = None
 
 
-def _learn(worlds: SampleWorlds, known: frozenset[str], rebuild: tuple[int, ...]) -> dict:
-    """`Known`: later worlds are drawn knowing `known`; the worlds `rebuild` are built again with it."""
-    worlds.known = known
-    for i in rebuild:
-        worlds.sims.pop(i).close()
-        del worlds.draws[i], worlds.states[i]
-    return worlds.add(rebuild)
-
-
 def _answer(worlds: SampleWorlds | None, msg: Any) -> Reply:
-    if isinstance(msg, Known):
-        return Reply({i: DrawSummary.of(d) for i, d in _learn(worlds, msg.known, msg.rebuild).items()})  # type: ignore[arg-type]
     if isinstance(msg, Extend):
         return Reply({i: DrawSummary.of(d) for i, d in worlds.add(msg.indices).items()})  # type: ignore[union-attr]
     if isinstance(msg, Pull):
@@ -120,7 +99,7 @@ def serve(conn) -> None:
                         worlds.close()
                     try:
                         worlds = SampleWorlds(msg.scene, msg.seed, msg.config, msg.indices, msg.model,
-                                              msg.known, clients)
+                                              clients)
                     except BaseException as exc:  # reported to the parent, which raises it
                         worlds = None
                         conn.send(Reply(error=exc))
