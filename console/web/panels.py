@@ -451,6 +451,13 @@ class AnswerLine:
         with self.lock:
             self.replayed = session
 
+    def _newest(self, state: State) -> State:
+        """`state`, or the workflow's own when that is newer: renders run on viser's thread pool and
+        may arrive out of order, and a planning click's "started." must not outlive its plans
+        because the last render to arrive was of a state from before they came in."""
+        live = self.wf.state
+        return live if live.version > state.version else state
+
     def show(self, state: State) -> None:
         """The answer as of `state`: a run end the click did not know of replaces it."""
         with self.lock:
@@ -459,11 +466,11 @@ class AnswerLine:
             end = state.run_end
             if end is not None and end is not self.since:
                 self.since, self.text, self.planning = end, run_end_answer(end), None
-            elif self.planning is not None and not state.planning:
+            elif self.planning is not None and not (now := self._newest(state)).planning:
                 # "Plan extraction: started." stayed above the plans it had started
-                n = len(state.plans)
+                n = len(now.plans)
                 self.text = (f"_{self.planning}: done, {n} plan{'s' if n != 1 else ''}._" if n
-                             else f"**{self.planning}: no plans.** {md(state.error or state.message or '')}".rstrip())
+                             else f"**{self.planning}: no plans.** {md(now.error or now.message or '')}".rstrip())
                 self.planning = None
             text = self.text
             if text and self.replayed is not None:

@@ -64,6 +64,16 @@ def until(cond, timeout=30.0, what="condition"):
     raise AssertionError(f"timed out waiting for {what}")
 
 
+def answer_becomes(view, text: str, timeout: float = 10.0) -> None:
+    """The Operator's answer line comes to read `text` (and says what it read when it does not)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if view.operator.answer.content == text:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"the answer line reads {view.operator.answer.content!r}, not {text!r}")
+
+
 def settle(wf, view, timeout=10.0):
     """Wait until the view drew the latest state (nothing changed for 0.3 s, and it was rendered)."""
     end = time.monotonic() + timeout
@@ -102,7 +112,7 @@ def approve_and_run(wf, view, planner: str = "physics"):
     st = until(lambda: not wf.state.planning and wf.state.plans.get(planner) and wf.state, 60, "plans")
     entry = st.plans[planner]
     # the plans are in: the click's answer no longer says "started." above them
-    until(lambda: view.operator.answer.content == "_Plan clearance: done, 2 plans._", 10, "the answer 'done'")
+    answer_becomes(view, "_Plan clearance: done, 2 plans._")
     choose(view, planner, entry.hash)
     view.passphrase.value = PASS
     view.accept_risk.value = not entry.plan.safe or bool(entry.plan.extra.get("continues"))
