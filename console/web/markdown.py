@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from shelfpick.console.web.panels import md, ours, pct, plan_risk, touched
+from shelfpick.console.web.panels import md, ours, touched
+from shelfpick.console.web.risk_text import pct, plan_risk
 from shelfpick.console.workflow.machine import PLANNERS, SECONDS_PER_BOX, PlanEntry, State, problem_text
 from shelfpick.planning.plan import Plan
 

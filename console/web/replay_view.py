@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
 from shelfpick.console.web.markdown import results_markdown
-from shelfpick.console.web.panels import decisions_markdown, md, pct, start_time_words
+from shelfpick.console.web.panels import decisions_markdown, md
 from shelfpick.console.web.replay import decided_planner, shown_worlds
+from shelfpick.console.web.risk_text import pct
 from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
+from shelfpick.console.web.time_words import start_time_words
 from shelfpick.console.workflow.machine import PlanEntry, State
 from shelfpick.perception.scene import Camera, Scene
 from shelfpick.planning.plan import Plan
