@@ -544,7 +544,7 @@ def render_html(rec: SessionRecord) -> str:
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width,initial-scale=1"><title>{_e(title)}</title>'
             f'<style>{_CSS}</style></head><body>'
-            f'<h1>{_e(title)}</h1><p>started {_e(rec.started)} · source <code>{_e(rec.source)}</code> · status '
+            f'<h1>{_e(title)}</h1><p>started {_e(start_time_words(rec.started))} · source <code>{_e(rec.source)}</code> · status '
             f'<b>{_e(rec.status)}</b> · {rec.n_boxes} boxes' + (f' · {_e(rec.task)}' if rec.task else "") + '</p>'
             f'<h2>Capture</h2><div class="row">{figs}</div>{perc}'
             f'<h2>Perceived scene</h2><table><tr><th>box</th><th>size (m)</th><th>centre (m, shelf frame)</th>'
