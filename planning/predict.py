@@ -92,27 +92,17 @@ class Predictor:
                       "screens": 0, "pulls": 0, "trial_s": 0.0, "workers": workers}
 
     def _start_workers(self, workers: int, clients: ClientPool | None) -> None:
-        # Each worker builds one world first and the rest of its share after (an Extend each, so
-        # the first answers come back while the rest are built): the same worlds for every worker
-        # count, as each world is a function of its sample index alone.
+        # Each worker builds its whole share in one Build: the same worlds for every worker count,
+        # as each world is a function of its sample index alone.
         shares = [list(range(k, self._n, workers)) for k in range(workers)]
         assert self._pool is not None
         for w, share in zip(self._pool.lease(workers), shares):
             self._workers.append((w, share))
             self._owner.update((i, w) for i in share)
-            w.send(Build(self.scene, self.seed, self.config, tuple(share[:1]), self.model))
+            w.send(Build(self.scene, self.seed, self.config, tuple(share), self.model))
         draws = self._gather([w for w, _ in self._workers])
-        for w, share in self._workers:
-            if share[1:]:
-                self._outbox.send(w, Extend(tuple(share[1:])), _EXTEND)
-        draws.update(self._gather_pending())
         self.sample_scenes = [draws[i].scene for i in range(self._n)]
         self.scene_check = scene_check([draws[i] for i in range(self._n)])
-
-    def _gather_pending(self) -> dict:
-        """Every reply pending in the outbox, merged (draws of built worlds), as `_merge` reads them."""
-        return self._merge(lambda w=w: self._outbox.read(w)[1]
-                           for w, _ in self._workers for _ in range(self._outbox.pending(w)))
 
     def _gather(self, workers: Sequence[Worker]) -> dict:
         """One reply from each of `workers`, merged, as `_merge` reads them."""
