@@ -336,7 +336,9 @@ def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogu
     cut: list[str] = []
     lab = _lab(capture) if capture.depth is not None and masks else None   # both print repairs read it
     if lab is not None:
-        masks, cut = _repeat_cuts(masks, capture, shelf, lab)
+        masks, cut = _depth_seams(masks, capture.depth)
+        masks, repeats = _repeat_cuts(masks, capture, shelf, lab)
+        cut += repeats
     measured: list[FrontFace | None] | None = None
     if catalogue is not None and capture.depth is not None and masks:
         masks, measured, notes = apply_catalogue(masks, capture.depth, capture.camera, capture.rgb,
@@ -346,6 +348,17 @@ def _clean_masks(raw: list[np.ndarray], capture: Capture, shelf: Shelf, catalogu
         masks, measured, halves = _regroup_halves(masks, measured, capture, shelf, lab)
         cut += halves
     return masks, measured, scale, cut
+
+
+def _depth_seams(masks: list[np.ndarray], depth: np.ndarray) -> tuple[list[np.ndarray], list[str]]:
+    """(masks, notes): each seam between two stacked masks moved onto the depth step between the
+    cartons' fronts where it lies off it (`repairs.stacked_seams`: a print band taken for the
+    seam); before the print repairs, which then see whole cartons."""
+    from shelfpick.perception.repairs.stacked_seams import depth_seams
+
+    masks, moves = depth_seams(masks, depth)
+    return masks, [f"the seam between masks {u + 1} and {lo + 1} moved {abs(d)} px {'down' if d > 0 else 'up'} "
+                   "onto the depth step between their fronts" for u, lo, d in moves]
 
 
 def _lab(capture: Capture) -> np.ndarray:
