@@ -18,6 +18,13 @@ evidence used here, and only where the depth agrees (geometry first):
 
 Two correct cartons of one print side by side re-cut into themselves (the repeat is at their own
 seam) and are left alone; plain faces have no print to repeat and are never touched.
+
+A mask may also be the halves of two cartons at once: a strip down the band of a stack whose
+other halves are masks of their own (`labels` 31028: the left 20 cm of two 50 cm cartons in one
+mask, their right 30 cm in two). No pair of the three is a flush block; the strip and the two or
+more masks along one side of it, each within the strip's extent, are tried together the same way
+(`_first_group`, after every pair), a part counting as a mask again only when it is that mask
+(IoU >= `SAME_IOU_GROUP`).
 """
 from __future__ import annotations
 
@@ -37,6 +44,8 @@ from shelfpick.perception.scene import Camera
 PLANE_TOL = 0.004   # m: median distance of one mask's depth points to the other's face plane
 MIN_FILL = 0.85     # the union fills its min-area rectangle at least this much
 SAME_IOU = 0.6      # a part this like one of the two masks is that mask again: nothing to re-cut
+SAME_IOU_GROUP = 0.95  # ... of a mask and the two or more beside it: only a part that IS one of them (a
+#                        carton whose left fifth was the strip is 0.8 like its right four fifths)
 GAP_PX = 3          # masks this close touch; the unclaimed pixels between them join the union
 MIN_TOUCH_PX = 20   # ... along at least this many pixels
 
@@ -63,14 +72,16 @@ def regroup_halves(masks: list[np.ndarray], faces: list[FrontFace | None], lab: 
     made: set[int] = set()
     tried: set[frozenset[int]] = set()
     while True:
-        found = _first_pair(masks, faces, lab, _Frame(depth, camera), front, made, tried)
+        frame = _Frame(depth, camera)
+        found = (_first_pair(masks, faces, lab, frame, front, made, tried)
+                 or _first_group(masks, faces, lab, frame, front, made, tried))
         if found is None:
             return masks, faces, notes
-        i, j, parts, pf, axis, score = found
-        notes.append(f"masks of {faces[i].size_cm} and {faces[j].size_cm} are halves of {len(parts)} "
+        i, js, parts, pf, axis, score = found
+        notes.append(f"masks of {' and '.join(faces[k].size_cm for k in (i, *js))} are halves of {len(parts)} "  # type: ignore[union-attr]
                      f"fronts of one print {'stacked' if axis == 0 else 'side by side'} (alike {score:.2f}): "
                      "re-cut into " + " and ".join(f.size_cm for f in pf))
-        keep = [k for k in range(len(masks)) if k not in (i, j)]
+        keep = [k for k in range(len(masks)) if k != i and k not in js]
         masks = [masks[k] for k in keep] + parts
         faces = [faces[k] for k in keep] + pf
         made.update(id(p) for p in parts)
@@ -78,7 +89,7 @@ def regroup_halves(masks: list[np.ndarray], faces: list[FrontFace | None], lab: 
 
 def _first_pair(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.ndarray, frame: _Frame,
                 front: Callable[[np.ndarray], FrontFace | None], made: set[int], tried: set[frozenset[int]]):
-    """(i, j, parts, their faces, axis, score) of the first pair that re-cuts, else None."""
+    """(i, [j], parts, their faces, axis, score) of the first pair that re-cuts, else None."""
     boxes = [_bbox(m) for m in masks]
     near = [_near(m, b) for m, b in zip(masks, boxes)]
     cover = _cover(masks, boxes)
@@ -90,30 +101,34 @@ def _first_pair(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.
                     or _touch(near[i], masks[j], boxes[i], boxes[j]) < MIN_TOUCH_PX:
                 continue
             tried.add(key)
-            done = _recut(i, j, masks, faces, near, cover, boxes, lab, frame, front)
+            done = _recut([i, j], masks, faces, near, cover, boxes, lab, frame, front)
             if done is not None:
-                return (i, j) + done
+                return (i, [j]) + done
     return None
 
 
-def _recut(i: int, j: int, masks: list[np.ndarray], faces: list[FrontFace | None], near: list[np.ndarray],
+def _recut(idx: list[int], masks: list[np.ndarray], faces: list[FrontFace | None], near: list[np.ndarray],
            cover: np.ndarray, boxes: list[tuple[int, int, int, int]], lab: np.ndarray, frame: _Frame,
            front: Callable[[np.ndarray], FrontFace | None]):
-    """(parts, faces, axis, score) when masks i and j re-cut into other box fronts, else None.
-    `cover`: how many masks claim each pixel (the gap pixels joined are nobody else's); `boxes`:
-    the masks' `_bbox`. Works on the pair's bounding box; the parts come back full size."""
-    (y0, y1, x0, x1), (v0, v1, u0, u1) = boxes[i], boxes[j]
-    box = (slice(max(min(y0, v0) - GAP_PX, 0), max(y1, v1) + GAP_PX),
-           slice(max(min(x0, u0) - GAP_PX, 0), max(x1, u1) + GAP_PX))
-    a, b = masks[i][box], masks[j][box]
-    unclaimed = cover[box] <= a.astype(np.uint8) + b.astype(np.uint8)
-    union = _core(a | b | (near[i][box] & near[j][box] & unclaimed))
+    """(parts, faces, axis, score) when the masks `idx` (the first one touching each of the others)
+    re-cut into other box fronts, else None. `cover`: how many masks claim each pixel (the gap
+    pixels joined are nobody else's); `boxes`: the masks' `_bbox`. Works on the group's bounding
+    box; the parts come back full size."""
+    i, rest = idx[0], idx[1:]
+    box = (slice(max(min(boxes[k][0] for k in idx) - GAP_PX, 0), max(boxes[k][1] for k in idx) + GAP_PX),
+           slice(max(min(boxes[k][2] for k in idx) - GAP_PX, 0), max(boxes[k][3] for k in idx) + GAP_PX))
+    crops = [masks[k][box] for k in idx]
+    claimed = np.sum([c.astype(np.uint8) for c in crops], axis=0)
+    gap = near[i][box] & np.logical_or.reduce([near[k][box] for k in rest]) & (cover[box] <= claimed)
+    union = _core(np.logical_or.reduce(crops) | gap)
     if union is None or rect_fill(union) < MIN_FILL:
         return None
-    if _off_plane(faces[i], b, box, frame) > PLANE_TOL or _off_plane(faces[j], a, box, frame) > PLANE_TOL:
+    if any(_off_plane(faces[i], masks[k][box], box, frame) > PLANE_TOL
+           or _off_plane(faces[k], crops[0], box, frame) > PLANE_TOL for k in rest):
         return None                  # a depth step (or a turn) between them: two fronts
     cut, axis, score = repeat_parts(union, lab[box])
-    if len(cut) < 2 or any(max(_iou(p, a), _iou(p, b)) >= SAME_IOU for p in cut):
+    same = SAME_IOU if len(idx) == 2 else SAME_IOU_GROUP
+    if len(cut) < 2 or any(_iou(p, c) >= same for p in cut for c in crops):
         return None
     parts = []
     for p in cut:
@@ -124,6 +139,42 @@ def _recut(i: int, j: int, masks: list[np.ndarray], faces: list[FrontFace | None
     if any(f is None for f in pf):
         return None
     return parts, pf, axis, score
+
+
+def _first_group(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.ndarray, frame: _Frame,
+                 front: Callable[[np.ndarray], FrontFace | None], made: set[int], tried: set[frozenset[int]]):
+    """(i, [j, ...], parts, their faces, axis, score) of the first mask that re-cuts with the two or
+    more masks it touches along one side, each within its extent across that side (a strip that
+    is the left halves of two stacked cartons, beside their two right halves: `labels` 31028's
+    50 cm cartons cut down their band), else None."""
+    boxes = [_bbox(m) for m in masks]
+    near = [_near(m, b) for m, b in zip(masks, boxes)]
+    cover = _cover(masks, boxes)
+    free = [k for k in range(len(masks)) if faces[k] is not None and id(masks[k]) not in made]
+    for i in free:
+        touching = [j for j in free if j != i and _overlap(boxes[i], boxes[j])
+                    and _touch(near[i], masks[j], boxes[i], boxes[j]) >= MIN_TOUCH_PX]
+        for group in _one_side(i, touching, boxes):
+            key = frozenset(id(masks[k]) for k in (i, *group))
+            if key in tried:
+                continue
+            tried.add(key)
+            done = _recut([i, *group], masks, faces, near, cover, boxes, lab, frame, front)
+            if done is not None:
+                return (i, group) + done
+    return None
+
+
+def _one_side(i: int, touching: list[int], boxes: list[tuple[int, int, int, int]]) -> list[list[int]]:
+    """The groups of two or more of `touching` that lie on one side of mask i (left, right, above,
+    below), each within i's extent along that side (GAP_PX to spare)."""
+    y0, y1, x0, x1 = boxes[i]
+    cy, cx = (y0 + y1) / 2, (x0 + x1) / 2
+    rows = [j for j in touching if boxes[j][0] >= y0 - 2 * GAP_PX and boxes[j][1] <= y1 + 2 * GAP_PX]
+    cols = [j for j in touching if boxes[j][2] >= x0 - 2 * GAP_PX and boxes[j][3] <= x1 + 2 * GAP_PX]
+    sides = [[j for j in rows if (boxes[j][2] + boxes[j][3]) / 2 > cx], [j for j in rows if (boxes[j][2] + boxes[j][3]) / 2 < cx],
+             [j for j in cols if (boxes[j][0] + boxes[j][1]) / 2 > cy], [j for j in cols if (boxes[j][0] + boxes[j][1]) / 2 < cy]]
+    return [g for g in sides if len(g) >= 2]
 
 
 def _off_plane(face: FrontFace, mask: np.ndarray, box: tuple[slice, slice], frame: _Frame,

@@ -104,3 +104,27 @@ def test_halves_recut_at_the_seam_each_part_a_whole_carton() -> None:
     for p in out:                                            # each part spans the whole width
         cols = np.flatnonzero(p.any(0))
         assert cols[0] <= STACK[2] + 2 and cols[-1] >= STACK[3] - 3
+
+
+def test_a_strip_of_left_halves_beside_two_right_halves_is_recut_into_the_two_cartons() -> None:
+    """`labels` 31028: the left halves of two stacked cartons in one mask, their right halves in two:
+    no pair of the three makes a flush block, the three together do."""
+    y0, y1, x0, x1 = STACK
+    masks = [_mask(y0, y1, x0, CUT), _mask(y0, SEAM, CUT, x1), _mask(SEAM, y1, CUT, x1)]
+    out, faces, notes = _regroup_halves(masks, None, Capture(_frame(), planar_depth(CAM, 1.04), CAM), Shelf())
+    assert len(notes) == 1 and "halves of 2 fronts of one print stacked" in notes[0]
+    assert len(out) == 2 and all(f is not None for f in faces)
+    for p in out:                                            # each part a whole carton: the full width
+        cols = np.flatnonzero(p.any(0))
+        assert cols[0] <= x0 + 2 and cols[-1] >= x1 - 3
+    rows = sorted((int(np.flatnonzero(p.any(1))[0]), int(np.flatnonzero(p.any(1))[-1])) for p in out)
+    assert abs(rows[0][1] - (SEAM - 1)) <= 3 and abs(rows[1][0] - SEAM) <= 3
+
+
+def test_a_strip_beside_the_two_cartons_it_already_belongs_to_is_not_recut() -> None:
+    """Three masks that are already three fronts (a narrow carton beside two stacked ones, plain
+    board: no print to repeat) stay as they are."""
+    y0, y1, x0, x1 = STACK
+    masks = [_mask(y0, y1, x0, CUT), _mask(y0, SEAM, CUT, x1), _mask(SEAM, y1, CUT, x1)]
+    out, _, notes = _regroup_halves(masks, None, Capture(_frame(printed=False), planar_depth(CAM, 1.04), CAM), Shelf())
+    assert not notes and all(np.array_equal(a, b) for a, b in zip(out, masks))
