@@ -153,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
           f"precision {sum(r['matched'] for r in rows) / max(p, 1):.3f} centre median "
           f"{100 * float(np.median(errs)):.2f} cm; perceive p50 {float(np.median([r['s'] for r in rows])):.2f} s wall, "
           f"{float(np.median([r['cpu_s'] for r in rows])):.2f} s CPU (this process)")
+    e = 100 * np.asarray(errs or [np.nan])
+    print(f"ERRORS {len(errs)} matched fronts: centre error p75 {float(np.percentile(e, 75)):.2f} cm, "
+          f"p90 {float(np.percentile(e, 90)):.2f} cm; {int((e > 2).sum())} over 2 cm, {int((e > 4).sum())} over 4 cm")
     if a.samples:
         refused = [r["seed"] for r in rows if r["refused"]]
         print(f"SAMPLEABLE {len(rows) - len(refused)} of {len(rows)} perceived scenes (the first {a.samples} sample "
