@@ -24,16 +24,23 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.judge_rows import init_worker  # noqa: E402
 
 
-def check_shelf(judge_dir: Path, name: str, noise: float, samples: int, work: Path) -> dict:
-    """The scene check of shelf `name` seen at `noise` (the judge's observation seed)."""
+def judge_view(judge_dir: Path, name: str, noise: float) -> dict:
+    """The judge's shelf `name` as its camera gives it at `noise` m of face error (`observe.py`,
+    imported at run time, never copied; the judge's observation seed for that shelf)."""
+    init_worker(str(judge_dir))
     from observe import observed
 
+    truth = json.loads((judge_dir / "scenes" / f"{name}.json").read_text())
+    return observed(truth, noise=noise, seed=int(name[1:]) + 17)
+
+
+def check_shelf(judge_dir: Path, name: str, noise: float, samples: int, work: Path) -> dict:
+    """The scene check of shelf `name` seen at `noise` (the judge's observation seed)."""
     from shelfpick.perception.scene import Scene
     from shelfpick.planning.predict import Predictor
 
-    truth = json.loads((judge_dir / "scenes" / f"{name}.json").read_text())
     path = work / f"{name}.json"
-    path.write_text(json.dumps(observed(truth, noise=noise, seed=int(name[1:]) + 17)))
+    path.write_text(json.dumps(judge_view(judge_dir, name, noise)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         predictor = Predictor(Scene.load(path), samples=samples, seed=0, workers=1)

@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from benchmarks.stand_check import judge_view  # noqa: E402
 from shelfpick.planning.uncertainty import Uncertainty  # noqa: E402
 
 VARIANTS: dict[str, Uncertainty] = {
@@ -36,18 +37,6 @@ VARIANTS: dict[str, Uncertainty] = {
 }
 
 
-def judge_view(judge_dir: Path, name: str, noise: float) -> dict:
-    """The judge's shelf `name` as its camera gives it at `noise` m of face error (`observe.py`,
-    imported at run time, never copied; the observation seed `benchmarks/stand_check.py` uses)."""
-    from benchmarks.judge_rows import init_worker
-
-    init_worker(str(judge_dir))
-    from observe import observed
-
-    truth = json.loads((judge_dir / "scenes" / f"{name}.json").read_text())
-    return observed(truth, noise=noise, seed=int(name[1:]) + 17)
-
-
 def standing_draws(doc: dict, model: Uncertainty, draws: int, seed: int,
                    origin: str = "scene") -> tuple[int, int, dict[str, int]]:
     """(draws that stand, draws that stood at their first attempt, box -> draws it did not stand in)."""
@@ -56,7 +45,7 @@ def standing_draws(doc: dict, model: Uncertainty, draws: int, seed: int,
     from shelfpick.planning.sample_worlds import build_sample, depth_ranges
 
     scene = Scene.from_json(doc, origin)
-    config = PhysicsConfig()
+    config = PhysicsConfig().for_prediction()    # the Predictor's worlds, as `shelfpick plan` builds them
     ranges = None if scene.depth_known else depth_ranges(scene, config)
     stood = first = 0
     fell: dict[str, int] = {}

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from shelfpick.console.web import scene_view as sv
-from shelfpick.console.web.risk_text import pct, plan_risk, risk_words
+from shelfpick.console.web.risk_text import plan_risk, risk_words
 from shelfpick.console.web.time_words import start_time_words
 from shelfpick.console.workflow.machine import (PLANNERS, Deviation, PlanEntry, State, Workflow, WorkflowError,
                                                problem_text)

@@ -25,7 +25,7 @@ from shelfpick.planning.plan import Plan
 from shelfpick.console.store.sessions import PlanRecord, SessionRecord
 from shelfpick.console.workflow.machine import SECONDS_PER_BOX   # the estimate the console shows, defined once
 from shelfpick.console.web.segmentation_view import segmentation_image, set_aside_boxes
-from shelfpick.console.web.risk_text import risk_words
+from shelfpick.console.web.risk_text import pct, risk_words
 from shelfpick.console.web.time_words import start_time_words
 
 MAX_FRAMES_PER_STEP = 30
@@ -258,7 +258,7 @@ def _world_note(plan: Plan, preview: list | None) -> str:
 
 # --------------------------------------------------------------------------
 def _pct(v: float | None) -> str:
-    return "—" if v is None else f"{100 * v:.0f}%"
+    return "—" if v is None else pct(v)
 
 
 def decided_planner(d: Mapping[str, Any], rec: SessionRecord) -> str | None:

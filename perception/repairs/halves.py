@@ -58,6 +58,25 @@ class _Frame:
     camera: Camera
 
 
+@dataclass(eq=False)
+class _Ctx:
+    """One search for a pair or group to re-cut: the masks as they stand, and what both searches
+    read of them (bounding boxes, dilations, how many masks claim each pixel), computed once."""
+
+    masks: list[np.ndarray]
+    faces: list[FrontFace | None]
+    lab: np.ndarray
+    frame: _Frame
+    front: Callable[[np.ndarray], FrontFace | None]
+    made: set[int]
+    tried: set[frozenset[int]]
+
+    def __post_init__(self) -> None:
+        self.boxes = [_bbox(m) for m in self.masks]
+        self.near = [_near(m, b) for m, b in zip(self.masks, self.boxes)]
+        self.cover = _cover(self.masks, self.boxes)
+
+
 def regroup_halves(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.ndarray,
                    depth: np.ndarray, camera: Camera,
                    front: Callable[[np.ndarray], FrontFace | None],
@@ -72,9 +91,8 @@ def regroup_halves(masks: list[np.ndarray], faces: list[FrontFace | None], lab: 
     made: set[int] = set()
     tried: set[frozenset[int]] = set()
     while True:
-        frame = _Frame(depth, camera)
-        found = (_first_pair(masks, faces, lab, frame, front, made, tried)
-                 or _first_group(masks, faces, lab, frame, front, made, tried))
+        ctx = _Ctx(masks, faces, lab, _Frame(depth, camera), front, made, tried)
+        found = _first_pair(ctx) or _first_group(ctx)
         if found is None:
             return masks, faces, notes
         i, js, parts, pf, axis, score = found
@@ -87,33 +105,28 @@ def regroup_halves(masks: list[np.ndarray], faces: list[FrontFace | None], lab: 
         made.update(id(p) for p in parts)
 
 
-def _first_pair(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.ndarray, frame: _Frame,
-                front: Callable[[np.ndarray], FrontFace | None], made: set[int], tried: set[frozenset[int]]):
+def _first_pair(c: _Ctx):
     """(i, [j], parts, their faces, axis, score) of the first pair that re-cuts, else None."""
-    boxes = [_bbox(m) for m in masks]
-    near = [_near(m, b) for m, b in zip(masks, boxes)]
-    cover = _cover(masks, boxes)
+    masks, faces, boxes, near = c.masks, c.faces, c.boxes, c.near
     for i in range(len(masks)):
         for j in range(i + 1, len(masks)):
             key = frozenset((id(masks[i]), id(masks[j])))
-            if key in tried or faces[i] is None or faces[j] is None or id(masks[i]) in made \
-                    or id(masks[j]) in made or not _overlap(boxes[i], boxes[j]) \
+            if key in c.tried or faces[i] is None or faces[j] is None or id(masks[i]) in c.made \
+                    or id(masks[j]) in c.made or not _overlap(boxes[i], boxes[j]) \
                     or _touch(near[i], masks[j], boxes[i], boxes[j]) < MIN_TOUCH_PX:
                 continue
-            tried.add(key)
-            done = _recut([i, j], masks, faces, near, cover, boxes, lab, frame, front)
+            c.tried.add(key)
+            done = _recut([i, j], c)
             if done is not None:
                 return (i, [j]) + done
     return None
 
 
-def _recut(idx: list[int], masks: list[np.ndarray], faces: list[FrontFace | None], near: list[np.ndarray],
-           cover: np.ndarray, boxes: list[tuple[int, int, int, int]], lab: np.ndarray, frame: _Frame,
-           front: Callable[[np.ndarray], FrontFace | None]):
+def _recut(idx: list[int], c: _Ctx):
     """(parts, faces, axis, score) when the masks `idx` (the first one touching each of the others)
-    re-cut into other box fronts, else None. `cover`: how many masks claim each pixel (the gap
-    pixels joined are nobody else's); `boxes`: the masks' `_bbox`. Works on the group's bounding
-    box; the parts come back full size."""
+    re-cut into other box fronts, else None. The gap pixels joined are nobody else's (`c.cover`).
+    Works on the group's bounding box; the parts come back full size."""
+    masks, faces, boxes, near, cover, frame = c.masks, c.faces, c.boxes, c.near, c.cover, c.frame
     i, rest = idx[0], idx[1:]
     box = (slice(max(min(boxes[k][0] for k in idx) - GAP_PX, 0), max(boxes[k][1] for k in idx) + GAP_PX),
            slice(max(min(boxes[k][2] for k in idx) - GAP_PX, 0), max(boxes[k][3] for k in idx) + GAP_PX))
@@ -126,7 +139,7 @@ def _recut(idx: list[int], masks: list[np.ndarray], faces: list[FrontFace | None
     if any(_off_plane(faces[i], masks[k][box], box, frame) > PLANE_TOL
            or _off_plane(faces[k], crops[0], box, frame) > PLANE_TOL for k in rest):
         return None                  # a depth step (or a turn) between them: two fronts
-    cut, axis, score = repeat_parts(union, lab[box])
+    cut, axis, score = repeat_parts(union, c.lab[box])
     same = SAME_IOU if len(idx) == 2 else SAME_IOU_GROUP
     if len(cut) < 2 or any(_iou(p, c) >= same for p in cut for c in crops):
         return None
@@ -135,31 +148,28 @@ def _recut(idx: list[int], masks: list[np.ndarray], faces: list[FrontFace | None
         full = np.zeros_like(masks[i])
         full[box] = p
         parts.append(full)
-    pf = [front(p) for p in parts]
+    pf = [c.front(p) for p in parts]
     if any(f is None for f in pf):
         return None
     return parts, pf, axis, score
 
 
-def _first_group(masks: list[np.ndarray], faces: list[FrontFace | None], lab: np.ndarray, frame: _Frame,
-                 front: Callable[[np.ndarray], FrontFace | None], made: set[int], tried: set[frozenset[int]]):
+def _first_group(c: _Ctx):
     """(i, [j, ...], parts, their faces, axis, score) of the first mask that re-cuts with the two or
     more masks it touches along one side, each within its extent across that side (a strip that
     is the left halves of two stacked cartons, beside their two right halves: `labels` 31028's
     50 cm cartons cut down their band), else None."""
-    boxes = [_bbox(m) for m in masks]
-    near = [_near(m, b) for m, b in zip(masks, boxes)]
-    cover = _cover(masks, boxes)
-    free = [k for k in range(len(masks)) if faces[k] is not None and id(masks[k]) not in made]
+    masks, boxes, near = c.masks, c.boxes, c.near
+    free = [k for k in range(len(masks)) if c.faces[k] is not None and id(masks[k]) not in c.made]
     for i in free:
         touching = [j for j in free if j != i and _overlap(boxes[i], boxes[j])
                     and _touch(near[i], masks[j], boxes[i], boxes[j]) >= MIN_TOUCH_PX]
         for group in _one_side(i, touching, boxes):
             key = frozenset(id(masks[k]) for k in (i, *group))
-            if key in tried:
+            if key in c.tried:
                 continue
-            tried.add(key)
-            done = _recut([i, *group], masks, faces, near, cover, boxes, lab, frame, front)
+            c.tried.add(key)
+            done = _recut([i, *group], c)
             if done is not None:
                 return (i, group) + done
     return None

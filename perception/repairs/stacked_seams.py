@@ -42,6 +42,11 @@ def _edges(mask: np.ndarray, x0: int, x1: int) -> tuple[np.ndarray, np.ndarray]:
     return top, bottom
 
 
+def _most_gap(eu: tuple, el: tuple) -> int:
+    """The most rows one mask's bottom edge may lie above the next one's top edge for them to meet."""
+    return max(GAP_PX, int(MAX_GAP * min(eu[1] - eu[0], el[1] - el[0]))) + 1
+
+
 def _meeting(upper: np.ndarray, lower: np.ndarray, eu: tuple, el: tuple
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(columns, upper's bottom row, lower's top row) where `lower`'s top edge lies within
@@ -51,7 +56,7 @@ def _meeting(upper: np.ndarray, lower: np.ndarray, eu: tuple, el: tuple
         return np.zeros(0, int), np.zeros(0, int), np.zeros(0, int)
     _, bottom = _edges(upper, x0, x1)
     top, _ = _edges(lower, x0, x1)
-    most = max(GAP_PX, int(MAX_GAP * min(eu[1] - eu[0], el[1] - el[0]))) + 1
+    most = _most_gap(eu, el)
     gap = top - bottom
     ok = (bottom >= 0) & (top >= 0) & (gap >= 1) & (gap <= most)
     return np.arange(x0, x1 + 1)[ok], bottom[ok], top[ok]
@@ -61,9 +66,11 @@ def sits_on(upper: np.ndarray, lower: np.ndarray, eu: tuple, el: tuple) -> bool:
     """Whether mask `upper` meets mask `lower` along its bottom edge (`_meeting`) across at least
     `MIN_SHARED` of the narrower mask's width, the two about as wide (`MIN_WIDTH_RATIO`)."""
     wu, wl = eu[3] - eu[2] + 1, el[3] - el[2] + 1
-    if min(wu, wl) < MIN_WIDTH_RATIO * max(wu, wl):
-        return False
-    return len(_meeting(upper, lower, eu, el)[0]) >= MIN_SHARED * min(wu, wl)
+    need = MIN_SHARED * min(wu, wl)
+    if min(wu, wl) < MIN_WIDTH_RATIO * max(wu, wl) or min(eu[3], el[3]) - max(eu[2], el[2]) + 1 < need \
+            or el[0] > eu[1] + _most_gap(eu, el):
+        return False                     # bounding boxes too unlike, or too far apart, to meet
+    return len(_meeting(upper, lower, eu, el)[0]) >= need
 
 
 def stacked_pairs(masks: list[np.ndarray]) -> list[tuple[int, int]]:
@@ -81,16 +88,17 @@ def stacked_pairs(masks: list[np.ndarray]) -> list[tuple[int, int]]:
     return sorted(pairs, key=lambda p: ext[p[0]][0])     # top first: a column's seams in order
 
 
-def step_offset(masks: list[np.ndarray], upper: int, lower: int, depth: np.ndarray) -> int | None:
+def step_offset(masks: list[np.ndarray], upper: int, lower: int, depth: np.ndarray,
+                meet: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> int | None:
     """Rows from the seam between two stacked masks down to the depth step between the two
     cartons' fronts (negative: up), where the step lies off the seam: the row of the largest
     change (over `STEP_HALF` rows either side) of the depth's median across the seam's columns,
     within `MAX_SHIFT` of the shorter mask's height, of at least `STEP_M` and at least twice the
     change at the seam itself. None where no such step is found (fronts on one plane, a step on
-    the seam already)."""
+    the seam already). `meet`: where the two meet (`_meeting`; found here when None)."""
     eu, el = _extent(masks[upper]), _extent(masks[lower])
     assert eu is not None and el is not None
-    cols, bottom, top = _meeting(masks[upper], masks[lower], eu, el)
+    cols, bottom, top = meet if meet is not None else _meeting(masks[upper], masks[lower], eu, el)
     if len(cols) < 10:
         return None
     reach = int(MAX_SHIFT * min(eu[1] - eu[0], el[1] - el[0]))
@@ -110,13 +118,17 @@ def step_offset(masks: list[np.ndarray], upper: int, lower: int, depth: np.ndarr
     return j - reach
 
 
-def moved_seam(masks: list[np.ndarray], upper: int, lower: int, rows: int) -> list[np.ndarray]:
+def moved_seam(masks: list[np.ndarray], upper: int, lower: int, rows: int,
+               meet: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> list[np.ndarray]:
     """The masks with the seam between `upper` and `lower` moved `rows` down (negative: up): in
-    each column the two meet, the pixels between the old seam and the new one, and the rows
-    between them that no mask held, go to the mask now on their side. Other masks untouched."""
-    eu, el = _extent(masks[upper]), _extent(masks[lower])
-    assert eu is not None and el is not None
-    cols, bottom, top = _meeting(masks[upper], masks[lower], eu, el)
+    each column the two meet (`meet`, from `_meeting`), the pixels between the old seam and the
+    new one, and the rows between them that no mask held, go to the mask now on their side.
+    Other masks untouched."""
+    if meet is None:
+        eu, el = _extent(masks[upper]), _extent(masks[lower])
+        assert eu is not None and el is not None
+        meet = _meeting(masks[upper], masks[lower], eu, el)
+    cols, bottom, top = meet
     out = list(masks)
     if not len(cols):
         return out
@@ -139,9 +151,12 @@ def depth_seams(masks: list[np.ndarray], depth: np.ndarray) -> tuple[list[np.nda
     rows moved down)."""
     moves = []
     for u, l in stacked_pairs(masks):
-        off = step_offset(masks, u, l, depth)
+        eu, el = _extent(masks[u]), _extent(masks[l])     # as they stand after the seams moved above
+        assert eu is not None and el is not None
+        meet = _meeting(masks[u], masks[l], eu, el)
+        off = step_offset(masks, u, l, depth, meet)
         if off is not None:
-            masks = moved_seam(masks, u, l, off)
+            masks = moved_seam(masks, u, l, off, meet)
             moves.append((u, l, off))
     return masks, moves
 

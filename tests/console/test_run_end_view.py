@@ -352,7 +352,7 @@ def test_button_names_in_the_supervisor_list_and_the_replay_are_quoted_not_code(
 
 def test_session_start_times_read_as_times_not_iso_strings():
     """The Sessions table showed '2026-11-28T13:18:58.136+00:00', the store's ISO text, as it was."""
-    from shelfpick.console.web.panels import start_time_words
+    from shelfpick.console.web.time_words import start_time_words
 
     assert start_time_words("2026-11-28T13:18:58.136+00:00") == "2026-11-28 13:18:58 UTC"
     assert start_time_words("2026-11-28T14:18:58.136+01:00") == "2026-11-28 14:18:58 +01:00"
