@@ -25,13 +25,14 @@ HERE = Path(__file__).resolve().parent
 STORE_TIMEOUT = 0.5      # the console store's busy timeout in the child (s); the lock is held far longer
 
 CHILD = textwrap.dedent("""
-    import sys, threading, time
+    import os, sys, threading, time
     sys.path[:0] = [{root!r}, {here!r}]
     from test_workflow import CodeShelfSource, small_scene, PASS
     said = threading.Lock()
-    def say(*words):                 # the listener's thread and this one print: whole lines only
-        with said:
-            print(*words, flush=True)
+    def say(*words):                 # the listener's thread and this one print: whole lines only,
+        line = " ".join(map(str, words)) + chr(10)   # each one os.write to the pipe (atomic under
+        with said:                   # PIPE_BUF), past sys.stdout's buffer: once, under load, two
+            os.write(1, line.encode())   # print()ed lines came joined ("ROBOT idleEXECUTE 1 ...")
     from shelfpick.console.store.sessions import SessionStore
     from shelfpick.console.workflow.machine import Workflow
     from shelfpick.console.robot.drivers import open_robot
